@@ -1,0 +1,29 @@
+//! The contract between the actor and learner processes.
+//!
+//! Every message that crosses a process boundary is one byte buffer: a fixed
+//! [`MessageHeader`] followed by a kind-specific payload. This crate defines the
+//! layouts, writes them, and — most importantly — validates untrusted bytes before
+//! anything reads them: [`decode`] returns a typed view or a typed [`ProtoError`],
+//! never panics, and never trusts a length it has not checked.
+//!
+//! This crate must stay small: it knows nothing of shared memory, networks,
+//! simulators or neural networks, so that every other crate can depend on it.
+
+mod arrays;
+mod error;
+mod frames;
+mod header;
+mod message;
+mod rollout;
+pub mod service;
+mod stats;
+mod weights;
+
+pub use arrays::{F32Array, U32Array};
+pub use error::ProtoError;
+pub use frames::{FrameBatch, FrameBatchView, LABEL_NEGATIVE, LABEL_POSITIVE, LABEL_UNKNOWN};
+pub use header::{MessageHeader, MessageKind, HEADER_LEN, LEARNER_ID, MAGIC, SCHEMA_VERSION};
+pub use message::{decode, encode, encode_into, encoded_len, Limits, Message, Payload};
+pub use rollout::{obs_bytes_from_f32, ObsDtype, RolloutChunk, RolloutView, MAX_ACTIONS, MAX_STEPS};
+pub use stats::{EpisodeStats, StatField};
+pub use weights::{WeightsBlob, WeightsView, WEIGHTS_POLICY_PREFIX, WEIGHTS_UNET_PREFIX};
