@@ -62,7 +62,7 @@ impl MessageKind {
 /// `#[repr(C)]` with fields ordered so there is no padding: the in-memory
 /// layout and the wire layout coincide on little-endian machines, but encoding
 /// and decoding go field by field so nothing depends on alignment.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[repr(C)]
 pub struct MessageHeader {
     /// Always [`MAGIC`].

@@ -1,1 +1,70 @@
-pub fn x(){}
+//! iceoryx2 shared-memory transport between actors and the learner.
+//!
+//! One function opens each side ([`LearnerPorts::open`], [`ActorPorts::open`])
+//! with every limit spelled out from a [`TransportConfig`]. Messages are byte
+//! slices in the layouts of the `proto` crate; this crate moves bytes and never
+//! interprets them beyond what it needs to count. It knows nothing of RL,
+//! simulators or HTTP.
+//!
+//! Delivery semantics:
+//! - actor → learner services never block the actor: when the learner's buffer
+//!   is full (or no learner is connected) the message is discarded and counted
+//!   ([`Delivery::Dropped`]); each publisher's memory is a fixed pre-allocated pool.
+//! - learner → actors `weights` keeps a history of 1, so an actor that starts
+//!   late (or restarts) receives the newest weights as soon as it connects.
+
+mod actor_side;
+mod cleanup;
+mod config;
+mod error;
+mod learner_side;
+mod services;
+
+pub use actor_side::ActorPorts;
+pub use cleanup::remove_dead_nodes;
+pub use config::TransportConfig;
+pub use error::TransportError;
+pub use learner_side::{LearnerPorts, ReceivedMessage};
+
+/// What happened to a message handed to a publisher.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Delivery {
+    /// Delivered to this many subscribers.
+    Delivered(usize),
+    /// Not delivered: no subscriber connected, its buffer was full, or the
+    /// publisher's pool had no free sample. Counted by the caller.
+    Dropped,
+}
+
+/// The iceoryx2 service flavour used between processes.
+pub(crate) type Ipc = iceoryx2::prelude::ipc::Service;
+
+/// Opens a node with our settings: no iceoryx2 signal handlers (binaries
+/// handle SIGINT/SIGTERM themselves) and a built-in config, so no config file
+/// is searched for.
+pub(crate) fn open_node(name: &str) -> Result<iceoryx2::prelude::Node<Ipc>, TransportError> {
+    use iceoryx2::prelude::*;
+    let node_name = NodeName::new(name).map_err(|e| TransportError::new("node name", name, e))?;
+    NodeBuilder::new()
+        .name(&node_name)
+        .config(&Config::default())
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<Ipc>()
+        .map_err(|e| TransportError::new("create node", name, e))
+}
+
+/// Builds a service name, checking it is a valid iceoryx2 name.
+pub(crate) fn service_name(
+    prefix: &str,
+    suffix: &str,
+) -> Result<iceoryx2::prelude::ServiceName, TransportError> {
+    let full = proto::service::name(prefix, suffix);
+    full.as_str()
+        .try_into()
+        .map_err(|e| TransportError::new("service name", &full, e))
+}
+
+/// Quietens iceoryx2's own logger to warnings unless `IOX2_LOG_LEVEL` says otherwise.
+pub fn init_iceoryx_logging() {
+    iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Warn);
+}

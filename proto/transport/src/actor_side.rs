@@ -1,0 +1,177 @@
+//! An actor's ports: three publishers, the weights subscriber, two events.
+
+use std::time::{Duration, Instant};
+
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use proto::{MessageHeader, MessageKind, Payload};
+
+use crate::config::TransportConfig;
+use crate::learner_side::ReceivedMessage;
+use crate::services::{open_event, open_pubsub, wakeup_service, weights_ready_service};
+use crate::{open_node, Delivery, Ipc, TransportError};
+
+struct Upstream {
+    kind: MessageKind,
+    publisher: Publisher<Ipc, [u8], ()>,
+    max_bytes: usize,
+    sequence: u64,
+}
+
+/// Everything one actor process reads from and writes to.
+pub struct ActorPorts {
+    actor_id: u32,
+    upstream: [Upstream; 3],
+    weights: Subscriber<Ipc, [u8], ()>,
+    wakeup: Notifier<Ipc>,
+    weights_ready: Listener<Ipc>,
+    _node: Node<Ipc>,
+}
+
+impl ActorPorts {
+    /// Opens the actor's side of the run described by `config`.
+    pub fn open(config: &TransportConfig, actor_id: u32) -> Result<Self, TransportError> {
+        if actor_id >= config.max_actors {
+            return Err(TransportError::new(
+                "open actor ports",
+                &format!("actor {actor_id}"),
+                format!("actor id must be below max_actors = {}", config.max_actors),
+            ));
+        }
+        let node = open_node(&format!("actor-{actor_id}"))?;
+        // Enough samples for a full learner buffer plus one in flight: when the
+        // pool is exhausted the next message is dropped, so memory stays fixed.
+        let pool = config.learner_buffer + 2;
+        let upstream = |kind: MessageKind| -> Result<Upstream, TransportError> {
+            let max_bytes = config.max_bytes(kind);
+            let publisher = open_pubsub(&node, config, kind)?
+                .publisher_builder()
+                .initial_max_slice_len(max_bytes)
+                .allocation_strategy(AllocationStrategy::Static)
+                .backpressure_strategy(BackpressureStrategy::DiscardData)
+                .max_loaned_samples(1)
+                .override_sample_preallocation(move |worst| worst.min(pool))
+                .create()
+                .map_err(|e| TransportError::new("create publisher", proto::service::for_kind(kind), e))?;
+            Ok(Upstream { kind, publisher, max_bytes, sequence: 0 })
+        };
+        let upstream = [
+            upstream(MessageKind::Rollout)?,
+            upstream(MessageKind::Frames)?,
+            upstream(MessageKind::Stats)?,
+        ];
+        let weights = open_pubsub(&node, config, MessageKind::Weights)?
+            .subscriber_builder()
+            .buffer_size(1)
+            .create()
+            .map_err(|e| TransportError::new("create subscriber", proto::service::WEIGHTS, e))?;
+        let wakeup = open_event(&node, config, &wakeup_service(config)?)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| TransportError::new("create notifier", proto::service::LEARNER_WAKEUP, e))?;
+        let weights_ready = open_event(&node, config, &weights_ready_service(config)?)?
+            .listener_builder()
+            .create()
+            .map_err(|e| TransportError::new("create listener", proto::service::WEIGHTS_READY, e))?;
+        Ok(Self { actor_id, upstream, weights, wakeup, weights_ready, _node: node })
+    }
+
+    /// Encodes `payload` straight into shared memory and sends it to the
+    /// learner. Sequence numbers are per kind and count every attempt, so the
+    /// learner sees dropped messages as gaps.
+    pub fn publish<P: Payload>(
+        &mut self,
+        payload: &P,
+        policy_version: u64,
+        unet_version: u64,
+    ) -> Result<Delivery, TransportError> {
+        let actor_id = self.actor_id;
+        let up = self.upstream_mut(P::KIND)?;
+        let len = proto::encoded_len(payload);
+        if len > up.max_bytes {
+            return Err(TransportError::new(
+                "publish",
+                proto::service::for_kind(P::KIND),
+                format!("message of {len} bytes exceeds the configured maximum of {} bytes; raise max_{}_bytes in the transport config", up.max_bytes, P::KIND.as_str()),
+            ));
+        }
+        up.sequence += 1;
+        let header = MessageHeader { actor_id, policy_version, unet_version, sequence: up.sequence, ..MessageHeader::default() };
+        let Ok(mut sample) = up.publisher.loan_slice(len) else {
+            return Ok(Delivery::Dropped);
+        };
+        proto::encode_into(payload, header, sample.payload_mut());
+        self.send(P::KIND, sample)
+    }
+
+    /// Sends bytes as they are, unvalidated: for tools and tests that exercise
+    /// the learner's validation.
+    pub fn publish_raw(&mut self, kind: MessageKind, bytes: &[u8]) -> Result<Delivery, TransportError> {
+        let up = self.upstream_mut(kind)?;
+        if bytes.len() > up.max_bytes || bytes.is_empty() {
+            return Ok(Delivery::Dropped);
+        }
+        let Ok(mut sample) = up.publisher.loan_slice(bytes.len()) else {
+            return Ok(Delivery::Dropped);
+        };
+        sample.payload_mut().copy_from_slice(bytes);
+        self.send(kind, sample)
+    }
+
+    fn upstream_mut(&mut self, kind: MessageKind) -> Result<&mut Upstream, TransportError> {
+        self.upstream
+            .iter_mut()
+            .find(|u| u.kind == kind)
+            .ok_or_else(|| TransportError::new("publish", proto::service::for_kind(kind), "actors do not publish this kind"))
+    }
+
+    fn send(
+        &self,
+        kind: MessageKind,
+        sample: iceoryx2::sample_mut::SampleMut<Ipc, [u8], ()>,
+    ) -> Result<Delivery, TransportError> {
+        let delivered = sample
+            .send()
+            .map_err(|e| TransportError::new("send on", proto::service::for_kind(kind), e))?;
+        if delivered == 0 {
+            return Ok(Delivery::Dropped);
+        }
+        let _ = self.wakeup.notify();
+        Ok(Delivery::Delivered(delivered))
+    }
+
+    /// The newest weights message that arrived since the last call, if any
+    /// (older ones are skipped).
+    pub fn take_latest_weights(&self) -> Result<Option<ReceivedMessage>, TransportError> {
+        let mut latest = None;
+        loop {
+            match self.weights.receive() {
+                Ok(Some(sample)) => latest = Some(ReceivedMessage::new(sample)),
+                Ok(None) => return Ok(latest),
+                Err(e) => return Err(TransportError::new("receive from", proto::service::WEIGHTS, e)),
+            }
+        }
+    }
+
+    /// Waits up to `timeout` for weights; `None` if none came.
+    pub fn wait_for_weights(&self, timeout: Duration) -> Result<Option<ReceivedMessage>, TransportError> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            if let Some(weights) = self.take_latest_weights()? {
+                return Ok(Some(weights));
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Ok(None);
+            }
+            // Wake on the learner's notification, or re-poll at least every 50 ms
+            // (history delivery to a late joiner sends no event).
+            self.weights_ready
+                .timed_wait(|_| {}, left.min(Duration::from_millis(50)))
+                .map_err(|e| TransportError::new("wait on", proto::service::WEIGHTS_READY, e))?;
+        }
+    }
+}

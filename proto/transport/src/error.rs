@@ -1,0 +1,19 @@
+//! The transport's one error type.
+
+/// A failure to open or use a shared-memory port, with what was being done.
+#[derive(Debug, thiserror::Error)]
+#[error("iceoryx2: {action} {subject:?} failed: {detail}. If an earlier run crashed, run `learner clean` (or start the learner, which cleans up) and check that all processes use the same transport settings")]
+pub struct TransportError {
+    /// What was being done.
+    pub action: &'static str,
+    /// The service, node or port concerned.
+    pub subject: String,
+    /// iceoryx2's error, formatted.
+    pub detail: String,
+}
+
+impl TransportError {
+    pub(crate) fn new(action: &'static str, subject: &str, detail: impl std::fmt::Debug) -> Self {
+        Self { action, subject: subject.to_string(), detail: format!("{detail:?}") }
+    }
+}

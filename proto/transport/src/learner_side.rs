@@ -1,0 +1,162 @@
+//! The learner's ports: three subscribers, the weights publisher, two events.
+
+use std::time::Duration;
+
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::port::update_connections::UpdateConnections;
+use iceoryx2::prelude::*;
+use iceoryx2::sample::Sample;
+use proto::{MessageHeader, MessageKind, WeightsBlob, LEARNER_ID};
+
+use crate::config::TransportConfig;
+use crate::services::{open_event, open_pubsub, wakeup_service, weights_ready_service};
+use crate::{open_node, Delivery, Ipc, TransportError};
+
+/// A message still in shared memory; dropping it returns the buffer.
+pub struct ReceivedMessage(Sample<Ipc, [u8], ()>);
+
+impl ReceivedMessage {
+    pub(crate) fn new(sample: Sample<Ipc, [u8], ()>) -> Self {
+        Self(sample)
+    }
+}
+
+impl ReceivedMessage {
+    /// The message bytes (header and payload), unvalidated.
+    pub fn bytes(&self) -> &[u8] {
+        self.0.payload()
+    }
+}
+
+/// Everything the learner process reads from and writes to.
+pub struct LearnerPorts {
+    node: Node<Ipc>,
+    rollouts: Subscriber<Ipc, [u8], ()>,
+    frames: Subscriber<Ipc, [u8], ()>,
+    stats: Subscriber<Ipc, [u8], ()>,
+    weights: Publisher<Ipc, [u8], ()>,
+    wakeup: Listener<Ipc>,
+    weights_ready: Notifier<Ipc>,
+    weights_sequence: u64,
+    max_weights_bytes: usize,
+}
+
+impl LearnerPorts {
+    /// Cleans up after crashed processes, then opens (or creates) every service
+    /// of the run described by `config`.
+    pub fn open(config: &TransportConfig) -> Result<Self, TransportError> {
+        crate::remove_dead_nodes()?;
+        let node = open_node("learner")?;
+        let subscriber = |kind: MessageKind| -> Result<Subscriber<Ipc, [u8], ()>, TransportError> {
+            let service = open_pubsub(&node, config, kind)?;
+            service
+                .subscriber_builder()
+                .buffer_size(config.learner_buffer)
+                .create()
+                .map_err(|e| TransportError::new("create subscriber", proto::service::for_kind(kind), e))
+        };
+        let rollouts = subscriber(MessageKind::Rollout)?;
+        let frames = subscriber(MessageKind::Frames)?;
+        let stats = subscriber(MessageKind::Stats)?;
+        let weights_service = open_pubsub(&node, config, MessageKind::Weights)?;
+        let pool = config.max_actors as usize + 4;
+        let weights = weights_service
+            .publisher_builder()
+            .initial_max_slice_len(config.max_weights_bytes)
+            .allocation_strategy(AllocationStrategy::Static)
+            .max_loaned_samples(1)
+            .override_sample_preallocation(move |worst| worst.min(pool))
+            .create()
+            .map_err(|e| TransportError::new("create publisher", proto::service::WEIGHTS, e))?;
+        let wakeup = open_event(&node, config, &wakeup_service(config)?)?
+            .listener_builder()
+            .create()
+            .map_err(|e| TransportError::new("create listener", proto::service::LEARNER_WAKEUP, e))?;
+        let weights_ready = open_event(&node, config, &weights_ready_service(config)?)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| TransportError::new("create notifier", proto::service::WEIGHTS_READY, e))?;
+        Ok(Self {
+            node,
+            rollouts,
+            frames,
+            stats,
+            weights,
+            wakeup,
+            weights_ready,
+            weights_sequence: 0,
+            max_weights_bytes: config.max_weights_bytes,
+        })
+    }
+
+    /// Blocks until an actor signals new data or `timeout` passes.
+    /// Returns true if woken by an actor.
+    pub fn wait(&self, timeout: Duration) -> Result<bool, TransportError> {
+        let mut woken = false;
+        self.wakeup
+            .timed_wait(|_| woken = true, timeout)
+            .map_err(|e| TransportError::new("wait on", proto::service::LEARNER_WAKEUP, e))?;
+        Ok(woken)
+    }
+
+    /// Takes the oldest pending message of `kind` (not `Weights`), if any.
+    pub fn receive(&self, kind: MessageKind) -> Result<Option<ReceivedMessage>, TransportError> {
+        let subscriber = match kind {
+            MessageKind::Rollout => &self.rollouts,
+            MessageKind::Frames => &self.frames,
+            MessageKind::Stats => &self.stats,
+            MessageKind::Weights => return Ok(None),
+        };
+        subscriber
+            .receive()
+            .map(|s| s.map(ReceivedMessage))
+            .map_err(|e| TransportError::new("receive from", proto::service::for_kind(kind), e))
+    }
+
+    /// Publishes a safetensors weights blob with its versions and wakes actors
+    /// that wait for weights.
+    pub fn publish_weights(
+        &mut self,
+        policy_version: u64,
+        unet_version: u64,
+        safetensors: &[u8],
+    ) -> Result<Delivery, TransportError> {
+        let blob = WeightsBlob(safetensors);
+        let len = proto::encoded_len(&blob);
+        if len > self.max_weights_bytes {
+            return Err(TransportError::new(
+                "publish",
+                proto::service::WEIGHTS,
+                format!("weights message of {len} bytes exceeds max_weights_bytes {}; raise it in the transport config", self.max_weights_bytes),
+            ));
+        }
+        let Ok(mut sample) = self.weights.loan_slice(len) else {
+            return Ok(Delivery::Dropped);
+        };
+        self.weights_sequence += 1;
+        let header = MessageHeader {
+            actor_id: LEARNER_ID,
+            policy_version,
+            unet_version,
+            sequence: self.weights_sequence,
+            ..MessageHeader::default()
+        };
+        proto::encode_into(&blob, header, sample.payload_mut());
+        let delivered = sample
+            .send()
+            .map_err(|e| TransportError::new("send on", proto::service::WEIGHTS, e))?;
+        // Waking is best effort: actors also poll the weights subscriber.
+        let _ = self.weights_ready.notify();
+        Ok(Delivery::Delivered(delivered))
+    }
+
+    /// Periodic upkeep: hands the newest weights to subscribers that joined
+    /// since the last publish, and removes resources of crashed actors.
+    pub fn maintain(&self) {
+        let _ = self.weights.update_connections();
+        let _ = self.node.try_cleanup_dead_nodes();
+    }
+}
