@@ -105,3 +105,24 @@ pub enum ProtoError {
     #[error("weights blob is not valid safetensors: {0}")]
     BadWeights(String),
 }
+
+impl ProtoError {
+    /// A short stable name for the failed check, for metrics labels.
+    pub fn reason(&self) -> &'static str {
+        match self {
+            ProtoError::Truncated { .. } => "truncated",
+            ProtoError::BadMagic(_) => "bad_magic",
+            ProtoError::BadVersion { .. } => "bad_version",
+            ProtoError::UnknownKind(_) => "unknown_kind",
+            ProtoError::WrongKind { .. } => "wrong_kind",
+            ProtoError::PayloadLengthMismatch { .. } => "length_mismatch",
+            ProtoError::PayloadTooLarge { .. } => "too_large",
+            ProtoError::BadChecksum { .. } => "bad_checksum",
+            ProtoError::LayoutMismatch { .. } => "layout_mismatch",
+            ProtoError::OutOfRange { .. } => "out_of_range",
+            ProtoError::BadFloat { .. } => "bad_float",
+            ProtoError::MaskedAction { .. } => "masked_action",
+            ProtoError::BadWeights(_) => "bad_weights",
+        }
+    }
+}

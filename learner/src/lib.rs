@@ -1,0 +1,13 @@
+//! The learner process as a library: configuration, validation of incoming
+//! messages, the policy update, checkpoints, and the HTTP metrics edge.
+//!
+//! It never runs a simulator or a map; it only sees what actors send through
+//! the `transport` crate, in the layouts of `proto`.
+
+pub mod checkpoint;
+pub mod config;
+pub mod http;
+pub mod metrics;
+pub mod service;
+pub mod status;
+pub mod train;

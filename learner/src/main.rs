@@ -1,0 +1,189 @@
+//! `learner`: receives rollouts, labelled frames and stats from actors over
+//! shared memory, trains, broadcasts weights, checkpoints, and serves metrics.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
+
+use anyhow::{bail, Context};
+use clap::{Parser, Subcommand};
+use learner::config::LearnerConfig;
+use learner::service::{resume, Learner, Shared};
+use learner::status::LearnerStatus;
+use learner::train::Trainer;
+use tracing_subscriber::EnvFilter;
+
+#[derive(Parser)]
+#[command(version, about = "The learner of the affordance-exploration service", long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run the learner: receive from actors, train, publish weights, serve metrics.
+    Serve(ServeArgs),
+    /// Print every setting with its default as TOML (a starting config file).
+    PrintConfig,
+    /// Remove shared-memory resources left by crashed learner or actor processes.
+    Clean,
+}
+
+#[derive(clap::Args)]
+struct ServeArgs {
+    /// TOML config file; missing keys take their defaults (see `learner print-config`).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Directory of this run (config, checkpoints). Default: runs/<UTC timestamp>.
+    #[arg(long, conflicts_with = "resume")]
+    run_dir: Option<PathBuf>,
+    /// Resume the run in this directory from its newest checkpoint that verifies.
+    #[arg(long, value_name = "RUN_DIR")]
+    resume: Option<PathBuf>,
+    /// HTTP address for /metrics, /api/status, /healthz (overrides the config; port 0 = any free port).
+    #[arg(long)]
+    http_addr: Option<String>,
+    /// Service-name prefix shared with the actors (overrides the config).
+    #[arg(long)]
+    service_prefix: Option<String>,
+    /// Most actors that may connect (overrides the config).
+    #[arg(long)]
+    max_actors: Option<u32>,
+}
+
+fn main() -> anyhow::Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info")))
+        .with_writer(std::io::stderr)
+        .init();
+    transport::init_iceoryx_logging();
+    match Cli::parse().command {
+        Command::Serve(args) => serve(args),
+        Command::PrintConfig => {
+            print!("{}", LearnerConfig::default().to_toml());
+            Ok(())
+        }
+        Command::Clean => {
+            let removed = transport::remove_dead_nodes()?;
+            println!("removed the resources of {removed} dead node(s)");
+            Ok(())
+        }
+    }
+}
+
+fn default_run_dir() -> PathBuf {
+    let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+    PathBuf::from("runs").join(format!("run-{secs}"))
+}
+
+fn load_config(args: &ServeArgs, run_dir: &Path) -> anyhow::Result<LearnerConfig> {
+    let saved = run_dir.join("config.toml");
+    let mut config = match (&args.config, &args.resume) {
+        (Some(path), _) => LearnerConfig::from_toml_file(path)?,
+        (None, Some(_)) if saved.exists() => LearnerConfig::from_toml_file(&saved)?,
+        _ => LearnerConfig::default(),
+    };
+    if let Some(addr) = &args.http_addr {
+        config.http_addr = addr.clone();
+    }
+    if let Some(prefix) = &args.service_prefix {
+        config.transport.service_prefix = prefix.clone();
+    }
+    if let Some(n) = args.max_actors {
+        config.transport.max_actors = n;
+    }
+    config.validate()?;
+    Ok(config)
+}
+
+fn serve(args: ServeArgs) -> anyhow::Result<()> {
+    let run_dir = match (&args.resume, &args.run_dir) {
+        (Some(dir), _) => {
+            if !dir.is_dir() {
+                bail!("--resume {}: no such run directory", dir.display());
+            }
+            dir.clone()
+        }
+        (None, Some(dir)) => dir.clone(),
+        (None, None) => default_run_dir(),
+    };
+    let config = load_config(&args, &run_dir)?;
+    std::fs::create_dir_all(&run_dir).with_context(|| format!("creating run directory {}", run_dir.display()))?;
+    std::fs::write(run_dir.join("config.toml"), config.to_toml()).context("saving config.toml in the run directory")?;
+    let run_id = run_dir.file_name().and_then(|n| n.to_str()).unwrap_or("run").to_string();
+    eprintln!("learner config (run {run_id}):\n{}", config.to_toml());
+    tracing::info!("{}", config.transport.describe());
+
+    let checkpoint_dir = run_dir.join("checkpoints");
+    let mut trainer = Trainer::new(config.policy.clone());
+    let mut status = LearnerStatus::new(run_id);
+    if args.resume.is_some() {
+        resume(&checkpoint_dir, &mut trainer, &mut status)?;
+    }
+
+    let shared = Arc::new(Shared { status: Mutex::new(status), shutdown: Default::default(), config: config.clone() });
+
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    let listener = runtime
+        .block_on(tokio::net::TcpListener::bind(&config.http_addr))
+        .with_context(|| format!("binding the metrics endpoint to {} (in use? pick another with --http-addr)", config.http_addr))?;
+    let addr: SocketAddr = listener.local_addr()?;
+
+    // iceoryx2 ports are not Send: the training thread opens its own and
+    // reports whether that worked before the endpoint is announced.
+    let loop_shared = shared.clone();
+    let (opened_tx, opened_rx) = std::sync::mpsc::channel();
+    let training = std::thread::Builder::new().name("training".into()).spawn(move || {
+        let ports = match transport::LearnerPorts::open(&loop_shared.config.transport) {
+            Ok(ports) => ports,
+            Err(e) => {
+                let _ = opened_tx.send(Err(e));
+                return Ok(());
+            }
+        };
+        let _ = opened_tx.send(Ok(()));
+        let result = Learner::new(loop_shared.clone(), ports, trainer, checkpoint_dir).run();
+        loop_shared.shutdown.store(true, Ordering::Relaxed);
+        result
+    })?;
+    opened_rx
+        .recv()
+        .context("the training thread died while opening the shared-memory services")?
+        .context("opening the shared-memory services (is another learner running with the same service prefix?)")?;
+    std::fs::write(run_dir.join("http.addr"), addr.to_string()).context("writing http.addr")?;
+    println!("metrics: http://{addr}/metrics  status: http://{addr}/api/status");
+
+    let http_shared = shared.clone();
+    runtime.block_on(async move {
+        let shutdown = async move {
+            use tokio::signal::unix::{signal, SignalKind};
+            let (Ok(mut int), Ok(mut term)) = (signal(SignalKind::interrupt()), signal(SignalKind::terminate())) else {
+                tracing::error!("cannot install signal handlers");
+                return;
+            };
+            let watch = http_shared.clone();
+            let stopped = async move {
+                while !watch.shutdown.load(Ordering::Relaxed) {
+                    tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+                }
+            };
+            tokio::select! {
+                _ = int.recv() => tracing::info!("SIGINT received"),
+                _ = term.recv() => tracing::info!("SIGTERM received"),
+                _ = stopped => {}
+            }
+            http_shared.shutdown.store(true, Ordering::Relaxed);
+        };
+        axum::serve(listener, learner::http::router(shared)).with_graceful_shutdown(shutdown).await
+    })?;
+    match training.join() {
+        Ok(result) => result.context("the training loop failed"),
+        Err(_) => bail!("the training loop panicked"),
+    }
+}

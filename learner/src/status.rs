@@ -1,0 +1,253 @@
+//! What the learner knows about the run: counters, versions, per-actor state.
+//! One struct behind a mutex; `/api/status` and `/metrics` both render the same
+//! [`StatusSnapshot`], so they always agree.
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use proto::{EpisodeStats, MessageKind};
+use serde::Serialize;
+
+use crate::train::UpdateStats;
+
+/// Per-actor book-keeping.
+#[derive(Debug, Clone)]
+pub struct ActorState {
+    last_seen: Instant,
+    /// Messages accepted from this actor, per kind.
+    pub received: BTreeMap<&'static str, u64>,
+    /// Messages this actor sent that never arrived (gaps in its sequence numbers).
+    pub dropped: u64,
+    /// Environment steps in accepted rollout chunks.
+    pub env_steps: u64,
+    /// Current policy version minus the version its newest chunk was produced with.
+    pub policy_lag: u64,
+    /// Policy version of its newest chunk.
+    pub policy_version: u64,
+    next_sequence: BTreeMap<&'static str, u64>,
+}
+
+/// The learner's live state.
+#[derive(Debug)]
+pub struct LearnerStatus {
+    /// Run id (the run directory's name).
+    pub run_id: String,
+    started: Instant,
+    /// Environment steps trained on.
+    pub env_steps: u64,
+    /// Policy updates done.
+    pub updates: u64,
+    /// Episodes reported.
+    pub episodes: u64,
+    /// Current policy version.
+    pub policy_version: u64,
+    /// Current U-Net version.
+    pub unet_version: u64,
+    /// Weights messages published.
+    pub weights_published: u64,
+    /// Checkpoints written by this process.
+    pub checkpoints_written: u64,
+    /// Step of the newest checkpoint.
+    pub last_checkpoint_step: Option<u64>,
+    /// Accepted messages per kind.
+    pub received: BTreeMap<&'static str, u64>,
+    /// Rejected messages per (service, reason).
+    pub rejected: BTreeMap<(&'static str, &'static str), u64>,
+    /// Chunks that were valid but could not train the policy.
+    pub untrainable_chunks: u64,
+    /// Latest update's statistics.
+    pub last_update: Option<UpdateStats>,
+    /// Latest episode's reported metrics.
+    pub last_episode: BTreeMap<&'static str, f32>,
+    /// Per-actor state, by actor id.
+    pub actors: BTreeMap<u32, ActorState>,
+}
+
+/// A consistent copy of the status for rendering.
+#[derive(Debug, Clone, Serialize)]
+pub struct StatusSnapshot {
+    /// Run id.
+    pub run_id: String,
+    /// Seconds since the learner started.
+    pub uptime_s: f64,
+    /// Environment steps trained on.
+    pub env_steps: u64,
+    /// Policy updates done.
+    pub updates: u64,
+    /// Episodes reported.
+    pub episodes: u64,
+    /// Model versions.
+    pub policy_version: u64,
+    /// U-Net version (0 until the U-Net trains).
+    pub unet_version: u64,
+    /// Weights messages published.
+    pub weights_published: u64,
+    /// Checkpoints written by this process.
+    pub checkpoints_written: u64,
+    /// Step of the newest checkpoint.
+    pub last_checkpoint_step: Option<u64>,
+    /// Actors seen within the timeout.
+    pub actors_alive: usize,
+    /// Accepted messages per kind.
+    pub received: BTreeMap<String, u64>,
+    /// Rejected messages per service and reason.
+    pub rejected: Vec<RejectedCount>,
+    /// Messages lost in transit per kind (sequence gaps), all actors.
+    pub dropped: u64,
+    /// Valid chunks that did not fit the policy's shapes.
+    pub untrainable_chunks: u64,
+    /// Latest update's statistics.
+    pub last_update: Option<UpdateStats>,
+    /// Latest episode's metrics.
+    pub last_episode: BTreeMap<String, f32>,
+    /// Every actor ever seen.
+    pub actors: Vec<ActorSnapshot>,
+}
+
+/// One row of rejected-message counts.
+#[derive(Debug, Clone, Serialize)]
+pub struct RejectedCount {
+    /// Service the message arrived on.
+    pub service: String,
+    /// The failed check.
+    pub reason: String,
+    /// How many.
+    pub count: u64,
+}
+
+/// One actor in the snapshot.
+#[derive(Debug, Clone, Serialize)]
+pub struct ActorSnapshot {
+    /// Actor id.
+    pub id: u32,
+    /// Seen within the timeout.
+    pub alive: bool,
+    /// Seconds since its last accepted message.
+    pub last_seen_s: f64,
+    /// Accepted messages per kind.
+    pub received: BTreeMap<String, u64>,
+    /// Messages lost in transit.
+    pub dropped: u64,
+    /// Environment steps it contributed.
+    pub env_steps: u64,
+    /// Policy lag of its newest chunk.
+    pub policy_lag: u64,
+}
+
+impl LearnerStatus {
+    /// A fresh status for `run_id`.
+    pub fn new(run_id: String) -> Self {
+        Self {
+            run_id,
+            started: Instant::now(),
+            env_steps: 0,
+            updates: 0,
+            episodes: 0,
+            policy_version: 0,
+            unet_version: 0,
+            weights_published: 0,
+            checkpoints_written: 0,
+            last_checkpoint_step: None,
+            received: BTreeMap::new(),
+            rejected: BTreeMap::new(),
+            untrainable_chunks: 0,
+            last_update: None,
+            last_episode: BTreeMap::new(),
+            actors: BTreeMap::new(),
+        }
+    }
+
+    /// Records an accepted message and returns how many of the actor's earlier
+    /// messages of this kind were lost (sequence gap).
+    pub fn accept(&mut self, actor_id: u32, kind: MessageKind, sequence: u64, policy_version: u64) -> u64 {
+        let now = Instant::now();
+        let current = self.policy_version;
+        let actor = self.actors.entry(actor_id).or_insert_with(|| ActorState {
+            last_seen: now,
+            received: BTreeMap::new(),
+            dropped: 0,
+            env_steps: 0,
+            policy_lag: 0,
+            policy_version: 0,
+            next_sequence: BTreeMap::new(),
+        });
+        actor.last_seen = now;
+        *actor.received.entry(kind.as_str()).or_default() += 1;
+        *self.received.entry(kind.as_str()).or_default() += 1;
+        // A restarted actor starts again at 1: only forward gaps count.
+        let expected = actor.next_sequence.get(kind.as_str()).copied().unwrap_or(sequence);
+        let lost = sequence.saturating_sub(expected);
+        actor.dropped += lost;
+        actor.next_sequence.insert(kind.as_str(), sequence + 1);
+        if kind == MessageKind::Rollout {
+            actor.policy_version = policy_version;
+            actor.policy_lag = current.saturating_sub(policy_version);
+        }
+        lost
+    }
+
+    /// Adds environment steps from an accepted chunk.
+    pub fn add_steps(&mut self, actor_id: u32, steps: u64) {
+        self.env_steps += steps;
+        if let Some(actor) = self.actors.get_mut(&actor_id) {
+            actor.env_steps += steps;
+        }
+    }
+
+    /// Records a finished episode's metrics.
+    pub fn add_episode(&mut self, stats: &EpisodeStats) {
+        self.episodes += 1;
+        for (field, value) in stats.present() {
+            self.last_episode.insert(field.as_str(), value);
+        }
+    }
+
+    /// Counts a rejected message.
+    pub fn reject(&mut self, kind: MessageKind, reason: &'static str) {
+        *self.rejected.entry((proto::service::for_kind(kind), reason)).or_default() += 1;
+    }
+
+    /// A consistent copy for rendering.
+    pub fn snapshot(&self, actor_timeout_s: f64) -> StatusSnapshot {
+        let actors: Vec<ActorSnapshot> = self
+            .actors
+            .iter()
+            .map(|(&id, a)| {
+                let last_seen_s = a.last_seen.elapsed().as_secs_f64();
+                ActorSnapshot {
+                    id,
+                    alive: last_seen_s <= actor_timeout_s,
+                    last_seen_s,
+                    received: a.received.iter().map(|(k, v)| (k.to_string(), *v)).collect(),
+                    dropped: a.dropped,
+                    env_steps: a.env_steps,
+                    policy_lag: a.policy_lag,
+                }
+            })
+            .collect();
+        StatusSnapshot {
+            run_id: self.run_id.clone(),
+            uptime_s: self.started.elapsed().as_secs_f64(),
+            env_steps: self.env_steps,
+            updates: self.updates,
+            episodes: self.episodes,
+            policy_version: self.policy_version,
+            unet_version: self.unet_version,
+            weights_published: self.weights_published,
+            checkpoints_written: self.checkpoints_written,
+            last_checkpoint_step: self.last_checkpoint_step,
+            actors_alive: actors.iter().filter(|a| a.alive).count(),
+            received: self.received.iter().map(|(k, v)| (k.to_string(), *v)).collect(),
+            rejected: self
+                .rejected
+                .iter()
+                .map(|(&(service, reason), &count)| RejectedCount { service: service.into(), reason: reason.into(), count })
+                .collect(),
+            dropped: actors.iter().map(|a| a.dropped).sum(),
+            untrainable_chunks: self.untrainable_chunks,
+            last_update: self.last_update,
+            last_episode: self.last_episode.iter().map(|(k, v)| (k.to_string(), *v)).collect(),
+            actors,
+        }
+    }
+}
