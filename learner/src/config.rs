@@ -58,7 +58,7 @@ impl Default for LearnerConfig {
         Self {
             http_addr: "127.0.0.1:9464".into(),
             actor_timeout_s: 10.0,
-            checkpoint_every_updates: 500,
+            checkpoint_every_updates: 10_000,
             checkpoint_interval_s: 300.0,
             keep_checkpoints: 3,
             policy: PolicyConfig::default(),

@@ -132,6 +132,8 @@ pub struct ActorSnapshot {
     pub env_steps: u64,
     /// Policy lag of its newest chunk.
     pub policy_lag: u64,
+    /// Policy version its newest chunk was produced with.
+    pub policy_version: u64,
 }
 
 impl LearnerStatus {
@@ -222,6 +224,7 @@ impl LearnerStatus {
                     dropped: a.dropped,
                     env_steps: a.env_steps,
                     policy_lag: a.policy_lag,
+                    policy_version: a.policy_version,
                 }
             })
             .collect();

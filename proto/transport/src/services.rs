@@ -36,7 +36,8 @@ pub(crate) fn open_pubsub(
             .max_publishers(1 + spare)
             .max_subscribers(actors + spare)
             .subscriber_max_buffer_size(1)
-            .subscriber_max_borrowed_samples(1)
+            // An actor holds its newest sample while it looks for a newer one.
+            .subscriber_max_borrowed_samples(2)
             .history_size(1)
             .enable_safe_overflow(true),
     };

@@ -1,0 +1,9 @@
+//! The actor process as a library: the [`env::Environment`] interface, the
+//! episode loop that acts with the broadcast policy and streams rollouts and
+//! stats to the learner, and the actor's configuration.
+//!
+//! It never trains: weights only arrive from the learner.
+
+pub mod config;
+pub mod env;
+pub mod episode_loop;
