@@ -1,0 +1,177 @@
+//! Helpers for system tests: start the real `learner` and `actor` binaries,
+//! talk HTTP to the learner, and clean up every process on drop.
+//!
+//! The binaries must be built first (`cargo build --workspace --bins`, as the
+//! README's test command does); nothing here mocks a component.
+
+use std::fs::File;
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Path of a workspace binary next to the running test executable.
+pub fn bin(name: &str) -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    let dir = exe.parent().and_then(Path::parent).expect("target/<profile> directory");
+    let path = dir.join(name);
+    assert!(path.exists(), "{} not found: build the binaries first with `cargo build --workspace --bins`", path.display());
+    path
+}
+
+/// A unique scratch directory under the target directory.
+pub fn scratch_dir(test: &str) -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    let dir = exe.parent().and_then(Path::parent).expect("target dir").join("system-tests").join(format!("{test}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("creating scratch dir");
+    dir
+}
+
+/// Polls `f` every 50 ms until it returns `Some` or `timeout` passes.
+pub fn wait_for<T>(timeout: Duration, what: &str, mut f: impl FnMut() -> Option<T>) -> T {
+    let deadline = Instant::now() + timeout;
+    loop {
+        if let Some(v) = f() {
+            return v;
+        }
+        assert!(Instant::now() < deadline, "timed out after {timeout:?} waiting for {what}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// A child process whose stderr goes to a log file; killed on drop.
+pub struct Process {
+    /// The child.
+    pub child: Child,
+    /// Its combined stdout/stderr log.
+    pub log: PathBuf,
+}
+
+impl Process {
+    /// Starts `program args…`, logging to `log`.
+    pub fn start(program: &Path, args: &[String], log: PathBuf) -> Self {
+        let out = File::create(&log).expect("creating log file");
+        let err = out.try_clone().expect("cloning log handle");
+        let child = Command::new(program)
+            .args(args)
+            .env("RUST_BACKTRACE", "0")
+            .stdout(Stdio::from(out))
+            .stderr(Stdio::from(err))
+            .spawn()
+            .unwrap_or_else(|e| panic!("starting {}: {e}", program.display()));
+        Self { child, log }
+    }
+
+    /// The log so far.
+    pub fn log_text(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    /// Sends a signal (e.g. `libc::SIGKILL`).
+    pub fn signal(&self, signal: i32) {
+        // SAFETY: kill(2) on our own child's pid has no memory-safety preconditions.
+        unsafe {
+            libc::kill(self.child.id() as i32, signal);
+        }
+    }
+
+    /// Waits for exit up to `timeout`; returns the exit status if it exited.
+    pub fn wait_exit(&mut self, timeout: Duration) -> Option<std::process::ExitStatus> {
+        let deadline = Instant::now() + timeout;
+        while Instant::now() < deadline {
+            if let Ok(Some(status)) = self.child.try_wait() {
+                return Some(status);
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        None
+    }
+}
+
+impl Drop for Process {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// A running learner and where its HTTP endpoint is.
+pub struct Learner {
+    /// The process.
+    pub process: Process,
+    /// `host:port` of the HTTP endpoint.
+    pub addr: String,
+}
+
+impl Learner {
+    /// Starts `learner serve` with `args` (which must name a run directory via
+    /// `--run-dir` or `--resume`) and waits until `/healthz` answers.
+    pub fn start(run_dir: &Path, args: &[String], log: PathBuf) -> Self {
+        let addr_file = run_dir.join("http.addr");
+        let _ = std::fs::remove_file(&addr_file);
+        let mut full = vec!["serve".to_string(), "--http-addr".into(), "127.0.0.1:0".into()];
+        full.extend_from_slice(args);
+        let mut process = Process::start(&bin("learner"), &full, log);
+        let addr = wait_for(Duration::from_secs(20), "the learner's http.addr", || {
+            if let Ok(Some(status)) = process.child.try_wait() {
+                panic!("learner exited early ({status}):\n{}", process.log_text());
+            }
+            std::fs::read_to_string(&addr_file).ok().filter(|a| !a.is_empty())
+        });
+        wait_for(Duration::from_secs(10), "/healthz", || http_get(&addr, "/healthz").filter(|(code, _)| *code == 200));
+        Self { process, addr }
+    }
+
+    /// `/api/status` as JSON.
+    pub fn status(&self) -> serde_json::Value {
+        let (code, body) = http_get(&self.addr, "/api/status").expect("learner answers /api/status");
+        assert_eq!(code, 200, "{body}");
+        serde_json::from_str(&body).expect("status is JSON")
+    }
+
+    /// `/metrics` text.
+    pub fn metrics(&self) -> String {
+        let (code, body) = http_get(&self.addr, "/metrics").expect("learner answers /metrics");
+        assert_eq!(code, 200);
+        body
+    }
+}
+
+/// Starts an actor with the bandit fixture.
+pub fn start_actor(id: u32, prefix: &str, dir: &Path, extra: &[&str]) -> Process {
+    let mut args = vec![
+        "--actor-id".to_string(),
+        id.to_string(),
+        "--learner".into(),
+        prefix.into(),
+        "--env".into(),
+        "bandit-fixture".into(),
+    ];
+    args.extend(extra.iter().map(|s| s.to_string()));
+    Process::start(&bin("actor"), &args, dir.join(format!("actor-{id}-{}.log", now_ms())))
+}
+
+fn now_ms() -> u128 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_millis()).unwrap_or(0)
+}
+
+/// A plain HTTP/1.0 GET; `None` if the connection fails.
+pub fn http_get(addr: &str, path: &str) -> Option<(u16, String)> {
+    let mut stream = TcpStream::connect(addr).ok()?;
+    stream.set_read_timeout(Some(Duration::from_secs(5))).ok()?;
+    write!(stream, "GET {path} HTTP/1.0\r\nHost: {addr}\r\n\r\n").ok()?;
+    let mut response = String::new();
+    stream.read_to_string(&mut response).ok()?;
+    let (head, body) = response.split_once("\r\n\r\n")?;
+    let code = head.split_whitespace().nth(1)?.parse().ok()?;
+    Some((code, body.to_string()))
+}
+
+/// Reads one sample's value from Prometheus text (`name` with exact labels, e.g. `afx_actors_alive`).
+pub fn metric_value(text: &str, name_and_labels: &str) -> Option<f64> {
+    text.lines()
+        .filter(|l| !l.starts_with('#'))
+        .find_map(|l| l.strip_prefix(name_and_labels).and_then(|rest| rest.strip_prefix(' ')).and_then(|v| v.trim().parse().ok()))
+}
