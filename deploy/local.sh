@@ -1,0 +1,153 @@
+#!/usr/bin/env bash
+# Starts one learner and N actors on this host, supervises the actors, and shuts
+# everything down cleanly on Ctrl-C. See `deploy/local.sh --help`.
+set -euo pipefail
+
+usage() {
+  cat <<'USAGE'
+Usage: deploy/local.sh --actors N [options] [-- extra learner args]
+
+Builds release binaries, starts the learner, then N actors; restarts an actor
+that exits abnormally (with back-off); prints the metrics URL; on Ctrl-C stops
+actors, then the learner (which writes a final checkpoint), and removes
+shared-memory resources.
+
+Options:
+  --actors N        number of actor processes (required)
+  --run-dir DIR     run directory (config, checkpoints, logs); default runs/run-<time>
+  --resume          resume the run in --run-dir from its newest valid checkpoint
+  --env ENV         actor environment (default bandit-fixture: a wiring test
+                    fixture until the simulator lands; see `actor --help`)
+  --port PORT       HTTP port of the learner's metrics endpoint (default 9464)
+  --debug           use debug builds (faster to build, slower to run)
+  -h, --help        this help
+Everything after `--` is passed to `learner serve`.
+USAGE
+}
+
+ACTORS="" RUN_DIR="" RESUME=0 ENV_KIND="bandit-fixture" PORT=9464 PROFILE=release
+EXTRA=()
+while [[ $# -gt 0 ]]; do
+  case "$1" in
+    --actors) ACTORS="${2:?--actors needs a number}"; shift 2 ;;
+    --run-dir) RUN_DIR="${2:?--run-dir needs a directory}"; shift 2 ;;
+    --resume) RESUME=1; shift ;;
+    --env) ENV_KIND="${2:?--env needs a value}"; shift 2 ;;
+    --port) PORT="${2:?--port needs a number}"; shift 2 ;;
+    --debug) PROFILE=debug; shift ;;
+    -h|--help) usage; exit 0 ;;
+    --) shift; EXTRA=("$@"); break ;;
+    *) echo "local.sh: unknown argument '$1'" >&2; usage >&2; exit 2 ;;
+  esac
+done
+[[ "$ACTORS" =~ ^[1-9][0-9]*$ ]] || { echo "local.sh: --actors N is required (N >= 1)" >&2; usage >&2; exit 2; }
+if [[ $RESUME -eq 1 && -z "$RUN_DIR" ]]; then
+  echo "local.sh: --resume needs --run-dir DIR (the run to resume)" >&2; exit 2
+fi
+
+cd "$(dirname "$0")/.."
+REPO=$(pwd)
+
+# System packages this script needs.
+missing=()
+for cmd_pkg in curl:curl; do
+  command -v "${cmd_pkg%%:*}" >/dev/null 2>&1 || missing+=("${cmd_pkg##*:}")
+done
+if [[ ${#missing[@]} -gt 0 ]]; then
+  if [[ $(id -u) -eq 0 ]] && command -v apt-get >/dev/null; then
+    echo "installing: ${missing[*]}"
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null
+  else
+    echo "local.sh: missing packages: ${missing[*]} (install them: sudo apt-get install ${missing[*]})" >&2; exit 1
+  fi
+fi
+command -v cargo >/dev/null || { echo "local.sh: cargo not found: install Rust from https://rustup.rs" >&2; exit 1; }
+
+echo "building $PROFILE binaries..."
+if [[ $PROFILE == release ]]; then
+  cargo build --release -p learner -p actor
+else
+  cargo build -p learner -p actor
+fi
+TARGET_DIR=$(cargo metadata --format-version 1 --no-deps | python3 -c 'import json,sys; print(json.load(sys.stdin)["target_directory"])' 2>/dev/null || echo "$REPO/target")
+BIN="$TARGET_DIR/$PROFILE"
+
+[[ -n "$RUN_DIR" ]] || RUN_DIR="runs/run-$(date -u +%Y%m%dT%H%M%SZ)"
+mkdir -p "$RUN_DIR/logs"
+RUN_DIR=$(cd "$RUN_DIR" && pwd)
+LOGS="$RUN_DIR/logs"
+PREFIX="afx-$(basename "$RUN_DIR" | tr -cd 'A-Za-z0-9_-')"
+STOP_FILE="$LOGS/.stopping"
+rm -f "$STOP_FILE" "$RUN_DIR/http.addr"
+
+LEARNER_ARGS=(serve --service-prefix "$PREFIX" --max-actors "$ACTORS" --http-addr "127.0.0.1:$PORT")
+if [[ $RESUME -eq 1 ]]; then LEARNER_ARGS+=(--resume "$RUN_DIR"); else LEARNER_ARGS+=(--run-dir "$RUN_DIR"); fi
+echo "starting the learner (log: $LOGS/learner.log)"
+"$BIN/learner" "${LEARNER_ARGS[@]}" "${EXTRA[@]}" >>"$LOGS/learner.log" 2>&1 &
+LEARNER_PID=$!
+
+for _ in $(seq 1 200); do
+  [[ -s "$RUN_DIR/http.addr" ]] && break
+  kill -0 "$LEARNER_PID" 2>/dev/null || { echo "local.sh: the learner exited at start:" >&2; tail -n 20 "$LOGS/learner.log" >&2; exit 1; }
+  sleep 0.1
+done
+[[ -s "$RUN_DIR/http.addr" ]] || { echo "local.sh: the learner did not come up; see $LOGS/learner.log" >&2; kill "$LEARNER_PID"; exit 1; }
+ADDR=$(cat "$RUN_DIR/http.addr")
+curl -fsS --retry 20 --retry-delay 0 --retry-connrefused "http://$ADDR/healthz" >/dev/null \
+  || { echo "local.sh: the learner's endpoint http://$ADDR does not answer; see $LOGS/learner.log" >&2; kill "$LEARNER_PID"; exit 1; }
+
+supervise_actor() {
+  local id=$1 restarts=0 backoff=1 code
+  while :; do
+    "$BIN/actor" --actor-id "$id" --learner "$PREFIX" --config "$RUN_DIR/config.toml" --env "$ENV_KIND" \
+      >>"$LOGS/actor-$id.log" 2>&1 &
+    echo $! >"$LOGS/actor-$id.pid"
+    code=0; wait $! || code=$?
+    [[ -e "$STOP_FILE" ]] && return 0
+    if [[ $code -eq 0 ]]; then echo "actor $id finished"; return 0; fi
+    restarts=$((restarts + 1))
+    echo "actor $id exited with status $code; restart #$restarts in ${backoff}s (log: $LOGS/actor-$id.log)"
+    sleep "$backoff"
+    backoff=$((backoff * 2 > 30 ? 30 : backoff * 2))
+  done
+}
+
+SUPERVISORS=()
+for ((i = 0; i < ACTORS; i++)); do
+  supervise_actor "$i" &
+  SUPERVISORS+=($!)
+done
+
+shutdown() {
+  trap - INT TERM
+  echo; echo "stopping: actors first, then the learner (final checkpoint)..."
+  touch "$STOP_FILE"
+  for ((i = 0; i < ACTORS; i++)); do
+    [[ -s "$LOGS/actor-$i.pid" ]] && kill -INT "$(cat "$LOGS/actor-$i.pid")" 2>/dev/null || true
+  done
+  wait "${SUPERVISORS[@]}" 2>/dev/null || true
+  kill -INT "$LEARNER_PID" 2>/dev/null || true
+  local code=0; wait "$LEARNER_PID" || code=$?
+  "$BIN/learner" clean >/dev/null 2>&1 || true
+  rm -f "$STOP_FILE" "$LOGS"/actor-*.pid
+  echo "stopped (learner exit status $code). Resume with: deploy/local.sh --actors $ACTORS --run-dir $RUN_DIR --resume"
+  exit "$code"
+}
+trap shutdown INT TERM
+
+echo "run:      $RUN_DIR"
+echo "metrics:  http://$ADDR/metrics"
+echo "status:   http://$ADDR/api/status   (curl -s http://$ADDR/api/status)"
+echo "actors:   $ACTORS x $ENV_KIND, logs in $LOGS; Ctrl-C to stop"
+
+code=0; wait "$LEARNER_PID" || code=$?
+if [[ ! -e "$STOP_FILE" ]]; then
+  echo "local.sh: the learner exited unexpectedly (status $code); see $LOGS/learner.log" >&2
+  touch "$STOP_FILE"
+  for ((i = 0; i < ACTORS; i++)); do
+    [[ -s "$LOGS/actor-$i.pid" ]] && kill -INT "$(cat "$LOGS/actor-$i.pid")" 2>/dev/null || true
+  done
+  wait "${SUPERVISORS[@]}" 2>/dev/null || true
+  "$BIN/learner" clean >/dev/null 2>&1 || true
+  exit 1
+fi
