@@ -4,6 +4,7 @@
 //! It never runs a simulator or a map; it only sees what actors send through
 //! the `transport` crate, in the layouts of `proto`.
 
+pub mod bench_transport;
 pub mod checkpoint;
 pub mod config;
 pub mod http;

@@ -29,6 +29,12 @@ enum Command {
     PrintConfig,
     /// Remove shared-memory resources left by crashed learner or actor processes.
     Clean,
+    /// Measure the message path over iceoryx2 and over loopback TCP, side by side.
+    BenchTransport {
+        /// Scale of the run (1 = 100 x 1 MiB, 10 x 16 MiB, 10 broadcasts per transport).
+        #[arg(long, default_value_t = 3)]
+        repeats: usize,
+    },
 }
 
 #[derive(clap::Args)]
@@ -63,6 +69,11 @@ fn main() -> anyhow::Result<()> {
         Command::Serve(args) => serve(args),
         Command::PrintConfig => {
             print!("{}", LearnerConfig::default().to_toml());
+            Ok(())
+        }
+        Command::BenchTransport { repeats } => {
+            let measurements = learner::bench_transport::run(repeats.max(1))?;
+            print!("{}", learner::bench_transport::table(&measurements));
             Ok(())
         }
         Command::Clean => {

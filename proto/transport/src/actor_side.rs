@@ -100,7 +100,7 @@ impl ActorPorts {
         }
         up.sequence += 1;
         let header = MessageHeader { actor_id, policy_version, unet_version, sequence: up.sequence, ..MessageHeader::default() };
-        let Ok(mut sample) = up.publisher.loan_slice(len) else {
+        let Some(mut sample) = crate::loan_zeroed(&up.publisher, len) else {
             return Ok(Delivery::Dropped);
         };
         proto::encode_into(payload, header, sample.payload_mut());
@@ -114,7 +114,7 @@ impl ActorPorts {
         if bytes.len() > up.max_bytes || bytes.is_empty() {
             return Ok(Delivery::Dropped);
         }
-        let Ok(mut sample) = up.publisher.loan_slice(bytes.len()) else {
+        let Some(mut sample) = crate::loan_zeroed(&up.publisher, bytes.len()) else {
             return Ok(Delivery::Dropped);
         };
         sample.payload_mut().copy_from_slice(bytes);

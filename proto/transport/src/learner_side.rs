@@ -133,7 +133,7 @@ impl LearnerPorts {
                 format!("weights message of {len} bytes exceeds max_weights_bytes {}; raise it in the transport config", self.max_weights_bytes),
             ));
         }
-        let Ok(mut sample) = self.weights.loan_slice(len) else {
+        let Some(mut sample) = crate::loan_zeroed(&self.weights, len) else {
             return Ok(Delivery::Dropped);
         };
         self.weights_sequence += 1;

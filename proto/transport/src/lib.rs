@@ -64,6 +64,25 @@ pub(crate) fn service_name(
         .map_err(|e| TransportError::new("service name", &full, e))
 }
 
+/// Loans a `len`-byte sample and zero-fills it with one `memset`.
+///
+/// `loan_slice` would initialise element by element in generic code compiled
+/// at this crate's optimisation level, which made 16 MiB loans cost more than
+/// the transfer itself.
+pub(crate) fn loan_zeroed(
+    publisher: &iceoryx2::port::publisher::Publisher<Ipc, [u8], ()>,
+    len: usize,
+) -> Option<iceoryx2::sample_mut::SampleMut<Ipc, [u8], ()>> {
+    let mut sample = publisher.loan_slice_uninit(len).ok()?;
+    let buf = sample.payload_mut();
+    // SAFETY: `buf` is a valid, exclusively borrowed region of `buf.len()` bytes;
+    // writing zeros initialises every element, which is what `assume_init` requires.
+    unsafe {
+        std::ptr::write_bytes(buf.as_mut_ptr(), 0, buf.len());
+        Some(sample.assume_init())
+    }
+}
+
 /// Quietens iceoryx2's own logger to warnings unless `IOX2_LOG_LEVEL` says otherwise.
 pub fn init_iceoryx_logging() {
     iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Warn);
