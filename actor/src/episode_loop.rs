@@ -49,15 +49,30 @@ struct Policy {
     unet_version: u64,
 }
 
-fn load_policy(message: &ReceivedMessage, transport: &TransportConfig, env: &dyn Environment) -> anyhow::Result<Policy> {
-    let limits = Limits { max_actors: transport.max_actors, max_payload_len: transport.max_weights_bytes as u64 };
-    let (header, message) = proto::decode(message.bytes(), &limits).context("the learner sent invalid weights")?;
+fn load_policy(
+    message: &ReceivedMessage,
+    transport: &TransportConfig,
+    env: &dyn Environment,
+) -> anyhow::Result<Policy> {
+    let limits = Limits {
+        max_actors: transport.max_actors,
+        max_payload_len: transport.max_weights_bytes as u64,
+    };
+    let (header, message) =
+        proto::decode(message.bytes(), &limits).context("the learner sent invalid weights")?;
     let Message::Weights(weights) = message else {
-        bail!("expected weights on the weights service, got {:?}", message.kind());
+        bail!(
+            "expected weights on the weights service, got {:?}",
+            message.kind()
+        );
     };
     let net = LinearActorCritic::from_safetensors(weights.bytes(), env.obs_dim(), env.n_actions())
         .context("the learner's policy does not fit this environment (check [policy] obs_dim / n_actions in the learner config)")?;
-    Ok(Policy { net, policy_version: header.policy_version, unet_version: header.unet_version })
+    Ok(Policy {
+        net,
+        policy_version: header.policy_version,
+        unet_version: header.unet_version,
+    })
 }
 
 /// Collects steps until a chunk is full or the episode ends.
@@ -111,7 +126,10 @@ pub fn run(
     };
     let mut policy = load_policy(&first, transport, env)?;
     drop(first);
-    eprintln!("actor {}: got policy version {}", settings.actor_id, policy.policy_version);
+    eprintln!(
+        "actor {}: got policy version {}",
+        settings.actor_id, policy.policy_version
+    );
 
     let mut rng = SmallRng::seed_from_u64(settings.seed ^ (u64::from(settings.actor_id) << 32));
     let mut summary = LoopSummary::default();
@@ -119,17 +137,27 @@ pub fn run(
         Delivery::Delivered(_) => s.delivered += 1,
         Delivery::Dropped => s.dropped += 1,
     };
-    while !stop.load(Ordering::Relaxed) && settings.max_episodes.is_none_or(|m| summary.episodes < m) {
+    while !stop.load(Ordering::Relaxed)
+        && settings.max_episodes.is_none_or(|m| summary.episodes < m)
+    {
         let episode_id = summary.episodes;
         let started = Instant::now();
-        let mut observation: Observation = env.reset(settings.seed.wrapping_add(episode_id.wrapping_mul(1_000_003)).wrapping_add(u64::from(settings.actor_id)));
+        let mut observation: Observation = env.reset(
+            settings
+                .seed
+                .wrapping_add(episode_id.wrapping_mul(1_000_003))
+                .wrapping_add(u64::from(settings.actor_id)),
+        );
         let (mut step, mut episode_return, mut successes) = (0u32, 0.0f32, 0u32);
         let mut builder = ChunkBuilder::new(episode_id, 0, env);
         loop {
             if let Some(message) = ports.take_latest_weights()? {
                 policy = load_policy(&message, transport, env)?;
             }
-            let log_probs = log_softmax_masked(&policy.net.logits(&observation.features), &observation.action_mask);
+            let log_probs = log_softmax_masked(
+                &policy.net.logits(&observation.features),
+                &observation.action_mask,
+            );
             let Some((action, log_prob)) = sample(&log_probs, rng.random::<f32>()) else {
                 bail!("the environment allowed no action at step {step}");
             };
@@ -139,7 +167,8 @@ pub fn run(
             episode_return += transition.reward;
             successes += u32::from(transition.success);
             let c = &mut builder.chunk;
-            c.obs.extend(observation.features.iter().flat_map(|v| v.to_le_bytes()));
+            c.obs
+                .extend(observation.features.iter().flat_map(|v| v.to_le_bytes()));
             c.masks.extend_from_slice(&observation.action_mask);
             c.actions.push(action);
             c.log_probs.push(log_prob);
@@ -149,8 +178,13 @@ pub fn run(
             observation = transition.observation;
             let stopping = stop.load(Ordering::Relaxed);
             if c.actions.len() >= settings.chunk_steps || transition.done || stopping {
-                c.bootstrap_value = if transition.done { 0.0 } else { policy.net.value(&observation.features) };
-                let delivery = ports.publish(&builder.chunk, policy.policy_version, policy.unet_version)?;
+                c.bootstrap_value = if transition.done {
+                    0.0
+                } else {
+                    policy.net.value(&observation.features)
+                };
+                let delivery =
+                    ports.publish(&builder.chunk, policy.policy_version, policy.unet_version)?;
                 count(delivery, &mut summary);
                 builder = ChunkBuilder::new(episode_id, step, env);
             }
@@ -162,8 +196,14 @@ pub fn run(
         let seconds = started.elapsed().as_secs_f64().max(1e-9);
         let stats = EpisodeStats::new(episode_id, step, env.scene_index())
             .with(StatField::EpisodeReturn, episode_return)
-            .with(StatField::InteractionSuccessRate, successes as f32 / step.max(1) as f32)
-            .with(StatField::StepsPerSecond, (f64::from(step) / seconds) as f32);
+            .with(
+                StatField::InteractionSuccessRate,
+                successes as f32 / step.max(1) as f32,
+            )
+            .with(
+                StatField::StepsPerSecond,
+                (f64::from(step) / seconds) as f32,
+            );
         let delivery = ports.publish(&stats, policy.policy_version, policy.unet_version)?;
         count(delivery, &mut summary);
         summary.episodes += 1;

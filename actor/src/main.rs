@@ -50,11 +50,20 @@ struct Cli {
 }
 
 fn main() -> anyhow::Result<()> {
-    tracing_subscriber::fmt().with_writer(std::io::stderr).init();
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .init();
     transport::init_iceoryx_logging();
     let cli = Cli::parse();
-    anyhow::ensure!((1..=proto::MAX_STEPS as usize).contains(&cli.chunk_steps), "--chunk-steps must be in 1..={}", proto::MAX_STEPS);
-    anyhow::ensure!(cli.weights_timeout_s.is_finite() && cli.weights_timeout_s >= 0.0, "--weights-timeout-s must be a non-negative number");
+    anyhow::ensure!(
+        (1..=proto::MAX_STEPS as usize).contains(&cli.chunk_steps),
+        "--chunk-steps must be in 1..={}",
+        proto::MAX_STEPS
+    );
+    anyhow::ensure!(
+        cli.weights_timeout_s.is_finite() && cli.weights_timeout_s >= 0.0,
+        "--weights-timeout-s must be a non-negative number"
+    );
     let mut transport = match &cli.config {
         Some(path) => actor::config::transport_from_toml_file(path)?,
         None => TransportConfig::default(),
@@ -62,6 +71,7 @@ fn main() -> anyhow::Result<()> {
     if let Some(prefix) = &cli.learner {
         transport.service_prefix = prefix.clone();
     }
+    eprintln!("actor {}: {}", cli.actor_id, transport.describe());
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(signal, stop.clone()).context("installing signal handlers")?;
@@ -69,8 +79,9 @@ fn main() -> anyhow::Result<()> {
     let mut env: Box<dyn Environment> = match cli.env {
         EnvKind::BanditFixture => Box::new(BanditFixture::new()),
     };
-    let mut ports = transport::ActorPorts::open(&transport, cli.actor_id)
-        .context("opening the shared-memory services (same --learner prefix and config as the learner?)")?;
+    let mut ports = transport::ActorPorts::open(&transport, cli.actor_id).context(
+        "opening the shared-memory services (same --learner prefix and config as the learner?)",
+    )?;
     let settings = LoopSettings {
         actor_id: cli.actor_id,
         chunk_steps: cli.chunk_steps,

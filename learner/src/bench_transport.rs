@@ -8,7 +8,10 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
-use proto::{decode, encode, encoded_len, Limits, Message, MessageHeader, ObsDtype, RolloutChunk, WeightsBlob, HEADER_LEN};
+use proto::{
+    decode, encode, encoded_len, Limits, Message, MessageHeader, ObsDtype, RolloutChunk,
+    WeightsBlob, HEADER_LEN,
+};
 use transport::{ActorPorts, Delivery, LearnerPorts, TransportConfig};
 
 /// One measured case.
@@ -47,8 +50,17 @@ fn chunk_of(bytes: usize) -> RolloutChunk {
 
 fn weights_of(bytes: usize) -> Vec<u8> {
     let values = bytes / 4;
-    let data: Vec<u8> = (0..values).flat_map(|i| ((i % 97) as f32 * 0.01).to_le_bytes()).collect();
-    nets::NamedTensors(vec![("policy.bench".into(), vec![values], data.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())]).to_safetensors()
+    let data: Vec<u8> = (0..values)
+        .flat_map(|i| ((i % 97) as f32 * 0.01).to_le_bytes())
+        .collect();
+    nets::NamedTensors(vec![(
+        "policy.bench".into(),
+        vec![values],
+        data.chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect(),
+    )])
+    .to_safetensors()
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -57,7 +69,10 @@ fn median(mut v: Vec<f64>) -> f64 {
 }
 
 fn limits(max: usize) -> Limits {
-    Limits { max_actors: 16, max_payload_len: max as u64 }
+    Limits {
+        max_actors: 16,
+        max_payload_len: max as u64,
+    }
 }
 
 fn config(tag: &str, max: usize) -> TransportConfig {
@@ -73,9 +88,18 @@ fn config(tag: &str, max: usize) -> TransportConfig {
 
 /// Streaming throughput (GiB/s) from the sender's start to the receiver's
 /// decode of the last message, and the median lock-step latency (ms).
-fn summarise(bytes_per_message: usize, count: usize, start: Instant, last_received: Instant, latencies: Vec<f64>) -> (f64, f64) {
+fn summarise(
+    bytes_per_message: usize,
+    count: usize,
+    start: Instant,
+    last_received: Instant,
+    latencies: Vec<f64>,
+) -> (f64, f64) {
     let seconds = last_received.duration_since(start).as_secs_f64().max(1e-9);
-    ((bytes_per_message * count) as f64 / seconds / f64::from(1u32 << 30), median(latencies))
+    (
+        (bytes_per_message * count) as f64 / seconds / f64::from(1u32 << 30),
+        median(latencies),
+    )
 }
 
 /// Actor → learner over iceoryx2.
@@ -117,15 +141,21 @@ fn iceoryx_upstream(size: usize, count: usize) -> anyhow::Result<(f64, f64)> {
     for _ in 0..count {
         send(&mut actor)?;
     }
-    let last = ack_rx.recv_timeout(Duration::from_secs(30)).context("streaming phase")?;
+    let last = ack_rx
+        .recv_timeout(Duration::from_secs(30))
+        .context("streaming phase")?;
     let mut latencies = Vec::new();
     for _ in 0..count {
         let t = Instant::now();
         send(&mut actor)?;
-        ack_rx.recv_timeout(Duration::from_secs(10)).context("lock-step ack")?;
+        ack_rx
+            .recv_timeout(Duration::from_secs(10))
+            .context("lock-step ack")?;
         latencies.push(t.elapsed().as_secs_f64() * 1e3);
     }
-    receiver.join().map_err(|_| anyhow::anyhow!("receiver panicked"))??;
+    receiver
+        .join()
+        .map_err(|_| anyhow::anyhow!("receiver panicked"))??;
     Ok(summarise(len, count, start, last, latencies))
 }
 
@@ -161,7 +191,14 @@ fn tcp_upstream(size: usize, count: usize) -> anyhow::Result<(f64, f64)> {
     stream.set_nodelay(true)?;
     let mut out = vec![0u8; len];
     let mut send = |stream: &mut TcpStream| -> anyhow::Result<()> {
-        proto::encode_into(&chunk, MessageHeader { policy_version: 1, ..Default::default() }, &mut out);
+        proto::encode_into(
+            &chunk,
+            MessageHeader {
+                policy_version: 1,
+                ..Default::default()
+            },
+            &mut out,
+        );
         stream.write_all(&out)?;
         Ok(())
     };
@@ -169,15 +206,21 @@ fn tcp_upstream(size: usize, count: usize) -> anyhow::Result<(f64, f64)> {
     for _ in 0..count {
         send(&mut stream)?;
     }
-    let last = ack_rx.recv_timeout(Duration::from_secs(30)).context("streaming phase")?;
+    let last = ack_rx
+        .recv_timeout(Duration::from_secs(30))
+        .context("streaming phase")?;
     let mut latencies = Vec::new();
     for _ in 0..count {
         let t = Instant::now();
         send(&mut stream)?;
-        ack_rx.recv_timeout(Duration::from_secs(10)).context("lock-step ack")?;
+        ack_rx
+            .recv_timeout(Duration::from_secs(10))
+            .context("lock-step ack")?;
         latencies.push(t.elapsed().as_secs_f64() * 1e3);
     }
-    receiver.join().map_err(|_| anyhow::anyhow!("receiver panicked"))??;
+    receiver
+        .join()
+        .map_err(|_| anyhow::anyhow!("receiver panicked"))??;
     Ok(summarise(len, count, start, last, latencies))
 }
 
@@ -221,21 +264,36 @@ fn iceoryx_broadcast(size: usize, subscribers: u32, count: usize) -> anyhow::Res
             bail!("weights publish dropped");
         }
         for _ in 0..subscribers {
-            ack_rx.recv_timeout(Duration::from_secs(10)).context("broadcast ack")?;
+            ack_rx
+                .recv_timeout(Duration::from_secs(10))
+                .context("broadcast ack")?;
         }
         latencies.push(t.elapsed().as_secs_f64() * 1e3);
     }
     let end = Instant::now();
     for t in threads {
-        t.join().map_err(|_| anyhow::anyhow!("subscriber panicked"))??;
+        t.join()
+            .map_err(|_| anyhow::anyhow!("subscriber panicked"))??;
     }
-    Ok(summarise(len * subscribers as usize, count, start, end, latencies))
+    Ok(summarise(
+        len * subscribers as usize,
+        count,
+        start,
+        end,
+        latencies,
+    ))
 }
 
 /// Learner → `subscribers` actors over loopback TCP (one connection each), lock-step.
 fn tcp_broadcast(size: usize, subscribers: u32, count: usize) -> anyhow::Result<(f64, f64)> {
     let blob = weights_of(size);
-    let message = encode(&WeightsBlob(&blob), MessageHeader { actor_id: proto::LEARNER_ID, ..Default::default() });
+    let message = encode(
+        &WeightsBlob(&blob),
+        MessageHeader {
+            actor_id: proto::LEARNER_ID,
+            ..Default::default()
+        },
+    );
     let len = message.len();
     let listener = TcpListener::bind("127.0.0.1:0")?;
     let addr = listener.local_addr()?;
@@ -268,15 +326,24 @@ fn tcp_broadcast(size: usize, subscribers: u32, count: usize) -> anyhow::Result<
             s.write_all(&message)?;
         }
         for _ in 0..subscribers {
-            ack_rx.recv_timeout(Duration::from_secs(10)).context("broadcast ack")?;
+            ack_rx
+                .recv_timeout(Duration::from_secs(10))
+                .context("broadcast ack")?;
         }
         latencies.push(t.elapsed().as_secs_f64() * 1e3);
     }
     let end = Instant::now();
     for t in threads {
-        t.join().map_err(|_| anyhow::anyhow!("subscriber panicked"))??;
+        t.join()
+            .map_err(|_| anyhow::anyhow!("subscriber panicked"))??;
     }
-    Ok(summarise(len * subscribers as usize, count, start, end, latencies))
+    Ok(summarise(
+        len * subscribers as usize,
+        count,
+        start,
+        end,
+        latencies,
+    ))
 }
 
 /// Runs every case and returns the measurements, iceoryx2 then TCP per case.
@@ -284,7 +351,12 @@ pub fn run(repeats: usize) -> anyhow::Result<Vec<Measurement>> {
     let mut out = Vec::new();
     let mut push = |case: &str, transport: &'static str, (gib_per_s, median_ms): (f64, f64)| {
         eprintln!("{case:<34} {transport:<9} {gib_per_s:>7.2} GiB/s  median {median_ms:>8.3} ms");
-        out.push(Measurement { case: case.into(), transport, gib_per_s, median_ms });
+        out.push(Measurement {
+            case: case.into(),
+            transport,
+            gib_per_s,
+            median_ms,
+        });
     };
     for (size, count) in [(1usize << 20, 100 * repeats), (16 << 20, 10 * repeats)] {
         let case = format!("actor -> learner, {} MiB", size >> 20);
@@ -292,7 +364,11 @@ pub fn run(repeats: usize) -> anyhow::Result<Vec<Measurement>> {
         push(&case, "tcp", tcp_upstream(size, count)?);
     }
     let case = "weights 8 MiB -> 8 subscribers";
-    push(case, "iceoryx2", iceoryx_broadcast(8 << 20, 8, 10 * repeats)?);
+    push(
+        case,
+        "iceoryx2",
+        iceoryx_broadcast(8 << 20, 8, 10 * repeats)?,
+    );
     push(case, "tcp", tcp_broadcast(8 << 20, 8, 10 * repeats)?);
     Ok(out)
 }

@@ -49,8 +49,10 @@ fn sha256_hex(bytes: &[u8]) -> String {
 
 fn write_synced(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
     let mut file = File::create(path).with_context(|| format!("creating {}", path.display()))?;
-    file.write_all(bytes).with_context(|| format!("writing {}", path.display()))?;
-    file.sync_all().with_context(|| format!("syncing {}", path.display()))
+    file.write_all(bytes)
+        .with_context(|| format!("writing {}", path.display()))?;
+    file.sync_all()
+        .with_context(|| format!("syncing {}", path.display()))
 }
 
 fn sync_dir(path: &Path) -> anyhow::Result<()> {
@@ -61,8 +63,14 @@ fn sync_dir(path: &Path) -> anyhow::Result<()> {
 
 /// Writes `files` as checkpoint `step` under `root` and deletes all but the
 /// newest `keep` checkpoints. Returns the checkpoint's directory.
-pub fn write(root: &Path, step: u64, files: &[(&str, &[u8])], keep: usize) -> anyhow::Result<PathBuf> {
-    fs::create_dir_all(root).with_context(|| format!("creating checkpoint directory {}", root.display()))?;
+pub fn write(
+    root: &Path,
+    step: u64,
+    files: &[(&str, &[u8])],
+    keep: usize,
+) -> anyhow::Result<PathBuf> {
+    fs::create_dir_all(root)
+        .with_context(|| format!("creating checkpoint directory {}", root.display()))?;
     let target = root.join(step.to_string());
     if target.exists() {
         return Ok(target);
@@ -75,12 +83,20 @@ pub fn write(root: &Path, step: u64, files: &[(&str, &[u8])], keep: usize) -> an
     let mut entries = Vec::new();
     for (name, bytes) in files {
         write_synced(&tmp.join(name), bytes)?;
-        entries.push(ManifestEntry { name: (*name).to_string(), size: bytes.len() as u64, sha256: sha256_hex(bytes) });
+        entries.push(ManifestEntry {
+            name: (*name).to_string(),
+            size: bytes.len() as u64,
+            sha256: sha256_hex(bytes),
+        });
     }
-    let manifest = serde_json::to_vec_pretty(&Manifest { step, files: entries })?;
+    let manifest = serde_json::to_vec_pretty(&Manifest {
+        step,
+        files: entries,
+    })?;
     write_synced(&tmp.join(MANIFEST), &manifest)?;
     sync_dir(&tmp)?;
-    fs::rename(&tmp, &target).with_context(|| format!("renaming {} to {}", tmp.display(), target.display()))?;
+    fs::rename(&tmp, &target)
+        .with_context(|| format!("renaming {} to {}", tmp.display(), target.display()))?;
     sync_dir(root)?;
     prune(root, keep)?;
     Ok(target)
@@ -94,7 +110,11 @@ fn list(root: &Path) -> anyhow::Result<Vec<u64>> {
     }
     for entry in fs::read_dir(root).with_context(|| format!("listing {}", root.display()))? {
         let entry = entry?;
-        if let Some(step) = entry.file_name().to_str().and_then(|n| n.parse::<u64>().ok()) {
+        if let Some(step) = entry
+            .file_name()
+            .to_str()
+            .and_then(|n| n.parse::<u64>().ok())
+        {
             if entry.path().is_dir() {
                 steps.push(step);
             }
@@ -107,28 +127,45 @@ fn list(root: &Path) -> anyhow::Result<Vec<u64>> {
 fn prune(root: &Path, keep: usize) -> anyhow::Result<()> {
     for step in list(root)?.into_iter().skip(keep) {
         let dir = root.join(step.to_string());
-        fs::remove_dir_all(&dir).with_context(|| format!("deleting old checkpoint {}", dir.display()))?;
+        fs::remove_dir_all(&dir)
+            .with_context(|| format!("deleting old checkpoint {}", dir.display()))?;
     }
     Ok(())
 }
 
 fn verify(dir: &Path, step: u64) -> anyhow::Result<BTreeMap<String, Vec<u8>>> {
-    let manifest: Manifest = serde_json::from_slice(&fs::read(dir.join(MANIFEST)).context("reading manifest.json")?)
-        .context("parsing manifest.json")?;
+    let manifest: Manifest =
+        serde_json::from_slice(&fs::read(dir.join(MANIFEST)).context("reading manifest.json")?)
+            .context("parsing manifest.json")?;
     if manifest.step != step {
-        bail!("manifest says step {}, directory says {step}", manifest.step);
+        bail!(
+            "manifest says step {}, directory says {step}",
+            manifest.step
+        );
     }
     let mut files = BTreeMap::new();
     for entry in manifest.files {
         if entry.name.contains('/') || entry.name.contains("..") {
-            bail!("manifest names a file outside the checkpoint: {:?}", entry.name);
+            bail!(
+                "manifest names a file outside the checkpoint: {:?}",
+                entry.name
+            );
         }
-        let bytes = fs::read(dir.join(&entry.name)).with_context(|| format!("reading {}", entry.name))?;
+        let bytes =
+            fs::read(dir.join(&entry.name)).with_context(|| format!("reading {}", entry.name))?;
         if bytes.len() as u64 != entry.size {
-            bail!("{} has {} bytes, manifest says {}", entry.name, bytes.len(), entry.size);
+            bail!(
+                "{} has {} bytes, manifest says {}",
+                entry.name,
+                bytes.len(),
+                entry.size
+            );
         }
         if sha256_hex(&bytes) != entry.sha256 {
-            bail!("{} does not match its sha256 in the manifest (corrupted)", entry.name);
+            bail!(
+                "{} does not match its sha256 in the manifest (corrupted)",
+                entry.name
+            );
         }
         files.insert(entry.name, bytes);
     }
@@ -146,12 +183,26 @@ pub fn load_newest_valid(root: &Path) -> anyhow::Result<Option<LoadedCheckpoint>
     for step in steps {
         let dir = root.join(step.to_string());
         match verify(&dir, step) {
-            Ok(files) => return Ok(Some(LoadedCheckpoint { step, dir, files, skipped })),
+            Ok(files) => {
+                return Ok(Some(LoadedCheckpoint {
+                    step,
+                    dir,
+                    files,
+                    skipped,
+                }))
+            }
             Err(e) => skipped.push((dir, format!("{e:#}"))),
         }
     }
-    let reasons: Vec<String> = skipped.iter().map(|(d, r)| format!("{}: {r}", d.display())).collect();
-    bail!("no checkpoint under {} verifies:\n  {}", root.display(), reasons.join("\n  "))
+    let reasons: Vec<String> = skipped
+        .iter()
+        .map(|(d, r)| format!("{}: {r}", d.display()))
+        .collect();
+    bail!(
+        "no checkpoint under {} verifies:\n  {}",
+        root.display(),
+        reasons.join("\n  ")
+    )
 }
 
 #[cfg(test)]
@@ -162,7 +213,16 @@ mod tests {
     fn newest_valid_checkpoint_wins_and_a_flipped_byte_falls_back() {
         let root = tempfile::tempdir().unwrap();
         for step in [10u64, 20, 30, 40] {
-            write(root.path(), step, &[("weights.safetensors", &step.to_le_bytes()), ("counters.json", b"{}")], 3).unwrap();
+            write(
+                root.path(),
+                step,
+                &[
+                    ("weights.safetensors", &step.to_le_bytes()),
+                    ("counters.json", b"{}"),
+                ],
+                3,
+            )
+            .unwrap();
         }
         let remaining = list(root.path()).unwrap();
         assert_eq!(remaining, vec![40, 30, 20], "keeps the newest 3");
@@ -177,7 +237,11 @@ mod tests {
         let loaded = load_newest_valid(root.path()).unwrap().unwrap();
         assert_eq!(loaded.step, 30);
         assert_eq!(loaded.skipped.len(), 1);
-        assert!(loaded.skipped[0].1.contains("sha256"), "{:?}", loaded.skipped);
+        assert!(
+            loaded.skipped[0].1.contains("sha256"),
+            "{:?}",
+            loaded.skipped
+        );
     }
 
     #[test]

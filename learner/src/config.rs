@@ -110,8 +110,14 @@ impl LearnerConfig {
             proto::MAX_ACTIONS
         );
         anyhow::ensure!(self.keep_checkpoints >= 1, "keep_checkpoints must be >= 1");
-        anyhow::ensure!(self.transport.max_actors >= 1, "transport.max_actors must be >= 1");
-        anyhow::ensure!(self.policy.publish_every_updates >= 1, "policy.publish_every_updates must be >= 1");
+        anyhow::ensure!(
+            self.transport.max_actors >= 1,
+            "transport.max_actors must be >= 1"
+        );
+        anyhow::ensure!(
+            self.policy.publish_every_updates >= 1,
+            "policy.publish_every_updates must be >= 1"
+        );
         anyhow::ensure!(self.actor_timeout_s > 0.0, "actor_timeout_s must be > 0");
         Ok(())
     }
@@ -124,7 +130,10 @@ mod tests {
     #[test]
     fn defaults_survive_a_toml_round_trip_and_typos_are_refused() {
         let config = LearnerConfig::default();
-        assert_eq!(toml::from_str::<LearnerConfig>(&config.to_toml()).unwrap(), config);
+        assert_eq!(
+            toml::from_str::<LearnerConfig>(&config.to_toml()).unwrap(),
+            config
+        );
         assert!(toml::from_str::<LearnerConfig>("actor_timeout = 3").is_err());
         let partial: LearnerConfig = toml::from_str("[policy]\nn_actions = 6").unwrap();
         assert_eq!(partial.policy.n_actions, 6);

@@ -61,7 +61,9 @@ struct ServeArgs {
 
 fn main() -> anyhow::Result<()> {
     tracing_subscriber::fmt()
-        .with_env_filter(EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info")))
+        .with_env_filter(
+            EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info")),
+        )
         .with_writer(std::io::stderr)
         .init();
     transport::init_iceoryx_logging();
@@ -85,7 +87,10 @@ fn main() -> anyhow::Result<()> {
 }
 
 fn default_run_dir() -> PathBuf {
-    let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
     PathBuf::from("runs").join(format!("run-{secs}"))
 }
 
@@ -121,9 +126,15 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         (None, None) => default_run_dir(),
     };
     let config = load_config(&args, &run_dir)?;
-    std::fs::create_dir_all(&run_dir).with_context(|| format!("creating run directory {}", run_dir.display()))?;
-    std::fs::write(run_dir.join("config.toml"), config.to_toml()).context("saving config.toml in the run directory")?;
-    let run_id = run_dir.file_name().and_then(|n| n.to_str()).unwrap_or("run").to_string();
+    std::fs::create_dir_all(&run_dir)
+        .with_context(|| format!("creating run directory {}", run_dir.display()))?;
+    std::fs::write(run_dir.join("config.toml"), config.to_toml())
+        .context("saving config.toml in the run directory")?;
+    let run_id = run_dir
+        .file_name()
+        .and_then(|n| n.to_str())
+        .unwrap_or("run")
+        .to_string();
     eprintln!("learner config (run {run_id}):\n{}", config.to_toml());
     tracing::info!("{}", config.transport.describe());
 
@@ -134,7 +145,11 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         resume(&checkpoint_dir, &mut trainer, &mut status)?;
     }
 
-    let shared = Arc::new(Shared { status: Mutex::new(status), shutdown: Default::default(), config: config.clone() });
+    let shared = Arc::new(Shared {
+        status: Mutex::new(status),
+        shutdown: Default::default(),
+        config: config.clone(),
+    });
 
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
@@ -143,26 +158,33 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         .context("starting the async runtime")?;
     let listener = runtime
         .block_on(tokio::net::TcpListener::bind(&config.http_addr))
-        .with_context(|| format!("binding the metrics endpoint to {} (in use? pick another with --http-addr)", config.http_addr))?;
+        .with_context(|| {
+            format!(
+                "binding the metrics endpoint to {} (in use? pick another with --http-addr)",
+                config.http_addr
+            )
+        })?;
     let addr: SocketAddr = listener.local_addr()?;
 
     // iceoryx2 ports are not Send: the training thread opens its own and
     // reports whether that worked before the endpoint is announced.
     let loop_shared = shared.clone();
     let (opened_tx, opened_rx) = std::sync::mpsc::channel();
-    let training = std::thread::Builder::new().name("training".into()).spawn(move || {
-        let ports = match transport::LearnerPorts::open(&loop_shared.config.transport) {
-            Ok(ports) => ports,
-            Err(e) => {
-                let _ = opened_tx.send(Err(e));
-                return Ok(());
-            }
-        };
-        let _ = opened_tx.send(Ok(()));
-        let result = Learner::new(loop_shared.clone(), ports, trainer, checkpoint_dir).run();
-        loop_shared.shutdown.store(true, Ordering::Relaxed);
-        result
-    })?;
+    let training = std::thread::Builder::new()
+        .name("training".into())
+        .spawn(move || {
+            let ports = match transport::LearnerPorts::open(&loop_shared.config.transport) {
+                Ok(ports) => ports,
+                Err(e) => {
+                    let _ = opened_tx.send(Err(e));
+                    return Ok(());
+                }
+            };
+            let _ = opened_tx.send(Ok(()));
+            let result = Learner::new(loop_shared.clone(), ports, trainer, checkpoint_dir).run();
+            loop_shared.shutdown.store(true, Ordering::Relaxed);
+            result
+        })?;
     opened_rx
         .recv()
         .context("the training thread died while opening the shared-memory services")?
@@ -174,7 +196,10 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
     runtime.block_on(async move {
         let shutdown = async move {
             use tokio::signal::unix::{signal, SignalKind};
-            let (Ok(mut int), Ok(mut term)) = (signal(SignalKind::interrupt()), signal(SignalKind::terminate())) else {
+            let (Ok(mut int), Ok(mut term)) = (
+                signal(SignalKind::interrupt()),
+                signal(SignalKind::terminate()),
+            ) else {
                 tracing::error!("cannot install signal handlers");
                 return;
             };
@@ -191,7 +216,9 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
             }
             http_shared.shutdown.store(true, Ordering::Relaxed);
         };
-        axum::serve(listener, learner::http::router(shared)).with_graceful_shutdown(shutdown).await
+        axum::serve(listener, learner::http::router(shared))
+            .with_graceful_shutdown(shutdown)
+            .await
     })?;
     match training.join() {
         Ok(result) => result.context("the training loop failed"),

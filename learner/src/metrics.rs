@@ -49,50 +49,135 @@ fn gauge(registry: &mut Registry, name: &str, help: &str, value: f64) {
 /// Renders the snapshot in the Prometheus text exposition format.
 pub fn render(s: &StatusSnapshot) -> String {
     let mut r = Registry::with_prefix("afx");
-    counter(&mut r, "env_steps", "Environment steps trained on", s.env_steps);
+    counter(
+        &mut r,
+        "env_steps",
+        "Environment steps trained on",
+        s.env_steps,
+    );
     counter(&mut r, "policy_updates", "Policy updates done", s.updates);
-    counter(&mut r, "episodes", "Episodes reported by actors", s.episodes);
-    counter(&mut r, "weights_published", "Weights messages published", s.weights_published);
-    counter(&mut r, "checkpoints_written", "Checkpoints written by this learner process", s.checkpoints_written);
-    counter(&mut r, "untrainable_chunks", "Valid rollout chunks whose shapes did not fit the policy", s.untrainable_chunks);
-    counter(&mut r, "messages_dropped", "Actor messages lost in transit (sequence gaps)", s.dropped);
-    gauge(&mut r, "policy_version", "Current policy version", s.policy_version as f64);
-    gauge(&mut r, "unet_version", "Current U-Net version", s.unet_version as f64);
-    gauge(&mut r, "actors_alive", "Actors heard from within the timeout", s.actors_alive as f64);
-    gauge(&mut r, "uptime_seconds", "Seconds since the learner started", s.uptime_s);
+    counter(
+        &mut r,
+        "episodes",
+        "Episodes reported by actors",
+        s.episodes,
+    );
+    counter(
+        &mut r,
+        "weights_published",
+        "Weights messages published",
+        s.weights_published,
+    );
+    counter(
+        &mut r,
+        "checkpoints_written",
+        "Checkpoints written by this learner process",
+        s.checkpoints_written,
+    );
+    counter(
+        &mut r,
+        "untrainable_chunks",
+        "Valid rollout chunks whose shapes did not fit the policy",
+        s.untrainable_chunks,
+    );
+    counter(
+        &mut r,
+        "messages_dropped",
+        "Actor messages lost in transit (sequence gaps)",
+        s.dropped,
+    );
+    gauge(
+        &mut r,
+        "policy_version",
+        "Current policy version",
+        s.policy_version as f64,
+    );
+    gauge(
+        &mut r,
+        "unet_version",
+        "Current U-Net version",
+        s.unet_version as f64,
+    );
+    gauge(
+        &mut r,
+        "actors_alive",
+        "Actors heard from within the timeout",
+        s.actors_alive as f64,
+    );
+    gauge(
+        &mut r,
+        "uptime_seconds",
+        "Seconds since the learner started",
+        s.uptime_s,
+    );
 
     let received = Family::<KindLabel, Counter>::default();
     for (kind, &n) in &s.received {
-        received.get_or_create(&KindLabel { kind: kind.clone() }).inc_by(n);
+        received
+            .get_or_create(&KindLabel { kind: kind.clone() })
+            .inc_by(n);
     }
-    r.register("messages_received", "Valid messages accepted, per kind", received);
+    r.register(
+        "messages_received",
+        "Valid messages accepted, per kind",
+        received,
+    );
 
     let rejected = Family::<RejectLabel, Counter>::default();
     for row in &s.rejected {
         rejected
-            .get_or_create(&RejectLabel { service: row.service.clone(), reason: row.reason.clone() })
+            .get_or_create(&RejectLabel {
+                service: row.service.clone(),
+                reason: row.reason.clone(),
+            })
             .inc_by(row.count);
     }
-    r.register("messages_rejected", "Malformed messages rejected, per service and failed check", rejected);
+    r.register(
+        "messages_rejected",
+        "Malformed messages rejected, per service and failed check",
+        rejected,
+    );
 
     let lag = Family::<ActorLabel, Gauge<f64, AtomicU64>>::default();
     let last_seen = Family::<ActorLabel, Gauge<f64, AtomicU64>>::default();
     let actor_steps = Family::<ActorLabel, Counter>::default();
     for a in &s.actors {
-        let label = ActorLabel { actor: a.id.to_string() };
+        let label = ActorLabel {
+            actor: a.id.to_string(),
+        };
         lag.get_or_create(&label).set(a.policy_lag as f64);
         last_seen.get_or_create(&label).set(a.last_seen_s);
         actor_steps.get_or_create(&label).inc_by(a.env_steps);
     }
-    r.register("actor_policy_lag", "Policy versions between the learner and the actor's newest chunk", lag);
-    r.register("actor_last_seen_seconds", "Seconds since the actor's last accepted message", last_seen);
-    r.register("actor_env_steps", "Environment steps contributed per actor", actor_steps);
+    r.register(
+        "actor_policy_lag",
+        "Policy versions between the learner and the actor's newest chunk",
+        lag,
+    );
+    r.register(
+        "actor_last_seen_seconds",
+        "Seconds since the actor's last accepted message",
+        last_seen,
+    );
+    r.register(
+        "actor_env_steps",
+        "Environment steps contributed per actor",
+        actor_steps,
+    );
 
     let episode = Family::<FieldLabel, Gauge<f64, AtomicU64>>::default();
     for (field, &v) in &s.last_episode {
-        episode.get_or_create(&FieldLabel { field: field.clone() }).set(f64::from(v));
+        episode
+            .get_or_create(&FieldLabel {
+                field: field.clone(),
+            })
+            .set(f64::from(v));
     }
-    r.register("last_episode", "Metrics of the most recently reported episode", episode);
+    r.register(
+        "last_episode",
+        "Metrics of the most recently reported episode",
+        episode,
+    );
 
     if let Some(u) = &s.last_update {
         let update = Family::<FieldLabel, Gauge<f64, AtomicU64>>::default();
@@ -104,7 +189,11 @@ pub fn render(s: &StatusSnapshot) -> String {
             ("clip_fraction", u.clip_fraction),
             ("explained_variance", u.explained_variance),
         ] {
-            update.get_or_create(&FieldLabel { field: field.into() }).set(f64::from(v));
+            update
+                .get_or_create(&FieldLabel {
+                    field: field.into(),
+                })
+                .set(f64::from(v));
         }
         r.register("ppo", "Statistics of the latest policy update", update);
     }

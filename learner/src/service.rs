@@ -29,7 +29,9 @@ pub struct Shared {
 impl Shared {
     /// Locks the status; a poisoned lock (a panicked thread) still yields the data.
     pub fn status(&self) -> MutexGuard<'_, LearnerStatus> {
-        self.status.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+        self.status
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner())
     }
 }
 
@@ -65,7 +67,12 @@ pub struct Learner {
 
 impl Learner {
     /// Builds the loop over open ports and a (possibly restored) trainer.
-    pub fn new(shared: Arc<Shared>, ports: LearnerPorts, trainer: Trainer, checkpoint_dir: PathBuf) -> Self {
+    pub fn new(
+        shared: Arc<Shared>,
+        ports: LearnerPorts,
+        trainer: Trainer,
+        checkpoint_dir: PathBuf,
+    ) -> Self {
         let updates_at_checkpoint = shared.status().updates;
         Self {
             shared,
@@ -88,7 +95,11 @@ impl Learner {
         let mut last_maintenance = Instant::now();
         while !self.shared.shutdown.load(Ordering::Relaxed) {
             self.ports.wait(Duration::from_millis(100))?;
-            for kind in [MessageKind::Stats, MessageKind::Frames, MessageKind::Rollout] {
+            for kind in [
+                MessageKind::Stats,
+                MessageKind::Frames,
+                MessageKind::Rollout,
+            ] {
                 while let Some(message) = self.ports.receive(kind)? {
                     self.handle(kind, message.bytes())?;
                 }
@@ -107,7 +118,10 @@ impl Learner {
 
     fn limits(&self, kind: MessageKind) -> Limits {
         let t = &self.shared.config.transport;
-        Limits { max_actors: t.max_actors, max_payload_len: t.max_bytes(kind) as u64 }
+        Limits {
+            max_actors: t.max_actors,
+            max_payload_len: t.max_bytes(kind) as u64,
+        }
     }
 
     fn handle(&mut self, kind: MessageKind, bytes: &[u8]) -> anyhow::Result<()> {
@@ -115,7 +129,10 @@ impl Learner {
             if message.kind() == kind {
                 Ok((header, message))
             } else {
-                Err(proto::ProtoError::WrongKind { expected: kind, got: message.kind() })
+                Err(proto::ProtoError::WrongKind {
+                    expected: kind,
+                    got: message.kind(),
+                })
             }
         });
         let (header, message) = match decoded {
@@ -128,9 +145,19 @@ impl Learner {
                 return Ok(());
             }
         };
-        let lost = self.shared.status().accept(header.actor_id, kind, header.sequence, header.policy_version);
+        let lost = self.shared.status().accept(
+            header.actor_id,
+            kind,
+            header.sequence,
+            header.policy_version,
+        );
         if lost > 0 {
-            tracing::debug!(actor = header.actor_id, kind = kind.as_str(), lost, "messages lost in transit");
+            tracing::debug!(
+                actor = header.actor_id,
+                kind = kind.as_str(),
+                lost,
+                "messages lost in transit"
+            );
         }
         match message {
             Message::Rollout(chunk) => match self.trainer.update(&chunk) {
@@ -140,7 +167,7 @@ impl Learner {
                         status.add_steps(header.actor_id, chunk.n_steps() as u64);
                         status.updates += 1;
                         status.last_update = Some(stats);
-                        status.updates % self.shared.config.policy.publish_every_updates == 0
+                        status.updates.is_multiple_of(self.shared.config.policy.publish_every_updates)
                     };
                     if publish {
                         self.shared.status().policy_version += 1;
@@ -168,9 +195,15 @@ impl Learner {
             (status.policy_version, status.unet_version)
         };
         let blob = self.trainer.net.to_tensors().to_safetensors();
-        match self.ports.publish_weights(policy_version, unet_version, &blob)? {
+        match self
+            .ports
+            .publish_weights(policy_version, unet_version, &blob)?
+        {
             Delivery::Delivered(_) => self.shared.status().weights_published += 1,
-            Delivery::Dropped => tracing::debug!(policy_version, "weights pool busy; the next publish carries newer weights"),
+            Delivery::Dropped => tracing::debug!(
+                policy_version,
+                "weights pool busy; the next publish carries newer weights"
+            ),
         }
         Ok(())
     }
@@ -181,8 +214,10 @@ impl Learner {
         if updates == self.updates_at_checkpoint {
             return false;
         }
-        let by_count = config.checkpoint_every_updates > 0 && updates - self.updates_at_checkpoint >= config.checkpoint_every_updates;
-        let by_time = config.checkpoint_interval_s > 0.0 && self.last_checkpoint.elapsed().as_secs_f64() >= config.checkpoint_interval_s;
+        let by_count = config.checkpoint_every_updates > 0
+            && updates - self.updates_at_checkpoint >= config.checkpoint_every_updates;
+        let by_time = config.checkpoint_interval_s > 0.0
+            && self.last_checkpoint.elapsed().as_secs_f64() >= config.checkpoint_interval_s;
         by_count || by_time
     }
 
@@ -205,7 +240,11 @@ impl Learner {
         let dir = checkpoint::write(
             &self.checkpoint_dir,
             counters.env_steps,
-            &[("weights.safetensors", &weights), ("optimizer.safetensors", &optimizer), ("counters.json", &counters_json)],
+            &[
+                ("weights.safetensors", &weights),
+                ("optimizer.safetensors", &optimizer),
+                ("counters.json", &counters_json),
+            ],
             self.shared.config.keep_checkpoints,
         )
         .context("writing a checkpoint (is the disk full?)")?;
@@ -220,18 +259,43 @@ impl Learner {
 }
 
 /// Restores trainer and counters from the newest checkpoint that verifies.
-pub fn resume(checkpoint_dir: &std::path::Path, trainer: &mut Trainer, status: &mut LearnerStatus) -> anyhow::Result<()> {
+pub fn resume(
+    checkpoint_dir: &std::path::Path,
+    trainer: &mut Trainer,
+    status: &mut LearnerStatus,
+) -> anyhow::Result<()> {
     let Some(loaded) = checkpoint::load_newest_valid(checkpoint_dir)? else {
-        anyhow::bail!("no checkpoint under {}: nothing to resume (start without --resume for a new run)", checkpoint_dir.display());
+        anyhow::bail!(
+            "no checkpoint under {}: nothing to resume (start without --resume for a new run)",
+            checkpoint_dir.display()
+        );
     };
     for (dir, reason) in &loaded.skipped {
-        tracing::warn!("skipping damaged checkpoint {}: {reason}; falling back to an older one", dir.display());
+        tracing::warn!(
+            "skipping damaged checkpoint {}: {reason}; falling back to an older one",
+            dir.display()
+        );
     }
-    let file = |name: &str| loaded.files.get(name).with_context(|| format!("checkpoint {} lacks {name}", loaded.dir.display()));
-    let counters: Counters = serde_json::from_slice(file("counters.json")?).context("parsing counters.json")?;
+    let file = |name: &str| {
+        loaded
+            .files
+            .get(name)
+            .with_context(|| format!("checkpoint {} lacks {name}", loaded.dir.display()))
+    };
+    let counters: Counters =
+        serde_json::from_slice(file("counters.json")?).context("parsing counters.json")?;
     trainer
-        .restore(file("weights.safetensors")?, file("optimizer.safetensors")?, counters.adam_steps)
-        .with_context(|| format!("loading weights from {} (does the [policy] config match the run's?)", loaded.dir.display()))?;
+        .restore(
+            file("weights.safetensors")?,
+            file("optimizer.safetensors")?,
+            counters.adam_steps,
+        )
+        .with_context(|| {
+            format!(
+                "loading weights from {} (does the [policy] config match the run's?)",
+                loaded.dir.display()
+            )
+        })?;
     status.env_steps = counters.env_steps;
     status.updates = counters.updates;
     status.episodes = counters.episodes;

@@ -161,7 +161,13 @@ impl LearnerStatus {
 
     /// Records an accepted message and returns how many of the actor's earlier
     /// messages of this kind were lost (sequence gap).
-    pub fn accept(&mut self, actor_id: u32, kind: MessageKind, sequence: u64, policy_version: u64) -> u64 {
+    pub fn accept(
+        &mut self,
+        actor_id: u32,
+        kind: MessageKind,
+        sequence: u64,
+        policy_version: u64,
+    ) -> u64 {
         let now = Instant::now();
         let current = self.policy_version;
         let actor = self.actors.entry(actor_id).or_insert_with(|| ActorState {
@@ -177,7 +183,11 @@ impl LearnerStatus {
         *actor.received.entry(kind.as_str()).or_default() += 1;
         *self.received.entry(kind.as_str()).or_default() += 1;
         // A restarted actor starts again at 1: only forward gaps count.
-        let expected = actor.next_sequence.get(kind.as_str()).copied().unwrap_or(sequence);
+        let expected = actor
+            .next_sequence
+            .get(kind.as_str())
+            .copied()
+            .unwrap_or(sequence);
         let lost = sequence.saturating_sub(expected);
         actor.dropped += lost;
         actor.next_sequence.insert(kind.as_str(), sequence + 1);
@@ -206,7 +216,10 @@ impl LearnerStatus {
 
     /// Counts a rejected message.
     pub fn reject(&mut self, kind: MessageKind, reason: &'static str) {
-        *self.rejected.entry((proto::service::for_kind(kind), reason)).or_default() += 1;
+        *self
+            .rejected
+            .entry((proto::service::for_kind(kind), reason))
+            .or_default() += 1;
     }
 
     /// A consistent copy for rendering.
@@ -220,7 +233,11 @@ impl LearnerStatus {
                     id,
                     alive: last_seen_s <= actor_timeout_s,
                     last_seen_s,
-                    received: a.received.iter().map(|(k, v)| (k.to_string(), *v)).collect(),
+                    received: a
+                        .received
+                        .iter()
+                        .map(|(k, v)| (k.to_string(), *v))
+                        .collect(),
                     dropped: a.dropped,
                     env_steps: a.env_steps,
                     policy_lag: a.policy_lag,
@@ -240,16 +257,28 @@ impl LearnerStatus {
             checkpoints_written: self.checkpoints_written,
             last_checkpoint_step: self.last_checkpoint_step,
             actors_alive: actors.iter().filter(|a| a.alive).count(),
-            received: self.received.iter().map(|(k, v)| (k.to_string(), *v)).collect(),
+            received: self
+                .received
+                .iter()
+                .map(|(k, v)| (k.to_string(), *v))
+                .collect(),
             rejected: self
                 .rejected
                 .iter()
-                .map(|(&(service, reason), &count)| RejectedCount { service: service.into(), reason: reason.into(), count })
+                .map(|(&(service, reason), &count)| RejectedCount {
+                    service: service.into(),
+                    reason: reason.into(),
+                    count,
+                })
                 .collect(),
             dropped: actors.iter().map(|a| a.dropped).sum(),
             untrainable_chunks: self.untrainable_chunks,
             last_update: self.last_update,
-            last_episode: self.last_episode.iter().map(|(k, v)| (k.to_string(), *v)).collect(),
+            last_episode: self
+                .last_episode
+                .iter()
+                .map(|(k, v)| (k.to_string(), *v))
+                .collect(),
             actors,
         }
     }

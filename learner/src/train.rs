@@ -57,7 +57,14 @@ pub struct Trainer {
 }
 
 /// Generalised advantage estimates and returns for one chunk.
-pub fn gae(rewards: &[f32], values: &[f32], dones: &[u8], bootstrap: f32, gamma: f32, lambda: f32) -> (Vec<f32>, Vec<f32>) {
+pub fn gae(
+    rewards: &[f32],
+    values: &[f32],
+    dones: &[u8],
+    bootstrap: f32,
+    gamma: f32,
+    lambda: f32,
+) -> (Vec<f32>, Vec<f32>) {
     let t = rewards.len();
     let mut advantages = vec![0.0; t];
     let mut last = 0.0;
@@ -77,13 +84,22 @@ impl Trainer {
     pub fn new(config: PolicyConfig) -> Self {
         let net = LinearActorCritic::zeros(config.obs_dim, config.n_actions);
         let n = net.params.len();
-        Self { net, adam_m: vec![0.0; n], adam_v: vec![0.0; n], adam_steps: 0, config }
+        Self {
+            net,
+            adam_m: vec![0.0; n],
+            adam_v: vec![0.0; n],
+            adam_steps: 0,
+            config,
+        }
     }
 
     /// One update on one chunk.
     pub fn update(&mut self, chunk: &RolloutView<'_>) -> Result<UpdateStats, TrainError> {
         let cfg = &self.config;
-        if chunk.obs_dtype != ObsDtype::F32 || chunk.obs_elems as usize != cfg.obs_dim || chunk.n_actions as usize != cfg.n_actions {
+        if chunk.obs_dtype != ObsDtype::F32
+            || chunk.obs_elems as usize != cfg.obs_dim
+            || chunk.n_actions as usize != cfg.n_actions
+        {
             return Err(TrainError::Shape {
                 obs_elems: chunk.obs_elems,
                 dtype: chunk.obs_dtype,
@@ -94,11 +110,21 @@ impl Trainer {
         }
         let t = chunk.n_steps();
         let values = chunk.values.to_vec();
-        let (mut advantages, returns) = gae(&chunk.rewards.to_vec(), &values, chunk.dones, chunk.bootstrap_value, cfg.gamma, cfg.gae_lambda);
+        let (mut advantages, returns) = gae(
+            &chunk.rewards.to_vec(),
+            &values,
+            chunk.dones,
+            chunk.bootstrap_value,
+            cfg.gamma,
+            cfg.gae_lambda,
+        );
         if t > 1 {
             let mean = advantages.iter().sum::<f32>() / t as f32;
-            let std = (advantages.iter().map(|a| (a - mean).powi(2)).sum::<f32>() / t as f32).sqrt();
-            advantages.iter_mut().for_each(|a| *a = (*a - mean) / (std + 1e-8));
+            let std =
+                (advantages.iter().map(|a| (a - mean).powi(2)).sum::<f32>() / t as f32).sqrt();
+            advantages
+                .iter_mut()
+                .for_each(|a| *a = (*a - mean) / (std + 1e-8));
         }
 
         let mut grad = vec![0.0f32; self.net.params.len()];
@@ -126,22 +152,32 @@ impl Trainer {
                 stats.clip_fraction += scale;
             }
             // d(policy loss)/d logits: zero where the clipped branch is active.
-            let clip_active = (adv > 0.0 && ratio > 1.0 + cfg.clip) || (adv < 0.0 && ratio < 1.0 - cfg.clip);
+            let clip_active =
+                (adv > 0.0 && ratio > 1.0 + cfg.clip) || (adv < 0.0 && ratio < 1.0 - cfg.clip);
             let g_logits: Vec<f32> = log_probs
                 .iter()
                 .enumerate()
                 .map(|(j, &lp)| {
                     let p = if lp.is_finite() { lp.exp() } else { 0.0 };
                     let onehot = if j == action { 1.0 } else { 0.0 };
-                    let policy = if clip_active { 0.0 } else { -adv * ratio * (onehot - p) };
-                    let entropy_bonus = if lp.is_finite() { cfg.entropy_coef * p * (lp + h) } else { 0.0 };
+                    let policy = if clip_active {
+                        0.0
+                    } else {
+                        -adv * ratio * (onehot - p)
+                    };
+                    let entropy_bonus = if lp.is_finite() {
+                        cfg.entropy_coef * p * (lp + h)
+                    } else {
+                        0.0
+                    };
                     policy + entropy_bonus
                 })
                 .collect();
             let value = self.net.value(&obs);
             stats.value_loss += 0.5 * (value - returns[i]).powi(2) * scale;
             let g_value = cfg.value_coef * (value - returns[i]);
-            self.net.accumulate_grad(&obs, &g_logits, g_value, scale, &mut grad);
+            self.net
+                .accumulate_grad(&obs, &g_logits, g_value, scale, &mut grad);
         }
         stats.explained_variance = explained_variance(&values, &returns);
         self.adam_step(&mut grad);
@@ -158,7 +194,14 @@ impl Trainer {
         self.adam_steps += 1;
         let step = self.adam_steps as i32;
         let (c1, c2) = (1.0 - b1.powi(step), 1.0 - b2.powi(step));
-        for (((p, g), m), v) in self.net.params.iter_mut().zip(grad.iter()).zip(&mut self.adam_m).zip(&mut self.adam_v) {
+        for (((p, g), m), v) in self
+            .net
+            .params
+            .iter_mut()
+            .zip(grad.iter())
+            .zip(&mut self.adam_m)
+            .zip(&mut self.adam_v)
+        {
             *m = b1 * *m + (1.0 - b1) * g;
             *v = b2 * *v + (1.0 - b2) * g * g;
             *p -= cfg.learning_rate * (*m / c1) / ((*v / c2).sqrt() + cfg.adam_eps);
@@ -175,8 +218,17 @@ impl Trainer {
     }
 
     /// Restores network and optimiser from checkpoint bytes.
-    pub fn restore(&mut self, weights: &[u8], optimizer: &[u8], adam_steps: u64) -> Result<(), NetsError> {
-        let net = LinearActorCritic::from_safetensors(weights, self.config.obs_dim, self.config.n_actions)?;
+    pub fn restore(
+        &mut self,
+        weights: &[u8],
+        optimizer: &[u8],
+        adam_steps: u64,
+    ) -> Result<(), NetsError> {
+        let net = LinearActorCritic::from_safetensors(
+            weights,
+            self.config.obs_dim,
+            self.config.n_actions,
+        )?;
         let n = net.params.len();
         let file = NamedTensors::parse(optimizer)?;
         self.adam_m = NamedTensors::read(&file, "policy.adam.m", &[n])?;
@@ -207,7 +259,14 @@ mod tests {
     #[test]
     fn gae_matches_a_hand_computed_example() {
         // γ = 0.5, λ = 0.5; episode ends after step 1, so step 2 starts a new one.
-        let (adv, ret) = gae(&[1.0, 2.0, 3.0], &[0.5, 1.0, 1.5], &[0, 1, 0], 2.0, 0.5, 0.5);
+        let (adv, ret) = gae(
+            &[1.0, 2.0, 3.0],
+            &[0.5, 1.0, 1.5],
+            &[0, 1, 0],
+            2.0,
+            0.5,
+            0.5,
+        );
         // step 2: δ = 3 + 0.5·2 − 1.5 = 2.5
         // step 1: δ = 2 − 1 = 1 (terminal)            → A = 1
         // step 0: δ = 1 + 0.5·1 − 0.5 = 1; A = 1 + 0.25·1 = 1.25

@@ -128,23 +128,47 @@ impl<'a> FrameBatchView<'a> {
         let pixels = u64::from(n_frames) * u64::from(height) * u64::from(width);
         let expected = checked_total(
             "frames",
-            &[(SUB_HEADER_LEN as u64, 1), (pixels, 4), (pixels, 3), (pixels, n_affordances.into())],
+            &[
+                (SUB_HEADER_LEN as u64, 1),
+                (pixels, 4),
+                (pixels, 3),
+                (pixels, n_affordances.into()),
+            ],
             payload.len(),
         )?;
         check_layout("frames", expected, payload.len())?;
         let pixels = pixels as usize;
         let mut r = Splitter::new(&payload[SUB_HEADER_LEN..]);
-        let truncated = || ProtoError::Truncated { what: "frame arrays", needed: expected as usize, got: payload.len() };
+        let truncated = || ProtoError::Truncated {
+            what: "frame arrays",
+            needed: expected as usize,
+            got: payload.len(),
+        };
         let depth_m = F32Array::new(r.take(4 * pixels).ok_or_else(truncated)?);
         let rgb = r.take(3 * pixels).ok_or_else(truncated)?;
-        let labels = r.take(n_affordances as usize * pixels).ok_or_else(truncated)?;
+        let labels = r
+            .take(n_affordances as usize * pixels)
+            .ok_or_else(truncated)?;
         check_floats("depth_m", depth_m, Some((0.0, f32::MAX)), ", >= 0")?;
         if let Some(&bad) = labels
             .iter()
             .find(|&&l| l != LABEL_NEGATIVE && l != LABEL_POSITIVE && l != LABEL_UNKNOWN)
         {
-            return Err(ProtoError::OutOfRange { field: "labels", value: bad.into(), allowed: "0, 1 or 255" });
+            return Err(ProtoError::OutOfRange {
+                field: "labels",
+                value: bad.into(),
+                allowed: "0, 1 or 255",
+            });
         }
-        Ok(Self { episode_id, n_frames, height, width, n_affordances, depth_m, rgb, labels })
+        Ok(Self {
+            episode_id,
+            n_frames,
+            height,
+            width,
+            n_affordances,
+            depth_m,
+            rgb,
+            labels,
+        })
     }
 }

@@ -24,6 +24,8 @@ pub use error::ProtoError;
 pub use frames::{FrameBatch, FrameBatchView, LABEL_NEGATIVE, LABEL_POSITIVE, LABEL_UNKNOWN};
 pub use header::{MessageHeader, MessageKind, HEADER_LEN, LEARNER_ID, MAGIC, SCHEMA_VERSION};
 pub use message::{decode, encode, encode_into, encoded_len, Limits, Message, Payload};
-pub use rollout::{obs_bytes_from_f32, ObsDtype, RolloutChunk, RolloutView, MAX_ACTIONS, MAX_STEPS};
+pub use rollout::{
+    obs_bytes_from_f32, ObsDtype, RolloutChunk, RolloutView, MAX_ACTIONS, MAX_STEPS,
+};
 pub use stats::{EpisodeStats, StatField};
 pub use weights::{WeightsBlob, WeightsView, WEIGHTS_POLICY_PREFIX, WEIGHTS_UNET_PREFIX};

@@ -155,7 +155,11 @@ fn check_sender(kind: MessageKind, actor_id: u32, limits: &Limits) -> Result<(),
 }
 
 /// Returns an error unless `len` equals `expected` (both as declared by a layout).
-pub(crate) fn check_layout(what: &'static str, expected: u64, len: usize) -> Result<(), ProtoError> {
+pub(crate) fn check_layout(
+    what: &'static str,
+    expected: u64,
+    len: usize,
+) -> Result<(), ProtoError> {
     if expected != len as u64 {
         return Err(ProtoError::LayoutMismatch {
             what,
@@ -185,7 +189,11 @@ pub(crate) fn check_range(
 }
 
 /// Sums sizes with overflow detection; an overflow is reported as an impossible layout.
-pub(crate) fn checked_total(what: &'static str, parts: &[(u64, u64)], actual: usize) -> Result<u64, ProtoError> {
+pub(crate) fn checked_total(
+    what: &'static str,
+    parts: &[(u64, u64)],
+    actual: usize,
+) -> Result<u64, ProtoError> {
     let mut total: u64 = 0;
     for &(count, size) in parts {
         let bytes = count.checked_mul(size);

@@ -19,7 +19,9 @@
 //! | T·n_actions | action masks, one byte per action (1 = allowed) |
 //! | T | dones u8 (1 = the episode ended after this step) |
 
-use crate::arrays::{check_floats, put_f32s, put_u32s, read_u32, read_u64, F32Array, Splitter, SplitterMut, U32Array};
+use crate::arrays::{
+    check_floats, put_f32s, put_u32s, read_u32, read_u64, F32Array, Splitter, SplitterMut, U32Array,
+};
 use crate::message::{check_layout, check_range, checked_total, Payload};
 use crate::{MessageKind, ProtoError};
 
@@ -216,20 +218,46 @@ impl<'a> RolloutView<'a> {
         let n_actions = read_u32(payload, 24);
         let bootstrap_value = f32::from_bits(read_u32(payload, 28));
         check_range("n_steps", n_steps.into(), 1, MAX_STEPS.into(), "1..=4096")?;
-        check_range("n_actions", n_actions.into(), 1, MAX_ACTIONS.into(), "1..=256")?;
-        check_range("obs_elems", obs_elems.into(), 0, MAX_OBS_ELEMS.into(), "0..=2^24")?;
+        check_range(
+            "n_actions",
+            n_actions.into(),
+            1,
+            MAX_ACTIONS.into(),
+            "1..=256",
+        )?;
+        check_range(
+            "obs_elems",
+            obs_elems.into(),
+            0,
+            MAX_OBS_ELEMS.into(),
+            "0..=2^24",
+        )?;
         let t = u64::from(n_steps);
-        let obs_len = checked_total("rollout", &[(t * u64::from(obs_elems), obs_dtype.size() as u64)], payload.len())?;
+        let obs_len = checked_total(
+            "rollout",
+            &[(t * u64::from(obs_elems), obs_dtype.size() as u64)],
+            payload.len(),
+        )?;
         let expected = checked_total(
             "rollout",
-            &[(SUB_HEADER_LEN as u64, 1), (t, 16), (obs_len, 1), (t, n_actions.into()), (t, 1)],
+            &[
+                (SUB_HEADER_LEN as u64, 1),
+                (t, 16),
+                (obs_len, 1),
+                (t, n_actions.into()),
+                (t, 1),
+            ],
             payload.len(),
         )?;
         check_layout("rollout", expected, payload.len())?;
 
         let t = t as usize;
         let mut r = Splitter::new(&payload[SUB_HEADER_LEN..]);
-        let truncated = || ProtoError::Truncated { what: "rollout arrays", needed: expected as usize, got: payload.len() };
+        let truncated = || ProtoError::Truncated {
+            what: "rollout arrays",
+            needed: expected as usize,
+            got: payload.len(),
+        };
         let actions = U32Array::new(r.take(4 * t).ok_or_else(truncated)?);
         let log_probs = F32Array::new(r.take(4 * t).ok_or_else(truncated)?);
         let values = F32Array::new(r.take(4 * t).ok_or_else(truncated)?);
@@ -239,7 +267,12 @@ impl<'a> RolloutView<'a> {
         let dones = r.take(t).ok_or_else(truncated)?;
 
         if !bootstrap_value.is_finite() {
-            return Err(ProtoError::BadFloat { field: "bootstrap_value", index: 0, value: bootstrap_value, extra: "" });
+            return Err(ProtoError::BadFloat {
+                field: "bootstrap_value",
+                index: 0,
+                value: bootstrap_value,
+                extra: "",
+            });
         }
         check_floats("log_probs", log_probs, Some((f32::MIN, 0.0)), ", <= 0")?;
         check_floats("values", values, None, "")?;
@@ -248,15 +281,27 @@ impl<'a> RolloutView<'a> {
             check_floats("obs", F32Array::new(obs), None, "")?;
         }
         if let Some(&bad) = masks.iter().find(|&&m| m > 1) {
-            return Err(ProtoError::OutOfRange { field: "masks", value: bad.into(), allowed: "0 or 1" });
+            return Err(ProtoError::OutOfRange {
+                field: "masks",
+                value: bad.into(),
+                allowed: "0 or 1",
+            });
         }
         if let Some(&bad) = dones.iter().find(|&&d| d > 1) {
-            return Err(ProtoError::OutOfRange { field: "dones", value: bad.into(), allowed: "0 or 1" });
+            return Err(ProtoError::OutOfRange {
+                field: "dones",
+                value: bad.into(),
+                allowed: "0 or 1",
+            });
         }
         let n = n_actions as usize;
         for (step, action) in actions.iter().enumerate() {
             if action >= n_actions {
-                return Err(ProtoError::OutOfRange { field: "actions", value: action.into(), allowed: "below n_actions" });
+                return Err(ProtoError::OutOfRange {
+                    field: "actions",
+                    value: action.into(),
+                    allowed: "below n_actions",
+                });
             }
             if masks[step * n + action as usize] == 0 {
                 return Err(ProtoError::MaskedAction { step, action });

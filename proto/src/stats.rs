@@ -87,7 +87,12 @@ pub struct EpisodeStats {
 impl EpisodeStats {
     /// An empty record for an episode.
     pub fn new(episode_id: u64, steps: u32, scene_index: u32) -> Self {
-        Self { episode_id, steps, scene_index, values: [None; StatField::COUNT] }
+        Self {
+            episode_id,
+            steps,
+            scene_index,
+            values: [None; StatField::COUNT],
+        }
     }
 
     /// Sets a metric; builder style.
@@ -103,20 +108,34 @@ impl EpisodeStats {
 
     /// All reported metrics.
     pub fn present(&self) -> impl Iterator<Item = (StatField, f32)> + '_ {
-        StatField::ALL.into_iter().filter_map(|f| self.get(f).map(|v| (f, v)))
+        StatField::ALL
+            .into_iter()
+            .filter_map(|f| self.get(f).map(|v| (f, v)))
     }
 
     pub(crate) fn parse(payload: &[u8]) -> Result<Self, ProtoError> {
         check_layout("stats", PAYLOAD_LEN as u64, payload.len())?;
         let present = read_u32(payload, 16);
         if present >> StatField::COUNT != 0 {
-            return Err(ProtoError::OutOfRange { field: "present", value: present.into(), allowed: "bits 0..8" });
+            return Err(ProtoError::OutOfRange {
+                field: "present",
+                value: present.into(),
+                allowed: "bits 0..8",
+            });
         }
         let reserved = read_u32(payload, 20);
         if reserved != 0 {
-            return Err(ProtoError::OutOfRange { field: "reserved", value: reserved.into(), allowed: "0" });
+            return Err(ProtoError::OutOfRange {
+                field: "reserved",
+                value: reserved.into(),
+                allowed: "0",
+            });
         }
-        let mut stats = Self::new(read_u64(payload, 0), read_u32(payload, 8), read_u32(payload, 12));
+        let mut stats = Self::new(
+            read_u64(payload, 0),
+            read_u32(payload, 8),
+            read_u32(payload, 12),
+        );
         for field in StatField::ALL {
             let i = field as usize;
             let value = f32::from_bits(read_u32(payload, FIXED_LEN + 4 * i));
@@ -125,7 +144,12 @@ impl EpisodeStats {
             }
             let (lo, hi) = field.range();
             if !value.is_finite() || value < lo || value > hi {
-                return Err(ProtoError::BadFloat { field: field.as_str(), index: 0, value, extra: " and in its range" });
+                return Err(ProtoError::BadFloat {
+                    field: field.as_str(),
+                    index: 0,
+                    value,
+                    extra: " and in its range",
+                });
             }
             stats.values[i] = Some(value);
         }

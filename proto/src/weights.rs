@@ -42,7 +42,8 @@ impl<'a> WeightsView<'a> {
     }
 
     pub(crate) fn parse(payload: &'a [u8]) -> Result<Self, ProtoError> {
-        let tensors = SafeTensors::deserialize(payload).map_err(|e| ProtoError::BadWeights(e.to_string()))?;
+        let tensors =
+            SafeTensors::deserialize(payload).map_err(|e| ProtoError::BadWeights(e.to_string()))?;
         for (name, view) in tensors.iter() {
             if !name.starts_with(WEIGHTS_POLICY_PREFIX) && !name.starts_with(WEIGHTS_UNET_PREFIX) {
                 return Err(ProtoError::BadWeights(format!(
@@ -53,12 +54,20 @@ impl<'a> WeightsView<'a> {
                 for (index, b) in view.data().chunks_exact(4).enumerate() {
                     let value = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
                     if !value.is_finite() {
-                        return Err(ProtoError::BadFloat { field: "weights", index, value, extra: "" });
+                        return Err(ProtoError::BadFloat {
+                            field: "weights",
+                            index,
+                            value,
+                            extra: "",
+                        });
                     }
                 }
             }
         }
-        Ok(Self { bytes: payload, tensors })
+        Ok(Self {
+            bytes: payload,
+            tensors,
+        })
     }
 }
 

@@ -3,11 +3,14 @@
 
 use proptest::prelude::*;
 use proto::{
-    decode, encode, EpisodeStats, FrameBatch, Limits, Message, MessageHeader, MessageKind, ObsDtype,
-    ProtoError, RolloutChunk, StatField, WeightsBlob, HEADER_LEN, LEARNER_ID,
+    decode, encode, EpisodeStats, FrameBatch, Limits, Message, MessageHeader, MessageKind,
+    ObsDtype, ProtoError, RolloutChunk, StatField, WeightsBlob, HEADER_LEN, LEARNER_ID,
 };
 
-const LIMITS: Limits = Limits { max_actors: 16, max_payload_len: 64 << 20 };
+const LIMITS: Limits = Limits {
+    max_actors: 16,
+    max_payload_len: 64 << 20,
+};
 
 fn header(actor_id: u32, sequence: u64) -> MessageHeader {
     MessageHeader {
@@ -38,30 +41,41 @@ fn rollout_strategy() -> impl Strategy<Value = RolloutChunk> {
                 prop::collection::vec(0u8..2, t),
                 0u32..600,
             )
-                .prop_map(move |(obs_u8, obs_f32, mut masks, actions, log_probs, vr, dones, first_step)| {
-                    for (m, &a) in masks.iter_mut().zip(&actions) {
-                        m[a as usize] = true;
-                    }
-                    let obs = match dtype {
-                        ObsDtype::U8 => obs_u8,
-                        ObsDtype::F32 => proto::obs_bytes_from_f32(&obs_f32),
-                    };
-                    RolloutChunk {
-                        episode_id,
-                        first_step,
-                        n_actions,
-                        obs_dtype: dtype,
-                        obs_elems,
-                        obs,
-                        masks: masks.into_iter().flatten().map(u8::from).collect(),
+                .prop_map(
+                    move |(
+                        obs_u8,
+                        obs_f32,
+                        mut masks,
                         actions,
                         log_probs,
-                        values: vr[..t].to_vec(),
-                        rewards: vr[t..].to_vec(),
+                        vr,
                         dones,
-                        bootstrap_value: 0.5,
-                    }
-                })
+                        first_step,
+                    )| {
+                        for (m, &a) in masks.iter_mut().zip(&actions) {
+                            m[a as usize] = true;
+                        }
+                        let obs = match dtype {
+                            ObsDtype::U8 => obs_u8,
+                            ObsDtype::F32 => proto::obs_bytes_from_f32(&obs_f32),
+                        };
+                        RolloutChunk {
+                            episode_id,
+                            first_step,
+                            n_actions,
+                            obs_dtype: dtype,
+                            obs_elems,
+                            obs,
+                            masks: masks.into_iter().flatten().map(u8::from).collect(),
+                            actions,
+                            log_probs,
+                            values: vr[..t].to_vec(),
+                            rewards: vr[t..].to_vec(),
+                            dones,
+                            bootstrap_value: 0.5,
+                        }
+                    },
+                )
         },
     )
 }
@@ -88,19 +102,28 @@ fn frames_strategy() -> impl Strategy<Value = FrameBatch> {
 }
 
 fn stats_strategy() -> impl Strategy<Value = EpisodeStats> {
-    (any::<u64>(), any::<u32>(), 0u32..30, prop::collection::vec(prop::option::of(0.0f32..1.0), 8)).prop_map(
-        |(id, steps, scene, values)| {
-            StatField::ALL.into_iter().zip(values).fold(EpisodeStats::new(id, steps, scene), |s, (f, v)| match v {
-                Some(v) => s.with(f, v),
-                None => s,
-            })
-        },
+    (
+        any::<u64>(),
+        any::<u32>(),
+        0u32..30,
+        prop::collection::vec(prop::option::of(0.0f32..1.0), 8),
     )
+        .prop_map(|(id, steps, scene, values)| {
+            StatField::ALL.into_iter().zip(values).fold(
+                EpisodeStats::new(id, steps, scene),
+                |s, (f, v)| match v {
+                    Some(v) => s.with(f, v),
+                    None => s,
+                },
+            )
+        })
 }
 
 fn weights_bytes(values: &[f32]) -> Vec<u8> {
     let data: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
-    let view = safetensors::tensor::TensorView::new(safetensors::Dtype::F32, vec![values.len()], &data).unwrap();
+    let view =
+        safetensors::tensor::TensorView::new(safetensors::Dtype::F32, vec![values.len()], &data)
+            .unwrap();
     safetensors::serialize([("policy.actor.0.weight", view)], None).unwrap()
 }
 
@@ -234,12 +257,25 @@ fn non_finite_values_are_rejected_even_with_a_valid_checksum() {
     let mut chunk = small_chunk();
     chunk.rewards[1] = f32::NAN;
     let err = decode(&encode(&chunk, header(0, 0)), &LIMITS).unwrap_err();
-    assert!(matches!(err, ProtoError::BadFloat { field: "rewards", index: 1, .. }), "{err}");
+    assert!(
+        matches!(
+            err,
+            ProtoError::BadFloat {
+                field: "rewards",
+                index: 1,
+                ..
+            }
+        ),
+        "{err}"
+    );
 
     let mut chunk = small_chunk();
     chunk.obs = proto::obs_bytes_from_f32(&[0.0, f32::INFINITY, 2.0, 3.0]);
     let err = decode(&encode(&chunk, header(0, 0)), &LIMITS).unwrap_err();
-    assert!(matches!(err, ProtoError::BadFloat { field: "obs", .. }), "{err}");
+    assert!(
+        matches!(err, ProtoError::BadFloat { field: "obs", .. }),
+        "{err}"
+    );
 }
 
 #[test]
@@ -252,16 +288,34 @@ fn masked_and_out_of_range_actions_are_rejected() {
     let bytes = reencode_with_fixed_checksum(encode(&small_chunk(), header(0, 0)), |p| {
         p[32..36].copy_from_slice(&7u32.to_le_bytes());
     });
-    assert!(matches!(decode(&bytes, &LIMITS), Err(ProtoError::OutOfRange { field: "actions", .. })));
+    assert!(matches!(
+        decode(&bytes, &LIMITS),
+        Err(ProtoError::OutOfRange {
+            field: "actions",
+            ..
+        })
+    ));
 }
 
 #[test]
 fn ids_out_of_range_are_rejected() {
     let bytes = encode(&small_chunk(), header(LIMITS.max_actors, 0));
-    assert!(matches!(decode(&bytes, &LIMITS), Err(ProtoError::OutOfRange { field: "actor_id", .. })));
+    assert!(matches!(
+        decode(&bytes, &LIMITS),
+        Err(ProtoError::OutOfRange {
+            field: "actor_id",
+            ..
+        })
+    ));
     let blob = weights_bytes(&[1.0]);
     let bytes = encode(&WeightsBlob(&blob), header(0, 0));
-    assert!(matches!(decode(&bytes, &LIMITS), Err(ProtoError::OutOfRange { field: "actor_id", .. })));
+    assert!(matches!(
+        decode(&bytes, &LIMITS),
+        Err(ProtoError::OutOfRange {
+            field: "actor_id",
+            ..
+        })
+    ));
 }
 
 #[test]
@@ -269,9 +323,21 @@ fn lengths_that_disagree_are_rejected() {
     let bytes = reencode_with_fixed_checksum(encode(&small_chunk(), header(0, 0)), |p| {
         p[12..16].copy_from_slice(&3u32.to_le_bytes()); // n_steps 2 -> 3
     });
-    assert!(matches!(decode(&bytes, &LIMITS), Err(ProtoError::LayoutMismatch { what: "rollout", .. })));
-    let small = Limits { max_actors: 16, max_payload_len: 16 };
-    assert!(matches!(decode(&encode(&small_chunk(), header(0, 0)), &small), Err(ProtoError::PayloadTooLarge { .. })));
+    assert!(matches!(
+        decode(&bytes, &LIMITS),
+        Err(ProtoError::LayoutMismatch {
+            what: "rollout",
+            ..
+        })
+    ));
+    let small = Limits {
+        max_actors: 16,
+        max_payload_len: 16,
+    };
+    assert!(matches!(
+        decode(&encode(&small_chunk(), header(0, 0)), &small),
+        Err(ProtoError::PayloadTooLarge { .. })
+    ));
 }
 
 #[test]
@@ -285,20 +351,48 @@ fn bad_labels_and_negative_depth_are_rejected() {
         rgb: vec![0; 6],
         labels: vec![0, 1],
     };
-    assert!(matches!(decode(&encode(&batch, header(0, 0)), &LIMITS), Err(ProtoError::BadFloat { field: "depth_m", .. })));
-    let batch = FrameBatch { depth_m: vec![1.0, 1.0], labels: vec![0, 2], ..batch };
-    assert!(matches!(decode(&encode(&batch, header(0, 0)), &LIMITS), Err(ProtoError::OutOfRange { field: "labels", .. })));
+    assert!(matches!(
+        decode(&encode(&batch, header(0, 0)), &LIMITS),
+        Err(ProtoError::BadFloat {
+            field: "depth_m",
+            ..
+        })
+    ));
+    let batch = FrameBatch {
+        depth_m: vec![1.0, 1.0],
+        labels: vec![0, 2],
+        ..batch
+    };
+    assert!(matches!(
+        decode(&encode(&batch, header(0, 0)), &LIMITS),
+        Err(ProtoError::OutOfRange {
+            field: "labels",
+            ..
+        })
+    ));
 }
 
 #[test]
 fn out_of_range_rates_are_rejected() {
     let stats = EpisodeStats::new(0, 600, 0).with(StatField::InteractionSuccessRate, 1.5);
     let err = decode(&encode(&stats, header(0, 0)), &LIMITS).unwrap_err();
-    assert!(matches!(err, ProtoError::BadFloat { field: "interaction_success_rate", .. }), "{err}");
+    assert!(
+        matches!(
+            err,
+            ProtoError::BadFloat {
+                field: "interaction_success_rate",
+                ..
+            }
+        ),
+        "{err}"
+    );
 }
 
 #[test]
 fn kinds_have_distinct_services() {
-    let names: std::collections::HashSet<_> = MessageKind::ALL.iter().map(|&k| proto::service::for_kind(k)).collect();
+    let names: std::collections::HashSet<_> = MessageKind::ALL
+        .iter()
+        .map(|&k| proto::service::for_kind(k))
+        .collect();
     assert_eq!(names.len(), 4);
 }

@@ -14,16 +14,28 @@ use std::time::{Duration, Instant};
 /// Path of a workspace binary next to the running test executable.
 pub fn bin(name: &str) -> PathBuf {
     let exe = std::env::current_exe().expect("test executable path");
-    let dir = exe.parent().and_then(Path::parent).expect("target/<profile> directory");
+    let dir = exe
+        .parent()
+        .and_then(Path::parent)
+        .expect("target/<profile> directory");
     let path = dir.join(name);
-    assert!(path.exists(), "{} not found: build the binaries first with `cargo build --workspace --bins`", path.display());
+    assert!(
+        path.exists(),
+        "{} not found: build the binaries first with `cargo build --workspace --bins`",
+        path.display()
+    );
     path
 }
 
 /// A unique scratch directory under the target directory.
 pub fn scratch_dir(test: &str) -> PathBuf {
     let exe = std::env::current_exe().expect("test executable path");
-    let dir = exe.parent().and_then(Path::parent).expect("target dir").join("system-tests").join(format!("{test}-{}", std::process::id()));
+    let dir = exe
+        .parent()
+        .and_then(Path::parent)
+        .expect("target dir")
+        .join("system-tests")
+        .join(format!("{test}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).expect("creating scratch dir");
     dir
@@ -36,7 +48,10 @@ pub fn wait_for<T>(timeout: Duration, what: &str, mut f: impl FnMut() -> Option<
         if let Some(v) = f() {
             return v;
         }
-        assert!(Instant::now() < deadline, "timed out after {timeout:?} waiting for {what}");
+        assert!(
+            Instant::now() < deadline,
+            "timed out after {timeout:?} waiting for {what}"
+        );
         std::thread::sleep(Duration::from_millis(50));
     }
 }
@@ -111,22 +126,31 @@ impl Learner {
     pub fn start(run_dir: &Path, args: &[String], log: PathBuf) -> Self {
         let addr_file = run_dir.join("http.addr");
         let _ = std::fs::remove_file(&addr_file);
-        let mut full = vec!["serve".to_string(), "--http-addr".into(), "127.0.0.1:0".into()];
+        let mut full = vec![
+            "serve".to_string(),
+            "--http-addr".into(),
+            "127.0.0.1:0".into(),
+        ];
         full.extend_from_slice(args);
         let mut process = Process::start(&bin("learner"), &full, log);
         let addr = wait_for(Duration::from_secs(20), "the learner's http.addr", || {
             if let Ok(Some(status)) = process.child.try_wait() {
                 panic!("learner exited early ({status}):\n{}", process.log_text());
             }
-            std::fs::read_to_string(&addr_file).ok().filter(|a| !a.is_empty())
+            std::fs::read_to_string(&addr_file)
+                .ok()
+                .filter(|a| !a.is_empty())
         });
-        wait_for(Duration::from_secs(10), "/healthz", || http_get(&addr, "/healthz").filter(|(code, _)| *code == 200));
+        wait_for(Duration::from_secs(10), "/healthz", || {
+            http_get(&addr, "/healthz").filter(|(code, _)| *code == 200)
+        });
         Self { process, addr }
     }
 
     /// `/api/status` as JSON.
     pub fn status(&self) -> serde_json::Value {
-        let (code, body) = http_get(&self.addr, "/api/status").expect("learner answers /api/status");
+        let (code, body) =
+            http_get(&self.addr, "/api/status").expect("learner answers /api/status");
         assert_eq!(code, 200, "{body}");
         serde_json::from_str(&body).expect("status is JSON")
     }
@@ -150,11 +174,18 @@ pub fn start_actor(id: u32, prefix: &str, dir: &Path, extra: &[&str]) -> Process
         "bandit-fixture".into(),
     ];
     args.extend(extra.iter().map(|s| s.to_string()));
-    Process::start(&bin("actor"), &args, dir.join(format!("actor-{id}-{}.log", now_ms())))
+    Process::start(
+        &bin("actor"),
+        &args,
+        dir.join(format!("actor-{id}-{}.log", now_ms())),
+    )
 }
 
 fn now_ms() -> u128 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_millis()).unwrap_or(0)
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_millis())
+        .unwrap_or(0)
 }
 
 /// A plain HTTP/1.0 GET; `None` if the connection fails.
@@ -171,7 +202,9 @@ pub fn http_get(addr: &str, path: &str) -> Option<(u16, String)> {
 
 /// Reads one sample's value from Prometheus text (`name` with exact labels, e.g. `afx_actors_alive`).
 pub fn metric_value(text: &str, name_and_labels: &str) -> Option<f64> {
-    text.lines()
-        .filter(|l| !l.starts_with('#'))
-        .find_map(|l| l.strip_prefix(name_and_labels).and_then(|rest| rest.strip_prefix(' ')).and_then(|v| v.trim().parse().ok()))
+    text.lines().filter(|l| !l.starts_with('#')).find_map(|l| {
+        l.strip_prefix(name_and_labels)
+            .and_then(|rest| rest.strip_prefix(' '))
+            .and_then(|v| v.trim().parse().ok())
+    })
 }

@@ -11,7 +11,12 @@ fn checkpoints(run_dir: &Path) -> Vec<(u64, PathBuf)> {
     let mut all: Vec<_> = std::fs::read_dir(run_dir.join("checkpoints"))
         .map(|rd| {
             rd.filter_map(|e| e.ok())
-                .filter_map(|e| e.file_name().to_str().and_then(|n| n.parse::<u64>().ok()).map(|s| (s, e.path())))
+                .filter_map(|e| {
+                    e.file_name()
+                        .to_str()
+                        .and_then(|n| n.parse::<u64>().ok())
+                        .map(|s| (s, e.path()))
+                })
                 .collect()
         })
         .unwrap_or_default();
@@ -27,10 +32,18 @@ fn assert_resumed_from(learner: &Learner, checkpoint: &Path) {
     let expected = counters(checkpoint);
     let status = learner.status();
     for field in ["env_steps", "updates", "policy_version", "episodes"] {
-        assert_eq!(status[field], expected[field], "{field} after resume from {}", checkpoint.display());
+        assert_eq!(
+            status[field],
+            expected[field],
+            "{field} after resume from {}",
+            checkpoint.display()
+        );
     }
     let log = learner.process.log_text();
-    assert!(log.contains(&format!("resumed from checkpoint {}", checkpoint.display())), "log does not say which checkpoint:\n{log}");
+    assert!(
+        log.contains(&format!("resumed from checkpoint {}", checkpoint.display())),
+        "log does not say which checkpoint:\n{log}"
+    );
 }
 
 #[test]
@@ -42,31 +55,60 @@ fn resume_after_kill_and_fall_back_past_a_corrupt_checkpoint() {
     std::fs::write(&config, format!("checkpoint_interval_s = 0.3\ncheckpoint_every_updates = 0\nkeep_checkpoints = 3\n[transport]\nservice_prefix = \"{prefix}\"\nmax_actors = 2\n")).unwrap();
     let run_args = |resume: bool| {
         let flag = if resume { "--resume" } else { "--run-dir" };
-        vec!["--config".to_string(), config.display().to_string(), flag.into(), run_dir.display().to_string()]
+        vec![
+            "--config".to_string(),
+            config.display().to_string(),
+            flag.into(),
+            run_dir.display().to_string(),
+        ]
     };
 
     let mut learner = Learner::start(&run_dir, &run_args(false), dir.join("learner-1.log"));
-    let mut actor = start_actor(0, &prefix, &dir, &["--config", &config.display().to_string()]);
-    wait_for(Duration::from_secs(30), "two checkpoints with training in them", || {
-        let all = checkpoints(&run_dir);
-        (all.len() >= 2 && all.iter().all(|(_, d)| d.join("manifest.json").exists() && counters(d)["updates"].as_u64() > Some(0))).then_some(())
-    });
+    let mut actor = start_actor(
+        0,
+        &prefix,
+        &dir,
+        &["--config", &config.display().to_string()],
+    );
+    wait_for(
+        Duration::from_secs(30),
+        "two checkpoints with training in them",
+        || {
+            let all = checkpoints(&run_dir);
+            (all.len() >= 2
+                && all.iter().all(|(_, d)| {
+                    d.join("manifest.json").exists() && counters(d)["updates"].as_u64() > Some(0)
+                }))
+            .then_some(())
+        },
+    );
     actor.signal(libc::SIGINT);
-    actor.wait_exit(Duration::from_secs(10)).expect("actor stops");
+    actor
+        .wait_exit(Duration::from_secs(10))
+        .expect("actor stops");
     learner.process.signal(libc::SIGKILL);
-    learner.process.wait_exit(Duration::from_secs(5)).expect("learner dies");
+    learner
+        .process
+        .wait_exit(Duration::from_secs(5))
+        .expect("learner dies");
     drop(learner);
 
     let all = checkpoints(&run_dir);
     let (newest_step, newest) = all.last().cloned().unwrap();
     let (_, previous) = all[all.len() - 2].clone();
-    assert!(counters(&newest)["policy_version"].as_u64() > Some(1), "training advanced the policy version");
+    assert!(
+        counters(&newest)["policy_version"].as_u64() > Some(1),
+        "training advanced the policy version"
+    );
 
     // Resume: counters and versions continue from the newest checkpoint.
     let mut learner = Learner::start(&run_dir, &run_args(true), dir.join("learner-2.log"));
     assert_resumed_from(&learner, &newest);
     learner.process.signal(libc::SIGKILL);
-    learner.process.wait_exit(Duration::from_secs(5)).expect("learner dies");
+    learner
+        .process
+        .wait_exit(Duration::from_secs(5))
+        .expect("learner dies");
     drop(learner);
 
     // Flip one byte of the newest checkpoint's weights: refused, previous used.
@@ -78,5 +120,8 @@ fn resume_after_kill_and_fall_back_past_a_corrupt_checkpoint() {
     let learner = Learner::start(&run_dir, &run_args(true), dir.join("learner-3.log"));
     assert_resumed_from(&learner, &previous);
     let log = learner.process.log_text();
-    assert!(log.contains("skipping damaged checkpoint") && log.contains(&newest_step.to_string()), "no warning about the damaged checkpoint:\n{log}");
+    assert!(
+        log.contains("skipping damaged checkpoint") && log.contains(&newest_step.to_string()),
+        "no warning about the damaged checkpoint:\n{log}"
+    );
 }

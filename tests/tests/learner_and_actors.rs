@@ -28,16 +28,28 @@ fn python_parses(metrics: &str) -> bool {
         .spawn()
         .and_then(|mut child| {
             use std::io::Write;
-            child.stdin.take().expect("stdin").write_all(metrics.as_bytes())?;
+            child
+                .stdin
+                .take()
+                .expect("stdin")
+                .write_all(metrics.as_bytes())?;
             child.wait_with_output()
         });
     match output {
         Ok(out) if out.status.success() => true,
-        Ok(out) if String::from_utf8_lossy(&out.stderr).contains("ModuleNotFoundError") && std::env::var_os("AFX_REQUIRE_PYTHON_CHECKS").is_none() => {
-            eprintln!("skipping the prometheus_client parse: `pip install prometheus_client` to run it");
+        Ok(out)
+            if String::from_utf8_lossy(&out.stderr).contains("ModuleNotFoundError")
+                && std::env::var_os("AFX_REQUIRE_PYTHON_CHECKS").is_none() =>
+        {
+            eprintln!(
+                "skipping the prometheus_client parse: `pip install prometheus_client` to run it"
+            );
             true
         }
-        Ok(out) => panic!("prometheus_client rejected /metrics:\n{}\n---\n{metrics}", String::from_utf8_lossy(&out.stderr)),
+        Ok(out) => panic!(
+            "prometheus_client rejected /metrics:\n{}\n---\n{metrics}",
+            String::from_utf8_lossy(&out.stderr)
+        ),
         Err(e) if std::env::var_os("AFX_REQUIRE_PYTHON_CHECKS").is_none() => {
             eprintln!("skipping the prometheus_client parse: python3 not runnable ({e})");
             true
@@ -53,23 +65,43 @@ fn learner_serves_three_actors_and_survives_a_killed_one() {
     let run_dir = dir.join("run");
     let learner = Learner::start(
         &run_dir,
-        &["--run-dir".into(), run_dir.display().to_string(), "--service-prefix".into(), prefix.clone(), "--max-actors".into(), "4".into()],
+        &[
+            "--run-dir".into(),
+            run_dir.display().to_string(),
+            "--service-prefix".into(),
+            prefix.clone(),
+            "--max-actors".into(),
+            "4".into(),
+        ],
         dir.join("learner.log"),
     );
     let config = run_dir.join("config.toml").display().to_string();
-    let mut actors: Vec<_> = (0..3).map(|id| start_actor(id, &prefix, &dir, &["--config", &config])).collect();
+    let mut actors: Vec<_> = (0..3)
+        .map(|id| start_actor(id, &prefix, &dir, &["--config", &config]))
+        .collect();
 
     // Every actor streams chunks made with weights version >= 1.
-    wait_for(Duration::from_secs(30), "chunks from all three actors", || {
-        let s = learner.status();
-        let ok = (0..3).all(|id| {
-            s["actors"].as_array().unwrap().iter().any(|a| a["id"] == id && a["received"]["rollout"].as_u64() > Some(0) && a["policy_version"].as_u64() >= Some(1))
-        });
-        ok.then_some(())
-    });
+    wait_for(
+        Duration::from_secs(30),
+        "chunks from all three actors",
+        || {
+            let s = learner.status();
+            let ok = (0..3).all(|id| {
+                s["actors"].as_array().unwrap().iter().any(|a| {
+                    a["id"] == id
+                        && a["received"]["rollout"].as_u64() > Some(0)
+                        && a["policy_version"].as_u64() >= Some(1)
+                })
+            });
+            ok.then_some(())
+        },
+    );
     for actor in &actors {
         let log = actor.log_text();
-        assert!(log.contains("got policy version"), "actor log lacks the weights message:\n{log}");
+        assert!(
+            log.contains("got policy version"),
+            "actor log lacks the weights message:\n{log}"
+        );
     }
 
     // /metrics and /api/status render the same state: counters read from
@@ -78,10 +110,21 @@ fn learner_serves_three_actors_and_survives_a_killed_one() {
     let metrics = learner.metrics();
     let after = learner.status();
     assert!(python_parses(&metrics));
-    for (metric, field) in [("afx_env_steps_total", "env_steps"), ("afx_policy_updates_total", "updates"), ("afx_weights_published_total", "weights_published")] {
-        let m = metric_value(&metrics, metric).unwrap_or_else(|| panic!("{metric} missing from /metrics:\n{metrics}"));
-        let (lo, hi) = (before[field].as_f64().unwrap(), after[field].as_f64().unwrap());
-        assert!(lo <= m && m <= hi, "{metric} = {m}, status {field} went {lo} -> {hi}");
+    for (metric, field) in [
+        ("afx_env_steps_total", "env_steps"),
+        ("afx_policy_updates_total", "updates"),
+        ("afx_weights_published_total", "weights_published"),
+    ] {
+        let m = metric_value(&metrics, metric)
+            .unwrap_or_else(|| panic!("{metric} missing from /metrics:\n{metrics}"));
+        let (lo, hi) = (
+            before[field].as_f64().unwrap(),
+            after[field].as_f64().unwrap(),
+        );
+        assert!(
+            lo <= m && m <= hi,
+            "{metric} = {m}, status {field} went {lo} -> {hi}"
+        );
     }
     assert_eq!(metric_value(&metrics, "afx_actors_alive"), Some(3.0));
     assert_eq!(after["actors_alive"], 3);
@@ -90,32 +133,68 @@ fn learner_serves_three_actors_and_survives_a_killed_one() {
     actors[1].signal(libc::SIGKILL);
     assert!(actors[1].wait_exit(Duration::from_secs(5)).is_some());
     let at_kill = learner.status();
-    wait_for(Duration::from_secs(20), "actors 0 and 2 to keep streaming", || {
-        let s = learner.status();
-        (rollouts_of(&s, 0) > rollouts_of(&at_kill, 0) && rollouts_of(&s, 2) > rollouts_of(&at_kill, 2)).then_some(())
-    });
-    assert_eq!(system_tests::http_get(&learner.addr, "/healthz").map(|r| r.0), Some(200));
+    wait_for(
+        Duration::from_secs(20),
+        "actors 0 and 2 to keep streaming",
+        || {
+            let s = learner.status();
+            (rollouts_of(&s, 0) > rollouts_of(&at_kill, 0)
+                && rollouts_of(&s, 2) > rollouts_of(&at_kill, 2))
+            .then_some(())
+        },
+    );
+    assert_eq!(
+        system_tests::http_get(&learner.addr, "/healthz").map(|r| r.0),
+        Some(200)
+    );
 
     // A restarted actor 1 gets the newest weights within 2 s of its start.
     let version_before = learner.status()["policy_version"].as_u64().unwrap();
     let started = Instant::now();
     actors[1] = start_actor(1, &prefix, &dir, &["--config", &config]);
-    let got = wait_for(Duration::from_secs(10), "the restarted actor's weights", || {
-        let log = actors[1].log_text();
-        log.lines().find_map(|l| l.split("got policy version ").nth(1).and_then(|v| v.trim().parse::<u64>().ok()))
-    });
+    let got = wait_for(
+        Duration::from_secs(10),
+        "the restarted actor's weights",
+        || {
+            let log = actors[1].log_text();
+            log.lines().find_map(|l| {
+                l.split("got policy version ")
+                    .nth(1)
+                    .and_then(|v| v.trim().parse::<u64>().ok())
+            })
+        },
+    );
     let elapsed = started.elapsed();
-    assert!(got >= version_before, "restarted actor got version {got}, learner was at {version_before}");
-    assert!(elapsed < Duration::from_secs(2), "restarted actor took {elapsed:?} to get weights");
+    assert!(
+        got >= version_before,
+        "restarted actor got version {got}, learner was at {version_before}"
+    );
+    assert!(
+        elapsed < Duration::from_secs(2),
+        "restarted actor took {elapsed:?} to get weights"
+    );
 
     // Clean shutdown: SIGINT to everyone, all exit 0.
     for actor in &mut actors {
         actor.signal(libc::SIGINT);
-        let status = actor.wait_exit(Duration::from_secs(10)).expect("actor exits on SIGINT");
-        assert!(status.success(), "actor exit {status}:\n{}", actor.log_text());
+        let status = actor
+            .wait_exit(Duration::from_secs(10))
+            .expect("actor exits on SIGINT");
+        assert!(
+            status.success(),
+            "actor exit {status}:\n{}",
+            actor.log_text()
+        );
     }
     let mut learner = learner;
     learner.process.signal(libc::SIGINT);
-    let status = learner.process.wait_exit(Duration::from_secs(20)).expect("learner exits on SIGINT");
-    assert!(status.success(), "learner exit {status}:\n{}", learner.process.log_text());
+    let status = learner
+        .process
+        .wait_exit(Duration::from_secs(20))
+        .expect("learner exits on SIGINT");
+    assert!(
+        status.success(),
+        "learner exit {status}:\n{}",
+        learner.process.log_text()
+    );
 }

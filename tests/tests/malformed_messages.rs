@@ -14,13 +14,28 @@ fn malformed_messages_are_counted_and_the_learner_carries_on() {
     let run_dir = dir.join("run");
     let learner = Learner::start(
         &run_dir,
-        &["--run-dir".into(), run_dir.display().to_string(), "--service-prefix".into(), prefix.clone()],
+        &[
+            "--run-dir".into(),
+            run_dir.display().to_string(),
+            "--service-prefix".into(),
+            prefix.clone(),
+        ],
         dir.join("learner.log"),
     );
-    let config = TransportConfig { service_prefix: prefix, ..TransportConfig::default() };
+    let config = TransportConfig {
+        service_prefix: prefix,
+        ..TransportConfig::default()
+    };
     let mut ports = ActorPorts::open(&config, 0).expect("open actor ports");
 
-    let valid = encode(&EpisodeStats::new(1, 10, 0).with(StatField::EpisodeReturn, 2.0), MessageHeader { actor_id: 0, sequence: 1, ..Default::default() });
+    let valid = encode(
+        &EpisodeStats::new(1, 10, 0).with(StatField::EpisodeReturn, 2.0),
+        MessageHeader {
+            actor_id: 0,
+            sequence: 1,
+            ..Default::default()
+        },
+    );
     let mut bad_checksum = valid.clone();
     *bad_checksum.last_mut().unwrap() ^= 1;
     let garbage = vec![0xAB; 100];
@@ -39,14 +54,30 @@ fn malformed_messages_are_counted_and_the_learner_carries_on() {
             .iter()
             .all(|(kind, _, reason)| {
                 let service = proto::service::for_kind(*kind);
-                metric_value(&m, &format!("afx_messages_rejected_total{{service=\"{service}\",reason=\"{reason}\"}}")) == Some(1.0)
+                metric_value(
+                    &m,
+                    &format!(
+                        "afx_messages_rejected_total{{service=\"{service}\",reason=\"{reason}\"}}"
+                    ),
+                ) == Some(1.0)
             })
             .then_some(m)
     });
-    assert_eq!(metric_value(&metrics, "afx_episodes_total"), Some(0.0), "nothing malformed was accepted");
+    assert_eq!(
+        metric_value(&metrics, "afx_episodes_total"),
+        Some(0.0),
+        "nothing malformed was accepted"
+    );
 
     // The learner still accepts a valid message afterwards.
     ports.publish_raw(MessageKind::Stats, &valid).expect("send");
-    wait_for(Duration::from_secs(10), "the valid stats to be accepted", || (learner.status()["episodes"] == 1).then_some(()));
-    assert_eq!(system_tests::http_get(&learner.addr, "/healthz").map(|r| r.0), Some(200));
+    wait_for(
+        Duration::from_secs(10),
+        "the valid stats to be accepted",
+        || (learner.status()["episodes"] == 1).then_some(()),
+    );
+    assert_eq!(
+        system_tests::http_get(&learner.addr, "/healthz").map(|r| r.0),
+        Some(200)
+    );
 }

@@ -23,7 +23,14 @@ pub struct BanditFixture {
 impl BanditFixture {
     /// Contexts = observation length 8, 4 actions, 64 steps per episode.
     pub fn new() -> Self {
-        Self { contexts: 8, n_actions: 4, episode_steps: 64, step: 0, context: 0, rng: SmallRng::seed_from_u64(0) }
+        Self {
+            contexts: 8,
+            n_actions: 4,
+            episode_steps: 64,
+            step: 0,
+            context: 0,
+            rng: SmallRng::seed_from_u64(0),
+        }
     }
 
     fn observe(&mut self) -> Observation {
@@ -34,7 +41,10 @@ impl BanditFixture {
         let right = self.context % self.n_actions;
         let masked = (right + 1 + self.rng.random_range(0..self.n_actions - 1)) % self.n_actions;
         action_mask[masked] = 0;
-        Observation { features, action_mask }
+        Observation {
+            features,
+            action_mask,
+        }
     }
 }
 
@@ -83,7 +93,14 @@ mod tests {
             let ta = a.step(i % 4);
             assert_eq!(ta, b.step(i % 4));
             assert_eq!(ta.observation.action_mask[a.context % 4], 1);
-            assert_eq!(ta.observation.action_mask.iter().filter(|&&m| m == 0).count(), 1);
+            assert_eq!(
+                ta.observation
+                    .action_mask
+                    .iter()
+                    .filter(|&&m| m == 0)
+                    .count(),
+                1
+            );
             assert_eq!(ta.done, i == 63);
         }
     }

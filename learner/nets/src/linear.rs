@@ -17,7 +17,11 @@ impl LinearActorCritic {
     /// A network with all parameters zero: the uniform policy over allowed actions.
     pub fn zeros(obs_dim: usize, n_actions: usize) -> Self {
         let len = n_actions * obs_dim + n_actions + obs_dim + 1;
-        Self { obs_dim, n_actions, params: vec![0.0; len] }
+        Self {
+            obs_dim,
+            n_actions,
+            params: vec![0.0; len],
+        }
     }
 
     fn value_offset(&self) -> usize {
@@ -42,7 +46,14 @@ impl LinearActorCritic {
 
     /// Adds `scale · d(logits · g_logits + value · g_value)/dparams` for one
     /// observation into `grad` (same layout as `params`).
-    pub fn accumulate_grad(&self, obs: &[f32], g_logits: &[f32], g_value: f32, scale: f32, grad: &mut [f32]) {
+    pub fn accumulate_grad(
+        &self,
+        obs: &[f32],
+        g_logits: &[f32],
+        g_value: f32,
+        scale: f32,
+        grad: &mut [f32],
+    ) {
         let d = self.obs_dim;
         let n = self.n_actions;
         for (a, &g) in g_logits.iter().enumerate() {
@@ -65,21 +76,45 @@ impl LinearActorCritic {
         let p = &self.params;
         let at = self.value_offset();
         NamedTensors(vec![
-            ("policy.actor.weight".into(), vec![n, d], p[..n * d].to_vec()),
+            (
+                "policy.actor.weight".into(),
+                vec![n, d],
+                p[..n * d].to_vec(),
+            ),
             ("policy.actor.bias".into(), vec![n], p[n * d..at].to_vec()),
-            ("policy.critic.weight".into(), vec![1, d], p[at..at + d].to_vec()),
+            (
+                "policy.critic.weight".into(),
+                vec![1, d],
+                p[at..at + d].to_vec(),
+            ),
             ("policy.critic.bias".into(), vec![1], p[at + d..].to_vec()),
         ])
     }
 
     /// Loads weights of the given shape from safetensors bytes, refusing any mismatch.
-    pub fn from_safetensors(bytes: &[u8], obs_dim: usize, n_actions: usize) -> Result<Self, NetsError> {
+    pub fn from_safetensors(
+        bytes: &[u8],
+        obs_dim: usize,
+        n_actions: usize,
+    ) -> Result<Self, NetsError> {
         let file = NamedTensors::parse(bytes)?;
         let mut params = NamedTensors::read(&file, "policy.actor.weight", &[n_actions, obs_dim])?;
-        params.extend(NamedTensors::read(&file, "policy.actor.bias", &[n_actions])?);
-        params.extend(NamedTensors::read(&file, "policy.critic.weight", &[1, obs_dim])?);
+        params.extend(NamedTensors::read(
+            &file,
+            "policy.actor.bias",
+            &[n_actions],
+        )?);
+        params.extend(NamedTensors::read(
+            &file,
+            "policy.critic.weight",
+            &[1, obs_dim],
+        )?);
         params.extend(NamedTensors::read(&file, "policy.critic.bias", &[1])?);
-        Ok(Self { obs_dim, n_actions, params })
+        Ok(Self {
+            obs_dim,
+            n_actions,
+            params,
+        })
     }
 }
 
@@ -94,7 +129,10 @@ mod tests {
             *p = (i as f32).sin();
         }
         let bytes = net.to_tensors().to_safetensors();
-        assert_eq!(LinearActorCritic::from_safetensors(&bytes, 3, 2).unwrap(), net);
+        assert_eq!(
+            LinearActorCritic::from_safetensors(&bytes, 3, 2).unwrap(),
+            net
+        );
         let err = LinearActorCritic::from_safetensors(&bytes, 4, 2).unwrap_err();
         assert!(err.to_string().contains("expects [2, 4]"), "{err}");
     }
@@ -108,17 +146,25 @@ mod tests {
         let obs = [0.5, -1.0, 2.0];
         let (g_logits, g_value) = ([0.7, -0.2], 1.3);
         let f = |n: &LinearActorCritic| {
-            n.logits(&obs).iter().zip(g_logits).map(|(l, g)| l * g).sum::<f32>() + n.value(&obs) * g_value
+            n.logits(&obs)
+                .iter()
+                .zip(g_logits)
+                .map(|(l, g)| l * g)
+                .sum::<f32>()
+                + n.value(&obs) * g_value
         };
         let mut grad = vec![0.0; net.params.len()];
         net.accumulate_grad(&obs, &g_logits, g_value, 1.0, &mut grad);
-        for i in 0..net.params.len() {
+        for (i, &analytic) in grad.iter().enumerate() {
             let mut plus = net.clone();
             plus.params[i] += 1e-2;
             let mut minus = net.clone();
             minus.params[i] -= 1e-2;
             let numeric = (f(&plus) - f(&minus)) / 2e-2;
-            assert!((numeric - grad[i]).abs() < 1e-3, "param {i}: {numeric} vs {}", grad[i]);
+            assert!(
+                (numeric - analytic).abs() < 1e-3,
+                "param {i}: {numeric} vs {analytic}"
+            );
         }
     }
 }

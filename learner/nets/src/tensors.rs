@@ -46,8 +46,14 @@ impl NamedTensors {
     }
 
     /// Reads `name` from `file` as f32 values of exactly `shape`.
-    pub fn read(file: &SafeTensors<'_>, name: &str, shape: &[usize]) -> Result<Vec<f32>, NetsError> {
-        let view = file.tensor(name).map_err(|_| NetsError::Missing(name.to_string()))?;
+    pub fn read(
+        file: &SafeTensors<'_>,
+        name: &str,
+        shape: &[usize],
+    ) -> Result<Vec<f32>, NetsError> {
+        let view = file
+            .tensor(name)
+            .map_err(|_| NetsError::Missing(name.to_string()))?;
         if view.dtype() != Dtype::F32 || view.shape() != shape {
             return Err(NetsError::Shape {
                 name: name.to_string(),

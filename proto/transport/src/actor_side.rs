@@ -55,8 +55,15 @@ impl ActorPorts {
                 .max_loaned_samples(1)
                 .override_sample_preallocation(move |worst| worst.min(pool))
                 .create()
-                .map_err(|e| TransportError::new("create publisher", proto::service::for_kind(kind), e))?;
-            Ok(Upstream { kind, publisher, max_bytes, sequence: 0 })
+                .map_err(|e| {
+                    TransportError::new("create publisher", proto::service::for_kind(kind), e)
+                })?;
+            Ok(Upstream {
+                kind,
+                publisher,
+                max_bytes,
+                sequence: 0,
+            })
         };
         let upstream = [
             upstream(MessageKind::Rollout)?,
@@ -71,12 +78,23 @@ impl ActorPorts {
         let wakeup = open_event(&node, config, &wakeup_service(config)?)?
             .notifier_builder()
             .create()
-            .map_err(|e| TransportError::new("create notifier", proto::service::LEARNER_WAKEUP, e))?;
+            .map_err(|e| {
+                TransportError::new("create notifier", proto::service::LEARNER_WAKEUP, e)
+            })?;
         let weights_ready = open_event(&node, config, &weights_ready_service(config)?)?
             .listener_builder()
             .create()
-            .map_err(|e| TransportError::new("create listener", proto::service::WEIGHTS_READY, e))?;
-        Ok(Self { actor_id, upstream, weights, wakeup, weights_ready, _node: node })
+            .map_err(|e| {
+                TransportError::new("create listener", proto::service::WEIGHTS_READY, e)
+            })?;
+        Ok(Self {
+            actor_id,
+            upstream,
+            weights,
+            wakeup,
+            weights_ready,
+            _node: node,
+        })
     }
 
     /// Encodes `payload` straight into shared memory and sends it to the
@@ -99,7 +117,13 @@ impl ActorPorts {
             ));
         }
         up.sequence += 1;
-        let header = MessageHeader { actor_id, policy_version, unet_version, sequence: up.sequence, ..MessageHeader::default() };
+        let header = MessageHeader {
+            actor_id,
+            policy_version,
+            unet_version,
+            sequence: up.sequence,
+            ..MessageHeader::default()
+        };
         let Some(mut sample) = crate::loan_zeroed(&up.publisher, len) else {
             return Ok(Delivery::Dropped);
         };
@@ -109,7 +133,11 @@ impl ActorPorts {
 
     /// Sends bytes as they are, unvalidated: for tools and tests that exercise
     /// the learner's validation.
-    pub fn publish_raw(&mut self, kind: MessageKind, bytes: &[u8]) -> Result<Delivery, TransportError> {
+    pub fn publish_raw(
+        &mut self,
+        kind: MessageKind,
+        bytes: &[u8],
+    ) -> Result<Delivery, TransportError> {
         let up = self.upstream_mut(kind)?;
         if bytes.len() > up.max_bytes || bytes.is_empty() {
             return Ok(Delivery::Dropped);
@@ -125,7 +153,13 @@ impl ActorPorts {
         self.upstream
             .iter_mut()
             .find(|u| u.kind == kind)
-            .ok_or_else(|| TransportError::new("publish", proto::service::for_kind(kind), "actors do not publish this kind"))
+            .ok_or_else(|| {
+                TransportError::new(
+                    "publish",
+                    proto::service::for_kind(kind),
+                    "actors do not publish this kind",
+                )
+            })
     }
 
     fn send(
@@ -151,13 +185,22 @@ impl ActorPorts {
             match self.weights.receive() {
                 Ok(Some(sample)) => latest = Some(ReceivedMessage::new(sample)),
                 Ok(None) => return Ok(latest),
-                Err(e) => return Err(TransportError::new("receive from", proto::service::WEIGHTS, e)),
+                Err(e) => {
+                    return Err(TransportError::new(
+                        "receive from",
+                        proto::service::WEIGHTS,
+                        e,
+                    ))
+                }
             }
         }
     }
 
     /// Waits up to `timeout` for weights; `None` if none came.
-    pub fn wait_for_weights(&self, timeout: Duration) -> Result<Option<ReceivedMessage>, TransportError> {
+    pub fn wait_for_weights(
+        &self,
+        timeout: Duration,
+    ) -> Result<Option<ReceivedMessage>, TransportError> {
         let deadline = Instant::now() + timeout;
         loop {
             if let Some(weights) = self.take_latest_weights()? {

@@ -14,6 +14,10 @@ pub struct TransportError {
 
 impl TransportError {
     pub(crate) fn new(action: &'static str, subject: &str, detail: impl std::fmt::Debug) -> Self {
-        Self { action, subject: subject.to_string(), detail: format!("{detail:?}") }
+        Self {
+            action,
+            subject: subject.to_string(),
+            detail: format!("{detail:?}"),
+        }
     }
 }

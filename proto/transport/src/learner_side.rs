@@ -56,7 +56,9 @@ impl LearnerPorts {
                 .subscriber_builder()
                 .buffer_size(config.learner_buffer)
                 .create()
-                .map_err(|e| TransportError::new("create subscriber", proto::service::for_kind(kind), e))
+                .map_err(|e| {
+                    TransportError::new("create subscriber", proto::service::for_kind(kind), e)
+                })
         };
         let rollouts = subscriber(MessageKind::Rollout)?;
         let frames = subscriber(MessageKind::Frames)?;
@@ -74,11 +76,15 @@ impl LearnerPorts {
         let wakeup = open_event(&node, config, &wakeup_service(config)?)?
             .listener_builder()
             .create()
-            .map_err(|e| TransportError::new("create listener", proto::service::LEARNER_WAKEUP, e))?;
+            .map_err(|e| {
+                TransportError::new("create listener", proto::service::LEARNER_WAKEUP, e)
+            })?;
         let weights_ready = open_event(&node, config, &weights_ready_service(config)?)?
             .notifier_builder()
             .create()
-            .map_err(|e| TransportError::new("create notifier", proto::service::WEIGHTS_READY, e))?;
+            .map_err(|e| {
+                TransportError::new("create notifier", proto::service::WEIGHTS_READY, e)
+            })?;
         Ok(Self {
             node,
             rollouts,

@@ -18,7 +18,10 @@ pub(crate) fn open_pubsub(
     let name = service_name(&config.service_prefix, suffix)?;
     let spare = config.spare_ports as usize;
     let actors = config.max_actors as usize;
-    let builder = node.service_builder(&name).publish_subscribe::<[u8]>().max_nodes(config.max_nodes());
+    let builder = node
+        .service_builder(&name)
+        .publish_subscribe::<[u8]>()
+        .max_nodes(config.max_nodes());
     let builder = match kind {
         // Many actors publish, one learner (plus spares) subscribes; no history,
         // no overflow: a full learner buffer discards the newest message, and
@@ -41,7 +44,9 @@ pub(crate) fn open_pubsub(
             .history_size(1)
             .enable_safe_overflow(true),
     };
-    builder.open_or_create().map_err(|e| TransportError::new("open service", suffix, e))
+    builder
+        .open_or_create()
+        .map_err(|e| TransportError::new("open service", suffix, e))
 }
 
 /// Opens or creates an event service (many notifiers and listeners).
@@ -66,6 +71,8 @@ pub(crate) fn wakeup_service(config: &TransportConfig) -> Result<ServiceName, Tr
 }
 
 /// The event the learner notifies after publishing weights.
-pub(crate) fn weights_ready_service(config: &TransportConfig) -> Result<ServiceName, TransportError> {
+pub(crate) fn weights_ready_service(
+    config: &TransportConfig,
+) -> Result<ServiceName, TransportError> {
     service_name(&config.service_prefix, proto::service::WEIGHTS_READY)
 }

@@ -18,11 +18,15 @@ fn config(test: &str) -> TransportConfig {
     }
 }
 
-const LIMITS: Limits = Limits { max_actors: 4, max_payload_len: 1 << 20 };
+const LIMITS: Limits = Limits {
+    max_actors: 4,
+    max_payload_len: 1 << 20,
+};
 
 fn weights_blob(value: f32) -> Vec<u8> {
     let data = value.to_le_bytes().to_vec();
-    let view = safetensors::tensor::TensorView::new(safetensors::Dtype::F32, vec![1], &data).unwrap();
+    let view =
+        safetensors::tensor::TensorView::new(safetensors::Dtype::F32, vec![1], &data).unwrap();
     safetensors::serialize([("policy.w", view)], None).unwrap()
 }
 
@@ -33,8 +37,14 @@ fn stats_reach_the_learner_and_wake_it() {
     let mut actor = ActorPorts::open(&cfg, 2).unwrap();
     let stats = EpisodeStats::new(9, 600, 1).with(StatField::EpisodeReturn, 3.5);
     assert_eq!(actor.publish(&stats, 1, 1).unwrap(), Delivery::Delivered(1));
-    assert!(learner.wait(Duration::from_secs(2)).unwrap(), "the actor's notification must wake the learner");
-    let msg = learner.receive(MessageKind::Stats).unwrap().expect("a stats message");
+    assert!(
+        learner.wait(Duration::from_secs(2)).unwrap(),
+        "the actor's notification must wake the learner"
+    );
+    let msg = learner
+        .receive(MessageKind::Stats)
+        .unwrap()
+        .expect("a stats message");
     let (header, decoded) = decode(msg.bytes(), &LIMITS).unwrap();
     assert_eq!((header.actor_id, header.sequence), (2, 1));
     match decoded {
@@ -52,7 +62,10 @@ fn a_late_actor_gets_the_newest_weights_at_once() {
     learner.publish_weights(2, 1, &weights_blob(2.0)).unwrap();
     let actor = ActorPorts::open(&cfg, 0).unwrap();
     learner.maintain();
-    let msg = actor.wait_for_weights(Duration::from_secs(2)).unwrap().expect("weights from history");
+    let msg = actor
+        .wait_for_weights(Duration::from_secs(2))
+        .unwrap()
+        .expect("weights from history");
     let (header, decoded) = decode(msg.bytes(), &LIMITS).unwrap();
     assert_eq!(header.policy_version, 2);
     assert!(matches!(decoded, Message::Weights(_)));
@@ -72,7 +85,10 @@ fn a_slow_learner_makes_actors_drop_and_count_not_grow() {
             Delivery::Dropped => dropped += 1,
         }
     }
-    assert_eq!(delivered, cfg.learner_buffer, "exactly the learner's buffer is delivered");
+    assert_eq!(
+        delivered, cfg.learner_buffer,
+        "exactly the learner's buffer is delivered"
+    );
     assert_eq!(dropped, 50 - cfg.learner_buffer);
     // The learner sees the first messages, and the gap in sequence numbers afterwards.
     let mut sequences = Vec::new();
@@ -101,5 +117,8 @@ fn oversized_messages_are_refused_with_a_hint() {
     };
     let err = actor.publish(&batch, 0, 0).unwrap_err().to_string();
     assert!(err.contains("max_frames_bytes"), "{err}");
-    assert!(ActorPorts::open(&cfg, 4).is_err(), "actor ids at or above max_actors are refused");
+    assert!(
+        ActorPorts::open(&cfg, 4).is_err(),
+        "actor ids at or above max_actors are refused"
+    );
 }
