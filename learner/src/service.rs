@@ -167,7 +167,9 @@ impl Learner {
                         status.add_steps(header.actor_id, chunk.n_steps() as u64);
                         status.updates += 1;
                         status.last_update = Some(stats);
-                        status.updates.is_multiple_of(self.shared.config.policy.publish_every_updates)
+                        status
+                            .updates
+                            .is_multiple_of(self.shared.config.policy.publish_every_updates)
                     };
                     if publish {
                         self.shared.status().policy_version += 1;
