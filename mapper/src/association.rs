@@ -1,0 +1,91 @@
+//! Data association: which map object does each segment of a frame show?
+//!
+//! Segments are compared with the map rendered into the same camera. Only
+//! pixels whose measured and rendered depths agree count, so an object seen
+//! through a gap or in front of another is not confused with it.
+
+use rustc_hash::FxHashMap;
+
+use crate::render::RenderTarget;
+
+/// Settings of association.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AssociationParams {
+    /// Segments smaller than this are ignored (noise).
+    pub min_segment_px: usize,
+    /// Unmatched segments at least this large become new objects.
+    pub new_object_min_px: usize,
+    /// Accept a match with at least this IoU…
+    pub min_iou: f32,
+    /// …or when this fraction of the segment lies on the object.
+    pub min_coverage: f32,
+    /// Measured and rendered depth agree within this many metres.
+    pub depth_tolerance_m: f32,
+}
+
+/// The pixels of one instance id in a frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Segment {
+    /// Instance id in the input mask.
+    pub instance: u32,
+    /// Pixel indices, ascending.
+    pub pixels: Vec<usize>,
+}
+
+/// Groups pixels by instance (0 = background is skipped), keeping pixels whose
+/// depth passes `valid` and segments of at least `min_px` pixels; sorted by instance.
+pub fn extract_segments(instance: &[u32], depth_m: &[f32], valid: impl Fn(f32) -> bool, min_px: usize) -> Vec<Segment> {
+    let mut by_instance: FxHashMap<u32, Vec<usize>> = FxHashMap::default();
+    for (px, (&id, &d)) in instance.iter().zip(depth_m).enumerate() {
+        if id != 0 && valid(d) {
+            by_instance.entry(id).or_default().push(px);
+        }
+    }
+    let mut segments: Vec<Segment> = by_instance
+        .into_iter()
+        .filter(|(_, p)| p.len() >= min_px)
+        .map(|(instance, pixels)| Segment { instance, pixels })
+        .collect();
+    segments.sort_unstable_by_key(|s| s.instance);
+    segments
+}
+
+/// For each segment, the map object id it shows, or `None`.
+///
+/// Candidate pairs pass on IoU or on coverage; the best IoU is taken first.
+/// A segment gets at most one object; an object may take several segments
+/// (an over-segmented object keeps one id).
+pub fn associate(segments: &[Segment], rendered: &RenderTarget, depth_m: &[f32], params: &AssociationParams) -> Vec<Option<u32>> {
+    let mut rendered_px: FxHashMap<u32, usize> = FxHashMap::default();
+    for &id in &rendered.ids {
+        if id != 0 {
+            *rendered_px.entry(id).or_default() += 1;
+        }
+    }
+    let mut candidates = Vec::new();
+    for (s, segment) in segments.iter().enumerate() {
+        let mut overlap: FxHashMap<u32, usize> = FxHashMap::default();
+        for &px in &segment.pixels {
+            let id = rendered.ids[px];
+            if id != 0 && (rendered.depth_m[px] - depth_m[px]).abs() <= params.depth_tolerance_m {
+                *overlap.entry(id).or_default() += 1;
+            }
+        }
+        for (id, inter) in overlap {
+            let union = segment.pixels.len() + rendered_px[&id] - inter;
+            let iou = inter as f32 / union as f32;
+            let coverage = inter as f32 / segment.pixels.len() as f32;
+            if iou >= params.min_iou || coverage >= params.min_coverage {
+                candidates.push((iou, s, id));
+            }
+        }
+    }
+    candidates.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+    let mut matches = vec![None; segments.len()];
+    for (_, s, id) in candidates {
+        if matches[s].is_none() {
+            matches[s] = Some(id);
+        }
+    }
+    matches
+}

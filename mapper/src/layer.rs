@@ -1,0 +1,213 @@
+//! Block-hashed voxel storage: `Layer` → 8³-voxel `Block`s → `Voxel`s.
+//!
+//! Voxel `(i, j, k)` covers `[i·s, (i+1)·s)` along each axis (its centre is at
+//! `(i + ½)·s`); negative indices use floor division, so there is no seam at 0.
+
+use nalgebra::Point3;
+use rustc_hash::FxHashMap;
+
+/// Voxels per block edge.
+pub const BLOCK_EDGE: i32 = 8;
+/// Voxels per block.
+pub const BLOCK_VOXELS: usize = (BLOCK_EDGE * BLOCK_EDGE * BLOCK_EDGE) as usize;
+
+/// One TSDF sample.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Voxel {
+    /// Truncated signed distance in metres (positive in front of the surface).
+    pub sdf: f32,
+    /// Accumulated weight; 0 = never observed.
+    pub weight: f32,
+}
+
+/// Global voxel index.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct VoxelIndex(pub [i32; 3]);
+
+/// Block index (a block covers `BLOCK_EDGE` voxels per axis).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct BlockIndex(pub [i32; 3]);
+
+impl VoxelIndex {
+    /// The block holding this voxel and the voxel's offset inside it.
+    pub fn split(self) -> (BlockIndex, usize) {
+        let b = self.0.map(|i| i.div_euclid(BLOCK_EDGE));
+        let l = self.0.map(|i| i.rem_euclid(BLOCK_EDGE) as usize);
+        (BlockIndex(b), l[0] + BLOCK_EDGE as usize * (l[1] + BLOCK_EDGE as usize * l[2]))
+    }
+
+    /// Voxel at `offset` inside `block`.
+    pub fn join(block: BlockIndex, offset: usize) -> Self {
+        let e = BLOCK_EDGE as usize;
+        let l = [offset % e, (offset / e) % e, offset / (e * e)];
+        Self([0, 1, 2].map(|a| block.0[a] * BLOCK_EDGE + l[a] as i32))
+    }
+}
+
+/// A block of voxels.
+#[derive(Debug, Clone)]
+pub struct Block {
+    /// Voxels, x fastest, then y, then z.
+    pub voxels: Box<[Voxel; BLOCK_VOXELS]>,
+}
+
+impl Default for Block {
+    fn default() -> Self {
+        Self { voxels: Box::new([Voxel::default(); BLOCK_VOXELS]) }
+    }
+}
+
+/// A sparse voxel volume in one coordinate frame.
+#[derive(Debug, Clone)]
+pub struct Layer {
+    /// Voxel edge length in metres.
+    pub voxel_size_m: f32,
+    blocks: FxHashMap<BlockIndex, Block>,
+}
+
+impl Layer {
+    /// An empty layer.
+    pub fn new(voxel_size_m: f32) -> Self {
+        Self { voxel_size_m, blocks: FxHashMap::default() }
+    }
+
+    /// Block edge length in metres.
+    pub fn block_size_m(&self) -> f32 {
+        self.voxel_size_m * BLOCK_EDGE as f32
+    }
+
+    /// The voxel containing point `p` (layer frame).
+    pub fn voxel_of(&self, p: &Point3<f32>) -> VoxelIndex {
+        VoxelIndex([p.x, p.y, p.z].map(|c| (c / self.voxel_size_m).floor() as i32))
+    }
+
+    /// The block containing point `p`.
+    pub fn block_of(&self, p: &Point3<f32>) -> BlockIndex {
+        let s = self.block_size_m();
+        BlockIndex([p.x, p.y, p.z].map(|c| (c / s).floor() as i32))
+    }
+
+    /// Centre of a voxel (layer frame).
+    pub fn voxel_center(&self, v: VoxelIndex) -> Point3<f32> {
+        let s = self.voxel_size_m;
+        Point3::new((v.0[0] as f32 + 0.5) * s, (v.0[1] as f32 + 0.5) * s, (v.0[2] as f32 + 0.5) * s)
+    }
+
+    /// The voxel at `v`, if its block exists.
+    pub fn voxel(&self, v: VoxelIndex) -> Option<&Voxel> {
+        let (b, o) = v.split();
+        self.blocks.get(&b).map(|blk| &blk.voxels[o])
+    }
+
+    /// The block at `b`, if allocated.
+    pub fn block(&self, b: BlockIndex) -> Option<&Block> {
+        self.blocks.get(&b)
+    }
+
+    /// The block at `b`, allocated if missing.
+    pub fn block_mut_or_insert(&mut self, b: BlockIndex) -> &mut Block {
+        self.blocks.entry(b).or_default()
+    }
+
+    /// The block at `b`, if allocated.
+    pub fn block_mut(&mut self, b: BlockIndex) -> Option<&mut Block> {
+        self.blocks.get_mut(&b)
+    }
+
+    /// Allocated block indices, sorted (deterministic iteration).
+    pub fn block_indices(&self) -> Vec<BlockIndex> {
+        let mut v: Vec<_> = self.blocks.keys().copied().collect();
+        v.sort_unstable();
+        v
+    }
+
+    /// Number of allocated blocks.
+    pub fn len(&self) -> usize {
+        self.blocks.len()
+    }
+
+    /// True when nothing is allocated.
+    pub fn is_empty(&self) -> bool {
+        self.blocks.is_empty()
+    }
+
+    /// Centres and SDF of observed voxels within `band_m` of the surface (sorted by index).
+    pub fn near_surface_voxels(&self, band_m: f32) -> Vec<(Point3<f32>, f32)> {
+        let mut out = Vec::new();
+        for b in self.block_indices() {
+            let block = &self.blocks[&b];
+            for (o, v) in block.voxels.iter().enumerate() {
+                if v.weight > 0.0 && v.sdf.abs() < band_m {
+                    out.push((self.voxel_center(VoxelIndex::join(b, o)), v.sdf));
+                }
+            }
+        }
+        out
+    }
+
+    /// Surface points: where the SDF changes sign between two observed
+    /// neighbouring voxels, linearly interpolated (the vertices marching cubes
+    /// would place). Pairs straddling more than `max_jump_m` are skipped as
+    /// truncation artefacts. Sorted by voxel index, so deterministic.
+    pub fn zero_crossings(&self, max_jump_m: f32) -> Vec<Point3<f32>> {
+        let mut out = Vec::new();
+        for b in self.block_indices() {
+            let block = &self.blocks[&b];
+            for (o, a) in block.voxels.iter().enumerate() {
+                if a.weight <= 0.0 {
+                    continue;
+                }
+                let v = VoxelIndex::join(b, o);
+                for axis in 0..3 {
+                    let mut n = v.0;
+                    n[axis] += 1;
+                    let Some(bv) = self.voxel(VoxelIndex(n)).filter(|x| x.weight > 0.0) else { continue };
+                    if (a.sdf > 0.0) == (bv.sdf > 0.0) || (a.sdf - bv.sdf).abs() > max_jump_m {
+                        continue;
+                    }
+                    let (ca, cb) = (self.voxel_center(v), self.voxel_center(VoxelIndex(n)));
+                    out.push(ca + (cb - ca) * (a.sdf / (a.sdf - bv.sdf)));
+                }
+            }
+        }
+        out
+    }
+
+    /// Axis-aligned bounds (layer frame) of all allocated blocks, or `None` when empty.
+    pub fn block_bounds(&self) -> Option<(Point3<f32>, Point3<f32>)> {
+        let s = self.block_size_m();
+        let mut it = self.blocks.keys();
+        let first = it.next()?;
+        let (mut lo, mut hi) = (first.0, first.0);
+        for b in it {
+            for a in 0..3 {
+                lo[a] = lo[a].min(b.0[a]);
+                hi[a] = hi[a].max(b.0[a]);
+            }
+        }
+        Some((
+            Point3::new(lo[0] as f32 * s, lo[1] as f32 * s, lo[2] as f32 * s),
+            Point3::new((hi[0] + 1) as f32 * s, (hi[1] + 1) as f32 * s, (hi[2] + 1) as f32 * s),
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn negative_coordinates_and_block_boundaries_index_without_seams() {
+        let layer = Layer::new(0.04);
+        assert_eq!(layer.voxel_of(&Point3::new(-0.001, 0.0, 0.039)), VoxelIndex([-1, 0, 0]));
+        assert_eq!(layer.block_of(&Point3::new(-0.001, 0.3199, 0.32)), BlockIndex([-1, 0, 1]));
+        for v in [[-1, -8, -9], [0, 7, 8], [-17, 15, 16], [i32::MIN / 16, 3, -3]] {
+            let (b, o) = VoxelIndex(v).split();
+            assert_eq!(VoxelIndex::join(b, o), VoxelIndex(v));
+            assert!(o < BLOCK_VOXELS);
+        }
+        assert_eq!(VoxelIndex([-1, -1, -1]).split(), (BlockIndex([-1, -1, -1]), BLOCK_VOXELS - 1));
+        let c = layer.voxel_center(VoxelIndex([-1, 0, 2]));
+        assert_eq!(layer.voxel_of(&c), VoxelIndex([-1, 0, 2]));
+    }
+}

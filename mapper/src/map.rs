@@ -1,0 +1,294 @@
+//! The map: objects with their own volumes and poses, a background volume,
+//! and the per-frame pipeline (segments → render → associate → integrate →
+//! book-keeping).
+
+use std::collections::BTreeMap;
+
+use nalgebra::{Point3, Translation3, UnitQuaternion, Vector3};
+use rayon::prelude::*;
+
+use crate::association::{associate, extract_segments, AssociationParams, Segment};
+use crate::camera::{Frame, Intrinsics};
+use crate::integrate::{integrate, IntegrationParams};
+use crate::labels::{Affordance, ObjectLabels, Outcome};
+use crate::layer::Layer;
+use crate::render::{raycast_layer, RenderTarget};
+use crate::Pose;
+
+/// A map object's id; stable across frames. 0 is never used (it means "none").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct ObjectId(pub u32);
+
+/// Why a frame or a request was refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MapError {
+    /// An image's length does not match the intrinsics.
+    #[error("{what} has {got} pixels, the intrinsics say {expected} ({width} x {height})")]
+    FrameSize {
+        /// Which image.
+        what: &'static str,
+        /// Its length.
+        got: usize,
+        /// Width × height.
+        expected: usize,
+        /// Width.
+        width: usize,
+        /// Height.
+        height: usize,
+    },
+    /// No object has this id (never existed or was deleted).
+    #[error("no map object {0:?}")]
+    UnknownObject(ObjectId),
+}
+
+/// Map settings; defaults follow `mapper.md`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MapConfig {
+    /// Voxel edge, metres.
+    pub voxel_size_m: f32,
+    /// Integration settings (truncation, weights, depth range).
+    pub integration: IntegrationParams,
+    /// Association settings.
+    pub association: AssociationParams,
+    /// An object predicted visible (at least `miss_min_rendered_px` pixels)
+    /// but not matched this many frames in a row is deleted.
+    pub max_misses: u32,
+    /// Rendered pixels that make an object "expected to be seen".
+    pub miss_min_rendered_px: usize,
+}
+
+impl Default for MapConfig {
+    fn default() -> Self {
+        let voxel_size_m = 0.04;
+        Self {
+            voxel_size_m,
+            integration: IntegrationParams { truncation_m: 0.12, max_weight: 50.0, min_depth_m: 0.1, max_depth_m: 8.0 },
+            association: AssociationParams {
+                min_segment_px: 20,
+                new_object_min_px: 50,
+                min_iou: 0.3,
+                min_coverage: 0.5,
+                depth_tolerance_m: (2.0 * voxel_size_m).max(0.03),
+            },
+            max_misses: 10,
+            miss_min_rendered_px: 50,
+        }
+    }
+}
+
+/// One object of the map.
+#[derive(Debug, Clone)]
+pub struct MapObject {
+    /// Its id.
+    pub id: ObjectId,
+    /// Pose of its volume's frame in the world.
+    pub t_world_object: Pose,
+    /// TSDF volume in the object's frame.
+    pub volume: Layer,
+    /// Semantic class votes (class id → pixels seen).
+    pub class_histogram: BTreeMap<u16, u64>,
+    /// Frames it was matched in.
+    pub observations: u32,
+    /// Consecutive frames it should have been seen but was not.
+    pub misses: u32,
+    /// Interaction outcomes and confidence labels.
+    pub labels: ObjectLabels,
+}
+
+impl MapObject {
+    /// The most voted class, if any.
+    pub fn class(&self) -> Option<u16> {
+        self.class_histogram.iter().max_by_key(|(c, n)| (**n, std::cmp::Reverse(**c))).map(|(c, _)| *c)
+    }
+}
+
+/// The object-level map.
+#[derive(Debug, Clone)]
+pub struct Map {
+    config: MapConfig,
+    background: Layer,
+    objects: BTreeMap<ObjectId, MapObject>,
+    next_id: u32,
+}
+
+fn check_len(what: &'static str, got: usize, k: &Intrinsics) -> Result<(), MapError> {
+    if got != k.pixels() {
+        return Err(MapError::FrameSize { what, got, expected: k.pixels(), width: k.width, height: k.height });
+    }
+    Ok(())
+}
+
+impl Map {
+    /// An empty map.
+    pub fn new(config: MapConfig) -> Self {
+        Self { config, background: Layer::new(config.voxel_size_m), objects: BTreeMap::new(), next_id: 1 }
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &MapConfig {
+        &self.config
+    }
+
+    /// Objects by id.
+    pub fn objects(&self) -> &BTreeMap<ObjectId, MapObject> {
+        &self.objects
+    }
+
+    /// One object.
+    pub fn object(&self, id: ObjectId) -> Option<&MapObject> {
+        self.objects.get(&id)
+    }
+
+    /// The background (world-frame) volume.
+    pub fn background(&self) -> &Layer {
+        &self.background
+    }
+
+    /// Integrates one frame; returns the map object id of every pixel (0 = no object).
+    pub fn integrate(&mut self, frame: &Frame<'_>) -> Result<Vec<u32>, MapError> {
+        let k = frame.intrinsics;
+        check_len("depth", frame.depth_m.len(), &k)?;
+        check_len("instance mask", frame.instance.len(), &k)?;
+        if let Some(class) = frame.class {
+            check_len("class image", class.len(), &k)?;
+        }
+        let params = self.config.integration;
+        let segments = extract_segments(frame.instance, frame.depth_m, |d| params.valid_depth(d), self.config.association.min_segment_px);
+        let rendered = self.render_objects(&frame.t_world_camera, &k);
+        let matches = associate(&segments, &rendered, frame.depth_m, &self.config.association);
+
+        let mut owner = vec![0u32; k.pixels()];
+        let mut matched: BTreeMap<ObjectId, usize> = BTreeMap::new();
+        for (segment, matched_id) in segments.iter().zip(&matches) {
+            let id = match matched_id {
+                Some(id) => ObjectId(*id),
+                None if segment.pixels.len() >= self.config.association.new_object_min_px => self.add_object(segment, frame),
+                None => continue,
+            };
+            *matched.entry(id).or_default() += segment.pixels.len();
+            for &px in &segment.pixels {
+                owner[px] = id.0;
+            }
+            if let (Some(class), Some(object)) = (frame.class, self.objects.get_mut(&id)) {
+                for &px in &segment.pixels {
+                    *object.class_histogram.entry(class[px]).or_default() += 1;
+                }
+            }
+        }
+
+        let visible: BTreeMap<u32, usize> = rendered.ids.iter().filter(|&&i| i != 0).fold(BTreeMap::new(), |mut m, &i| {
+            *m.entry(i).or_default() += 1;
+            m
+        });
+        let owner_ref = &owner;
+        let work: Vec<&mut MapObject> = self
+            .objects
+            .values_mut()
+            .filter(|o| matched.contains_key(&o.id) || visible.contains_key(&o.id.0))
+            .collect();
+        work.into_par_iter().for_each(|object| {
+            let t_object_camera = object.t_world_object.inverse() * frame.t_world_camera;
+            let id = object.id.0;
+            integrate(&mut object.volume, &t_object_camera, &k, frame.depth_m, &|px| owner_ref[px] == id, &params, true);
+        });
+        let instance = frame.instance;
+        integrate(&mut self.background, &frame.t_world_camera, &k, frame.depth_m, &|px| instance[px] == 0, &params, false);
+
+        self.book_keeping(&matched, &visible);
+        Ok(owner)
+    }
+
+    fn add_object(&mut self, segment: &Segment, frame: &Frame<'_>) -> ObjectId {
+        let k = frame.intrinsics;
+        let sum = segment.pixels.iter().fold(Vector3::zeros(), |acc, &px| {
+            let p = k.back_project((px % k.width) as f32, (px / k.width) as f32, frame.depth_m[px]);
+            acc + (frame.t_world_camera * p).coords
+        });
+        let centroid = sum / segment.pixels.len() as f32;
+        let id = ObjectId(self.next_id);
+        self.next_id += 1;
+        let object = MapObject {
+            id,
+            t_world_object: Pose::from_parts(Translation3::from(centroid), UnitQuaternion::identity()),
+            volume: Layer::new(self.config.voxel_size_m),
+            class_histogram: BTreeMap::new(),
+            observations: 0,
+            misses: 0,
+            labels: ObjectLabels::default(),
+        };
+        self.objects.insert(id, object);
+        id
+    }
+
+    fn book_keeping(&mut self, matched: &BTreeMap<ObjectId, usize>, visible: &BTreeMap<u32, usize>) {
+        let max_misses = self.config.max_misses;
+        let min_px = self.config.miss_min_rendered_px;
+        for object in self.objects.values_mut() {
+            if matched.contains_key(&object.id) {
+                object.observations += 1;
+                object.misses = 0;
+            } else if visible.get(&object.id.0).is_some_and(|&n| n >= min_px) {
+                object.misses += 1;
+            }
+        }
+        self.objects.retain(|_, o| o.misses <= max_misses);
+    }
+
+    /// Renders every object into a camera: nearest object depth and id per pixel.
+    fn render_objects(&self, t_world_camera: &Pose, k: &Intrinsics) -> RenderTarget {
+        let mut target = RenderTarget::new(k);
+        let t_camera_world = t_world_camera.inverse();
+        for object in self.objects.values() {
+            let t_camera_object = t_camera_world * object.t_world_object;
+            raycast_layer(&object.volume, &t_camera_object, k, object.id.0, self.config.integration.min_depth_m, &mut target);
+        }
+        target
+    }
+
+    /// Renders the map's object ids and depth into any camera (label
+    /// propagation to past frames). The background volume occludes objects
+    /// behind walls; its own pixels get id 0.
+    pub fn render_ids(&self, t_world_camera: &Pose, k: &Intrinsics) -> RenderTarget {
+        let mut target = self.render_objects(t_world_camera, k);
+        let t_camera_world = t_world_camera.inverse();
+        let mut background = RenderTarget::new(k);
+        raycast_layer(&self.background, &t_camera_world, k, 0, self.config.integration.min_depth_m, &mut background);
+        for ((d, id), bd) in target.depth_m.iter_mut().zip(target.ids.iter_mut()).zip(&background.depth_m) {
+            if *bd + self.config.association.depth_tolerance_m < *d {
+                *d = *bd;
+                *id = 0;
+            }
+        }
+        target
+    }
+
+    /// Records an interaction outcome on an object.
+    pub fn record_interaction(&mut self, id: ObjectId, affordance: Affordance, outcome: Outcome) -> Result<(), MapError> {
+        self.objects.get_mut(&id).ok_or(MapError::UnknownObject(id))?.labels.record(affordance, outcome);
+        Ok(())
+    }
+
+    /// Sets an object's label from annotation by confidence.
+    pub fn set_confidence_label(&mut self, id: ObjectId, affordance: Affordance, label: Option<bool>) -> Result<(), MapError> {
+        self.objects.get_mut(&id).ok_or(MapError::UnknownObject(id))?.labels.set_confidence_label(affordance, label);
+        Ok(())
+    }
+
+    /// Objects whose label for `affordance` is `label` (ascending ids).
+    pub fn objects_labelled(&self, affordance: Affordance, label: Option<bool>) -> Vec<ObjectId> {
+        self.objects.values().filter(|o| o.labels.label(affordance) == label).map(|o| o.id).collect()
+    }
+
+    /// Moves an object (e.g. after the robot pushed it): a pose update, no resampling.
+    pub fn set_object_pose(&mut self, id: ObjectId, t_world_object: Pose) -> Result<(), MapError> {
+        self.objects.get_mut(&id).ok_or(MapError::UnknownObject(id))?.t_world_object = t_world_object;
+        Ok(())
+    }
+
+    /// World-frame points of an object's surface (observed voxels within half a voxel).
+    pub fn object_surface_points(&self, id: ObjectId) -> Result<Vec<Point3<f32>>, MapError> {
+        let object = self.objects.get(&id).ok_or(MapError::UnknownObject(id))?;
+        let band = self.config.voxel_size_m * 0.5;
+        Ok(object.volume.near_surface_voxels(band).into_iter().map(|(p, _)| object.t_world_object * p).collect())
+    }
+}

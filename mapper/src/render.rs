@@ -1,0 +1,123 @@
+//! Rendering layers into a camera by ray marching their TSDF, with a z-buffer
+//! shared between layers: per pixel, the nearest surface's depth and id.
+
+use nalgebra::{Point3, Vector3};
+
+use crate::camera::Intrinsics;
+use crate::layer::Layer;
+use crate::Pose;
+
+/// Per-pixel nearest surface: depth (z, metres; +∞ = nothing) and owner id (0 = none).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RenderTarget {
+    /// Z-depth of the nearest rendered surface.
+    pub depth_m: Vec<f32>,
+    /// Id of the layer that surface belongs to.
+    pub ids: Vec<u32>,
+}
+
+impl RenderTarget {
+    /// An empty target for `k`.
+    pub fn new(k: &Intrinsics) -> Self {
+        Self { depth_m: vec![f32::INFINITY; k.pixels()], ids: vec![0; k.pixels()] }
+    }
+}
+
+/// Known SDF at `p` (nearest voxel), or `None` if unobserved.
+fn sdf_at(layer: &Layer, p: &Point3<f32>) -> Option<f32> {
+    layer.voxel(layer.voxel_of(p)).filter(|v| v.weight > 0.0).map(|v| v.sdf)
+}
+
+/// Pixel rectangle covered by the projection of the box `[lo, hi]` (layer frame).
+fn projected_rect(lo: &Point3<f32>, hi: &Point3<f32>, t_camera_layer: &Pose, k: &Intrinsics) -> Option<(usize, usize, usize, usize)> {
+    let (mut umin, mut vmin, mut umax, mut vmax) = (f32::INFINITY, f32::INFINITY, f32::NEG_INFINITY, f32::NEG_INFINITY);
+    let mut any_behind = false;
+    let mut any_in_front = false;
+    for i in 0..8 {
+        let c = Point3::new(if i & 1 == 0 { lo.x } else { hi.x }, if i & 2 == 0 { lo.y } else { hi.y }, if i & 4 == 0 { lo.z } else { hi.z });
+        match k.project(&(t_camera_layer * c)) {
+            Some((u, v, _)) => {
+                any_in_front = true;
+                umin = umin.min(u);
+                umax = umax.max(u);
+                vmin = vmin.min(v);
+                vmax = vmax.max(v);
+            }
+            None => any_behind = true,
+        }
+    }
+    if !any_in_front {
+        return None;
+    }
+    if any_behind {
+        return Some((0, k.width - 1, 0, k.height - 1));
+    }
+    let clamp = |x: f32, n: usize| x.round().clamp(0.0, (n - 1) as f32) as usize;
+    if umax < -0.5 || vmax < -0.5 || umin > k.width as f32 - 0.5 || vmin > k.height as f32 - 0.5 {
+        return None;
+    }
+    Some((clamp(umin, k.width), clamp(umax, k.width), clamp(vmin, k.height), clamp(vmax, k.height)))
+}
+
+/// Z range `[z0, z1]` where the ray `o + z·d` is inside the box.
+fn slab(o: &Point3<f32>, d: &Vector3<f32>, lo: &Point3<f32>, hi: &Point3<f32>) -> Option<(f32, f32)> {
+    let (mut z0, mut z1) = (0.0f32, f32::INFINITY);
+    for a in 0..3 {
+        if d[a].abs() < 1e-9 {
+            if o[a] < lo[a] || o[a] > hi[a] {
+                return None;
+            }
+            continue;
+        }
+        let (t0, t1) = ((lo[a] - o[a]) / d[a], (hi[a] - o[a]) / d[a]);
+        z0 = z0.max(t0.min(t1));
+        z1 = z1.min(t0.max(t1));
+    }
+    (z0 <= z1).then_some((z0, z1))
+}
+
+/// Ray-marches `layer` (placed by `t_camera_layer`) into `target`, writing
+/// `id` where its zero crossing is nearer than what is there. Returns the
+/// number of pixels it won.
+pub fn raycast_layer(layer: &Layer, t_camera_layer: &Pose, k: &Intrinsics, id: u32, min_depth_m: f32, target: &mut RenderTarget) -> usize {
+    let Some((lo, hi)) = layer.block_bounds() else { return 0 };
+    let Some((u0, u1, v0, v1)) = projected_rect(&lo, &hi, t_camera_layer, k) else { return 0 };
+    let t_layer_camera = t_camera_layer.inverse();
+    let origin = t_layer_camera * Point3::origin();
+    let voxel = layer.voxel_size_m;
+    let mut won = 0;
+    for v in v0..=v1 {
+        for u in u0..=u1 {
+            let px = v * k.width + u;
+            let dir = t_layer_camera.rotation * k.ray(u as f32, v as f32);
+            let Some((z0, z1)) = slab(&origin, &dir, &lo, &hi) else { continue };
+            let z_end = z1.min(target.depth_m[px]);
+            let metres_per_z = dir.norm();
+            let mut z = z0.max(min_depth_m);
+            let mut previous: Option<(f32, f32)> = None;
+            while z <= z_end {
+                let sample = sdf_at(layer, &(origin + dir * z));
+                match (previous, sample) {
+                    (Some((zp, sp)), Some(s)) if sp > 0.0 && s <= 0.0 => {
+                        let hit = zp + (z - zp) * sp / (sp - s);
+                        if hit < target.depth_m[px] {
+                            target.depth_m[px] = hit;
+                            target.ids[px] = id;
+                            won += 1;
+                        }
+                        break;
+                    }
+                    _ => {}
+                }
+                // Sphere-trace through known free space, half voxels otherwise.
+                let step_m = match sample {
+                    Some(s) if s > voxel => 0.8 * s,
+                    _ => 0.5 * voxel,
+                };
+                previous = sample.map(|s| (z, s));
+                z += step_m / metres_per_z;
+            }
+        }
+    }
+    won
+}
