@@ -9,7 +9,7 @@ use rayon::prelude::*;
 
 use crate::association::{associate, extract_segments, AssociationParams, Segment};
 use crate::camera::{Frame, Intrinsics};
-use crate::integrate::{integrate, IntegrationParams};
+use crate::integrate::{integrate, normal_cosines, IntegrationParams};
 use crate::labels::{Affordance, ObjectLabels, Outcome};
 use crate::layer::Layer;
 use crate::render::{raycast_layer, RenderTarget};
@@ -180,7 +180,8 @@ impl Map {
             *m.entry(i).or_default() += 1;
             m
         });
-        let owner_ref = &owner;
+        let cosines = normal_cosines(&k, frame.depth_m, &params);
+        let (owner_ref, cosines_ref) = (&owner, &cosines);
         let work: Vec<&mut MapObject> = self
             .objects
             .values_mut()
@@ -189,10 +190,10 @@ impl Map {
         work.into_par_iter().for_each(|object| {
             let t_object_camera = object.t_world_object.inverse() * frame.t_world_camera;
             let id = object.id.0;
-            integrate(&mut object.volume, &t_object_camera, &k, frame.depth_m, &|px| owner_ref[px] == id, &params, true);
+            integrate(&mut object.volume, &t_object_camera, &k, frame.depth_m, &|px| owner_ref[px] == id, cosines_ref, &params, true);
         });
         let instance = frame.instance;
-        integrate(&mut self.background, &frame.t_world_camera, &k, frame.depth_m, &|px| instance[px] == 0, &params, false);
+        integrate(&mut self.background, &frame.t_world_camera, &k, frame.depth_m, &|px| instance[px] == 0, &cosines, &params, false);
 
         self.book_keeping(&matched, &visible);
         Ok(owner)
