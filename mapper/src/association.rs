@@ -34,7 +34,12 @@ pub struct Segment {
 
 /// Groups pixels by instance (0 = background is skipped), keeping pixels whose
 /// depth passes `valid` and segments of at least `min_px` pixels; sorted by instance.
-pub fn extract_segments(instance: &[u32], depth_m: &[f32], valid: impl Fn(f32) -> bool, min_px: usize) -> Vec<Segment> {
+pub fn extract_segments(
+    instance: &[u32],
+    depth_m: &[f32],
+    valid: impl Fn(f32) -> bool,
+    min_px: usize,
+) -> Vec<Segment> {
     let mut by_instance: FxHashMap<u32, Vec<usize>> = FxHashMap::default();
     for (px, (&id, &d)) in instance.iter().zip(depth_m).enumerate() {
         if id != 0 && valid(d) {
@@ -55,7 +60,12 @@ pub fn extract_segments(instance: &[u32], depth_m: &[f32], valid: impl Fn(f32) -
 /// Candidate pairs pass on IoU or on coverage; the best IoU is taken first.
 /// A segment gets at most one object; an object may take several segments
 /// (an over-segmented object keeps one id).
-pub fn associate(segments: &[Segment], rendered: &RenderTarget, depth_m: &[f32], params: &AssociationParams) -> Vec<Option<u32>> {
+pub fn associate(
+    segments: &[Segment],
+    rendered: &RenderTarget,
+    depth_m: &[f32],
+    params: &AssociationParams,
+) -> Vec<Option<u32>> {
     let mut rendered_px: FxHashMap<u32, usize> = FxHashMap::default();
     for &id in &rendered.ids {
         if id != 0 {

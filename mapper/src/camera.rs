@@ -30,7 +30,14 @@ impl Intrinsics {
     /// A centred camera with the given horizontal field of view (square pixels).
     pub fn from_fov(width: usize, height: usize, horizontal_fov_deg: f32) -> Self {
         let fx = width as f32 / 2.0 / (horizontal_fov_deg.to_radians() / 2.0).tan();
-        Self { width, height, fx, fy: fx, cx: (width as f32 - 1.0) / 2.0, cy: (height as f32 - 1.0) / 2.0 }
+        Self {
+            width,
+            height,
+            fx,
+            fy: fx,
+            cx: (width as f32 - 1.0) / 2.0,
+            cy: (height as f32 - 1.0) / 2.0,
+        }
     }
 
     /// Number of pixels.
@@ -54,7 +61,11 @@ impl Intrinsics {
         if p.z <= 1e-6 {
             return None;
         }
-        Some((self.fx * p.x / p.z + self.cx, self.fy * p.y / p.z + self.cy, p.z))
+        Some((
+            self.fx * p.x / p.z + self.cx,
+            self.fy * p.y / p.z + self.cy,
+            p.z,
+        ))
     }
 
     /// Index of the pixel containing continuous coordinates `(u, v)`, if inside.
@@ -90,7 +101,12 @@ mod tests {
     fn project_inverts_back_project() {
         let k = Intrinsics::from_fov(128, 128, 90.0);
         assert!((k.fx - 64.0).abs() < 1e-4 && (k.cx - 63.5).abs() < 1e-6);
-        for (u, v, z) in [(0.0, 0.0, 0.5), (63.5, 63.5, 2.0), (127.0, 3.0, 7.9), (40.25, 99.5, 1.3)] {
+        for (u, v, z) in [
+            (0.0, 0.0, 0.5),
+            (63.5, 63.5, 2.0),
+            (127.0, 3.0, 7.9),
+            (40.25, 99.5, 1.3),
+        ] {
             let p = k.back_project(u, v, z);
             let (pu, pv, pz) = k.project(&p).unwrap();
             assert!((pu - u).abs() < 1e-4 && (pv - v).abs() < 1e-4 && (pz - z).abs() < 1e-6);

@@ -45,7 +45,9 @@ pub fn normal_cosines(k: &Intrinsics, depth_m: &[f32], params: &IntegrationParam
     let (w, h) = (k.width, k.height);
     let point = |u: usize, v: usize| {
         let d = depth_m[v * w + u];
-        params.valid_depth(d).then(|| k.back_project(u as f32, v as f32, d))
+        params
+            .valid_depth(d)
+            .then(|| k.back_project(u as f32, v as f32, d))
     };
     let mut out = vec![1.0; w * h];
     let max_jump = 4.0 * params.truncation_m;
@@ -53,7 +55,12 @@ pub fn normal_cosines(k: &Intrinsics, depth_m: &[f32], params: &IntegrationParam
         for u in 1..w.saturating_sub(1) {
             let Some(c) = point(u, v) else { continue };
             let near = |p: Option<Point3<f32>>| p.filter(|p| (p.z - c.z).abs() < max_jump);
-            let (Some(l), Some(r), Some(t), Some(b)) = (near(point(u - 1, v)), near(point(u + 1, v)), near(point(u, v - 1)), near(point(u, v + 1))) else {
+            let (Some(l), Some(r), Some(t), Some(b)) = (
+                near(point(u - 1, v)),
+                near(point(u + 1, v)),
+                near(point(u, v - 1)),
+                near(point(u, v + 1)),
+            ) else {
                 continue;
             };
             let n = (r - l).cross(&(b - t));
@@ -73,17 +80,34 @@ pub fn normal_cosines(k: &Intrinsics, depth_m: &[f32], params: &IntegrationParam
 /// `max_spread_m`), else the nearest pixel's. At 128 × 128 a pixel spans about
 /// a voxel at 2 m, so nearest-pixel lookup alone leaves errors of half a voxel
 /// on slanted surfaces.
-fn depth_at(k: &Intrinsics, depth_m: &[f32], u: f32, v: f32, nearest: usize, max_spread_m: f32, params: &IntegrationParams) -> f32 {
+fn depth_at(
+    k: &Intrinsics,
+    depth_m: &[f32],
+    u: f32,
+    v: f32,
+    nearest: usize,
+    max_spread_m: f32,
+    params: &IntegrationParams,
+) -> f32 {
     let (u0, v0) = (u.floor(), v.floor());
     if u0 < 0.0 || v0 < 0.0 || u0 + 1.0 >= k.width as f32 || v0 + 1.0 >= k.height as f32 {
         return depth_m[nearest];
     }
     let i = v0 as usize * k.width + u0 as usize;
-    let q = [depth_m[i], depth_m[i + 1], depth_m[i + k.width], depth_m[i + k.width + 1]];
+    let q = [
+        depth_m[i],
+        depth_m[i + 1],
+        depth_m[i + k.width],
+        depth_m[i + k.width + 1],
+    ];
     if !q.iter().all(|&d| params.valid_depth(d)) {
         return depth_m[nearest];
     }
-    let (lo, hi) = q.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &d| (lo.min(d), hi.max(d)));
+    let (lo, hi) = q
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &d| {
+            (lo.min(d), hi.max(d))
+        });
     if hi - lo > max_spread_m {
         return depth_m[nearest];
     }
@@ -129,26 +153,46 @@ fn blocks_in_view(layer: &Layer, t_camera_layer: &Pose, k: &Intrinsics) -> Vec<B
         .into_iter()
         .filter(|b| {
             let s = layer.block_size_m();
-            let c = Point3::new(b.0[0] as f32 * s + half, b.0[1] as f32 * s + half, b.0[2] as f32 * s + half);
-            k.project(&(t_camera_layer * c)).is_some_and(|(u, v, _)| k.pixel_index(u, v).is_some())
+            let c = Point3::new(
+                b.0[0] as f32 * s + half,
+                b.0[1] as f32 * s + half,
+                b.0[2] as f32 * s + half,
+            );
+            k.project(&(t_camera_layer * c))
+                .is_some_and(|(u, v, _)| k.pixel_index(u, v).is_some())
         })
         .collect()
 }
 
+/// One depth image as seen from a layer's frame.
+#[derive(Debug, Clone, Copy)]
+pub struct DepthView<'a> {
+    /// Camera pose in the layer's frame.
+    pub t_layer_camera: &'a Pose,
+    /// Camera model.
+    pub k: &'a Intrinsics,
+    /// Z-depth per pixel.
+    pub depth_m: &'a [f32],
+    /// Per-pixel factors from [`normal_cosines`].
+    pub cosines: &'a [f32],
+}
+
 /// Integrates one frame into `layer`. `owned(pixel)` says which pixels show
 /// this layer's surface; with `carve`, other pixels clear free space.
-/// `cosines` comes from [`normal_cosines`] for the same depth image.
 /// Returns the number of voxels updated.
 pub fn integrate(
     layer: &mut Layer,
-    t_layer_camera: &Pose,
-    k: &Intrinsics,
-    depth_m: &[f32],
+    view: &DepthView<'_>,
     owned: &dyn Fn(usize) -> bool,
-    cosines: &[f32],
     params: &IntegrationParams,
     carve: bool,
 ) -> usize {
+    let DepthView {
+        t_layer_camera,
+        k,
+        depth_m,
+        cosines,
+    } = *view;
     let t_camera_layer = t_layer_camera.inverse();
     let mut blocks = blocks_near_points(layer, t_layer_camera, k, depth_m, owned, params);
     if carve {
@@ -163,13 +207,21 @@ pub fn integrate(
         let mut updates = Vec::new();
         for o in 0..BLOCK_VOXELS {
             let center = layer.voxel_center(VoxelIndex::join(b, o));
-            let Some((u, v, z)) = k.project(&(t_camera_layer * center)) else { continue };
-            let Some(px) = k.pixel_index(u, v) else { continue };
+            let Some((u, v, z)) = k.project(&(t_camera_layer * center)) else {
+                continue;
+            };
+            let Some(px) = k.pixel_index(u, v) else {
+                continue;
+            };
             if !params.valid_depth(depth_m[px]) {
                 continue;
             }
             let is_owned = owned(px);
-            let d = if is_owned { depth_at(k, depth_m, u, v, px, trunc, params) } else { depth_m[px] };
+            let d = if is_owned {
+                depth_at(k, depth_m, u, v, px, trunc, params)
+            } else {
+                depth_m[px]
+            };
             let projective = d - z;
             if is_owned {
                 if projective < -trunc {
@@ -179,7 +231,12 @@ pub fn integrate(
                 let sdf = projective * cos;
                 // Full weight in front of the surface, dropping linearly behind
                 // it; grazing views count less.
-                let w = cos * if sdf >= 0.0 { 1.0 } else { (1.0 + sdf / trunc).max(0.05) };
+                let w = cos
+                    * if sdf >= 0.0 {
+                        1.0
+                    } else {
+                        (1.0 + sdf / trunc).max(0.05)
+                    };
                 updates.push((o, sdf.min(trunc), w, false));
             } else if carve && exists && projective > trunc {
                 updates.push((o, trunc, 1.0, true));

@@ -33,7 +33,10 @@ impl VoxelIndex {
     pub fn split(self) -> (BlockIndex, usize) {
         let b = self.0.map(|i| i.div_euclid(BLOCK_EDGE));
         let l = self.0.map(|i| i.rem_euclid(BLOCK_EDGE) as usize);
-        (BlockIndex(b), l[0] + BLOCK_EDGE as usize * (l[1] + BLOCK_EDGE as usize * l[2]))
+        (
+            BlockIndex(b),
+            l[0] + BLOCK_EDGE as usize * (l[1] + BLOCK_EDGE as usize * l[2]),
+        )
     }
 
     /// Voxel at `offset` inside `block`.
@@ -53,7 +56,9 @@ pub struct Block {
 
 impl Default for Block {
     fn default() -> Self {
-        Self { voxels: Box::new([Voxel::default(); BLOCK_VOXELS]) }
+        Self {
+            voxels: Box::new([Voxel::default(); BLOCK_VOXELS]),
+        }
     }
 }
 
@@ -68,7 +73,10 @@ pub struct Layer {
 impl Layer {
     /// An empty layer.
     pub fn new(voxel_size_m: f32) -> Self {
-        Self { voxel_size_m, blocks: FxHashMap::default() }
+        Self {
+            voxel_size_m,
+            blocks: FxHashMap::default(),
+        }
     }
 
     /// Block edge length in metres.
@@ -90,7 +98,11 @@ impl Layer {
     /// Centre of a voxel (layer frame).
     pub fn voxel_center(&self, v: VoxelIndex) -> Point3<f32> {
         let s = self.voxel_size_m;
-        Point3::new((v.0[0] as f32 + 0.5) * s, (v.0[1] as f32 + 0.5) * s, (v.0[2] as f32 + 0.5) * s)
+        Point3::new(
+            (v.0[0] as f32 + 0.5) * s,
+            (v.0[1] as f32 + 0.5) * s,
+            (v.0[2] as f32 + 0.5) * s,
+        )
     }
 
     /// The voxel at `v`, if its block exists.
@@ -161,7 +173,9 @@ impl Layer {
                 for axis in 0..3 {
                     let mut n = v.0;
                     n[axis] += 1;
-                    let Some(bv) = self.voxel(VoxelIndex(n)).filter(|x| x.weight > 0.0) else { continue };
+                    let Some(bv) = self.voxel(VoxelIndex(n)).filter(|x| x.weight > 0.0) else {
+                        continue;
+                    };
                     if (a.sdf > 0.0) == (bv.sdf > 0.0) || (a.sdf - bv.sdf).abs() > max_jump_m {
                         continue;
                     }
@@ -187,7 +201,11 @@ impl Layer {
         }
         Some((
             Point3::new(lo[0] as f32 * s, lo[1] as f32 * s, lo[2] as f32 * s),
-            Point3::new((hi[0] + 1) as f32 * s, (hi[1] + 1) as f32 * s, (hi[2] + 1) as f32 * s),
+            Point3::new(
+                (hi[0] + 1) as f32 * s,
+                (hi[1] + 1) as f32 * s,
+                (hi[2] + 1) as f32 * s,
+            ),
         ))
     }
 }
@@ -199,14 +217,28 @@ mod tests {
     #[test]
     fn negative_coordinates_and_block_boundaries_index_without_seams() {
         let layer = Layer::new(0.04);
-        assert_eq!(layer.voxel_of(&Point3::new(-0.001, 0.0, 0.039)), VoxelIndex([-1, 0, 0]));
-        assert_eq!(layer.block_of(&Point3::new(-0.001, 0.3199, 0.32)), BlockIndex([-1, 0, 1]));
-        for v in [[-1, -8, -9], [0, 7, 8], [-17, 15, 16], [i32::MIN / 16, 3, -3]] {
+        assert_eq!(
+            layer.voxel_of(&Point3::new(-0.001, 0.0, 0.039)),
+            VoxelIndex([-1, 0, 0])
+        );
+        assert_eq!(
+            layer.block_of(&Point3::new(-0.001, 0.3199, 0.32)),
+            BlockIndex([-1, 0, 1])
+        );
+        for v in [
+            [-1, -8, -9],
+            [0, 7, 8],
+            [-17, 15, 16],
+            [i32::MIN / 16, 3, -3],
+        ] {
             let (b, o) = VoxelIndex(v).split();
             assert_eq!(VoxelIndex::join(b, o), VoxelIndex(v));
             assert!(o < BLOCK_VOXELS);
         }
-        assert_eq!(VoxelIndex([-1, -1, -1]).split(), (BlockIndex([-1, -1, -1]), BLOCK_VOXELS - 1));
+        assert_eq!(
+            VoxelIndex([-1, -1, -1]).split(),
+            (BlockIndex([-1, -1, -1]), BLOCK_VOXELS - 1)
+        );
         let c = layer.voxel_center(VoxelIndex([-1, 0, 2]));
         assert_eq!(layer.voxel_of(&c), VoxelIndex([-1, 0, 2]));
     }

@@ -9,7 +9,7 @@ use rayon::prelude::*;
 
 use crate::association::{associate, extract_segments, AssociationParams, Segment};
 use crate::camera::{Frame, Intrinsics};
-use crate::integrate::{integrate, normal_cosines, IntegrationParams};
+use crate::integrate::{integrate, normal_cosines, DepthView, IntegrationParams};
 use crate::labels::{Affordance, ObjectLabels, Outcome};
 use crate::layer::Layer;
 use crate::render::{raycast_layer, RenderTarget};
@@ -62,7 +62,12 @@ impl Default for MapConfig {
         let voxel_size_m = 0.04;
         Self {
             voxel_size_m,
-            integration: IntegrationParams { truncation_m: 0.12, max_weight: 50.0, min_depth_m: 0.1, max_depth_m: 8.0 },
+            integration: IntegrationParams {
+                truncation_m: 0.12,
+                max_weight: 50.0,
+                min_depth_m: 0.1,
+                max_depth_m: 8.0,
+            },
             association: AssociationParams {
                 min_segment_px: 20,
                 new_object_min_px: 50,
@@ -98,7 +103,10 @@ pub struct MapObject {
 impl MapObject {
     /// The most voted class, if any.
     pub fn class(&self) -> Option<u16> {
-        self.class_histogram.iter().max_by_key(|(c, n)| (**n, std::cmp::Reverse(**c))).map(|(c, _)| *c)
+        self.class_histogram
+            .iter()
+            .max_by_key(|(c, n)| (**n, std::cmp::Reverse(**c)))
+            .map(|(c, _)| *c)
     }
 }
 
@@ -113,7 +121,13 @@ pub struct Map {
 
 fn check_len(what: &'static str, got: usize, k: &Intrinsics) -> Result<(), MapError> {
     if got != k.pixels() {
-        return Err(MapError::FrameSize { what, got, expected: k.pixels(), width: k.width, height: k.height });
+        return Err(MapError::FrameSize {
+            what,
+            got,
+            expected: k.pixels(),
+            width: k.width,
+            height: k.height,
+        });
     }
     Ok(())
 }
@@ -121,7 +135,12 @@ fn check_len(what: &'static str, got: usize, k: &Intrinsics) -> Result<(), MapEr
 impl Map {
     /// An empty map.
     pub fn new(config: MapConfig) -> Self {
-        Self { config, background: Layer::new(config.voxel_size_m), objects: BTreeMap::new(), next_id: 1 }
+        Self {
+            config,
+            background: Layer::new(config.voxel_size_m),
+            objects: BTreeMap::new(),
+            next_id: 1,
+        }
     }
 
     /// The settings.
@@ -153,16 +172,28 @@ impl Map {
             check_len("class image", class.len(), &k)?;
         }
         let params = self.config.integration;
-        let segments = extract_segments(frame.instance, frame.depth_m, |d| params.valid_depth(d), self.config.association.min_segment_px);
+        let segments = extract_segments(
+            frame.instance,
+            frame.depth_m,
+            |d| params.valid_depth(d),
+            self.config.association.min_segment_px,
+        );
         let rendered = self.render_objects(&frame.t_world_camera, &k);
-        let matches = associate(&segments, &rendered, frame.depth_m, &self.config.association);
+        let matches = associate(
+            &segments,
+            &rendered,
+            frame.depth_m,
+            &self.config.association,
+        );
 
         let mut owner = vec![0u32; k.pixels()];
         let mut matched: BTreeMap<ObjectId, usize> = BTreeMap::new();
         for (segment, matched_id) in segments.iter().zip(&matches) {
             let id = match matched_id {
                 Some(id) => ObjectId(*id),
-                None if segment.pixels.len() >= self.config.association.new_object_min_px => self.add_object(segment, frame),
+                None if segment.pixels.len() >= self.config.association.new_object_min_px => {
+                    self.add_object(segment, frame)
+                }
                 None => continue,
             };
             *matched.entry(id).or_default() += segment.pixels.len();
@@ -176,10 +207,15 @@ impl Map {
             }
         }
 
-        let visible: BTreeMap<u32, usize> = rendered.ids.iter().filter(|&&i| i != 0).fold(BTreeMap::new(), |mut m, &i| {
-            *m.entry(i).or_default() += 1;
-            m
-        });
+        let visible: BTreeMap<u32, usize> =
+            rendered
+                .ids
+                .iter()
+                .filter(|&&i| i != 0)
+                .fold(BTreeMap::new(), |mut m, &i| {
+                    *m.entry(i).or_default() += 1;
+                    m
+                });
         let cosines = normal_cosines(&k, frame.depth_m, &params);
         let (owner_ref, cosines_ref) = (&owner, &cosines);
         let work: Vec<&mut MapObject> = self
@@ -190,10 +226,34 @@ impl Map {
         work.into_par_iter().for_each(|object| {
             let t_object_camera = object.t_world_object.inverse() * frame.t_world_camera;
             let id = object.id.0;
-            integrate(&mut object.volume, &t_object_camera, &k, frame.depth_m, &|px| owner_ref[px] == id, cosines_ref, &params, true);
+            let view = DepthView {
+                t_layer_camera: &t_object_camera,
+                k: &k,
+                depth_m: frame.depth_m,
+                cosines: cosines_ref,
+            };
+            integrate(
+                &mut object.volume,
+                &view,
+                &|px| owner_ref[px] == id,
+                &params,
+                true,
+            );
         });
         let instance = frame.instance;
-        integrate(&mut self.background, &frame.t_world_camera, &k, frame.depth_m, &|px| instance[px] == 0, &cosines, &params, false);
+        let view = DepthView {
+            t_layer_camera: &frame.t_world_camera,
+            k: &k,
+            depth_m: frame.depth_m,
+            cosines: &cosines,
+        };
+        integrate(
+            &mut self.background,
+            &view,
+            &|px| instance[px] == 0,
+            &params,
+            false,
+        );
 
         self.book_keeping(&matched, &visible);
         Ok(owner)
@@ -202,7 +262,11 @@ impl Map {
     fn add_object(&mut self, segment: &Segment, frame: &Frame<'_>) -> ObjectId {
         let k = frame.intrinsics;
         let sum = segment.pixels.iter().fold(Vector3::zeros(), |acc, &px| {
-            let p = k.back_project((px % k.width) as f32, (px / k.width) as f32, frame.depth_m[px]);
+            let p = k.back_project(
+                (px % k.width) as f32,
+                (px / k.width) as f32,
+                frame.depth_m[px],
+            );
             acc + (frame.t_world_camera * p).coords
         });
         let centroid = sum / segment.pixels.len() as f32;
@@ -210,7 +274,10 @@ impl Map {
         self.next_id += 1;
         let object = MapObject {
             id,
-            t_world_object: Pose::from_parts(Translation3::from(centroid), UnitQuaternion::identity()),
+            t_world_object: Pose::from_parts(
+                Translation3::from(centroid),
+                UnitQuaternion::identity(),
+            ),
             volume: Layer::new(self.config.voxel_size_m),
             class_histogram: BTreeMap::new(),
             observations: 0,
@@ -221,7 +288,11 @@ impl Map {
         id
     }
 
-    fn book_keeping(&mut self, matched: &BTreeMap<ObjectId, usize>, visible: &BTreeMap<u32, usize>) {
+    fn book_keeping(
+        &mut self,
+        matched: &BTreeMap<ObjectId, usize>,
+        visible: &BTreeMap<u32, usize>,
+    ) {
         let max_misses = self.config.max_misses;
         let min_px = self.config.miss_min_rendered_px;
         for object in self.objects.values_mut() {
@@ -241,7 +312,14 @@ impl Map {
         let t_camera_world = t_world_camera.inverse();
         for object in self.objects.values() {
             let t_camera_object = t_camera_world * object.t_world_object;
-            raycast_layer(&object.volume, &t_camera_object, k, object.id.0, self.config.integration.min_depth_m, &mut target);
+            raycast_layer(
+                &object.volume,
+                &t_camera_object,
+                k,
+                object.id.0,
+                self.config.integration.min_depth_m,
+                &mut target,
+            );
         }
         target
     }
@@ -253,8 +331,20 @@ impl Map {
         let mut target = self.render_objects(t_world_camera, k);
         let t_camera_world = t_world_camera.inverse();
         let mut background = RenderTarget::new(k);
-        raycast_layer(&self.background, &t_camera_world, k, 0, self.config.integration.min_depth_m, &mut background);
-        for ((d, id), bd) in target.depth_m.iter_mut().zip(target.ids.iter_mut()).zip(&background.depth_m) {
+        raycast_layer(
+            &self.background,
+            &t_camera_world,
+            k,
+            0,
+            self.config.integration.min_depth_m,
+            &mut background,
+        );
+        for ((d, id), bd) in target
+            .depth_m
+            .iter_mut()
+            .zip(target.ids.iter_mut())
+            .zip(&background.depth_m)
+        {
             if *bd + self.config.association.depth_tolerance_m < *d {
                 *d = *bd;
                 *id = 0;
@@ -264,25 +354,50 @@ impl Map {
     }
 
     /// Records an interaction outcome on an object.
-    pub fn record_interaction(&mut self, id: ObjectId, affordance: Affordance, outcome: Outcome) -> Result<(), MapError> {
-        self.objects.get_mut(&id).ok_or(MapError::UnknownObject(id))?.labels.record(affordance, outcome);
+    pub fn record_interaction(
+        &mut self,
+        id: ObjectId,
+        affordance: Affordance,
+        outcome: Outcome,
+    ) -> Result<(), MapError> {
+        self.objects
+            .get_mut(&id)
+            .ok_or(MapError::UnknownObject(id))?
+            .labels
+            .record(affordance, outcome);
         Ok(())
     }
 
     /// Sets an object's label from annotation by confidence.
-    pub fn set_confidence_label(&mut self, id: ObjectId, affordance: Affordance, label: Option<bool>) -> Result<(), MapError> {
-        self.objects.get_mut(&id).ok_or(MapError::UnknownObject(id))?.labels.set_confidence_label(affordance, label);
+    pub fn set_confidence_label(
+        &mut self,
+        id: ObjectId,
+        affordance: Affordance,
+        label: Option<bool>,
+    ) -> Result<(), MapError> {
+        self.objects
+            .get_mut(&id)
+            .ok_or(MapError::UnknownObject(id))?
+            .labels
+            .set_confidence_label(affordance, label);
         Ok(())
     }
 
     /// Objects whose label for `affordance` is `label` (ascending ids).
     pub fn objects_labelled(&self, affordance: Affordance, label: Option<bool>) -> Vec<ObjectId> {
-        self.objects.values().filter(|o| o.labels.label(affordance) == label).map(|o| o.id).collect()
+        self.objects
+            .values()
+            .filter(|o| o.labels.label(affordance) == label)
+            .map(|o| o.id)
+            .collect()
     }
 
     /// Moves an object (e.g. after the robot pushed it): a pose update, no resampling.
     pub fn set_object_pose(&mut self, id: ObjectId, t_world_object: Pose) -> Result<(), MapError> {
-        self.objects.get_mut(&id).ok_or(MapError::UnknownObject(id))?.t_world_object = t_world_object;
+        self.objects
+            .get_mut(&id)
+            .ok_or(MapError::UnknownObject(id))?
+            .t_world_object = t_world_object;
         Ok(())
     }
 
@@ -290,6 +405,11 @@ impl Map {
     pub fn object_surface_points(&self, id: ObjectId) -> Result<Vec<Point3<f32>>, MapError> {
         let object = self.objects.get(&id).ok_or(MapError::UnknownObject(id))?;
         let band = self.config.voxel_size_m * 0.5;
-        Ok(object.volume.near_surface_voxels(band).into_iter().map(|(p, _)| object.t_world_object * p).collect())
+        Ok(object
+            .volume
+            .near_surface_voxels(band)
+            .into_iter()
+            .map(|(p, _)| object.t_world_object * p)
+            .collect())
     }
 }

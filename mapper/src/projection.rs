@@ -31,7 +31,8 @@ impl GridSpec {
         let col = ((right + self.extent_m / 2.0) / cell_m).floor();
         let row = ((self.extent_m / 2.0 - forward) / cell_m).floor();
         let n = self.cells as f32;
-        (col >= 0.0 && row >= 0.0 && col < n && row < n).then(|| row as usize * self.cells + col as usize)
+        (col >= 0.0 && row >= 0.0 && col < n && row < n)
+            .then(|| row as usize * self.cells + col as usize)
     }
 }
 
@@ -63,7 +64,11 @@ impl Map {
                 out[c] = 1.0;
             }
         };
-        if let ProjectionKind::Occupancy { min_height_m, max_height_m } = kind {
+        if let ProjectionKind::Occupancy {
+            min_height_m,
+            max_height_m,
+        } = kind
+        {
             for (p, _) in self.background().near_surface_voxels(band) {
                 if (min_height_m..=max_height_m).contains(&p.z) {
                     mark(p);
@@ -73,8 +78,12 @@ impl Map {
         for object in self.objects().values() {
             let include = match kind {
                 ProjectionKind::Occupancy { .. } => true,
-                ProjectionKind::InteractedSuccess(a) => object.labels.interacted(a) && object.labels.label(a) == Some(true),
-                ProjectionKind::InteractedFailure(a) => object.labels.interacted(a) && object.labels.label(a) == Some(false),
+                ProjectionKind::InteractedSuccess(a) => {
+                    object.labels.interacted(a) && object.labels.label(a) == Some(true)
+                }
+                ProjectionKind::InteractedFailure(a) => {
+                    object.labels.interacted(a) && object.labels.label(a) == Some(false)
+                }
                 ProjectionKind::NotInteracted(a) => !object.labels.interacted(a),
             };
             if !include {
@@ -82,7 +91,11 @@ impl Map {
             }
             for (p, _) in object.volume.near_surface_voxels(band) {
                 let w = object.t_world_object * p;
-                if let ProjectionKind::Occupancy { min_height_m, max_height_m } = kind {
+                if let ProjectionKind::Occupancy {
+                    min_height_m,
+                    max_height_m,
+                } = kind
+                {
                     if !(min_height_m..=max_height_m).contains(&w.z) {
                         continue;
                     }
@@ -111,10 +124,18 @@ mod tests {
 
     #[test]
     fn egocentric_grids_rotate_with_the_heading() {
-        let north = GridSpec { center: Point2::new(0.0, 0.0), up_heading_rad: std::f32::consts::FRAC_PI_2, extent_m: 2.0, cells: 4 };
+        let north = GridSpec {
+            center: Point2::new(0.0, 0.0),
+            up_heading_rad: std::f32::consts::FRAC_PI_2,
+            extent_m: 2.0,
+            cells: 4,
+        };
         // A point 0.75 m ahead (+y) lands in the top row, middle-right column boundary.
         assert_eq!(north.cell_of(0.1, 0.75), Some(2));
-        let east = GridSpec { up_heading_rad: 0.0, ..north };
+        let east = GridSpec {
+            up_heading_rad: 0.0,
+            ..north
+        };
         // The same point seen facing +x is to the agent's left.
         assert_eq!(east.cell_of(0.1, 0.75), Some(4));
         assert_eq!(north.cell_of(5.0, 0.0), None);

@@ -19,22 +19,61 @@ pub struct RenderTarget {
 impl RenderTarget {
     /// An empty target for `k`.
     pub fn new(k: &Intrinsics) -> Self {
-        Self { depth_m: vec![f32::INFINITY; k.pixels()], ids: vec![0; k.pixels()] }
+        Self {
+            depth_m: vec![f32::INFINITY; k.pixels()],
+            ids: vec![0; k.pixels()],
+        }
     }
 }
 
-/// Known SDF at `p` (nearest voxel), or `None` if unobserved.
+/// Known SDF at `p`: trilinear between the eight surrounding voxel centres
+/// when all are observed (sub-voxel silhouettes), else the nearest voxel's;
+/// `None` if unobserved.
 fn sdf_at(layer: &Layer, p: &Point3<f32>) -> Option<f32> {
-    layer.voxel(layer.voxel_of(p)).filter(|v| v.weight > 0.0).map(|v| v.sdf)
+    let nearest = layer
+        .voxel(layer.voxel_of(p))
+        .filter(|v| v.weight > 0.0)?
+        .sdf;
+    let s = layer.voxel_size_m;
+    let g = [p.x / s - 0.5, p.y / s - 0.5, p.z / s - 0.5];
+    let base = g.map(|c| c.floor());
+    let f = [g[0] - base[0], g[1] - base[1], g[2] - base[2]];
+    let mut sum = 0.0;
+    for corner in 0..8 {
+        let offset = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
+        let index = crate::layer::VoxelIndex([0, 1, 2].map(|a| base[a] as i32 + offset[a]));
+        let Some(v) = layer.voxel(index).filter(|v| v.weight > 0.0) else {
+            return Some(nearest);
+        };
+        let w: f32 = (0..3)
+            .map(|a| if offset[a] == 1 { f[a] } else { 1.0 - f[a] })
+            .product();
+        sum += w * v.sdf;
+    }
+    Some(sum)
 }
 
 /// Pixel rectangle covered by the projection of the box `[lo, hi]` (layer frame).
-fn projected_rect(lo: &Point3<f32>, hi: &Point3<f32>, t_camera_layer: &Pose, k: &Intrinsics) -> Option<(usize, usize, usize, usize)> {
-    let (mut umin, mut vmin, mut umax, mut vmax) = (f32::INFINITY, f32::INFINITY, f32::NEG_INFINITY, f32::NEG_INFINITY);
+fn projected_rect(
+    lo: &Point3<f32>,
+    hi: &Point3<f32>,
+    t_camera_layer: &Pose,
+    k: &Intrinsics,
+) -> Option<(usize, usize, usize, usize)> {
+    let (mut umin, mut vmin, mut umax, mut vmax) = (
+        f32::INFINITY,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        f32::NEG_INFINITY,
+    );
     let mut any_behind = false;
     let mut any_in_front = false;
     for i in 0..8 {
-        let c = Point3::new(if i & 1 == 0 { lo.x } else { hi.x }, if i & 2 == 0 { lo.y } else { hi.y }, if i & 4 == 0 { lo.z } else { hi.z });
+        let c = Point3::new(
+            if i & 1 == 0 { lo.x } else { hi.x },
+            if i & 2 == 0 { lo.y } else { hi.y },
+            if i & 4 == 0 { lo.z } else { hi.z },
+        );
         match k.project(&(t_camera_layer * c)) {
             Some((u, v, _)) => {
                 any_in_front = true;
@@ -56,11 +95,21 @@ fn projected_rect(lo: &Point3<f32>, hi: &Point3<f32>, t_camera_layer: &Pose, k: 
     if umax < -0.5 || vmax < -0.5 || umin > k.width as f32 - 0.5 || vmin > k.height as f32 - 0.5 {
         return None;
     }
-    Some((clamp(umin, k.width), clamp(umax, k.width), clamp(vmin, k.height), clamp(vmax, k.height)))
+    Some((
+        clamp(umin, k.width),
+        clamp(umax, k.width),
+        clamp(vmin, k.height),
+        clamp(vmax, k.height),
+    ))
 }
 
 /// Z range `[z0, z1]` where the ray `o + z·d` is inside the box.
-fn slab(o: &Point3<f32>, d: &Vector3<f32>, lo: &Point3<f32>, hi: &Point3<f32>) -> Option<(f32, f32)> {
+fn slab(
+    o: &Point3<f32>,
+    d: &Vector3<f32>,
+    lo: &Point3<f32>,
+    hi: &Point3<f32>,
+) -> Option<(f32, f32)> {
     let (mut z0, mut z1) = (0.0f32, f32::INFINITY);
     for a in 0..3 {
         if d[a].abs() < 1e-9 {
@@ -79,9 +128,20 @@ fn slab(o: &Point3<f32>, d: &Vector3<f32>, lo: &Point3<f32>, hi: &Point3<f32>) -
 /// Ray-marches `layer` (placed by `t_camera_layer`) into `target`, writing
 /// `id` where its zero crossing is nearer than what is there. Returns the
 /// number of pixels it won.
-pub fn raycast_layer(layer: &Layer, t_camera_layer: &Pose, k: &Intrinsics, id: u32, min_depth_m: f32, target: &mut RenderTarget) -> usize {
-    let Some((lo, hi)) = layer.block_bounds() else { return 0 };
-    let Some((u0, u1, v0, v1)) = projected_rect(&lo, &hi, t_camera_layer, k) else { return 0 };
+pub fn raycast_layer(
+    layer: &Layer,
+    t_camera_layer: &Pose,
+    k: &Intrinsics,
+    id: u32,
+    min_depth_m: f32,
+    target: &mut RenderTarget,
+) -> usize {
+    let Some((lo, hi)) = layer.block_bounds() else {
+        return 0;
+    };
+    let Some((u0, u1, v0, v1)) = projected_rect(&lo, &hi, t_camera_layer, k) else {
+        return 0;
+    };
     let t_layer_camera = t_camera_layer.inverse();
     let origin = t_layer_camera * Point3::origin();
     let voxel = layer.voxel_size_m;
@@ -90,7 +150,9 @@ pub fn raycast_layer(layer: &Layer, t_camera_layer: &Pose, k: &Intrinsics, id: u
         for u in u0..=u1 {
             let px = v * k.width + u;
             let dir = t_layer_camera.rotation * k.ray(u as f32, v as f32);
-            let Some((z0, z1)) = slab(&origin, &dir, &lo, &hi) else { continue };
+            let Some((z0, z1)) = slab(&origin, &dir, &lo, &hi) else {
+                continue;
+            };
             let z_end = z1.min(target.depth_m[px]);
             let metres_per_z = dir.norm();
             let mut z = z0.max(min_depth_m);

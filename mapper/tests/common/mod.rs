@@ -10,9 +10,17 @@ use nalgebra::{Point3, Translation3, UnitQuaternion, Vector3};
 #[derive(Debug, Clone, Copy)]
 pub enum Shape {
     /// Sphere.
-    Sphere { center: Point3<f32>, radius: f32, id: u32 },
+    Sphere {
+        center: Point3<f32>,
+        radius: f32,
+        id: u32,
+    },
     /// Box with half extents, placed by `t_world_box`.
-    Box { t_world_box: Pose, half: Vector3<f32>, id: u32 },
+    Box {
+        t_world_box: Pose,
+        half: Vector3<f32>,
+        id: u32,
+    },
 }
 
 impl Shape {
@@ -35,7 +43,9 @@ impl Shape {
                 let t = (-b - disc.sqrt()) / (2.0 * a);
                 (t > 0.0).then_some(t)
             }
-            Shape::Box { t_world_box, half, .. } => {
+            Shape::Box {
+                t_world_box, half, ..
+            } => {
                 let inv = t_world_box.inverse();
                 let (ol, dl) = (inv * o, inv.rotation * d);
                 let (mut t0, mut t1) = (0.0f32, f32::INFINITY);
@@ -59,7 +69,9 @@ impl Shape {
     pub fn signed_distance(&self, p: &Point3<f32>) -> f32 {
         match self {
             Shape::Sphere { center, radius, .. } => (p - center).norm() - radius,
-            Shape::Box { t_world_box, half, .. } => {
+            Shape::Box {
+                t_world_box, half, ..
+            } => {
                 let q = t_world_box.inverse() * p;
                 let d = Vector3::new(q.x.abs() - half.x, q.y.abs() - half.y, q.z.abs() - half.z);
                 let outside = Vector3::new(d.x.max(0.0), d.y.max(0.0), d.z.max(0.0)).norm();
@@ -104,8 +116,13 @@ pub fn look_at(eye: Point3<f32>, target: Point3<f32>) -> Pose {
     }
     let right = right.normalize();
     let down = forward.cross(&right);
-    let rot = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_columns(&[right, down, forward]));
-    Pose::from_parts(Translation3::from(eye.coords), UnitQuaternion::from_rotation_matrix(&rot))
+    let rot = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_columns(&[
+        right, down, forward,
+    ]));
+    Pose::from_parts(
+        Translation3::from(eye.coords),
+        UnitQuaternion::from_rotation_matrix(&rot),
+    )
 }
 
 /// `n` cameras on a circle of `radius` around `target` at `height`.
@@ -113,7 +130,14 @@ pub fn orbit(target: Point3<f32>, radius: f32, height: f32, n: usize) -> Vec<Pos
     (0..n)
         .map(|i| {
             let a = i as f32 / n as f32 * std::f32::consts::TAU;
-            look_at(Point3::new(target.x + radius * a.cos(), target.y + radius * a.sin(), height), target)
+            look_at(
+                Point3::new(
+                    target.x + radius * a.cos(),
+                    target.y + radius * a.sin(),
+                    height,
+                ),
+                target,
+            )
         })
         .collect()
 }
@@ -129,10 +153,21 @@ pub struct OwnedFrame {
 impl OwnedFrame {
     pub fn capture(shapes: &[Shape], pose: Pose, k: Intrinsics) -> Self {
         let (depth, ids) = render(shapes, &pose, &k);
-        Self { pose, k, depth, ids }
+        Self {
+            pose,
+            k,
+            depth,
+            ids,
+        }
     }
     pub fn frame(&self) -> Frame<'_> {
-        Frame { t_world_camera: self.pose, intrinsics: self.k, depth_m: &self.depth, instance: &self.ids, class: None }
+        Frame {
+            t_world_camera: self.pose,
+            intrinsics: self.k,
+            depth_m: &self.depth,
+            instance: &self.ids,
+            class: None,
+        }
     }
 }
 

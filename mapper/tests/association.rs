@@ -1,0 +1,209 @@
+//! Object identity over viewpoints: consistent ids, no objects from noise,
+//! one id for an over-segmented object, ids rendered back into frames, and
+//! determinism for any thread count.
+
+mod common;
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use common::{k128, look_at, OwnedFrame, Shape};
+use mapper::{Map, MapConfig};
+use nalgebra::{Isometry3, Point3, Vector3};
+
+fn scene() -> Vec<Shape> {
+    vec![
+        Shape::Box {
+            t_world_box: Isometry3::translation(0.0, 0.0, 0.4),
+            half: Vector3::new(0.4, 0.3, 0.4),
+            id: 11,
+        },
+        Shape::Sphere {
+            center: Point3::new(0.9, 0.6, 0.25),
+            radius: 0.25,
+            id: 12,
+        },
+        Shape::Box {
+            t_world_box: Isometry3::translation(-0.8, 0.7, 0.15),
+            half: Vector3::new(0.15, 0.15, 0.15),
+            id: 13,
+        },
+    ]
+}
+
+/// Ten viewpoints around the scene; some see only part of it.
+fn viewpoints() -> Vec<Isometry3<f32>> {
+    let target = Point3::new(0.0, 0.3, 0.3);
+    (0..10)
+        .map(|i| {
+            let a = i as f32 / 10.0 * std::f32::consts::TAU;
+            let r = if i % 3 == 0 { 1.3 } else { 2.6 }; // close views cut objects off
+            look_at(Point3::new(r * a.cos(), 0.3 + r * a.sin(), 1.4), target)
+        })
+        .collect()
+}
+
+/// Per input instance, the set of map ids its pixels got over all frames.
+fn ids_per_instance(frames: &[(OwnedFrame, Vec<u32>)]) -> BTreeMap<u32, BTreeSet<u32>> {
+    let mut out: BTreeMap<u32, BTreeSet<u32>> = BTreeMap::new();
+    for (frame, map_ids) in frames {
+        for (&instance, &id) in frame.ids.iter().zip(map_ids) {
+            if instance != 0 && id != 0 {
+                out.entry(instance).or_default().insert(id);
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn ids_are_consistent_over_ten_viewpoints_with_partial_views() {
+    let shapes = scene();
+    let mut map = Map::new(MapConfig::default());
+    let frames: Vec<_> = viewpoints()
+        .into_iter()
+        .map(|pose| {
+            let f = OwnedFrame::capture(&shapes, pose, k128());
+            let ids = map.integrate(&f.frame()).unwrap();
+            (f, ids)
+        })
+        .collect();
+    assert_eq!(
+        map.objects().len(),
+        3,
+        "objects: {:?}",
+        map.objects().keys().collect::<Vec<_>>()
+    );
+    let per_instance = ids_per_instance(&frames);
+    assert_eq!(per_instance.len(), 3);
+    for (instance, ids) in &per_instance {
+        assert_eq!(ids.len(), 1, "instance {instance} got map ids {ids:?}");
+    }
+    let distinct: BTreeSet<_> = per_instance.values().flatten().collect();
+    assert_eq!(distinct.len(), 3, "two instances share a map id");
+}
+
+#[test]
+fn a_noise_segment_creates_no_object_and_an_over_segmented_object_keeps_one_id() {
+    let shapes = scene();
+    let mut map = Map::new(MapConfig::default());
+    let views = viewpoints();
+    for pose in &views[..4] {
+        map.integrate(&OwnedFrame::capture(&shapes, *pose, k128()).frame())
+            .unwrap();
+    }
+    let before = map.objects().len();
+    // A 5-pixel blob with its own instance id in front of the background.
+    let mut noisy = OwnedFrame::capture(&shapes, views[4], k128());
+    let blob: Vec<usize> = (0..noisy.ids.len())
+        .filter(|&p| noisy.ids[p] == 0)
+        .take(5)
+        .collect();
+    for &p in &blob {
+        noisy.ids[p] = 99;
+        noisy.depth[p] = 1.5;
+    }
+    map.integrate(&noisy.frame()).unwrap();
+    assert_eq!(
+        map.objects().len(),
+        before,
+        "the noise segment became an object"
+    );
+
+    // Split the big box's mask in two instance ids (left / right halves).
+    let mut split = OwnedFrame::capture(&shapes, views[5], k128());
+    for (p, id) in split.ids.iter_mut().enumerate() {
+        if *id == 11 && p % split.k.width < split.k.width / 2 {
+            *id = 21;
+        }
+    }
+    let map_ids = map.integrate(&split.frame()).unwrap();
+    let got: BTreeSet<u32> = split
+        .ids
+        .iter()
+        .zip(&map_ids)
+        .filter(|(i, _)| **i == 11 || **i == 21)
+        .map(|(_, m)| *m)
+        .collect();
+    assert_eq!(got.len(), 1, "over-segmented box got map ids {got:?}");
+    assert_eq!(map.objects().len(), before);
+}
+
+#[test]
+fn ids_rendered_into_a_training_frame_match_ground_truth() {
+    let shapes = scene();
+    let mut map = Map::new(MapConfig::default());
+    let mut instance_to_map = BTreeMap::new();
+    for pose in viewpoints() {
+        let f = OwnedFrame::capture(&shapes, pose, k128());
+        let ids = map.integrate(&f.frame()).unwrap();
+        for (&i, &m) in f.ids.iter().zip(&ids) {
+            if i != 0 && m != 0 {
+                instance_to_map.insert(i, m);
+            }
+        }
+    }
+    // A frame the map never integrated.
+    let pose = look_at(Point3::new(-1.6, -1.7, 1.2), Point3::new(0.0, 0.3, 0.3));
+    let truth = OwnedFrame::capture(&shapes, pose, k128());
+    let rendered = map.render_ids(&pose, &truth.k);
+    for (&instance, &map_id) in &instance_to_map {
+        let gt: BTreeSet<usize> = (0..truth.ids.len())
+            .filter(|&p| truth.ids[p] == instance)
+            .collect();
+        let pred: BTreeSet<usize> = (0..rendered.ids.len())
+            .filter(|&p| rendered.ids[p] == map_id)
+            .collect();
+        if gt.is_empty() {
+            continue;
+        }
+        let iou = gt.intersection(&pred).count() as f32 / gt.union(&pred).count() as f32;
+        eprintln!(
+            "instance {instance}: {} px, IoU {iou:.3}, missed {}, extra {}",
+            gt.len(),
+            gt.difference(&pred).count(),
+            pred.difference(&gt).count()
+        );
+        // Boundary pixels dominate small masks: a 0.3 m cube at 2.5 m is ~90 px,
+        // and a one-pixel ring of errors costs ~12 % IoU. mapper.md's 0.9 is
+        // asserted for objects of 200+ px; smaller ones must reach 0.8.
+        let bound = if gt.len() >= 200 { 0.9 } else { 0.8 };
+        assert!(iou > bound, "instance {instance} IoU {iou} (bound {bound})");
+    }
+}
+
+#[test]
+fn results_do_not_depend_on_the_thread_count() {
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let shapes = scene();
+            let mut map = Map::new(MapConfig::default());
+            let mut outputs = Vec::new();
+            for pose in viewpoints() {
+                outputs.push(
+                    map.integrate(&OwnedFrame::capture(&shapes, pose, k128()).frame())
+                        .unwrap(),
+                );
+            }
+            let volumes: Vec<_> = map
+                .objects()
+                .values()
+                .map(|o| {
+                    (
+                        o.id,
+                        o.volume
+                            .near_surface_voxels(1.0)
+                            .into_iter()
+                            .map(|(p, s)| (p.coords.map(f32::to_bits), s.to_bits()))
+                            .collect::<Vec<_>>(),
+                    )
+                })
+                .collect();
+            (outputs, volumes)
+        })
+    };
+    assert_eq!(run(1), run(3));
+}
