@@ -23,7 +23,7 @@ pub mod render;
 pub use camera::{Frame, Intrinsics};
 pub use labels::{Affordance, ObjectLabels, Outcome};
 pub use layer::{BlockIndex, Layer, Voxel, VoxelIndex};
-pub use map::{Map, MapConfig, MapError, MapObject, ObjectId};
+pub use map::{IntegrateTimings, Map, MapConfig, MapError, MapObject, ObjectId};
 pub use projection::{GridSpec, ProjectionKind};
 
 /// Poses are rigid transforms in metres.

@@ -110,6 +110,19 @@ impl MapObject {
     }
 }
 
+/// Where the time of the last [`Map::integrate`] went, in seconds.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct IntegrateTimings {
+    /// Segment extraction and rendering the map into the camera.
+    pub render_s: f64,
+    /// Association of segments with rendered objects, new objects.
+    pub associate_s: f64,
+    /// TSDF integration of objects (parallel) and background.
+    pub integrate_s: f64,
+    /// Book-keeping (misses, deletion).
+    pub book_keeping_s: f64,
+}
+
 /// The object-level map.
 #[derive(Debug, Clone)]
 pub struct Map {
@@ -117,6 +130,7 @@ pub struct Map {
     background: Layer,
     objects: BTreeMap<ObjectId, MapObject>,
     next_id: u32,
+    last_timings: IntegrateTimings,
 }
 
 fn check_len(what: &'static str, got: usize, k: &Intrinsics) -> Result<(), MapError> {
@@ -140,6 +154,7 @@ impl Map {
             background: Layer::new(config.voxel_size_m),
             objects: BTreeMap::new(),
             next_id: 1,
+            last_timings: IntegrateTimings::default(),
         }
     }
 
@@ -158,6 +173,11 @@ impl Map {
         self.objects.get(&id)
     }
 
+    /// Time split of the most recent [`Map::integrate`].
+    pub fn last_timings(&self) -> IntegrateTimings {
+        self.last_timings
+    }
+
     /// The background (world-frame) volume.
     pub fn background(&self) -> &Layer {
         &self.background
@@ -172,6 +192,7 @@ impl Map {
             check_len("class image", class.len(), &k)?;
         }
         let params = self.config.integration;
+        let started = std::time::Instant::now();
         let segments = extract_segments(
             frame.instance,
             frame.depth_m,
@@ -179,6 +200,7 @@ impl Map {
             self.config.association.min_segment_px,
         );
         let rendered = self.render_objects(&frame.t_world_camera, &k);
+        let rendered_at = std::time::Instant::now();
         let matches = associate(
             &segments,
             &rendered,
@@ -207,6 +229,7 @@ impl Map {
             }
         }
 
+        let associated_at = std::time::Instant::now();
         let visible: BTreeMap<u32, usize> =
             rendered
                 .ids
@@ -255,7 +278,14 @@ impl Map {
             false,
         );
 
+        let integrated_at = std::time::Instant::now();
         self.book_keeping(&matched, &visible);
+        self.last_timings = IntegrateTimings {
+            render_s: (rendered_at - started).as_secs_f64(),
+            associate_s: (associated_at - rendered_at).as_secs_f64(),
+            integrate_s: (integrated_at - associated_at).as_secs_f64(),
+            book_keeping_s: integrated_at.elapsed().as_secs_f64(),
+        };
         Ok(owner)
     }
 

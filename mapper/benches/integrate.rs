@@ -1,0 +1,150 @@
+//! `cargo bench -p mapper`: integrate one 128 × 128 frame with ~40 objects in
+//! view into a room-sized map, split into rendering / association /
+//! integration. Also writes the frames to `target/mapper-bench-frames/` so
+//! `mapper/benches/open3d_tsdf.py` can time Open3D on the very same frames.
+
+#[path = "../tests/common/mod.rs"]
+mod common;
+
+use std::io::Write;
+
+use common::{k128, look_at, OwnedFrame, Shape};
+use criterion::{criterion_group, criterion_main, Criterion};
+use mapper::{Map, MapConfig};
+use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
+
+/// A 6 × 6 m room: floor, four walls (background, id 0) and 42 objects.
+fn room() -> Vec<Shape> {
+    let wall = |x: f32, y: f32, hx: f32, hy: f32| Shape::Box {
+        t_world_box: Isometry3::translation(x, y, 1.25),
+        half: Vector3::new(hx, hy, 1.25),
+        id: 0,
+    };
+    let mut shapes = vec![
+        Shape::Box {
+            t_world_box: Isometry3::translation(0.0, 0.0, -0.05),
+            half: Vector3::new(3.0, 3.0, 0.05),
+            id: 0,
+        },
+        wall(-3.05, 0.0, 0.05, 3.0),
+        wall(3.05, 0.0, 0.05, 3.0),
+        wall(0.0, -3.05, 3.0, 0.05),
+        wall(0.0, 3.05, 3.0, 0.05),
+    ];
+    let mut id = 1;
+    for i in 0..7 {
+        for j in 0..6 {
+            let (x, y) = (-2.4 + 0.8 * i as f32, -0.4 + 0.55 * j as f32);
+            let size = 0.08 + 0.03 * ((i * 7 + j * 3) % 5) as f32;
+            shapes.push(if (i + j) % 3 == 0 {
+                Shape::Sphere {
+                    center: Point3::new(x, y, size),
+                    radius: size,
+                    id,
+                }
+            } else {
+                let t = Isometry3::from_parts(
+                    nalgebra::Translation3::new(x, y, size),
+                    UnitQuaternion::from_euler_angles(0.0, 0.0, 0.3 * id as f32),
+                );
+                Shape::Box {
+                    t_world_box: t,
+                    half: Vector3::new(size, size * 0.8, size),
+                    id,
+                }
+            });
+            id += 1;
+        }
+    }
+    shapes
+}
+
+fn frames(shapes: &[Shape]) -> Vec<OwnedFrame> {
+    (0..12)
+        .map(|i| {
+            let x = -0.6 + 0.1 * i as f32;
+            look_at(Point3::new(x, -2.7, 1.6), Point3::new(x * 0.5, 0.6, 0.2))
+        })
+        .map(|pose| OwnedFrame::capture(shapes, pose, k128()))
+        .collect()
+}
+
+fn export(frames: &[OwnedFrame]) {
+    let dir =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/mapper-bench-frames");
+    if std::fs::create_dir_all(&dir).is_err() {
+        return;
+    }
+    for (i, f) in frames.iter().enumerate() {
+        let m = f.pose.to_homogeneous();
+        let mut bytes = Vec::new();
+        for r in 0..4 {
+            for c in 0..4 {
+                bytes.extend(m[(r, c)].to_le_bytes());
+            }
+        }
+        for d in &f.depth {
+            bytes.extend(d.to_le_bytes());
+        }
+        if let Ok(mut file) = std::fs::File::create(dir.join(format!("frame{i:02}.bin"))) {
+            let _ = file.write_all(&bytes);
+        }
+    }
+}
+
+fn bench(c: &mut Criterion) {
+    let shapes = room();
+    let frames = frames(&shapes);
+    export(&frames);
+    let mut warm = Map::new(MapConfig::default());
+    for f in &frames {
+        warm.integrate(&f.frame()).expect("valid frame");
+    }
+    let visible = frames
+        .iter()
+        .map(|f| {
+            f.ids
+                .iter()
+                .filter(|&&i| i != 0)
+                .collect::<std::collections::BTreeSet<_>>()
+                .len()
+        })
+        .max()
+        .unwrap_or(0);
+    eprintln!(
+        "map: {} objects; up to {visible} objects in view per frame",
+        warm.objects().len()
+    );
+
+    let mut map = warm.clone();
+    let mut splits = Vec::new();
+    let mut i = 0;
+    c.bench_function("integrate 128x128 frame, ~40 objects in view", |b| {
+        b.iter(|| {
+            let f = &frames[i % frames.len()];
+            i += 1;
+            let ids = map.integrate(&f.frame()).expect("valid frame");
+            splits.push(map.last_timings());
+            ids
+        })
+    });
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2] * 1e3
+    };
+    eprintln!(
+        "median split over {} frames: render {:.3} ms, association {:.3} ms, integration {:.3} ms, book-keeping {:.3} ms (tracking: not implemented yet)",
+        splits.len(),
+        median(splits.iter().map(|t| t.render_s).collect()),
+        median(splits.iter().map(|t| t.associate_s).collect()),
+        median(splits.iter().map(|t| t.integrate_s).collect()),
+        median(splits.iter().map(|t| t.book_keeping_s).collect()),
+    );
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().sample_size(20);
+    targets = bench
+}
+criterion_main!(benches);
