@@ -34,8 +34,8 @@ fn room() -> Vec<Shape> {
     let mut id = 1;
     for i in 0..7 {
         for j in 0..6 {
-            let (x, y) = (-2.4 + 0.8 * i as f32, -0.4 + 0.55 * j as f32);
-            let size = 0.08 + 0.03 * ((i * 7 + j * 3) % 5) as f32;
+            let (x, y) = (-2.4 + 0.8 * i as f32, -0.9 + 0.6 * j as f32);
+            let size = 0.12 + 0.03 * ((i * 7 + j * 3) % 5) as f32;
             shapes.push(if (i + j) % 3 == 0 {
                 Shape::Sphere {
                     center: Point3::new(x, y, size),

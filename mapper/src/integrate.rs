@@ -7,11 +7,11 @@
 //! ghosts of an object that moved away. Voxels behind the measured surface
 //! (occluded) are never touched.
 
-use nalgebra::Point3;
+use nalgebra::{Point3, Vector3};
 use rustc_hash::FxHashSet;
 
 use crate::camera::Intrinsics;
-use crate::layer::{BlockIndex, Layer, VoxelIndex, BLOCK_VOXELS};
+use crate::layer::{BlockIndex, Layer, VoxelIndex, BLOCK_EDGE, BLOCK_VOXELS};
 use crate::Pose;
 
 /// Settings of the integrator.
@@ -115,7 +115,9 @@ fn depth_at(
     (q[0] * (1.0 - fu) + q[1] * fu) * (1.0 - fv) + (q[2] * (1.0 - fu) + q[3] * fu) * fv
 }
 
-/// Blocks within the truncation band of the owned pixels' surface points.
+/// Blocks within the truncation band of the owned pixels' surface points:
+/// each point's block, plus the neighbour across every face it is closer to
+/// than the truncation distance.
 fn blocks_near_points(
     layer: &Layer,
     t_layer_camera: &Pose,
@@ -126,17 +128,29 @@ fn blocks_near_points(
 ) -> FxHashSet<BlockIndex> {
     let mut blocks = FxHashSet::default();
     let t = params.truncation_m;
+    let size = layer.block_size_m();
+    let mut previous: Option<([i32; 3], [i32; 3])> = None;
     for (i, &d) in depth_m.iter().enumerate() {
-        if !owned(i) || !params.valid_depth(d) {
+        if !params.valid_depth(d) || !owned(i) {
             continue;
         }
         let (u, v) = ((i % k.width) as f32, (i / k.width) as f32);
         let p = t_layer_camera * k.back_project(u, v, d);
-        let lo = layer.block_of(&Point3::new(p.x - t, p.y - t, p.z - t));
-        let hi = layer.block_of(&Point3::new(p.x + t, p.y + t, p.z + t));
-        for x in lo.0[0]..=hi.0[0] {
-            for y in lo.0[1]..=hi.0[1] {
-                for z in lo.0[2]..=hi.0[2] {
+        let mut lo = [0i32; 3];
+        let mut hi = [0i32; 3];
+        for a in 0..3 {
+            let block = (p[a] / size).floor();
+            let within = p[a] - block * size;
+            lo[a] = block as i32 - i32::from(within < t);
+            hi[a] = block as i32 + i32::from(within > size - t);
+        }
+        if previous == Some((lo, hi)) {
+            continue;
+        }
+        previous = Some((lo, hi));
+        for x in lo[0]..=hi[0] {
+            for y in lo[1]..=hi[1] {
+                for z in lo[2]..=hi[2] {
                     blocks.insert(BlockIndex([x, y, z]));
                 }
             }
@@ -202,51 +216,71 @@ pub fn integrate(
     blocks.sort_unstable();
     let trunc = params.truncation_m;
     let mut updated = 0;
+    let voxel = layer.voxel_size_m;
+    let edge = BLOCK_EDGE as usize;
+    // Camera-frame steps between neighbouring voxels: positions are walked
+    // incrementally instead of transforming every voxel centre.
+    let steps = [0, 1, 2].map(|a| {
+        let mut e = Vector3::zeros();
+        e[a] = voxel;
+        t_camera_layer.rotation * e
+    });
+    let mut updates = Vec::with_capacity(BLOCK_VOXELS);
     for b in blocks {
         let exists = layer.block(b).is_some();
-        let mut updates = Vec::new();
-        for o in 0..BLOCK_VOXELS {
-            let center = layer.voxel_center(VoxelIndex::join(b, o));
-            let Some((u, v, z)) = k.project(&(t_camera_layer * center)) else {
-                continue;
-            };
-            let Some(px) = k.pixel_index(u, v) else {
-                continue;
-            };
-            if !params.valid_depth(depth_m[px]) {
-                continue;
-            }
-            let is_owned = owned(px);
-            let d = if is_owned {
-                depth_at(k, depth_m, u, v, px, trunc, params)
-            } else {
-                depth_m[px]
-            };
-            let projective = d - z;
-            if is_owned {
-                if projective < -trunc {
-                    continue; // occluded: behind the observed surface
-                }
-                let cos = cosines[px];
-                let sdf = projective * cos;
-                // Full weight in front of the surface, dropping linearly behind
-                // it; grazing views count less.
-                let w = cos
-                    * if sdf >= 0.0 {
-                        1.0
-                    } else {
-                        (1.0 + sdf / trunc).max(0.05)
+        updates.clear();
+        let first = layer.voxel_center(VoxelIndex::join(b, 0));
+        let origin = t_camera_layer * first;
+        for zi in 0..edge {
+            for yi in 0..edge {
+                let row = origin.coords + steps[1] * yi as f32 + steps[2] * zi as f32;
+                for xi in 0..edge {
+                    let p = row + steps[0] * xi as f32;
+                    let z = p.z;
+                    if z <= 1e-6 {
+                        continue;
+                    }
+                    let (u, v) = (k.fx * p.x / z + k.cx, k.fy * p.y / z + k.cy);
+                    let Some(px) = k.pixel_index(u, v) else {
+                        continue;
                     };
-                updates.push((o, sdf.min(trunc), w, false));
-            } else if carve && exists && projective > trunc {
-                updates.push((o, trunc, 1.0, true));
+                    if !params.valid_depth(depth_m[px]) {
+                        continue;
+                    }
+                    let o = xi + edge * (yi + edge * zi);
+                    let is_owned = owned(px);
+                    let d = if is_owned {
+                        depth_at(k, depth_m, u, v, px, trunc, params)
+                    } else {
+                        depth_m[px]
+                    };
+                    let projective = d - z;
+                    if is_owned {
+                        if projective < -trunc {
+                            continue; // occluded: behind the observed surface
+                        }
+                        let cos = cosines[px];
+                        let sdf = projective * cos;
+                        // Full weight in front of the surface, dropping linearly
+                        // behind it; grazing views count less.
+                        let w = cos
+                            * if sdf >= 0.0 {
+                                1.0
+                            } else {
+                                (1.0 + sdf / trunc).max(0.05)
+                            };
+                        updates.push((o, sdf.min(trunc), w, false));
+                    } else if carve && exists && projective > trunc {
+                        updates.push((o, trunc, 1.0, true));
+                    }
+                }
             }
         }
         if updates.is_empty() {
             continue;
         }
         let block = layer.block_mut_or_insert(b);
-        for (o, sdf, w, carving) in updates {
+        for &(o, sdf, w, carving) in &updates {
             let voxel = &mut block.voxels[o];
             if carving && voxel.weight == 0.0 {
                 // Carving clears known surface; it never creates knowledge.
