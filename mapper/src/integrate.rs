@@ -75,6 +75,31 @@ pub fn normal_cosines(k: &Intrinsics, depth_m: &[f32], params: &IntegrationParam
     out
 }
 
+/// Pixels that may carve other surfaces: those with no neighbour nearer by
+/// more than the truncation distance. A pixel just outside an object's
+/// silhouette sees the far background through the object's edge voxels;
+/// carving from it would erode every object by up to a pixel per view.
+pub fn carving_pixels(k: &Intrinsics, depth_m: &[f32], params: &IntegrationParams) -> Vec<bool> {
+    let (w, h) = (k.width, k.height);
+    let mut out = vec![false; w * h];
+    for v in 0..h {
+        for u in 0..w {
+            let d = depth_m[v * w + u];
+            if !params.valid_depth(d) {
+                continue;
+            }
+            let nearer = (v.saturating_sub(1)..(v + 2).min(h)).any(|y| {
+                (u.saturating_sub(1)..(u + 2).min(w)).any(|x| {
+                    let n = depth_m[y * w + x];
+                    params.valid_depth(n) && n < d - params.truncation_m
+                })
+            });
+            out[v * w + u] = !nearer;
+        }
+    }
+    out
+}
+
 /// Depth at continuous pixel coordinates: bilinear between the four
 /// surrounding pixels when all are valid and lie on one smooth surface (within
 /// `max_spread_m`), else the nearest pixel's. At 128 × 128 a pixel spans about
@@ -189,6 +214,8 @@ pub struct DepthView<'a> {
     pub depth_m: &'a [f32],
     /// Per-pixel factors from [`normal_cosines`].
     pub cosines: &'a [f32],
+    /// Pixels allowed to carve ([`carving_pixels`]).
+    pub may_carve: &'a [bool],
 }
 
 /// Integrates one frame into `layer`. `owned(pixel)` says which pixels show
@@ -206,6 +233,7 @@ pub fn integrate(
         k,
         depth_m,
         cosines,
+        may_carve,
     } = *view;
     let t_camera_layer = t_layer_camera.inverse();
     let mut blocks = blocks_near_points(layer, t_layer_camera, k, depth_m, owned, params);
@@ -270,7 +298,7 @@ pub fn integrate(
                                 (1.0 + sdf / trunc).max(0.05)
                             };
                         updates.push((o, sdf.min(trunc), w, false));
-                    } else if carve && exists && projective > trunc {
+                    } else if carve && exists && projective > trunc && may_carve[px] {
                         updates.push((o, trunc, 1.0, true));
                     }
                 }

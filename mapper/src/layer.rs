@@ -3,7 +3,7 @@
 //! Voxel `(i, j, k)` covers `[i·s, (i+1)·s)` along each axis (its centre is at
 //! `(i + ½)·s`); negative indices use floor division, so there is no seam at 0.
 
-use nalgebra::Point3;
+use nalgebra::{Point3, Vector3};
 use rustc_hash::FxHashMap;
 
 /// Voxels per block edge.
@@ -157,12 +157,16 @@ impl Layer {
         out
     }
 
-    /// Surface points: where the SDF changes sign between two observed
-    /// neighbouring voxels, linearly interpolated (the vertices marching cubes
-    /// would place). Pairs straddling more than `max_jump_m` are skipped as
-    /// truncation artefacts. Sorted by voxel index, so deterministic.
-    pub fn zero_crossings(&self, max_jump_m: f32) -> Vec<Point3<f32>> {
-        let mut out = Vec::new();
+    /// Calls `f(a, b, point)` for every sign change between two observed
+    /// neighbouring voxels `a` and `b`, `point` linearly interpolated between
+    /// their centres (the vertices marching cubes would place). Pairs
+    /// straddling more than `max_jump_m` are skipped as truncation artefacts.
+    /// Visits in voxel-index order, so results are deterministic.
+    fn for_each_crossing(
+        &self,
+        max_jump_m: f32,
+        mut f: impl FnMut(VoxelIndex, VoxelIndex, Point3<f32>),
+    ) {
         for b in self.block_indices() {
             let block = &self.blocks[&b];
             for (o, a) in block.voxels.iter().enumerate() {
@@ -173,17 +177,60 @@ impl Layer {
                 for axis in 0..3 {
                     let mut n = v.0;
                     n[axis] += 1;
-                    let Some(bv) = self.voxel(VoxelIndex(n)).filter(|x| x.weight > 0.0) else {
+                    let n = VoxelIndex(n);
+                    let Some(bv) = self.voxel(n).filter(|x| x.weight > 0.0) else {
                         continue;
                     };
                     if (a.sdf > 0.0) == (bv.sdf > 0.0) || (a.sdf - bv.sdf).abs() > max_jump_m {
                         continue;
                     }
-                    let (ca, cb) = (self.voxel_center(v), self.voxel_center(VoxelIndex(n)));
-                    out.push(ca + (cb - ca) * (a.sdf / (a.sdf - bv.sdf)));
+                    let (ca, cb) = (self.voxel_center(v), self.voxel_center(n));
+                    f(v, n, ca + (cb - ca) * (a.sdf / (a.sdf - bv.sdf)));
                 }
             }
         }
+    }
+
+    /// Surface points: every sign change between observed neighbours (see
+    /// `for_each_crossing`), sorted by voxel index.
+    pub fn zero_crossings(&self, max_jump_m: f32) -> Vec<Point3<f32>> {
+        let mut out = Vec::new();
+        self.for_each_crossing(max_jump_m, |_, _, p| out.push(p));
+        out
+    }
+
+    /// SDF gradient at voxel `v` by central differences (one-sided where a
+    /// neighbour is unobserved), or `None` if an axis has no observed neighbour.
+    pub fn gradient(&self, v: VoxelIndex) -> Option<Vector3<f32>> {
+        let observed = |i: VoxelIndex| self.voxel(i).filter(|x| x.weight > 0.0).map(|x| x.sdf);
+        let centre = observed(v)?;
+        let mut g = Vector3::zeros();
+        for axis in 0..3 {
+            let (mut lo, mut hi) = (v.0, v.0);
+            lo[axis] -= 1;
+            hi[axis] += 1;
+            g[axis] = match (observed(VoxelIndex(lo)), observed(VoxelIndex(hi))) {
+                (Some(a), Some(b)) => (b - a) / 2.0,
+                (None, Some(b)) => b - centre,
+                (Some(a), None) => centre - a,
+                (None, None) => return None,
+            } / self.voxel_size_m;
+        }
+        Some(g)
+    }
+
+    /// [`Layer::zero_crossings`] with unit outward normals (SDF gradient,
+    /// averaged over the two voxels of the crossing); crossings without a
+    /// usable gradient are left out. What tracking aligns to a frame.
+    pub fn surface_samples(&self, max_jump_m: f32) -> Vec<(Point3<f32>, Vector3<f32>)> {
+        let mut out = Vec::new();
+        self.for_each_crossing(max_jump_m, |a, b, p| {
+            if let (Some(ga), Some(gb)) = (self.gradient(a), self.gradient(b)) {
+                if let Some(normal) = (ga + gb).try_normalize(1e-6) {
+                    out.push((p, normal));
+                }
+            }
+        });
         out
     }
 

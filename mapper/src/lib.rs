@@ -19,12 +19,14 @@ pub mod layer;
 mod map;
 pub mod projection;
 pub mod render;
+pub mod tracking;
 
 pub use camera::{Frame, Intrinsics};
 pub use labels::{Affordance, ObjectLabels, Outcome};
 pub use layer::{BlockIndex, Layer, Voxel, VoxelIndex};
 pub use map::{IntegrateTimings, Map, MapConfig, MapError, MapObject, ObjectId};
 pub use projection::{GridSpec, ProjectionKind};
+pub use tracking::{TrackingFailure, TrackingOutcome, TrackingReport, TrackingTrigger};
 
 /// Poses are rigid transforms in metres.
 pub type Pose = nalgebra::Isometry3<f32>;

@@ -2,6 +2,8 @@
 //! and the per-frame pipeline (segments → render → associate → integrate →
 //! book-keeping).
 
+mod track;
+
 use std::collections::BTreeMap;
 
 use nalgebra::{Point3, Translation3, UnitQuaternion, Vector3};
@@ -9,10 +11,11 @@ use rayon::prelude::*;
 
 use crate::association::{associate, extract_segments, AssociationParams, Segment};
 use crate::camera::{Frame, Intrinsics};
-use crate::integrate::{integrate, normal_cosines, DepthView, IntegrationParams};
+use crate::integrate::{carving_pixels, integrate, normal_cosines, DepthView, IntegrationParams};
 use crate::labels::{Affordance, ObjectLabels, Outcome};
 use crate::layer::Layer;
 use crate::render::{raycast_layer, RenderTarget};
+use crate::tracking::{TrackingParams, TrackingReport};
 use crate::Pose;
 
 /// A map object's id; stable across frames. 0 is never used (it means "none").
@@ -50,6 +53,8 @@ pub struct MapConfig {
     pub integration: IntegrationParams,
     /// Association settings.
     pub association: AssociationParams,
+    /// Tracking settings (objects that moved).
+    pub tracking: TrackingParams,
     /// An object predicted visible (at least `miss_min_rendered_px` pixels)
     /// but not matched this many frames in a row is deleted.
     pub max_misses: u32,
@@ -75,6 +80,7 @@ impl Default for MapConfig {
                 min_coverage: 0.5,
                 depth_tolerance_m: (2.0 * voxel_size_m).max(0.03),
             },
+            tracking: TrackingParams::for_voxel(voxel_size_m),
             max_misses: 10,
             miss_min_rendered_px: 50,
         }
@@ -117,6 +123,8 @@ pub struct IntegrateTimings {
     pub render_s: f64,
     /// Association of segments with rendered objects, new objects.
     pub associate_s: f64,
+    /// Tracking of objects that may have moved (ICP).
+    pub tracking_s: f64,
     /// TSDF integration of objects (parallel) and background.
     pub integrate_s: f64,
     /// Book-keeping (misses, deletion).
@@ -131,6 +139,9 @@ pub struct Map {
     objects: BTreeMap<ObjectId, MapObject>,
     next_id: u32,
     last_timings: IntegrateTimings,
+    /// Objects the caller said may have moved, with an optional motion guess.
+    notified: BTreeMap<ObjectId, Option<Pose>>,
+    last_tracking: Vec<TrackingReport>,
 }
 
 fn check_len(what: &'static str, got: usize, k: &Intrinsics) -> Result<(), MapError> {
@@ -155,6 +166,8 @@ impl Map {
             objects: BTreeMap::new(),
             next_id: 1,
             last_timings: IntegrateTimings::default(),
+            notified: BTreeMap::new(),
+            last_tracking: Vec::new(),
         }
     }
 
@@ -176,6 +189,24 @@ impl Map {
     /// Time split of the most recent [`Map::integrate`].
     pub fn last_timings(&self) -> IntegrateTimings {
         self.last_timings
+    }
+
+    /// What tracking did in the most recent [`Map::integrate`], by object id.
+    pub fn last_tracking(&self) -> &[TrackingReport] {
+        &self.last_tracking
+    }
+
+    /// Says that an object may have moved (the robot pushed or picked it
+    /// up): the next frame tracks it, starting from `motion * t_world_object`
+    /// when a world-frame motion guess is given. If tracking fails, the
+    /// object is left untouched for that frame and the failure is reported in
+    /// [`Map::last_tracking`].
+    pub fn notify_moved(&mut self, id: ObjectId, motion: Option<Pose>) -> Result<(), MapError> {
+        if !self.objects.contains_key(&id) {
+            return Err(MapError::UnknownObject(id));
+        }
+        self.notified.insert(id, motion);
+        Ok(())
     }
 
     /// The background (world-frame) volume.
@@ -201,12 +232,16 @@ impl Map {
         );
         let rendered = self.render_objects(&frame.t_world_camera, &k);
         let rendered_at = std::time::Instant::now();
-        let matches = associate(
+        let mut matches = associate(
             &segments,
             &rendered,
             frame.depth_m,
             &self.config.association,
         );
+
+        let associated_at = std::time::Instant::now();
+        let failed = self.track_objects(frame, &segments, &mut matches, &rendered);
+        let tracked_at = std::time::Instant::now();
 
         let mut owner = vec![0u32; k.pixels()];
         let mut matched: BTreeMap<ObjectId, usize> = BTreeMap::new();
@@ -229,7 +264,7 @@ impl Map {
             }
         }
 
-        let associated_at = std::time::Instant::now();
+        let new_objects_at = std::time::Instant::now();
         let visible: BTreeMap<u32, usize> =
             rendered
                 .ids
@@ -240,10 +275,12 @@ impl Map {
                     m
                 });
         let cosines = normal_cosines(&k, frame.depth_m, &params);
-        let (owner_ref, cosines_ref) = (&owner, &cosines);
+        let may_carve = carving_pixels(&k, frame.depth_m, &params);
+        let (owner_ref, cosines_ref, may_carve_ref) = (&owner, &cosines, &may_carve);
         let work: Vec<&mut MapObject> = self
             .objects
             .values_mut()
+            .filter(|o| !failed.contains(&o.id))
             .filter(|o| matched.contains_key(&o.id) || visible.contains_key(&o.id.0))
             .collect();
         work.into_par_iter().for_each(|object| {
@@ -254,6 +291,7 @@ impl Map {
                 k: &k,
                 depth_m: frame.depth_m,
                 cosines: cosines_ref,
+                may_carve: may_carve_ref,
             };
             integrate(
                 &mut object.volume,
@@ -269,6 +307,7 @@ impl Map {
             k: &k,
             depth_m: frame.depth_m,
             cosines: &cosines,
+            may_carve: &may_carve,
         };
         integrate(
             &mut self.background,
@@ -282,8 +321,10 @@ impl Map {
         self.book_keeping(&matched, &visible);
         self.last_timings = IntegrateTimings {
             render_s: (rendered_at - started).as_secs_f64(),
-            associate_s: (associated_at - rendered_at).as_secs_f64(),
-            integrate_s: (integrated_at - associated_at).as_secs_f64(),
+            associate_s: (associated_at - rendered_at).as_secs_f64()
+                + (new_objects_at - tracked_at).as_secs_f64(),
+            tracking_s: (tracked_at - associated_at).as_secs_f64(),
+            integrate_s: (integrated_at - new_objects_at).as_secs_f64(),
             book_keeping_s: integrated_at.elapsed().as_secs_f64(),
         };
         Ok(owner)

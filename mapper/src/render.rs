@@ -29,7 +29,7 @@ impl RenderTarget {
 /// Known SDF at `p`: trilinear between the eight surrounding voxel centres
 /// when all are observed (sub-voxel silhouettes), else the nearest voxel's;
 /// `None` if unobserved.
-fn sdf_at(layer: &Layer, p: &Point3<f32>) -> Option<f32> {
+pub(crate) fn sdf_at(layer: &Layer, p: &Point3<f32>) -> Option<f32> {
     let nearest = layer
         .voxel(layer.voxel_of(p))
         .filter(|v| v.weight > 0.0)?

@@ -1,0 +1,278 @@
+//! The tracking step of [`Map::integrate`]: which objects may have moved,
+//! which segment shows each of them now, and the pose update.
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use nalgebra::{Point3, Translation3, Vector3};
+
+use super::{Map, ObjectId};
+use crate::association::Segment;
+use crate::camera::{Frame, Intrinsics};
+use crate::render::{raycast_layer, RenderTarget};
+use crate::tracking::{
+    align, evaluate, measured_normals, motion_size, refine_against_sdf, SegmentView,
+    TrackingFailure, TrackingOutcome, TrackingReport, TrackingTrigger,
+};
+use crate::Pose;
+
+/// Camera-frame centroid of the pixels `pixels` at their depths.
+fn centroid(
+    k: &Intrinsics,
+    depth: &[f32],
+    pixels: impl Iterator<Item = usize>,
+) -> Option<Point3<f32>> {
+    let (sum, n) = pixels.fold((Vector3::zeros(), 0usize), |(sum, n), px| {
+        let p = k.back_project((px % k.width) as f32, (px / k.width) as f32, depth[px]);
+        (sum + p.coords, n + 1)
+    });
+    (n > 0).then(|| Point3::from(sum / n as f32))
+}
+
+impl Map {
+    /// Objects whose rendered surface disagrees with the frame: among their
+    /// rendered pixels that are not hidden by something nearer, too few have
+    /// the measured depth. Seeing farther (or nothing at all) where the
+    /// object should be counts against it; nearer measurements count only on
+    /// the segment that overlaps it most, when no other object claimed that
+    /// segment (the object moved towards the camera, not behind an occluder).
+    fn residual_candidates(
+        &self,
+        segments: &[Segment],
+        matches: &[Option<u32>],
+        rendered: &RenderTarget,
+        depth_m: &[f32],
+    ) -> BTreeSet<ObjectId> {
+        let tol = self.config.association.depth_tolerance_m;
+        let mut segment_of = vec![usize::MAX; depth_m.len()];
+        for (s, segment) in segments.iter().enumerate() {
+            for &px in &segment.pixels {
+                segment_of[px] = s;
+            }
+        }
+        // Per object: rendered pixels per overlapping segment.
+        let mut overlap: BTreeMap<u32, BTreeMap<usize, usize>> = BTreeMap::new();
+        for (px, &id) in rendered.ids.iter().enumerate() {
+            let s = segment_of[px];
+            if id != 0 && s != usize::MAX && matches[s].is_none_or(|m| m == id) {
+                *overlap
+                    .entry(id)
+                    .or_default()
+                    .entry(segment_of[px])
+                    .or_default() += 1;
+            }
+        }
+        let mut counts: BTreeMap<u32, [usize; 2]> = BTreeMap::new();
+        for (px, &id) in rendered.ids.iter().enumerate() {
+            if id == 0 {
+                continue;
+            }
+            let d = depth_m[px];
+            let nothing_seen = !(d.is_finite() && d > 0.0);
+            if !nothing_seen && !self.config.integration.valid_depth(d) {
+                continue;
+            }
+            let d = if nothing_seen { f32::INFINITY } else { d };
+            let r = rendered.depth_m[px];
+            let best = overlap
+                .get(&id)
+                .and_then(|m| m.iter().max_by_key(|(s, n)| (**n, std::cmp::Reverse(**s))))
+                .map(|(s, _)| *s);
+            let c = counts.entry(id).or_default();
+            if (d - r).abs() <= tol {
+                c[0] += 1;
+            } else if d > r + tol || best == Some(segment_of[px]) {
+                c[1] += 1;
+            }
+        }
+        let trigger = self.config.tracking.residual_trigger;
+        counts
+            .into_iter()
+            .filter(|(_, [agree, disagree])| {
+                let n = agree + disagree;
+                n >= self.config.association.min_segment_px && (*agree as f32) < trigger * n as f32
+            })
+            .map(|(id, _)| ObjectId(id))
+            .collect()
+    }
+
+    /// Tracks the objects that may have moved; claims the segment each one
+    /// was found on (`matches`). When tracking fails, the object gives up
+    /// the segments association gave it (they may become new objects, but
+    /// never smear into its model). Returns the notified objects whose
+    /// tracking failed: they are not integrated at all this frame, so the
+    /// model survives a bad report intact; the others are still carved,
+    /// which clears ghosts.
+    pub(super) fn track_objects(
+        &mut self,
+        frame: &Frame<'_>,
+        segments: &[Segment],
+        matches: &mut [Option<u32>],
+        rendered: &RenderTarget,
+    ) -> BTreeSet<ObjectId> {
+        let mut candidates: BTreeMap<ObjectId, (TrackingTrigger, Option<Pose>)> = self
+            .residual_candidates(segments, matches, rendered, frame.depth_m)
+            .into_iter()
+            .map(|id| (id, (TrackingTrigger::Residual, None)))
+            .collect();
+        for (id, hint) in std::mem::take(&mut self.notified) {
+            if self.objects.contains_key(&id) {
+                candidates.insert(id, (TrackingTrigger::Notified, hint));
+            }
+        }
+        let mut failed = BTreeSet::new();
+        self.last_tracking.clear();
+        for (id, (trigger, hint)) in candidates {
+            let outcome = match self.track_one(id, hint, trigger, frame, segments, matches) {
+                Ok(outcome) => outcome,
+                Err(failure) => {
+                    for m in matches.iter_mut().filter(|m| **m == Some(id.0)) {
+                        *m = None;
+                    }
+                    if trigger == TrackingTrigger::Notified {
+                        failed.insert(id);
+                    }
+                    TrackingOutcome::Failed(failure)
+                }
+            };
+            self.last_tracking.push(TrackingReport {
+                object: id,
+                trigger,
+                outcome,
+            });
+        }
+        failed
+    }
+
+    fn track_one(
+        &mut self,
+        id: ObjectId,
+        hint: Option<Pose>,
+        trigger: TrackingTrigger,
+        frame: &Frame<'_>,
+        segments: &[Segment],
+        matches: &mut [Option<u32>],
+    ) -> Result<TrackingOutcome, TrackingFailure> {
+        let params = self.config.tracking;
+        let k = frame.intrinsics;
+        let object = &self.objects[&id];
+        let t_camera_world = frame.t_world_camera.inverse();
+        let old = t_camera_world * object.t_world_object;
+        let predicted =
+            t_camera_world * hint.unwrap_or_else(Pose::identity) * object.t_world_object;
+
+        let mut silhouette = RenderTarget::new(&k);
+        raycast_layer(
+            &object.volume,
+            &predicted,
+            &k,
+            id.0,
+            self.config.integration.min_depth_m,
+            &mut silhouette,
+        );
+        let rendered_px: Vec<usize> = (0..k.pixels())
+            .filter(|&px| silhouette.ids[px] != 0)
+            .collect();
+        let free: Vec<usize> = (0..segments.len())
+            .filter(|&s| matches[s].is_none_or(|m| m == id.0))
+            .collect();
+        // The segment that overlaps the predicted silhouette most; for a
+        // notified object with no overlap, the one whose centroid is nearest.
+        let by_overlap = free
+            .iter()
+            .map(|&s| {
+                let n = segments[s]
+                    .pixels
+                    .iter()
+                    .filter(|&&px| silhouette.ids[px] != 0)
+                    .count();
+                (n, s)
+            })
+            .filter(|(n, _)| *n > 0)
+            .max_by_key(|(n, s)| (*n, std::cmp::Reverse(*s)))
+            .map(|(_, s)| s);
+        let predicted_centre = centroid(&k, &silhouette.depth_m, rendered_px.iter().copied())
+            .unwrap_or_else(|| {
+                predicted
+                    * object
+                        .volume
+                        .block_bounds()
+                        .map_or(Point3::origin(), |(lo, hi)| nalgebra::center(&lo, &hi))
+            });
+        let segment_centre =
+            |s: usize| centroid(&k, frame.depth_m, segments[s].pixels.iter().copied());
+        let chosen = match by_overlap {
+            Some(s) => s,
+            None if trigger == TrackingTrigger::Notified => free
+                .iter()
+                .filter_map(|&s| segment_centre(s).map(|c| ((c - predicted_centre).norm(), s)))
+                .min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)))
+                .map(|(_, s)| s)
+                .ok_or(TrackingFailure::NoSegment)?,
+            None => return Err(TrackingFailure::NoSegment),
+        };
+        let observed_centre = segment_centre(chosen).ok_or(TrackingFailure::NoSegment)?;
+        let shift = observed_centre - predicted_centre;
+        if shift.norm() > params.max_motion_m {
+            return Err(TrackingFailure::BeyondGate {
+                distance_m: shift.norm(),
+                gate_m: params.max_motion_m,
+            });
+        }
+
+        let model = object
+            .volume
+            .surface_samples(2.0 * self.config.voxel_size_m);
+        let mut mask = vec![false; k.pixels()];
+        for &px in &segments[chosen].pixels {
+            mask[px] = true;
+        }
+        let normals = measured_normals(&k, frame.depth_m, &mask);
+        let view = SegmentView {
+            k: &k,
+            depth_m: frame.depth_m,
+            mask: &mask,
+            normals: &normals,
+        };
+        let guess = Translation3::from(shift) * predicted;
+        let coarse = align(&model, &guess, &view, &params);
+        let found = refine_against_sdf(
+            &object.volume,
+            &coarse,
+            &view,
+            self.config.integration.truncation_m,
+            &params,
+        );
+        let fit = evaluate(&model, &found, &view, &params);
+        if fit.inliers < params.min_inliers {
+            return Err(TrackingFailure::TooFewInliers {
+                inliers: fit.inliers,
+            });
+        }
+        if fit.inlier_ratio() < params.min_inlier_ratio || fit.rmse_m > params.max_rmse_m {
+            return Err(TrackingFailure::PoorFit {
+                inlier_ratio: fit.inlier_ratio(),
+                rmse_m: fit.rmse_m,
+            });
+        }
+        matches[chosen] = Some(id.0);
+        let before = evaluate(&model, &old, &view, &params);
+        let (translation_m, rotation_deg) = motion_size(&(old.inverse() * found));
+        let small =
+            translation_m < params.min_translation_m && rotation_deg < params.min_rotation_deg;
+        // The old pose explaining the frame as well is no evidence of motion.
+        let no_better =
+            before.inlier_ratio() >= fit.inlier_ratio() - 0.02 && before.rmse_m <= fit.rmse_m * 1.2;
+        if small || no_better {
+            return Ok(TrackingOutcome::Unmoved);
+        }
+        let t_world_object = frame.t_world_camera * found;
+        let object = self.objects.get_mut(&id).expect("tracked object exists");
+        let moved = object.t_world_object.inverse() * t_world_object;
+        object.t_world_object = t_world_object;
+        let (translation_m, rotation_deg) = motion_size(&moved);
+        Ok(TrackingOutcome::Moved {
+            translation_m,
+            rotation_deg,
+        })
+    }
+}

@@ -1,0 +1,573 @@
+//! Tracking of objects that moved: projective point-to-plane ICP of an
+//! object's surface against one segment of the current frame.
+//!
+//! The model is the object's TSDF surface (zero crossings with SDF-gradient
+//! normals) in its own frame. Each iteration projects the front-facing model
+//! points into the image, pairs each with the measured point of the pixel it
+//! lands on (projective association, no search), keeps pairs within a gate
+//! that shrinks over the iterations, and solves the linearised point-to-plane
+//! problem for a twist in the camera frame. Unlike TSDF++, which aligns every
+//! object every frame against a mesh rebuilt from scratch with a 100 m gate,
+//! this runs only for objects that may have moved, with a real gate and an
+//! acceptance test, and the result is a pose update (no resampling).
+
+use nalgebra::{Matrix6, Point3, UnitQuaternion, Vector3, Vector6};
+
+use crate::camera::Intrinsics;
+use crate::layer::Layer;
+use crate::render::sdf_at;
+use crate::Pose;
+
+/// Settings of tracking.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrackingParams {
+    /// Largest motion between two frames that tracking will follow, metres
+    /// (from the initial guess to the segment's centroid).
+    pub max_motion_m: f32,
+    /// Correspondence gate at the first iteration, metres.
+    pub initial_gate_m: f32,
+    /// Correspondences closer than this are inliers (and the gate never gets tighter).
+    pub inlier_distance_m: f32,
+    /// Point-to-plane residuals beyond this get Huber weights, metres.
+    pub huber_m: f32,
+    /// ICP iterations at most.
+    pub max_iterations: usize,
+    /// Accept only if at least this fraction of the visible model matches the frame.
+    pub min_inlier_ratio: f32,
+    /// Accept only if the inliers' point-to-plane RMSE is below this, metres.
+    pub max_rmse_m: f32,
+    /// Fewer inliers than this is a failure.
+    pub min_inliers: usize,
+    /// Motions smaller than this (and than `min_rotation_deg`) are not applied.
+    pub min_translation_m: f32,
+    /// See `min_translation_m`.
+    pub min_rotation_deg: f32,
+    /// A matched object whose rendered pixels agree with the measured depth
+    /// on less than this fraction is checked for motion.
+    pub residual_trigger: f32,
+}
+
+impl TrackingParams {
+    /// Defaults for a given voxel size.
+    pub fn for_voxel(voxel_size_m: f32) -> Self {
+        Self {
+            max_motion_m: 0.3,
+            initial_gate_m: 0.15,
+            inlier_distance_m: 1.5 * voxel_size_m,
+            huber_m: 0.25 * voxel_size_m,
+            max_iterations: 100,
+            min_inlier_ratio: 0.5,
+            max_rmse_m: 0.5 * voxel_size_m,
+            min_inliers: 30,
+            min_translation_m: 0.01,
+            min_rotation_deg: 1.0,
+            residual_trigger: 0.7,
+        }
+    }
+}
+
+/// Why tracking an object failed. The object's volume and pose are left as they were.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum TrackingFailure {
+    /// No segment of the frame could be the object.
+    #[error("no segment of the frame is near the object")]
+    NoSegment,
+    /// The nearest candidate segment is further than the motion gate.
+    #[error("the object would have moved {distance_m:.2} m, beyond the {gate_m:.2} m gate")]
+    BeyondGate {
+        /// Distance from the predicted to the observed centroid.
+        distance_m: f32,
+        /// The gate.
+        gate_m: f32,
+    },
+    /// Too few model points found a partner in the frame.
+    #[error("only {inliers} model points matched the frame")]
+    TooFewInliers {
+        /// Inliers after alignment.
+        inliers: usize,
+    },
+    /// The alignment converged to a poor fit.
+    #[error("poor fit: {:.0} % inliers, RMSE {:.1} mm", inlier_ratio * 100.0, rmse_m * 1e3)]
+    PoorFit {
+        /// Fraction of the visible model that matched.
+        inlier_ratio: f32,
+        /// Point-to-plane RMSE of the inliers.
+        rmse_m: f32,
+    },
+}
+
+/// What tracking concluded for one object in one frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum TrackingOutcome {
+    /// It moved; the pose was updated.
+    Moved {
+        /// Translation of the object's origin, metres.
+        translation_m: f32,
+        /// Rotation angle, degrees.
+        rotation_deg: f32,
+    },
+    /// The best alignment is within the no-motion thresholds (or no better
+    /// than the old pose); nothing changed.
+    Unmoved,
+    /// Tracking failed; nothing changed and the object was not integrated.
+    Failed(TrackingFailure),
+}
+
+/// Why an object was tracked.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TrackingTrigger {
+    /// The caller said it may have moved ([`crate::Map::notify_moved`]).
+    Notified,
+    /// Its rendered surface disagreed with the measured depth.
+    Residual,
+}
+
+/// One object's tracking result for the last frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrackingReport {
+    /// The object.
+    pub object: crate::ObjectId,
+    /// Why it was tracked.
+    pub trigger: TrackingTrigger,
+    /// What happened.
+    pub outcome: TrackingOutcome,
+}
+
+/// The measured side of an alignment: a depth image and the pixels of the
+/// segment the object is aligned to.
+#[derive(Debug, Clone, Copy)]
+pub struct SegmentView<'a> {
+    /// Camera model.
+    pub k: &'a Intrinsics,
+    /// Z-depth per pixel.
+    pub depth_m: &'a [f32],
+    /// True for the segment's pixels.
+    pub mask: &'a [bool],
+    /// Camera-frame unit normals of the segment's pixels ([`measured_normals`]).
+    pub normals: &'a [Option<Vector3<f32>>],
+}
+
+/// Unit normals (camera frame, facing the camera) of the masked pixels, from
+/// central differences of their back-projected neighbours inside the mask.
+pub fn measured_normals(
+    k: &Intrinsics,
+    depth_m: &[f32],
+    mask: &[bool],
+) -> Vec<Option<Vector3<f32>>> {
+    let (w, h) = (k.width, k.height);
+    let point = |u: usize, v: usize| {
+        let px = v * w + u;
+        mask[px].then(|| k.back_project(u as f32, v as f32, depth_m[px]))
+    };
+    let mut out = vec![None; w * h];
+    for v in 1..h.saturating_sub(1) {
+        for u in 1..w.saturating_sub(1) {
+            let Some(c) = point(u, v) else { continue };
+            let (Some(l), Some(r), Some(t), Some(b)) = (
+                point(u - 1, v),
+                point(u + 1, v),
+                point(u, v - 1),
+                point(u, v + 1),
+            ) else {
+                continue;
+            };
+            let Some(n) = (r - l).cross(&(b - t)).try_normalize(1e-12) else {
+                continue;
+            };
+            out[v * w + u] = Some(if n.dot(&c.coords) > 0.0 { -n } else { n });
+        }
+    }
+    out
+}
+
+/// Quality of an alignment.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Fit {
+    /// Model points that matched within the inlier distance.
+    pub inliers: usize,
+    /// Model points that should be visible: front-facing, on the segment or
+    /// where the frame sees *behind* them (a free-space violation).
+    pub visible: usize,
+    /// Point-to-plane RMSE of the inliers, metres.
+    pub rmse_m: f32,
+}
+
+impl Fit {
+    /// Inliers over visible points (0 when nothing is visible).
+    pub fn inlier_ratio(&self) -> f32 {
+        if self.visible == 0 {
+            0.0
+        } else {
+            self.inliers as f32 / self.visible as f32
+        }
+    }
+}
+
+/// Directions of the normal equations weaker than this fraction of the
+/// strongest are treated as unobservable.
+const DEGENERATE_EIGENVALUE_RATIO: f64 = 1e-3;
+
+/// Pairs whose model and measured normals differ by more than ~37° are not used.
+const MIN_NORMAL_COSINE: f32 = 0.8;
+
+/// One model point's partner in the frame.
+enum Pairing {
+    /// Back-facing, outside the image, or hidden behind something nearer.
+    Hidden,
+    /// Should be visible but the frame shows no segment surface near it.
+    Unmatched,
+    /// Camera-frame model point, the normal of the plane it is pulled to, and the measured point.
+    Matched(Point3<f32>, Vector3<f32>, Point3<f32>),
+}
+
+fn pair(
+    point: &Point3<f32>,
+    normal: &Vector3<f32>,
+    t_camera_object: &Pose,
+    view: &SegmentView<'_>,
+    tolerance_m: f32,
+) -> Pairing {
+    let p = t_camera_object * point;
+    let n = t_camera_object.rotation * normal;
+    if n.dot(&p.coords) >= 0.0 {
+        return Pairing::Hidden;
+    }
+    let Some((u, v, z)) = view.k.project(&p) else {
+        return Pairing::Hidden;
+    };
+    let Some(px) = view.k.pixel_index(u, v) else {
+        return Pairing::Hidden;
+    };
+    let d = view.depth_m[px];
+    if !(d.is_finite() && d > 0.0) {
+        return Pairing::Hidden;
+    }
+    if !view.mask[px] {
+        return if d > z + tolerance_m {
+            Pairing::Unmatched
+        } else {
+            Pairing::Hidden
+        };
+    }
+    if view.normals[px].is_some_and(|m| m.dot(&n) < MIN_NORMAL_COSINE) {
+        // A different side of the object (or a rounded edge of the model).
+        return Pairing::Hidden;
+    }
+    let q = view
+        .k
+        .back_project((px % view.k.width) as f32, (px / view.k.width) as f32, d);
+    // Point-to-plane against the measured surface's normal where known.
+    Pairing::Matched(p, view.normals[px].unwrap_or(n), q)
+}
+
+/// How well `model` (object frame: points and outward normals) placed at
+/// `t_camera_object` explains the segment.
+pub fn evaluate(
+    model: &[(Point3<f32>, Vector3<f32>)],
+    t_camera_object: &Pose,
+    view: &SegmentView<'_>,
+    params: &TrackingParams,
+) -> Fit {
+    let (mut inliers, mut visible, mut squares) = (0, 0, 0.0f32);
+    for (point, normal) in model {
+        match pair(
+            point,
+            normal,
+            t_camera_object,
+            view,
+            params.inlier_distance_m,
+        ) {
+            Pairing::Hidden => {}
+            Pairing::Unmatched => visible += 1,
+            Pairing::Matched(p, n, q) => {
+                visible += 1;
+                if (p - q).norm() <= params.inlier_distance_m {
+                    inliers += 1;
+                    squares += ((p - q).dot(&n)).powi(2);
+                }
+            }
+        }
+    }
+    Fit {
+        inliers,
+        visible,
+        rmse_m: if inliers == 0 {
+            f32::INFINITY
+        } else {
+            (squares / inliers as f32).sqrt()
+        },
+    }
+}
+
+/// Gauss-Newton normal equations of a twist `(ω, v)` applied about the
+/// camera-frame point `centre`: `p ↦ centre + R(ω)(p − centre) + v`. Rotating
+/// about the object's centre rather than the camera's keeps rotation and
+/// translation decoupled and the equations well conditioned.
+struct NormalEquations {
+    centre: Point3<f32>,
+    jtj: Matrix6<f64>,
+    jtr: Vector6<f64>,
+    rows: usize,
+}
+
+impl NormalEquations {
+    fn new(centre: Point3<f32>) -> Self {
+        Self {
+            centre,
+            jtj: Matrix6::zeros(),
+            jtr: Vector6::zeros(),
+            rows: 0,
+        }
+    }
+
+    /// Adds residual `r` with rotation and translation Jacobians, Huber-weighted at `huber_m`.
+    fn add(&mut self, r: f32, d_omega: Vector3<f32>, d_v: Vector3<f32>, huber_m: f32) {
+        // Huber weight: residuals far off the surface (edges, mixed pixels) pull less.
+        let w = f64::from(if r.abs() <= huber_m {
+            1.0
+        } else {
+            huber_m / r.abs()
+        });
+        let j = Vector6::new(d_omega.x, d_omega.y, d_omega.z, d_v.x, d_v.y, d_v.z).cast::<f64>();
+        self.jtj += j * j.transpose() * w;
+        self.jtr += j * (f64::from(r) * w);
+        self.rows += 1;
+    }
+
+    /// The step minimising the residuals, in the well-constrained directions
+    /// only: a plane seen alone says nothing about sliding along it, so those
+    /// directions keep the current estimate instead of drifting. `None` when
+    /// there is too little to solve; else the step and its size.
+    fn solve(&self) -> Option<(Pose, f32)> {
+        if self.rows < 6 {
+            return None;
+        }
+        let eigen = self.jtj.symmetric_eigen();
+        let largest = eigen.eigenvalues.max();
+        if largest <= 0.0 {
+            return None;
+        }
+        let mut x = Vector6::<f64>::zeros();
+        for (i, &lambda) in eigen.eigenvalues.iter().enumerate() {
+            if lambda > DEGENERATE_EIGENVALUE_RATIO * largest {
+                let axis = eigen.eigenvectors.column(i);
+                x -= axis * (axis.dot(&self.jtr) / lambda);
+            }
+        }
+        let x = x.cast::<f32>();
+        let omega = Vector3::new(x[0], x[1], x[2]);
+        let v = Vector3::new(x[3], x[4], x[5]);
+        let c = self.centre;
+        let step = Pose::from_parts(
+            (c.coords + v).into(),
+            UnitQuaternion::from_scaled_axis(omega),
+        ) * Pose::translation(-c.x, -c.y, -c.z);
+        Some((step, v.norm().max(omega.norm())))
+    }
+}
+
+fn model_centre(model: &[(Point3<f32>, Vector3<f32>)]) -> Point3<f32> {
+    let sum = model
+        .iter()
+        .fold(Vector3::zeros(), |sum, (p, _)| sum + p.coords);
+    Point3::from(sum / model.len().max(1) as f32)
+}
+
+/// Aligns `model` to the segment starting from `guess` (camera ← object) by
+/// projective point-to-plane ICP. Returns the refined pose; judge it with [`evaluate`].
+pub fn align(
+    model: &[(Point3<f32>, Vector3<f32>)],
+    guess: &Pose,
+    view: &SegmentView<'_>,
+    params: &TrackingParams,
+) -> Pose {
+    let mut t = *guess;
+    let mut gate = params.initial_gate_m;
+    let centre_object = model_centre(model);
+    for _ in 0..params.max_iterations {
+        let mut equations = NormalEquations::new(t * centre_object);
+        for (point, normal) in model {
+            let Pairing::Matched(p, n, q) = pair(point, normal, &t, view, gate) else {
+                continue;
+            };
+            if (p - q).norm() > gate {
+                continue;
+            }
+            let arm = (p - equations.centre).cross(&n);
+            equations.add((p - q).dot(&n), arm, n, params.huber_m);
+        }
+        let Some((step, size)) = equations.solve() else {
+            break;
+        };
+        t = step * t;
+        gate = (gate * 0.7).max(params.inlier_distance_m);
+        if size < 1e-5 && gate <= params.inlier_distance_m {
+            break;
+        }
+    }
+    t
+}
+
+/// Refines an alignment against the object's TSDF itself: minimises the
+/// interpolated SDF at the segment's measured points (dense, sub-voxel, no
+/// correspondences), in the spirit of SDF tracking (Bylow et al., 2013).
+/// Points where the SDF is unknown, truncated, or beyond the inlier distance
+/// are left out. Converges only from within about the truncation distance,
+/// which is why [`align`] runs first.
+pub fn refine_against_sdf(
+    layer: &Layer,
+    start: &Pose,
+    view: &SegmentView<'_>,
+    truncation_m: f32,
+    params: &TrackingParams,
+) -> Pose {
+    let k = view.k;
+    let points: Vec<Point3<f32>> = (0..k.pixels())
+        .filter(|&px| view.mask[px])
+        .map(|px| {
+            k.back_project(
+                (px % k.width) as f32,
+                (px / k.width) as f32,
+                view.depth_m[px],
+            )
+        })
+        .collect();
+    let h = 0.5 * layer.voxel_size_m;
+    let mut t = *start;
+    let centre_camera = points
+        .iter()
+        .fold(Vector3::zeros(), |sum, p| sum + p.coords)
+        / points.len().max(1) as f32;
+    for _ in 0..params.max_iterations {
+        let t_object_camera = t.inverse();
+        let mut equations = NormalEquations::new(Point3::from(centre_camera));
+        for q in &points {
+            let x = t_object_camera * q;
+            let Some(r) = sdf_at(layer, &x) else { continue };
+            if r.abs() > params.inlier_distance_m.min(0.9 * truncation_m) {
+                continue;
+            }
+            let mut g = Vector3::zeros();
+            let mut known = true;
+            for a in 0..3 {
+                let mut e = Vector3::zeros();
+                e[a] = h;
+                match (sdf_at(layer, &(x + e)), sdf_at(layer, &(x - e))) {
+                    (Some(hi), Some(lo)) => g[a] = (hi - lo) / (2.0 * h),
+                    _ => known = false,
+                }
+            }
+            if !known {
+                continue;
+            }
+            // Moving the object by the twist moves q the other way in its frame.
+            let g_camera = t.rotation * g;
+            let arm = (q - equations.centre).cross(&g_camera);
+            equations.add(r, -arm, -g_camera, params.huber_m);
+        }
+        let Some((step, size)) = equations.solve() else {
+            break;
+        };
+        t = step * t;
+        if size < 1e-6 {
+            break;
+        }
+    }
+    t
+}
+
+/// Translation (metres) and rotation (degrees) of a motion.
+pub fn motion_size(motion: &Pose) -> (f32, f32) {
+    (
+        motion.translation.vector.norm(),
+        motion.rotation.angle().to_degrees(),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Points and normals of the three visible faces of a unit-ish box corner.
+    fn corner_model() -> Vec<(Point3<f32>, Vector3<f32>)> {
+        let mut model = Vec::new();
+        for i in 0..15 {
+            for j in 0..15 {
+                let (a, b) = (-0.2 + 0.02 * i as f32, -0.2 + 0.02 * j as f32);
+                model.push((Point3::new(-0.2, a, b), -Vector3::x()));
+                model.push((Point3::new(a, -0.2, b), -Vector3::y()));
+                model.push((Point3::new(a, b, -0.2), -Vector3::z()));
+            }
+        }
+        model
+    }
+
+    /// Depth image of the planes x = y = z = -0.2 (object frame) seen by a camera.
+    fn render_planes(t_camera_object: &Pose, k: &Intrinsics) -> Vec<f32> {
+        let t_object_camera = t_camera_object.inverse();
+        let o = t_object_camera * Point3::origin();
+        (0..k.pixels())
+            .map(|px| {
+                let d =
+                    t_object_camera.rotation * k.ray((px % k.width) as f32, (px / k.width) as f32);
+                let mut best = f32::INFINITY;
+                for a in 0..3 {
+                    if d[a].abs() < 1e-9 {
+                        continue;
+                    }
+                    let s = (-0.2 - o[a]) / d[a];
+                    let hit = o + d * s;
+                    let inside = (0..3).all(|b| b == a || (-0.2..=0.1).contains(&hit[b]));
+                    if s > 0.0 && inside {
+                        best = best.min(s);
+                    }
+                }
+                if best.is_finite() {
+                    best
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn icp_recovers_a_small_motion_of_three_planes() {
+        let k = Intrinsics::from_fov(128, 128, 90.0);
+        // Camera looking at the corner (-0.2, -0.2, -0.2) from outside.
+        let eye = Vector3::new(-1.2, -1.1, -1.0);
+        let forward = -eye.normalize();
+        let right = forward.cross(&Vector3::z()).normalize();
+        let down = forward.cross(&right);
+        let rot = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_columns(&[
+            right, down, forward,
+        ]));
+        let t_object_camera =
+            Pose::from_parts(eye.into(), UnitQuaternion::from_rotation_matrix(&rot));
+        let truth = t_object_camera.inverse();
+        let depth = render_planes(&truth, &k);
+        let mask: Vec<bool> = depth.iter().map(|&d| d > 0.0).collect();
+        let normals = measured_normals(&k, &depth, &mask);
+        let view = SegmentView {
+            k: &k,
+            depth_m: &depth,
+            mask: &mask,
+            normals: &normals,
+        };
+        let params = TrackingParams::for_voxel(0.04);
+        let model = corner_model();
+        let offset = Pose::from_parts(
+            Vector3::new(0.05, -0.04, 0.03).into(),
+            UnitQuaternion::from_euler_angles(0.05, -0.08, 0.12),
+        );
+        let guess = truth * offset; // a motion of the object about its own origin
+        let before = evaluate(&model, &guess, &view, &params);
+        let found = align(&model, &guess, &view, &params);
+        let after = evaluate(&model, &found, &view, &params);
+        let (dt, dr) = motion_size(&(truth.inverse() * found));
+        assert!(dt < 0.002 && dr < 0.2, "error {dt} m, {dr} deg");
+        assert!(after.inlier_ratio() > 0.9, "{after:?}");
+        assert!(after.rmse_m < 0.003, "{after:?}");
+        assert!(after.inlier_ratio() > before.inlier_ratio());
+    }
+}
