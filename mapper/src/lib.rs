@@ -17,6 +17,7 @@ pub mod integrate;
 pub mod labels;
 pub mod layer;
 mod map;
+pub mod mesh;
 pub mod projection;
 pub mod render;
 pub mod tracking;
@@ -25,6 +26,7 @@ pub use camera::{Frame, Intrinsics};
 pub use labels::{Affordance, ObjectLabels, Outcome};
 pub use layer::{BlockIndex, Layer, Voxel, VoxelIndex};
 pub use map::{IntegrateTimings, Map, MapConfig, MapError, MapObject, ObjectId};
+pub use mesh::Mesh;
 pub use projection::{GridSpec, ProjectionKind};
 pub use tracking::{TrackingFailure, TrackingOutcome, TrackingReport, TrackingTrigger};
 

@@ -14,6 +14,7 @@ use crate::camera::{Frame, Intrinsics};
 use crate::integrate::{carving_pixels, integrate, normal_cosines, DepthView, IntegrationParams};
 use crate::labels::{Affordance, ObjectLabels, Outcome};
 use crate::layer::Layer;
+use crate::mesh::{mesh_layer, Mesh};
 use crate::render::{raycast_layer, RenderTarget};
 use crate::tracking::{TrackingParams, TrackingReport};
 use crate::Pose;
@@ -470,6 +471,12 @@ impl Map {
             .ok_or(MapError::UnknownObject(id))?
             .t_world_object = t_world_object;
         Ok(())
+    }
+
+    /// An object's surface as a world-frame triangle mesh (see [`crate::mesh`]).
+    pub fn object_mesh(&self, id: ObjectId) -> Result<Mesh, MapError> {
+        let object = self.objects.get(&id).ok_or(MapError::UnknownObject(id))?;
+        Ok(mesh_layer(&object.volume, &object.t_world_object))
     }
 
     /// World-frame points of an object's surface (observed voxels within half a voxel).
