@@ -20,6 +20,7 @@ mod map;
 pub mod mesh;
 pub mod projection;
 pub mod render;
+pub mod segmentation;
 pub mod tracking;
 
 pub use camera::{Frame, Intrinsics};
@@ -28,6 +29,7 @@ pub use layer::{BlockIndex, Layer, Voxel, VoxelIndex};
 pub use map::{IntegrateTimings, Map, MapConfig, MapError, MapObject, ObjectId};
 pub use mesh::Mesh;
 pub use projection::{GridSpec, ProjectionKind};
+pub use segmentation::{GeometricParams, Segmentation};
 pub use tracking::{TrackingFailure, TrackingOutcome, TrackingReport, TrackingTrigger};
 
 /// Poses are rigid transforms in metres.

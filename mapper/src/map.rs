@@ -16,6 +16,7 @@ use crate::labels::{Affordance, ObjectLabels, Outcome};
 use crate::layer::Layer;
 use crate::mesh::{mesh_layer, Mesh};
 use crate::render::{raycast_layer, RenderTarget};
+use crate::segmentation::{segment_geometric, Segmentation};
 use crate::tracking::{TrackingParams, TrackingReport};
 use crate::Pose;
 
@@ -56,6 +57,8 @@ pub struct MapConfig {
     pub association: AssociationParams,
     /// Tracking settings (objects that moved).
     pub tracking: TrackingParams,
+    /// Where instance masks come from.
+    pub segmentation: Segmentation,
     /// An object predicted visible (at least `miss_min_rendered_px` pixels)
     /// but not matched this many frames in a row is deleted.
     pub max_misses: u32,
@@ -82,6 +85,7 @@ impl Default for MapConfig {
                 depth_tolerance_m: (2.0 * voxel_size_m).max(0.03),
             },
             tracking: TrackingParams::for_voxel(voxel_size_m),
+            segmentation: Segmentation::Provided,
             max_misses: 10,
             miss_min_rendered_px: 50,
         }
@@ -225,8 +229,16 @@ impl Map {
         }
         let params = self.config.integration;
         let started = std::time::Instant::now();
+        let geometric;
+        let instance = match self.config.segmentation {
+            Segmentation::Provided => frame.instance,
+            Segmentation::Geometric(p) => {
+                geometric = segment_geometric(&k, frame.depth_m, &frame.t_world_camera, &p);
+                &geometric[..]
+            }
+        };
         let segments = extract_segments(
-            frame.instance,
+            instance,
             frame.depth_m,
             |d| params.valid_depth(d),
             self.config.association.min_segment_px,
@@ -302,7 +314,6 @@ impl Map {
                 true,
             );
         });
-        let instance = frame.instance;
         let view = DepthView {
             t_layer_camera: &frame.t_world_camera,
             k: &k,

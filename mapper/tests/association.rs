@@ -207,3 +207,64 @@ fn results_do_not_depend_on_the_thread_count() {
     };
     assert_eq!(run(1), run(3));
 }
+
+#[test]
+fn ids_stay_consistent_with_geometric_segmentation() {
+    let mut shapes = scene();
+    // Floor and a wall: background that the segmentation must recognise.
+    shapes.push(Shape::Box {
+        t_world_box: Isometry3::translation(0.0, 0.0, -0.05),
+        half: Vector3::new(4.0, 4.0, 0.05),
+        id: 0,
+    });
+    shapes.push(Shape::Box {
+        t_world_box: Isometry3::translation(0.0, 3.0, 1.2),
+        half: Vector3::new(4.0, 0.05, 1.2),
+        id: 0,
+    });
+    let config = MapConfig {
+        segmentation: "geometric".parse().unwrap(),
+        ..MapConfig::default()
+    };
+    let mut map = Map::new(config);
+    // Per true instance: the map id holding most of its pixels, per frame.
+    let mut majority: BTreeMap<u32, BTreeSet<u32>> = BTreeMap::new();
+    for pose in viewpoints() {
+        let frame = OwnedFrame::capture(&shapes, pose, k128());
+        let map_ids = map.integrate(&frame.frame()).unwrap();
+        let mut votes: BTreeMap<u32, BTreeMap<u32, usize>> = BTreeMap::new();
+        for (&instance, &id) in frame.ids.iter().zip(&map_ids) {
+            if instance != 0 {
+                *votes.entry(instance).or_default().entry(id).or_default() += 1;
+            }
+        }
+        for (instance, counts) in votes {
+            let total: usize = counts.values().sum();
+            let (id, n) = counts.into_iter().max_by_key(|(_, n)| *n).unwrap();
+            if total >= 50 {
+                assert_ne!(id, 0, "instance {instance} ({total} px) got no map id");
+                assert!(
+                    n * 2 >= total,
+                    "instance {instance}: only {n} of {total} px on its main id"
+                );
+                majority.entry(instance).or_default().insert(id);
+            }
+        }
+    }
+    eprintln!(
+        "geometric segmentation: {:?}; map objects {:?}",
+        majority,
+        map.objects().keys().collect::<Vec<_>>()
+    );
+    assert_eq!(majority.len(), 3);
+    for (instance, ids) in &majority {
+        assert_eq!(ids.len(), 1, "instance {instance} got ids {ids:?}");
+    }
+    let distinct: BTreeSet<_> = majority.values().flatten().collect();
+    assert_eq!(distinct.len(), 3, "two instances share an id");
+    assert_eq!(
+        map.objects().len(),
+        3,
+        "spurious objects from the background"
+    );
+}
