@@ -1,7 +1,8 @@
 //! `cargo bench -p mapper`: integrate one 128 × 128 frame with ~40 objects in
 //! view into a room-sized map, split into rendering / association /
 //! integration. Also writes the frames to `target/mapper-bench-frames/` so
-//! `mapper/benches/open3d_tsdf.py` can time Open3D on the very same frames.
+//! `mapper/benches/open3d_tsdf.py` can time Open3D on the very same frames
+//! (it is run at the end, side by side, when Python has open3d).
 
 #[path = "../tests/common/mod.rs"]
 mod common;
@@ -116,30 +117,85 @@ fn bench(c: &mut Criterion) {
         warm.objects().len()
     );
 
+    // One core, as the target says.
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("a one-thread pool");
     let mut map = warm.clone();
     let mut splits = Vec::new();
+    let mut totals = Vec::new();
     let mut i = 0;
-    c.bench_function("integrate 128x128 frame, ~40 objects in view", |b| {
-        b.iter(|| {
-            let f = &frames[i % frames.len()];
-            i += 1;
-            let ids = map.integrate(&f.frame()).expect("valid frame");
-            splits.push(map.last_timings());
-            ids
-        })
-    });
+    c.bench_function(
+        "integrate 128x128 frame, ~40 objects in view, 1 thread",
+        |b| {
+            b.iter(|| {
+                let f = &frames[i % frames.len()];
+                i += 1;
+                let started = std::time::Instant::now();
+                let ids = pool.install(|| map.integrate(&f.frame()).expect("valid frame"));
+                totals.push(started.elapsed().as_secs_f64());
+                splits.push(map.last_timings());
+                ids
+            })
+        },
+    );
     let median = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);
         v[v.len() / 2] * 1e3
     };
+    let ours = median(totals);
+    let ours_integration = median(splits.iter().map(|t| t.integrate_s).collect());
     eprintln!(
-        "median split over {} frames: render {:.3} ms, association {:.3} ms, integration {:.3} ms, book-keeping {:.3} ms (tracking: not implemented yet)",
+        "ours: median {ours:.3} ms per frame over {} frames; split: render {:.3} ms, association {:.3} ms, tracking {:.3} ms, integration {:.3} ms, book-keeping {:.3} ms",
         splits.len(),
         median(splits.iter().map(|t| t.render_s).collect()),
         median(splits.iter().map(|t| t.associate_s).collect()),
+        median(splits.iter().map(|t| t.tracking_s).collect()),
         median(splits.iter().map(|t| t.integrate_s).collect()),
         median(splits.iter().map(|t| t.book_keeping_s).collect()),
     );
+    compare_with_open3d(ours, ours_integration);
+}
+
+/// Runs `open3d_tsdf.py` on the exported frames (one OpenMP thread) and
+/// prints our times over Open3D's. Skipped, with the reason, when Python or
+/// Open3D is missing.
+fn compare_with_open3d(ours_ms: f64, ours_integration_ms: f64) {
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/open3d_tsdf.py");
+    let output = std::process::Command::new("python3")
+        .arg(&script)
+        .env("OMP_NUM_THREADS", "1")
+        .output();
+    let text = match output {
+        Ok(o) if o.status.success() => String::from_utf8_lossy(&o.stdout).into_owned(),
+        Ok(o) => {
+            eprintln!(
+                "open3d comparison skipped: {}",
+                String::from_utf8_lossy(&o.stderr).trim()
+            );
+            return;
+        }
+        Err(e) => {
+            eprintln!("open3d comparison skipped: cannot run python3: {e}");
+            return;
+        }
+    };
+    eprint!("{text}");
+    let theirs = text
+        .split("median ")
+        .nth(1)
+        .and_then(|rest| rest.split(' ').next())
+        .and_then(|ms| ms.parse::<f64>().ok());
+    match theirs {
+        Some(theirs) => eprintln!(
+            "same frames, 1 thread each: ours whole frame / open3d = {ours_ms:.3} / {theirs:.3} ms = {:.2}; \
+             ours TSDF integration only / open3d = {ours_integration_ms:.3} / {theirs:.3} ms = {:.2}",
+            ours_ms / theirs,
+            ours_integration_ms / theirs
+        ),
+        None => eprintln!("open3d comparison: could not read its median"),
+    }
 }
 
 criterion_group! {
