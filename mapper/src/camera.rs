@@ -70,8 +70,10 @@ impl Intrinsics {
 
     /// Index of the pixel containing continuous coordinates `(u, v)`, if inside.
     pub fn pixel_index(&self, u: f32, v: f32) -> Option<usize> {
-        let (ui, vi) = ((u + 0.5).floor(), (v + 0.5).floor());
-        if ui < 0.0 || vi < 0.0 || ui >= self.width as f32 || vi >= self.height as f32 {
+        let (ui, vi) = (u + 0.5, v + 0.5);
+        // Written so that NaN fails too; truncation is floor for non-negative values
+        // (and, unlike `floor`, needs no libm call on baseline x86-64).
+        if !(ui >= 0.0 && vi >= 0.0 && ui < self.width as f32 && vi < self.height as f32) {
             return None;
         }
         Some(vi as usize * self.width + ui as usize)

@@ -114,8 +114,11 @@ fn depth_at(
     max_spread_m: f32,
     params: &IntegrationParams,
 ) -> f32 {
-    let (u0, v0) = (u.floor(), v.floor());
-    if u0 < 0.0 || v0 < 0.0 || u0 + 1.0 >= k.width as f32 || v0 + 1.0 >= k.height as f32 {
+    if !(u >= 0.0 && v >= 0.0) {
+        return depth_m[nearest];
+    }
+    let (u0, v0) = ((u as usize) as f32, (v as usize) as f32);
+    if u0 + 1.0 >= k.width as f32 || v0 + 1.0 >= k.height as f32 {
         return depth_m[nearest];
     }
     let i = v0 as usize * k.width + u0 as usize;
@@ -148,7 +151,7 @@ fn blocks_near_points(
     t_layer_camera: &Pose,
     k: &Intrinsics,
     depth_m: &[f32],
-    owned: &dyn Fn(usize) -> bool,
+    owned: Owned<'_>,
     params: &IntegrationParams,
 ) -> FxHashSet<BlockIndex> {
     let mut blocks = FxHashSet::default();
@@ -156,7 +159,7 @@ fn blocks_near_points(
     let size = layer.block_size_m();
     let mut previous: Option<([i32; 3], [i32; 3])> = None;
     for (i, &d) in depth_m.iter().enumerate() {
-        if !params.valid_depth(d) || !owned(i) {
+        if !params.valid_depth(d) || !owned.contains(i) {
             continue;
         }
         let (u, v) = ((i % k.width) as f32, (i / k.width) as f32);
@@ -164,7 +167,7 @@ fn blocks_near_points(
         let mut lo = [0i32; 3];
         let mut hi = [0i32; 3];
         for a in 0..3 {
-            let block = (p[a] / size).floor();
+            let block = crate::layer::floor_to_i32(p[a] / size) as f32;
             let within = p[a] - block * size;
             lo[a] = block as i32 - i32::from(within < t);
             hi[a] = block as i32 + i32::from(within > size - t);
@@ -218,13 +221,30 @@ pub struct DepthView<'a> {
     pub may_carve: &'a [bool],
 }
 
-/// Integrates one frame into `layer`. `owned(pixel)` says which pixels show
+/// The pixels that show one layer's surface: those labelled `id`.
+#[derive(Debug, Clone, Copy)]
+pub struct Owned<'a> {
+    /// A label per pixel (map object ids, or instance ids with 0 = background).
+    pub labels: &'a [u32],
+    /// The layer's label.
+    pub id: u32,
+}
+
+impl Owned<'_> {
+    /// True if pixel `px` shows the layer's surface.
+    #[inline]
+    pub fn contains(&self, px: usize) -> bool {
+        self.labels[px] == self.id
+    }
+}
+
+/// Integrates one frame into `layer`. `owned` says which pixels show
 /// this layer's surface; with `carve`, other pixels clear free space.
 /// Returns the number of voxels updated.
 pub fn integrate(
     layer: &mut Layer,
     view: &DepthView<'_>,
-    owned: &dyn Fn(usize) -> bool,
+    owned: Owned<'_>,
     params: &IntegrationParams,
     carve: bool,
 ) -> usize {
@@ -268,22 +288,30 @@ pub fn integrate(
                     if z <= 1e-6 {
                         continue;
                     }
-                    let (u, v) = (k.fx * p.x / z + k.cx, k.fy * p.y / z + k.cy);
+                    let inv_z = 1.0 / z;
+                    let (u, v) = (k.fx * p.x * inv_z + k.cx, k.fy * p.y * inv_z + k.cy);
                     let Some(px) = k.pixel_index(u, v) else {
                         continue;
                     };
-                    if !params.valid_depth(depth_m[px]) {
+                    let nearest = depth_m[px];
+                    if !params.valid_depth(nearest) {
                         continue;
                     }
                     let o = xi + edge * (yi + edge * zi);
-                    let is_owned = owned(px);
-                    let d = if is_owned {
-                        depth_at(k, depth_m, u, v, px, trunc, params)
-                    } else {
-                        depth_m[px]
-                    };
-                    let projective = d - z;
-                    if is_owned {
+                    if owned.contains(px) {
+                        // The interpolated depth is within one truncation of
+                        // the nearest pixel's: voxels this far behind stay
+                        // occluded, and this far in front need no interpolation.
+                        let rough = nearest - z;
+                        if rough < -2.0 * trunc {
+                            continue;
+                        }
+                        let d = if rough < 2.0 * trunc {
+                            depth_at(k, depth_m, u, v, px, trunc, params)
+                        } else {
+                            nearest
+                        };
+                        let projective = d - z;
                         if projective < -trunc {
                             continue; // occluded: behind the observed surface
                         }
@@ -298,7 +326,7 @@ pub fn integrate(
                                 (1.0 + sdf / trunc).max(0.05)
                             };
                         updates.push((o, sdf.min(trunc), w, false));
-                    } else if carve && exists && projective > trunc && may_carve[px] {
+                    } else if carve && exists && nearest - z > trunc && may_carve[px] {
                         updates.push((o, trunc, 1.0, true));
                     }
                 }

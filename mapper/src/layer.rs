@@ -11,6 +11,19 @@ pub const BLOCK_EDGE: i32 = 8;
 /// Voxels per block.
 pub const BLOCK_VOXELS: usize = (BLOCK_EDGE * BLOCK_EDGE * BLOCK_EDGE) as usize;
 
+/// `x.floor() as i32` (saturating, NaN → 0) without the libm call that
+/// `f32::floor` compiles to on baseline x86-64 (no SSE4.1): the hot loops
+/// of integration and rendering floor several times per voxel.
+#[inline]
+pub fn floor_to_i32(x: f32) -> i32 {
+    let t = x as i32;
+    if (t as f32) > x {
+        t - 1
+    } else {
+        t
+    }
+}
+
 /// One TSDF sample.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Voxel {
@@ -86,13 +99,13 @@ impl Layer {
 
     /// The voxel containing point `p` (layer frame).
     pub fn voxel_of(&self, p: &Point3<f32>) -> VoxelIndex {
-        VoxelIndex([p.x, p.y, p.z].map(|c| (c / self.voxel_size_m).floor() as i32))
+        VoxelIndex([p.x, p.y, p.z].map(|c| floor_to_i32(c / self.voxel_size_m)))
     }
 
     /// The block containing point `p`.
     pub fn block_of(&self, p: &Point3<f32>) -> BlockIndex {
         let s = self.block_size_m();
-        BlockIndex([p.x, p.y, p.z].map(|c| (c / s).floor() as i32))
+        BlockIndex([p.x, p.y, p.z].map(|c| floor_to_i32(c / s)))
     }
 
     /// Centre of a voxel (layer frame).
@@ -288,5 +301,15 @@ mod tests {
         );
         let c = layer.voxel_center(VoxelIndex([-1, 0, 2]));
         assert_eq!(layer.voxel_of(&c), VoxelIndex([-1, 0, 2]));
+    }
+
+    #[test]
+    fn fast_floor_matches_floor() {
+        for x in [
+            -2.5f32, -2.0, -1e-7, -0.0, 0.0, 0.3, 1.0, 7.999, -7.999, 123456.7,
+        ] {
+            assert_eq!(floor_to_i32(x), x.floor() as i32, "{x}");
+        }
+        assert_eq!(floor_to_i32(f32::NAN), 0);
     }
 }

@@ -11,7 +11,9 @@ use rayon::prelude::*;
 
 use crate::association::{associate, extract_segments, AssociationParams, Segment};
 use crate::camera::{Frame, Intrinsics};
-use crate::integrate::{carving_pixels, integrate, normal_cosines, DepthView, IntegrationParams};
+use crate::integrate::{
+    carving_pixels, integrate, normal_cosines, DepthView, IntegrationParams, Owned,
+};
 use crate::labels::{Affordance, ObjectLabels, Outcome};
 use crate::layer::Layer;
 use crate::mesh::{mesh_layer, Mesh};
@@ -309,7 +311,10 @@ impl Map {
             integrate(
                 &mut object.volume,
                 &view,
-                &|px| owner_ref[px] == id,
+                Owned {
+                    labels: owner_ref,
+                    id,
+                },
                 &params,
                 true,
             );
@@ -324,7 +329,10 @@ impl Map {
         integrate(
             &mut self.background,
             &view,
-            &|px| instance[px] == 0,
+            Owned {
+                labels: instance,
+                id: 0,
+            },
             &params,
             false,
         );

@@ -36,7 +36,7 @@ pub(crate) fn sdf_at(layer: &Layer, p: &Point3<f32>) -> Option<f32> {
         .sdf;
     let s = layer.voxel_size_m;
     let g = [p.x / s - 0.5, p.y / s - 0.5, p.z / s - 0.5];
-    let base = g.map(|c| c.floor());
+    let base = g.map(|c| crate::layer::floor_to_i32(c) as f32);
     let f = [g[0] - base[0], g[1] - base[1], g[2] - base[2]];
     let mut sum = 0.0;
     for corner in 0..8 {
