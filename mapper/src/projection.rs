@@ -58,7 +58,6 @@ impl Map {
     /// Rasterises `kind` onto `grid` (row-major, `cells × cells`, values 0 / 1).
     pub fn project(&self, kind: ProjectionKind, grid: &GridSpec) -> Vec<f32> {
         let mut out = vec![0.0; grid.cells * grid.cells];
-        let band = self.config().voxel_size_m;
         let mut mark = |p: Point3<f32>| {
             if let Some(c) = grid.cell_of(p.x, p.y) {
                 out[c] = 1.0;
@@ -69,7 +68,8 @@ impl Map {
             max_height_m,
         } = kind
         {
-            for (p, _) in self.background().near_surface_voxels(band) {
+            let background = self.background();
+            for (p, _) in background.near_surface_voxels(background.voxel_size_m) {
                 if (min_height_m..=max_height_m).contains(&p.z) {
                     mark(p);
                 }
@@ -89,7 +89,10 @@ impl Map {
             if !include {
                 continue;
             }
-            for (p, _) in object.volume.near_surface_voxels(band) {
+            for (p, _) in object
+                .volume
+                .near_surface_voxels(object.volume.voxel_size_m)
+            {
                 let w = object.t_world_object * p;
                 if let ProjectionKind::Occupancy {
                     min_height_m,
