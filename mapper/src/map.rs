@@ -411,7 +411,14 @@ impl Map {
     fn render_objects(&self, t_world_camera: &Pose, k: &Intrinsics) -> RenderTarget {
         let mut target = RenderTarget::new(k);
         let t_camera_world = t_world_camera.inverse();
-        for object in self.objects.values() {
+        // Front to back, so the z-buffer cuts the rays of occluded objects short.
+        let mut order: Vec<(f32, &MapObject)> = self
+            .objects
+            .values()
+            .map(|o| ((t_camera_world * o.t_world_object).translation.vector.z, o))
+            .collect();
+        order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.id.cmp(&b.1.id)));
+        for (_, object) in order {
             let t_camera_object = t_camera_world * object.t_world_object;
             raycast_layer(
                 &object.volume,

@@ -125,6 +125,20 @@ fn slab(
     (z0 <= z1).then_some((z0, z1))
 }
 
+/// Ray parameter where the ray `o + z·d` leaves the block containing `p`.
+fn block_exit(layer: &Layer, p: &Point3<f32>, o: &Point3<f32>, d: &Vector3<f32>) -> f32 {
+    let s = layer.block_size_m();
+    let b = layer.block_of(p);
+    (0..3)
+        .filter(|&a| d[a].abs() > 1e-9)
+        .map(|a| {
+            let face = if d[a] > 0.0 { b.0[a] + 1 } else { b.0[a] } as f32 * s;
+            (face - o[a]) / d[a]
+        })
+        .fold(f32::INFINITY, f32::min)
+        + 1e-4
+}
+
 /// Ray-marches `layer` (placed by `t_camera_layer`) into `target`, writing
 /// `id` where its zero crossing is nearer than what is there. Returns the
 /// number of pixels it won.
@@ -171,13 +185,23 @@ pub fn raycast_layer(
                     }
                     _ => {}
                 }
-                // Sphere-trace through known free space, half voxels otherwise.
-                let step_m = match sample {
-                    Some(s) if s > voxel => 0.8 * s,
-                    _ => 0.5 * voxel,
-                };
+                // Sphere-trace through known free space; half voxels near the
+                // surface; unobserved space holds no crossing, so leap it: to
+                // the exit of an unallocated block, else a whole voxel.
                 previous = sample.map(|s| (z, s));
-                z += step_m / metres_per_z;
+                z = match sample {
+                    Some(s) if s > voxel => z + 0.8 * s / metres_per_z,
+                    Some(_) => z + 0.5 * voxel / metres_per_z,
+                    None => {
+                        let p = origin + dir * z;
+                        let next = z + voxel / metres_per_z;
+                        if layer.block(layer.block_of(&p)).is_some() {
+                            next
+                        } else {
+                            block_exit(layer, &p, &origin, &dir).max(next)
+                        }
+                    }
+                };
             }
         }
     }
