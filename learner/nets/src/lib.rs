@@ -10,7 +10,10 @@
 
 mod linear;
 mod masked_categorical;
+pub mod policy;
 mod tensors;
+pub mod unet;
+pub mod weights;
 
 pub use linear::LinearActorCritic;
 pub use masked_categorical::{entropy, log_softmax_masked, sample};

@@ -1,0 +1,336 @@
+//! The exploration policy: conv encoders for image-like inputs, MLPs for 1-D
+//! inputs, concatenation, an optional GRU, and actor (64, 32, n_actions) and
+//! critic (64, 32, 1) heads with invalid actions masked in the logits.
+
+use burn::nn::conv::{Conv2d, Conv2dConfig};
+use burn::nn::gru::{Gru, GruConfig};
+use burn::nn::{Linear, LinearConfig};
+use burn::prelude::*;
+use burn::tensor::activation::{relu, tanh};
+use burn::tensor::Bool;
+
+/// Shape of the policy's inputs and outputs.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct PolicyConfig {
+    /// Channels of each image-like input (one conv encoder each), all `image_size` square.
+    pub image_channels: Vec<usize>,
+    /// Side of the image-like inputs, pixels (128 in the paper).
+    pub image_size: usize,
+    /// Length of each 1-D input (one MLP each): e.g. action history, inventory.
+    pub vector_dims: Vec<usize>,
+    /// Number of discrete actions.
+    pub n_actions: usize,
+    /// Hidden size of a GRU over the fused features (the no-map ablations), or `None`.
+    pub gru_hidden: Option<usize>,
+}
+
+/// Features out of each encoder.
+const ENCODER_FEATURES: usize = 64;
+
+/// A small conv encoder: 8×8/4, 4×4/2, 3×3/2 convolutions, then a linear layer.
+#[derive(Module, Debug)]
+pub struct ConvEncoder {
+    conv1: Conv2d,
+    conv2: Conv2d,
+    conv3: Conv2d,
+    fc: Linear,
+}
+
+/// Spatial side after a valid convolution.
+fn conv_out(size: usize, kernel: usize, stride: usize) -> usize {
+    (size - kernel) / stride + 1
+}
+
+impl ConvEncoder {
+    fn new(channels: usize, size: usize, device: &Device) -> Self {
+        let side = conv_out(conv_out(conv_out(size, 8, 4), 4, 2), 3, 2);
+        Self {
+            conv1: Conv2dConfig::new([channels, 16], [8, 8])
+                .with_stride([4, 4])
+                .init(device),
+            conv2: Conv2dConfig::new([16, 32], [4, 4])
+                .with_stride([2, 2])
+                .init(device),
+            conv3: Conv2dConfig::new([32, 32], [3, 3])
+                .with_stride([2, 2])
+                .init(device),
+            fc: LinearConfig::new(32 * side * side, ENCODER_FEATURES).init(device),
+        }
+    }
+
+    /// `[batch, channels, size, size]` → `[batch, 64]`.
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<2> {
+        let x = relu(self.conv1.forward(x));
+        let x = relu(self.conv2.forward(x));
+        let x = relu(self.conv3.forward(x));
+        relu(self.fc.forward(x.flatten(1, 3)))
+    }
+}
+
+/// Two-layer MLP for a 1-D input.
+#[derive(Module, Debug)]
+pub struct VectorEncoder {
+    fc1: Linear,
+    fc2: Linear,
+}
+
+impl VectorEncoder {
+    fn new(dim: usize, device: &Device) -> Self {
+        Self {
+            fc1: LinearConfig::new(dim, ENCODER_FEATURES).init(device),
+            fc2: LinearConfig::new(ENCODER_FEATURES, ENCODER_FEATURES).init(device),
+        }
+    }
+
+    /// `[batch, dim]` → `[batch, 64]`.
+    pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
+        relu(self.fc2.forward(relu(self.fc1.forward(x))))
+    }
+}
+
+/// Three-layer MLP head: (64, 32, out) with tanh between layers.
+#[derive(Module, Debug)]
+pub struct Head {
+    fc1: Linear,
+    fc2: Linear,
+    out: Linear,
+}
+
+impl Head {
+    fn new(input: usize, output: usize, device: &Device) -> Self {
+        Self {
+            fc1: LinearConfig::new(input, 64).init(device),
+            fc2: LinearConfig::new(64, 32).init(device),
+            out: LinearConfig::new(32, output).init(device),
+        }
+    }
+
+    /// `[batch, input]` → `[batch, output]`.
+    pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
+        self.out
+            .forward(tanh(self.fc2.forward(tanh(self.fc1.forward(x)))))
+    }
+}
+
+/// The policy network.
+#[derive(Module, Debug)]
+pub struct PolicyNet {
+    images: Vec<ConvEncoder>,
+    vectors: Vec<VectorEncoder>,
+    gru: Option<Gru>,
+    actor: Head,
+    critic: Head,
+}
+
+/// One batch of observations.
+#[derive(Debug, Clone)]
+pub struct PolicyInput {
+    /// One `[batch, channels, size, size]` tensor per image-like input.
+    pub images: Vec<Tensor<4>>,
+    /// One `[batch, dim]` tensor per 1-D input.
+    pub vectors: Vec<Tensor<2>>,
+    /// `[batch, n_actions]`, true where the action is allowed.
+    pub mask: Tensor<2, Bool>,
+}
+
+/// What the policy says for a batch.
+#[derive(Debug, Clone)]
+pub struct PolicyOutput {
+    /// `[batch, n_actions]` log-probabilities; masked actions hold a very
+    /// negative number (−1e9 before normalisation), so `exp` gives 0.
+    pub log_probs: Tensor<2>,
+    /// `[batch]` state values.
+    pub values: Tensor<1>,
+    /// `[batch, hidden]` GRU state after this step (GRU variant only).
+    pub hidden: Option<Tensor<2>>,
+}
+
+/// Logit given to masked actions: far below any real logit, yet finite so
+/// that `0 · logit` terms stay 0 in gradients and entropies.
+pub const MASKED_LOGIT: f32 = -1e9;
+
+impl PolicyNet {
+    /// A freshly initialised network.
+    pub fn new(config: &PolicyConfig, device: &Device) -> Self {
+        let fused = ENCODER_FEATURES * (config.image_channels.len() + config.vector_dims.len());
+        let gru = config
+            .gru_hidden
+            .map(|h| GruConfig::new(fused, h, true).init(device));
+        let trunk = config.gru_hidden.unwrap_or(fused);
+        Self {
+            images: config
+                .image_channels
+                .iter()
+                .map(|&c| ConvEncoder::new(c, config.image_size, device))
+                .collect(),
+            vectors: config
+                .vector_dims
+                .iter()
+                .map(|&d| VectorEncoder::new(d, device))
+                .collect(),
+            gru,
+            actor: Head::new(trunk, config.n_actions, device),
+            critic: Head::new(trunk, 1, device),
+        }
+    }
+
+    /// Encoders only: `[batch, 64 · inputs]`.
+    fn features(&self, input: &PolicyInput) -> Tensor<2> {
+        let mut parts: Vec<Tensor<2>> = self
+            .images
+            .iter()
+            .zip(&input.images)
+            .map(|(e, x)| e.forward(x.clone()))
+            .collect();
+        parts.extend(
+            self.vectors
+                .iter()
+                .zip(&input.vectors)
+                .map(|(e, x)| e.forward(x.clone())),
+        );
+        Tensor::cat(parts, 1)
+    }
+
+    fn heads(&self, trunk: Tensor<2>, mask: Tensor<2, Bool>) -> (Tensor<2>, Tensor<1>) {
+        let logits = self
+            .actor
+            .forward(trunk.clone())
+            .mask_fill(mask.bool_not(), MASKED_LOGIT);
+        let log_probs = burn::tensor::activation::log_softmax(logits, 1);
+        let values = self.critic.forward(trunk).squeeze_dim(1);
+        (log_probs, values)
+    }
+
+    /// One step for a batch of independent observations. `hidden` is the
+    /// `[batch, gru_hidden]` state for the GRU variant (zeros at episode
+    /// start; ignored without a GRU).
+    pub fn forward(&self, input: &PolicyInput, hidden: Option<Tensor<2>>) -> PolicyOutput {
+        let features = self.features(input);
+        let (trunk, hidden) = match &self.gru {
+            Some(gru) => {
+                let out = gru.forward(features.unsqueeze_dim(1), hidden);
+                let h: Tensor<2> = out.squeeze_dim(1);
+                (h.clone(), Some(h))
+            }
+            None => (features, None),
+        };
+        let (log_probs, values) = self.heads(trunk, input.mask.clone());
+        PolicyOutput {
+            log_probs,
+            values,
+            hidden,
+        }
+    }
+
+    /// GRU variant over sequences: inputs are `[batch · steps, …]` in
+    /// batch-major order (sequence `b` occupies rows `b·steps .. (b+1)·steps`),
+    /// `start_hidden` is `[batch, gru_hidden]`, and `episode_starts` is
+    /// `[batch · steps]` with 1 where an episode begins (the state is reset to
+    /// zero before that step). Outputs are `[batch · steps, …]` in the same order.
+    /// Without a GRU this is [`PolicyNet::forward`].
+    pub fn forward_sequences(
+        &self,
+        input: &PolicyInput,
+        start_hidden: Tensor<2>,
+        episode_starts: Tensor<1>,
+        steps: usize,
+    ) -> PolicyOutput {
+        let Some(gru) = &self.gru else {
+            return self.forward(input, None);
+        };
+        let features = self.features(input);
+        let [rows, width] = features.dims();
+        let batch = rows / steps;
+        let features: Tensor<3> = features.reshape([batch, steps, width]);
+        let keep: Tensor<2> = (episode_starts.neg() + 1.0).reshape([batch, steps]);
+        let mut h = start_hidden;
+        let mut outs = Vec::with_capacity(steps);
+        for t in 0..steps {
+            let x = features.clone().narrow(1, t, 1);
+            let k: Tensor<2> = keep.clone().narrow(1, t, 1);
+            h = h * k;
+            let out: Tensor<3> = gru.forward(x, Some(h));
+            h = out.clone().squeeze_dim(1);
+            outs.push(out);
+        }
+        let trunk: Tensor<2> = Tensor::cat(outs, 1).reshape([rows, h.dims()[1]]);
+        let (log_probs, values) = self.heads(trunk, input.mask.clone());
+        PolicyOutput {
+            log_probs,
+            values,
+            hidden: Some(h),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn config(gru: Option<usize>) -> PolicyConfig {
+        PolicyConfig {
+            image_channels: vec![4, 2],
+            image_size: 128,
+            vector_dims: vec![15],
+            n_actions: 6,
+            gru_hidden: gru,
+        }
+    }
+
+    fn input(batch: usize, device: &Device) -> PolicyInput {
+        let mask = Tensor::<2, Bool>::from_data(
+            TensorData::new(
+                (0..batch * 6).map(|i| i % 6 != 2 && i % 6 != 5).collect::<Vec<_>>(),
+                [batch, 6],
+            ),
+            device,
+        );
+        PolicyInput {
+            images: vec![
+                Tensor::random([batch, 4, 128, 128], burn::tensor::Distribution::Default, device),
+                Tensor::random([batch, 2, 128, 128], burn::tensor::Distribution::Default, device),
+            ],
+            vectors: vec![Tensor::random([batch, 15], burn::tensor::Distribution::Default, device)],
+            mask,
+        }
+    }
+
+    #[test]
+    fn outputs_have_documented_shapes_and_masked_actions_get_no_mass() {
+        let device = Device::flex();
+        let net = PolicyNet::new(&config(None), &device);
+        let out = net.forward(&input(3, &device), None);
+        assert_eq!(out.log_probs.dims(), [3, 6]);
+        assert_eq!(out.values.dims(), [3]);
+        let p: Vec<f32> = out.log_probs.exp().into_data().try_to_vec::<f32>().unwrap();
+        for row in p.chunks(6) {
+            assert!((row.iter().sum::<f32>() - 1.0).abs() < 1e-5);
+            assert_eq!(row[2], 0.0);
+            assert_eq!(row[5], 0.0);
+        }
+    }
+
+    #[test]
+    fn the_gru_variant_steps_and_runs_sequences_consistently() {
+        let device = Device::flex();
+        let net = PolicyNet::new(&config(Some(32)), &device);
+        let batch_input = input(4, &device);
+        let out = net.forward(&batch_input, None);
+        assert_eq!(out.hidden.as_ref().unwrap().dims(), [4, 32]);
+        // As one sequence of 4 steps with no resets, the last hidden state
+        // equals stepping one observation at a time.
+        let zeros = Tensor::<2>::zeros([1, 32], &device);
+        let seq = net.forward_sequences(&batch_input, zeros.clone(), Tensor::zeros([4], &device), 4);
+        let mut h = zeros;
+        for t in 0..4 {
+            let one = PolicyInput {
+                images: batch_input.images.iter().map(|x| x.clone().narrow(0, t, 1)).collect(),
+                vectors: batch_input.vectors.iter().map(|x| x.clone().narrow(0, t, 1)).collect(),
+                mask: batch_input.mask.clone().narrow(0, t, 1),
+            };
+            h = net.forward(&one, Some(h)).hidden.unwrap();
+        }
+        let diff: f32 = (seq.hidden.unwrap() - h).abs().max().into_scalar();
+        assert!(diff < 1e-5, "{diff}");
+    }
+}

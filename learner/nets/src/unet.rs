@@ -1,0 +1,143 @@
+//! The affordance U-Net: RGB-D in, one sigmoid map per affordance out.
+//!
+//! Four resolution levels on each path (128, 64, 32, 16 pixels for a 128 × 128
+//! input) with encoder channels (24, 48, 92, 164): two 3 × 3 convolutions per
+//! level, 2 × 2 max pooling down, 2 × 2 transposed convolutions up, skip
+//! connections by concatenation, and a 1 × 1 output convolution. About
+//! 0.92 M parameters. Inputs must have sides divisible by 8.
+
+use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};
+use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
+use burn::nn::PaddingConfig2d;
+use burn::prelude::*;
+use burn::tensor::activation::relu;
+
+/// Encoder channels per level, shallow to deep (the paper's).
+pub const UNET_CHANNELS: [usize; 4] = [24, 48, 92, 164];
+
+/// Two 3 × 3 same-padded convolutions with ReLU.
+#[derive(Module, Debug)]
+pub struct DoubleConv {
+    first: Conv2d,
+    second: Conv2d,
+}
+
+impl DoubleConv {
+    fn new(input: usize, output: usize, device: &Device) -> Self {
+        let conv = |i, o| {
+            Conv2dConfig::new([i, o], [3, 3])
+                .with_padding(PaddingConfig2d::Same)
+                .init(device)
+        };
+        Self {
+            first: conv(input, output),
+            second: conv(output, output),
+        }
+    }
+
+    fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        relu(self.second.forward(relu(self.first.forward(x))))
+    }
+}
+
+/// One decoder level: upsample, concatenate the skip, two convolutions.
+#[derive(Module, Debug)]
+pub struct UpLevel {
+    up: ConvTranspose2d,
+    conv: DoubleConv,
+}
+
+impl UpLevel {
+    fn new(deep: usize, skip: usize, device: &Device) -> Self {
+        Self {
+            up: ConvTranspose2dConfig::new([deep, skip], [2, 2])
+                .with_stride([2, 2])
+                .init(device),
+            conv: DoubleConv::new(2 * skip, skip, device),
+        }
+    }
+
+    fn forward(&self, deep: Tensor<4>, skip: Tensor<4>) -> Tensor<4> {
+        let up = self.up.forward(deep);
+        self.conv.forward(Tensor::cat(vec![up, skip], 1))
+    }
+}
+
+/// The U-Net.
+#[derive(Module, Debug)]
+pub struct AffordanceUnet {
+    down: Vec<DoubleConv>,
+    pool: MaxPool2d,
+    up: Vec<UpLevel>,
+    head: Conv2d,
+}
+
+impl AffordanceUnet {
+    /// A freshly initialised network for `input_channels` (4 for RGB-D) and
+    /// one output per affordance.
+    pub fn new(input_channels: usize, affordances: usize, device: &Device) -> Self {
+        let c = UNET_CHANNELS;
+        Self {
+            down: vec![
+                DoubleConv::new(input_channels, c[0], device),
+                DoubleConv::new(c[0], c[1], device),
+                DoubleConv::new(c[1], c[2], device),
+                DoubleConv::new(c[2], c[3], device),
+            ],
+            pool: MaxPool2dConfig::new([2, 2]).init(),
+            up: vec![
+                UpLevel::new(c[3], c[2], device),
+                UpLevel::new(c[2], c[1], device),
+                UpLevel::new(c[1], c[0], device),
+            ],
+            head: Conv2dConfig::new([c[0], affordances], [1, 1]).init(device),
+        }
+    }
+
+    /// `[batch, channels, h, w]` → logits `[batch, affordances, h, w]`
+    /// (apply a sigmoid, or [`crate::temperature`] scaling, for probabilities).
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        let mut skips = Vec::with_capacity(3);
+        let mut x = self.down[0].forward(x);
+        for level in &self.down[1..] {
+            skips.push(x.clone());
+            x = level.forward(self.pool.forward(x));
+        }
+        for level in &self.up {
+            x = level.forward(x, skips.pop().expect("one skip per up level"));
+        }
+        self.head.forward(x)
+    }
+}
+
+/// Loss over labelled pixels only: binary cross-entropy (from logits) plus
+/// soft Dice. `labels` holds 1 / 0 where `known` is 1; pixels with `known`
+/// 0 contribute nothing (neither value nor gradient). All `[b, a, h, w]`.
+pub fn masked_bce_dice(logits: Tensor<4>, labels: Tensor<4>, known: Tensor<4>) -> Tensor<1> {
+    let count = known.clone().sum().clamp_min(1.0);
+    // softplus(x) - y x, written stably as max(x, 0) - y x + ln(1 + e^{-|x|}).
+    let bce = logits.clone().clamp_min(0.0) - logits.clone() * labels.clone()
+        + (logits.clone().abs().neg().exp() + 1.0).log();
+    let bce = (bce * known.clone()).sum() / count;
+    let p = burn::tensor::activation::sigmoid(logits) * known.clone();
+    let y = labels * known;
+    let intersection = (p.clone() * y.clone()).sum();
+    let dice = (intersection * 2.0 + 1.0) / (p.sum() + y.sum() + 1.0);
+    bce + dice.neg() + 1.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::module::Module;
+
+    #[test]
+    fn shapes_and_parameter_count() {
+        let device = Device::flex();
+        let net = AffordanceUnet::new(4, 2, &device);
+        let out = net.forward(Tensor::zeros([2, 4, 128, 128], &device));
+        assert_eq!(out.dims(), [2, 2, 128, 128]);
+        let params = net.num_params();
+        assert!((880_000..960_000).contains(&params), "{params} parameters");
+    }
+}

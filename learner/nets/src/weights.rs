@@ -1,0 +1,115 @@
+//! Networks as safetensors bytes: for broadcasting weights to actors and for
+//! checkpoints. Names follow the module tree the way a PyTorch `state_dict`
+//! does (`actor.fc1.weight`, `images.0.conv1.bias`), and linear weights are
+//! stored PyTorch's way round (`[out, in]`), so the files open in PyTorch.
+
+use burn::module::Module;
+use burn::store::{BurnToPyTorchAdapter, ModuleSnapshot, PyTorchToBurnAdapter, SafetensorsStore};
+
+/// Why weights could not be written or read.
+#[derive(Debug, thiserror::Error)]
+pub enum WeightsError {
+    /// Writing or parsing the safetensors bytes failed.
+    #[error("safetensors: {0}")]
+    Format(String),
+    /// The bytes do not fit the network (missing tensors, other shapes).
+    #[error("the weights do not fit this network (were they made for another configuration?): {0}")]
+    Mismatch(String),
+}
+
+/// Serialises every parameter of `module`.
+pub fn to_safetensors<M: Module + ModuleSnapshot>(module: &M) -> Result<Vec<u8>, WeightsError> {
+    let mut store = SafetensorsStore::from_bytes(None).with_to_adapter(BurnToPyTorchAdapter);
+    module
+        .save_into(&mut store)
+        .map_err(|e| WeightsError::Format(e.to_string()))?;
+    store
+        .get_bytes()
+        .map_err(|e| WeightsError::Format(e.to_string()))
+}
+
+/// Loads `bytes` into `module`, which must have exactly the same parameters
+/// and shapes; on any mismatch `module` is left unusable and an error says what differs.
+pub fn load_safetensors<M: Module + ModuleSnapshot>(
+    module: &mut M,
+    bytes: Vec<u8>,
+) -> Result<(), WeightsError> {
+    let mut store = SafetensorsStore::from_bytes(Some(bytes))
+        .with_from_adapter(PyTorchToBurnAdapter)
+        .validate(true)
+        .allow_partial(false);
+    let result = module
+        .load_from(&mut store)
+        .map_err(|e| WeightsError::Mismatch(e.to_string()))?;
+    if !result.is_success() || !result.missing.is_empty() || !result.unused.is_empty() {
+        return Err(WeightsError::Mismatch(result.to_string()));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::policy::{PolicyConfig, PolicyNet};
+    use burn::prelude::*;
+
+    fn config(n_actions: usize) -> PolicyConfig {
+        PolicyConfig {
+            image_channels: vec![3],
+            image_size: 64,
+            vector_dims: vec![7],
+            n_actions,
+            gru_hidden: Some(16),
+        }
+    }
+
+    /// Every parameter as raw f32 bits, in module order.
+    fn parameters(module: &PolicyNet) -> Vec<Vec<u32>> {
+        let bytes = to_safetensors(module).unwrap();
+        let tensors = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+        let mut names: Vec<String> = tensors.names().into_iter().map(String::from).collect();
+        names.sort();
+        names
+            .iter()
+            .map(|n| {
+                tensors
+                    .tensor(n)
+                    .unwrap()
+                    .data()
+                    .chunks(4)
+                    .map(|c| u32::from_le_bytes(c.try_into().unwrap()))
+                    .collect()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn round_trip_is_bit_exact_with_pytorch_names() {
+        let device = Device::flex();
+        let a = PolicyNet::new(&config(5), &device);
+        let bytes = to_safetensors(&a).unwrap();
+        let tensors = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+        let names = tensors.names();
+        assert!(names.iter().any(|n| *n == "actor.fc1.weight"), "{names:?}");
+        assert!(names.iter().any(|n| *n == "images.0.conv1.weight"));
+        // PyTorch's Linear stores [out, in].
+        assert_eq!(tensors.tensor("actor.out.weight").unwrap().shape(), [5, 32]);
+
+        let mut b = PolicyNet::new(&config(5), &device);
+        assert_ne!(parameters(&a), parameters(&b));
+        load_safetensors(&mut b, bytes).unwrap();
+        assert_eq!(parameters(&a), parameters(&b));
+    }
+
+    #[test]
+    fn mismatched_shapes_are_refused_with_a_clear_error() {
+        let device = Device::flex();
+        let bytes = to_safetensors(&PolicyNet::new(&config(5), &device)).unwrap();
+        let mut other = PolicyNet::new(&config(6), &device);
+        let err = load_safetensors(&mut other, bytes).unwrap_err();
+        assert!(matches!(err, WeightsError::Mismatch(_)), "{err}");
+        assert!(err.to_string().contains("another configuration"), "{err}");
+        let err = load_safetensors(&mut other, b"not safetensors".to_vec()).unwrap_err();
+        assert!(!err.to_string().is_empty());
+    }
+}
