@@ -280,17 +280,31 @@ mod tests {
     fn input(batch: usize, device: &Device) -> PolicyInput {
         let mask = Tensor::<2, Bool>::from_data(
             TensorData::new(
-                (0..batch * 6).map(|i| i % 6 != 2 && i % 6 != 5).collect::<Vec<_>>(),
+                (0..batch * 6)
+                    .map(|i| i % 6 != 2 && i % 6 != 5)
+                    .collect::<Vec<_>>(),
                 [batch, 6],
             ),
             device,
         );
         PolicyInput {
             images: vec![
-                Tensor::random([batch, 4, 128, 128], burn::tensor::Distribution::Default, device),
-                Tensor::random([batch, 2, 128, 128], burn::tensor::Distribution::Default, device),
+                Tensor::random(
+                    [batch, 4, 128, 128],
+                    burn::tensor::Distribution::Default,
+                    device,
+                ),
+                Tensor::random(
+                    [batch, 2, 128, 128],
+                    burn::tensor::Distribution::Default,
+                    device,
+                ),
             ],
-            vectors: vec![Tensor::random([batch, 15], burn::tensor::Distribution::Default, device)],
+            vectors: vec![Tensor::random(
+                [batch, 15],
+                burn::tensor::Distribution::Default,
+                device,
+            )],
             mask,
         }
     }
@@ -320,12 +334,21 @@ mod tests {
         // As one sequence of 4 steps with no resets, the last hidden state
         // equals stepping one observation at a time.
         let zeros = Tensor::<2>::zeros([1, 32], &device);
-        let seq = net.forward_sequences(&batch_input, zeros.clone(), Tensor::zeros([4], &device), 4);
+        let seq =
+            net.forward_sequences(&batch_input, zeros.clone(), Tensor::zeros([4], &device), 4);
         let mut h = zeros;
         for t in 0..4 {
             let one = PolicyInput {
-                images: batch_input.images.iter().map(|x| x.clone().narrow(0, t, 1)).collect(),
-                vectors: batch_input.vectors.iter().map(|x| x.clone().narrow(0, t, 1)).collect(),
+                images: batch_input
+                    .images
+                    .iter()
+                    .map(|x| x.clone().narrow(0, t, 1))
+                    .collect(),
+                vectors: batch_input
+                    .vectors
+                    .iter()
+                    .map(|x| x.clone().narrow(0, t, 1))
+                    .collect(),
                 mask: batch_input.mask.clone().narrow(0, t, 1),
             };
             h = net.forward(&one, Some(h)).hidden.unwrap();

@@ -13,7 +13,9 @@ pub enum WeightsError {
     #[error("safetensors: {0}")]
     Format(String),
     /// The bytes do not fit the network (missing tensors, other shapes).
-    #[error("the weights do not fit this network (were they made for another configuration?): {0}")]
+    #[error(
+        "the weights do not fit this network (were they made for another configuration?): {0}"
+    )]
     Mismatch(String),
 }
 
@@ -90,8 +92,8 @@ mod tests {
         let bytes = to_safetensors(&a).unwrap();
         let tensors = safetensors::SafeTensors::deserialize(&bytes).unwrap();
         let names = tensors.names();
-        assert!(names.iter().any(|n| *n == "actor.fc1.weight"), "{names:?}");
-        assert!(names.iter().any(|n| *n == "images.0.conv1.weight"));
+        assert!(names.contains(&"actor.fc1.weight"), "{names:?}");
+        assert!(names.contains(&"images.0.conv1.weight"));
         // PyTorch's Linear stores [out, in].
         assert_eq!(tensors.tensor("actor.out.weight").unwrap().shape(), [5, 32]);
 
