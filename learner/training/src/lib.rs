@@ -3,6 +3,9 @@
 //! temperature scaling) training of the affordance U-Net. Independent of the
 //! simulator, the map and the transport; tested on synthetic tasks.
 
+pub mod affordance;
+pub mod dataset;
 pub mod gae;
 pub mod grad_norm;
 pub mod ppo;
+pub mod temperature;

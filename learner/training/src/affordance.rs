@@ -1,0 +1,155 @@
+//! Training and evaluating the affordance U-Net on labelled frames.
+
+use burn::optim::decay::WeightDecayConfig;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::prelude::*;
+use nets::unet::{masked_bce_dice, AffordanceUnet};
+
+/// Label value of a pixel no interaction or annotation says anything about.
+pub const UNKNOWN: u8 = 255;
+
+/// One RGB-D frame with per-pixel labels for each affordance.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LabelledFrame {
+    /// Height and width, pixels.
+    pub size: [usize; 2],
+    /// `[4, h, w]`: red, green, blue in 0..1, then depth in metres.
+    pub rgbd: Vec<f32>,
+    /// `[affordances, h, w]`: 1 = affords, 0 = does not, [`UNKNOWN`].
+    pub labels: Vec<u8>,
+}
+
+impl LabelledFrame {
+    /// Number of affordances labelled.
+    pub fn affordances(&self) -> usize {
+        self.labels.len() / (self.size[0] * self.size[1])
+    }
+}
+
+/// Settings of U-Net training.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UnetTrainingConfig {
+    /// Adam learning rate.
+    pub learning_rate: f64,
+    /// L2 weight decay.
+    pub weight_decay: f32,
+}
+
+impl Default for UnetTrainingConfig {
+    fn default() -> Self {
+        Self {
+            learning_rate: 1e-3,
+            weight_decay: 1e-4,
+        }
+    }
+}
+
+/// Stacks frames into `(rgbd [b, 4, h, w], labels [b, a, h, w], known [b, a, h, w])`.
+pub fn batch_tensors(
+    frames: &[&LabelledFrame],
+    device: &Device,
+) -> (Tensor<4>, Tensor<4>, Tensor<4>) {
+    let [h, w] = frames[0].size;
+    let a = frames[0].affordances();
+    let b = frames.len();
+    let rgbd: Vec<f32> = frames.iter().flat_map(|f| f.rgbd.iter().copied()).collect();
+    let labels: Vec<f32> = frames
+        .iter()
+        .flat_map(|f| f.labels.iter().map(|&l| f32::from(u8::from(l == 1))))
+        .collect();
+    let known: Vec<f32> = frames
+        .iter()
+        .flat_map(|f| f.labels.iter().map(|&l| f32::from(u8::from(l != UNKNOWN))))
+        .collect();
+    let tensor = |v: Vec<f32>, c: usize| {
+        Tensor::<1>::from_floats(v.as_slice(), device).reshape([b, c, h, w])
+    };
+    (tensor(rgbd, 4), tensor(labels, a), tensor(known, a))
+}
+
+/// Trains a U-Net with Adam (weight decay) on the masked BCE + Dice loss.
+pub struct UnetTrainer {
+    /// The network being trained (autodiff device).
+    pub net: AffordanceUnet,
+    optimizer: ModuleOptimizer,
+    config: UnetTrainingConfig,
+    device: Device,
+}
+
+impl UnetTrainer {
+    /// Trains `net` on `device` (made autodiff here).
+    pub fn new(net: AffordanceUnet, config: UnetTrainingConfig, device: &Device) -> Self {
+        let device = device.clone().autodiff();
+        Self {
+            net: net.fork(&device).train(),
+            optimizer: AdamConfig::new()
+                .with_weight_decay(Some(WeightDecayConfig::new(config.weight_decay)))
+                .init(),
+            config,
+            device,
+        }
+    }
+
+    /// One gradient step on `frames`; returns the loss before the step.
+    pub fn step(&mut self, frames: &[&LabelledFrame]) -> f32 {
+        let (x, y, known) = batch_tensors(frames, &self.device);
+        let loss = masked_bce_dice(self.net.forward(x), y, known);
+        let value = loss.clone().into_scalar::<f32>();
+        let grads = GradientsParams::from_grads(loss.backward(), &self.net);
+        self.net = self
+            .optimizer
+            .step(self.config.learning_rate, self.net.clone(), grads);
+        value
+    }
+
+    /// The network without autodiff, for inference on `device`.
+    pub fn inference_net(&self, device: &Device) -> AffordanceUnet {
+        self.net.valid().to_device(device)
+    }
+}
+
+/// Logits `[affordances, h, w]` of one frame, row-major.
+pub fn predict_logits(net: &AffordanceUnet, frame: &LabelledFrame, device: &Device) -> Vec<f32> {
+    let (x, _, _) = batch_tensors(&[frame], device);
+    net.forward(x).into_data().try_to_vec().expect("f32 logits")
+}
+
+/// How well a network does on labelled frames.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Evaluation {
+    /// Mean masked BCE + Dice loss over the frames (lower is better).
+    pub loss: f32,
+    /// IoU of `logit > 0` with the positive labels, over labelled pixels.
+    pub iou: f32,
+    /// Labelled pixels counted.
+    pub labelled_pixels: usize,
+}
+
+/// Evaluates `net` on `frames` (one at a time, so memory stays flat).
+pub fn evaluate(net: &AffordanceUnet, frames: &[&LabelledFrame], device: &Device) -> Evaluation {
+    let (mut loss, mut inter, mut union, mut labelled) = (0.0f64, 0usize, 0usize, 0usize);
+    for frame in frames {
+        let (x, y, known) = batch_tensors(&[frame], device);
+        let logits = net.forward(x);
+        loss += f64::from(masked_bce_dice(logits.clone(), y, known).into_scalar::<f32>());
+        let values: Vec<f32> = logits.into_data().try_to_vec().expect("f32 logits");
+        for (&l, &label) in values.iter().zip(&frame.labels) {
+            if label == UNKNOWN {
+                continue;
+            }
+            labelled += 1;
+            let (p, t) = (l > 0.0, label == 1);
+            inter += usize::from(p && t);
+            union += usize::from(p || t);
+        }
+    }
+    Evaluation {
+        loss: (loss / frames.len().max(1) as f64) as f32,
+        iou: if union == 0 {
+            1.0
+        } else {
+            inter as f32 / union as f32
+        },
+        labelled_pixels: labelled,
+    }
+}

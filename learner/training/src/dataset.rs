@@ -1,0 +1,218 @@
+//! The global affordance dataset: labelled frames of every episode, split into
+//! train / validation / test, used for training until each frame's 35th use,
+//! with a bound on memory.
+
+use std::collections::VecDeque;
+use std::sync::Arc;
+
+use burn::prelude::Device;
+use nets::unet::AffordanceUnet;
+use rand::Rng;
+
+use crate::affordance::{evaluate, Evaluation, LabelledFrame};
+
+/// Settings of the dataset.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DatasetConfig {
+    /// A training frame leaves the pool after this many uses (the paper's 35).
+    pub max_uses: u32,
+    /// Frames held at most, all splits together; beyond it the oldest go.
+    pub max_frames: usize,
+    /// Probability that a new frame goes to validation.
+    pub validation_fraction: f64,
+    /// Probability that a new frame goes to test.
+    pub test_fraction: f64,
+}
+
+impl Default for DatasetConfig {
+    fn default() -> Self {
+        Self {
+            max_uses: 35,
+            max_frames: 20_000,
+            validation_fraction: 0.15,
+            test_fraction: 0.15,
+        }
+    }
+}
+
+/// Which part of the dataset a frame is in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Split {
+    /// Used for gradient steps.
+    Train,
+    /// Used to decide whether a new network replaces the deployed one.
+    Validation,
+    /// Held out for reporting.
+    Test,
+}
+
+/// A frame in the pool.
+#[derive(Debug, Clone)]
+struct Entry {
+    episode: u64,
+    frame: Arc<LabelledFrame>,
+    uses: u32,
+}
+
+/// Counters a user would watch.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct DatasetCounters {
+    /// Frames ever added.
+    pub added: u64,
+    /// Training frames that left after `max_uses` uses.
+    pub evicted_after_uses: u64,
+    /// Frames dropped (oldest first) to stay under `max_frames`.
+    pub evicted_by_cap: u64,
+}
+
+/// The global dataset.
+#[derive(Debug, Clone)]
+pub struct AffordanceDataset {
+    config: DatasetConfig,
+    train: VecDeque<Entry>,
+    validation: VecDeque<Entry>,
+    test: VecDeque<Entry>,
+    counters: DatasetCounters,
+}
+
+impl AffordanceDataset {
+    /// An empty dataset.
+    pub fn new(config: DatasetConfig) -> Self {
+        Self {
+            config,
+            train: VecDeque::new(),
+            validation: VecDeque::new(),
+            test: VecDeque::new(),
+            counters: DatasetCounters::default(),
+        }
+    }
+
+    /// Frames per split: (train, validation, test).
+    pub fn sizes(&self) -> (usize, usize, usize) {
+        (self.train.len(), self.validation.len(), self.test.len())
+    }
+
+    /// Eviction and addition counters.
+    pub fn counters(&self) -> DatasetCounters {
+        self.counters
+    }
+
+    /// Adds an episode's labelled frames, each drawn into a split with the
+    /// configured probabilities; returns the split of each frame, in order.
+    pub fn add_episode(
+        &mut self,
+        episode: u64,
+        frames: Vec<LabelledFrame>,
+        rng: &mut impl Rng,
+    ) -> Vec<Split> {
+        let mut splits = Vec::with_capacity(frames.len());
+        for frame in frames {
+            let u: f64 = rng.random();
+            let split = if u < self.config.validation_fraction {
+                Split::Validation
+            } else if u < self.config.validation_fraction + self.config.test_fraction {
+                Split::Test
+            } else {
+                Split::Train
+            };
+            let entry = Entry {
+                episode,
+                frame: Arc::new(frame),
+                uses: 0,
+            };
+            match split {
+                Split::Train => self.train.push_back(entry),
+                Split::Validation => self.validation.push_back(entry),
+                Split::Test => self.test.push_back(entry),
+            }
+            self.counters.added += 1;
+            splits.push(split);
+        }
+        self.enforce_cap();
+        splits
+    }
+
+    /// Drops the oldest frames (training first, then validation, then test)
+    /// until the total fits `max_frames`.
+    fn enforce_cap(&mut self) {
+        while self.train.len() + self.validation.len() + self.test.len() > self.config.max_frames {
+            let dropped = self
+                .train
+                .pop_front()
+                .or_else(|| self.validation.pop_front())
+                .or_else(|| self.test.pop_front());
+            if dropped.is_none() {
+                break;
+            }
+            self.counters.evicted_by_cap += 1;
+        }
+    }
+
+    /// Draws up to `n` distinct training frames uniformly, counts one use for
+    /// each, and removes those that reached `max_uses`. Empty if there is no
+    /// training data.
+    pub fn sample_train(&mut self, n: usize, rng: &mut impl Rng) -> Vec<Arc<LabelledFrame>> {
+        let picked = rand::seq::index::sample(rng, self.train.len(), n.min(self.train.len()));
+        let mut out = Vec::with_capacity(picked.len());
+        for i in picked.iter() {
+            let entry = &mut self.train[i];
+            entry.uses += 1;
+            out.push(entry.frame.clone());
+        }
+        let max_uses = self.config.max_uses;
+        let before = self.train.len();
+        self.train.retain(|e| e.uses < max_uses);
+        self.counters.evicted_after_uses += (before - self.train.len()) as u64;
+        out
+    }
+
+    /// Frames of one split.
+    pub fn frames(&self, split: Split) -> Vec<Arc<LabelledFrame>> {
+        let part = match split {
+            Split::Train => &self.train,
+            Split::Validation => &self.validation,
+            Split::Test => &self.test,
+        };
+        part.iter().map(|e| e.frame.clone()).collect()
+    }
+
+    /// Episodes that still have frames in the training split.
+    pub fn training_episodes(&self) -> Vec<u64> {
+        let mut v: Vec<u64> = self.train.iter().map(|e| e.episode).collect();
+        v.sort_unstable();
+        v.dedup();
+        v
+    }
+}
+
+/// The outcome of comparing a candidate network with the deployed one.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GateDecision {
+    /// True if the candidate should replace the deployed network.
+    pub replace: bool,
+    /// The candidate on the validation split.
+    pub candidate: Evaluation,
+    /// The deployed network on the same frames.
+    pub deployed: Evaluation,
+}
+
+/// Validation gate: both networks are evaluated on the *current* validation
+/// split, and the candidate replaces the deployed network only if its mean
+/// masked BCE + Dice loss is lower. With no validation frames, nothing is
+/// replaced (there is no evidence).
+pub fn validation_gate(
+    candidate: &AffordanceUnet,
+    deployed: &AffordanceUnet,
+    dataset: &AffordanceDataset,
+    device: &Device,
+) -> GateDecision {
+    let frames = dataset.frames(Split::Validation);
+    let refs: Vec<&LabelledFrame> = frames.iter().map(|f| f.as_ref()).collect();
+    let candidate = evaluate(candidate, &refs, device);
+    let deployed = evaluate(deployed, &refs, device);
+    GateDecision {
+        replace: !refs.is_empty() && candidate.loss < deployed.loss,
+        candidate,
+        deployed,
+    }
+}

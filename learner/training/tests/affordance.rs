@@ -1,0 +1,259 @@
+//! U-Net training on synthetic labelled frames, the labelled-pixels-only
+//! loss, and the global dataset's split, 35-use eviction, cap and validation gate.
+
+use burn::module::{Module, ModuleVisitor, Param};
+use burn::optim::GradientsParams;
+use burn::prelude::*;
+use nets::unet::{masked_bce_dice, AffordanceUnet};
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+use training::affordance::{
+    batch_tensors, evaluate, LabelledFrame, UnetTrainer, UnetTrainingConfig, UNKNOWN,
+};
+use training::dataset::{validation_gate, AffordanceDataset, DatasetConfig, Split};
+
+const SIZE: usize = 32;
+
+/// A frame with a bright disc or square (affords) and a dark square (does
+/// not) on a noisy background; a band of pixels is unlabelled.
+fn synthetic_frame(rng: &mut StdRng) -> LabelledFrame {
+    let n = SIZE * SIZE;
+    let mut rgbd = vec![0.0f32; 4 * n];
+    let mut labels = vec![UNKNOWN; n];
+    let (cx, cy, r) = (
+        rng.random_range(8.0..24.0f32),
+        rng.random_range(8.0..24.0f32),
+        rng.random_range(4.0..7.0f32),
+    );
+    let disc = rng.random_bool(0.5);
+    let (qx, qy) = (rng.random_range(0..SIZE - 8), rng.random_range(0..SIZE - 8));
+    for y in 0..SIZE {
+        for x in 0..SIZE {
+            let p = y * SIZE + x;
+            let (dx, dy) = (x as f32 - cx, y as f32 - cy);
+            let inside = if disc {
+                dx * dx + dy * dy < r * r
+            } else {
+                dx.abs() < r && dy.abs() < r
+            };
+            let in_square = x >= qx && x < qx + 8 && y >= qy && y < qy + 8 && !inside;
+            let noise = rng.random_range(0.0..0.15f32);
+            let (red, green, blue, depth) = if inside {
+                (0.9, 0.6, 0.2, 1.2)
+            } else if in_square {
+                (0.2, 0.3, 0.8, 1.5)
+            } else {
+                (0.3, 0.3, 0.3, 2.5)
+            };
+            for (c, v) in [red, green, blue, depth].into_iter().enumerate() {
+                rgbd[c * n + p] = v + noise;
+            }
+            labels[p] = if inside {
+                1
+            } else if in_square || (y + x) % 5 != 0 {
+                0
+            } else {
+                UNKNOWN
+            };
+        }
+    }
+    LabelledFrame {
+        size: [SIZE, SIZE],
+        rgbd,
+        labels,
+    }
+}
+
+#[test]
+fn the_unet_overfits_sixteen_labelled_frames() {
+    let device = Device::flex();
+    let mut rng = StdRng::seed_from_u64(11);
+    let frames: Vec<LabelledFrame> = (0..16).map(|_| synthetic_frame(&mut rng)).collect();
+    let refs: Vec<&LabelledFrame> = frames.iter().collect();
+    let mut trainer = UnetTrainer::new(
+        AffordanceUnet::new(4, 1, &device),
+        UnetTrainingConfig {
+            learning_rate: 3e-3,
+            weight_decay: 1e-5,
+        },
+        &device,
+    );
+    let before = evaluate(&trainer.inference_net(&device), &refs, &device);
+    let mut reached = None;
+    for step in 1..=400 {
+        let start = (step * 8) % 16;
+        trainer.step(&refs[start..start + 8]);
+        if step % 20 == 0 {
+            let e = evaluate(&trainer.inference_net(&device), &refs, &device);
+            if e.iou > 0.9 {
+                reached = Some((step, e));
+                break;
+            }
+        }
+    }
+    eprintln!("unet: before {before:?}; reached {reached:?}");
+    let (_, after) = reached.expect("IoU > 0.9 within 400 steps");
+    assert!(after.loss < before.loss);
+}
+
+/// Every parameter's gradient, flattened, in module order.
+fn gradients(net: &AffordanceUnet, grads: &GradientsParams) -> Vec<f32> {
+    struct Collect<'a> {
+        grads: &'a GradientsParams,
+        out: Vec<f32>,
+    }
+    impl ModuleVisitor for Collect<'_> {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            if let Some(g) = self.grads.get::<D>(param.id) {
+                self.out.extend(g.into_data().try_to_vec::<f32>().unwrap());
+            }
+        }
+    }
+    let mut c = Collect {
+        grads,
+        out: Vec::new(),
+    };
+    net.visit(&mut c);
+    c.out
+}
+
+#[test]
+fn unknown_pixels_do_not_affect_the_loss_or_its_gradients() {
+    let device = Device::flex().autodiff();
+    let mut rng = StdRng::seed_from_u64(5);
+    let net = AffordanceUnet::new(4, 1, &device).train();
+    let frame = synthetic_frame(&mut rng);
+    let run = |labels: &[u8], flip_unknown: bool| {
+        let f = LabelledFrame {
+            labels: labels.to_vec(),
+            ..frame.clone()
+        };
+        let (x, mut y, known) = batch_tensors(&[&f], &device);
+        if flip_unknown {
+            // Give every unknown pixel the label 1 instead of 0.
+            y = y.clone() + (known.clone().neg() + 1.0);
+        }
+        let loss = masked_bce_dice(net.forward(x), y, known);
+        let value = loss.clone().into_scalar::<f32>();
+        let grads = GradientsParams::from_grads(loss.backward(), &net);
+        (value, gradients(&net, &grads))
+    };
+    let (loss_a, grads_a) = run(&frame.labels, false);
+    let (loss_b, grads_b) = run(&frame.labels, true);
+    assert_eq!(loss_a, loss_b);
+    assert!(!grads_a.is_empty());
+    assert_eq!(grads_a, grads_b, "unknown pixels changed the gradients");
+}
+
+fn tiny_frame(value: f32) -> LabelledFrame {
+    LabelledFrame {
+        size: [8, 8],
+        rgbd: vec![value; 4 * 64],
+        labels: vec![1; 64],
+    }
+}
+
+#[test]
+fn the_dataset_splits_evicts_after_35_uses_and_respects_its_cap() {
+    let mut rng = StdRng::seed_from_u64(2);
+    let mut data = AffordanceDataset::new(DatasetConfig {
+        max_frames: 1_000_000,
+        ..DatasetConfig::default()
+    });
+    let mut counts = [0usize; 3];
+    for episode in 0..200 {
+        for split in data.add_episode(
+            episode,
+            (0..20).map(|i| tiny_frame(i as f32)).collect(),
+            &mut rng,
+        ) {
+            counts[match split {
+                Split::Train => 0,
+                Split::Validation => 1,
+                Split::Test => 2,
+            }] += 1;
+        }
+    }
+    let total = 4000.0;
+    assert_eq!(data.sizes(), (counts[0], counts[1], counts[2]));
+    assert!((counts[1] as f64 / total - 0.15).abs() < 0.02, "{counts:?}");
+    assert!((counts[2] as f64 / total - 0.15).abs() < 0.02, "{counts:?}");
+
+    // Use every training frame: each leaves after exactly 35 uses.
+    let mut uses = 0usize;
+    let train = counts[0];
+    while data.sizes().0 > 0 {
+        uses += data.sample_train(8, &mut rng).len();
+        assert!(uses <= 35 * train, "a frame outlived its 35 uses");
+    }
+    assert_eq!(uses, 35 * train);
+    assert_eq!(data.counters().evicted_after_uses, train as u64);
+    assert!(data.sample_train(8, &mut rng).is_empty());
+
+    // The cap drops the oldest frames and counts them.
+    let mut capped = AffordanceDataset::new(DatasetConfig {
+        max_frames: 50,
+        ..DatasetConfig::default()
+    });
+    for episode in 0..10 {
+        capped.add_episode(
+            episode,
+            (0..10).map(|_| tiny_frame(0.0)).collect(),
+            &mut rng,
+        );
+    }
+    let (t, v, s) = capped.sizes();
+    assert_eq!(t + v + s, 50);
+    assert_eq!(capped.counters().evicted_by_cap, 50);
+    assert!(
+        !capped.training_episodes().contains(&0),
+        "the oldest episode must go first"
+    );
+}
+
+#[test]
+fn a_candidate_replaces_the_deployed_network_only_if_better_on_validation() {
+    let device = Device::flex();
+    let mut rng = StdRng::seed_from_u64(21);
+    let mut data = AffordanceDataset::new(DatasetConfig {
+        validation_fraction: 0.5,
+        test_fraction: 0.0,
+        ..DatasetConfig::default()
+    });
+    let untrained = AffordanceUnet::new(4, 1, &device);
+    assert!(
+        !validation_gate(&untrained, &untrained, &data, &device).replace,
+        "no validation data, no replacement"
+    );
+    data.add_episode(
+        0,
+        (0..12).map(|_| synthetic_frame(&mut rng)).collect(),
+        &mut rng,
+    );
+    let mut trainer = UnetTrainer::new(
+        untrained.clone(),
+        UnetTrainingConfig {
+            learning_rate: 3e-3,
+            weight_decay: 1e-5,
+        },
+        &device,
+    );
+    for _ in 0..60 {
+        let batch = data.sample_train(4, &mut rng);
+        if batch.is_empty() {
+            break;
+        }
+        let refs: Vec<&LabelledFrame> = batch.iter().map(|f| f.as_ref()).collect();
+        trainer.step(&refs);
+    }
+    let trained = trainer.inference_net(&device);
+    let better = validation_gate(&trained, &untrained, &data, &device);
+    eprintln!("gate: {better:?}");
+    assert!(better.replace, "{better:?}");
+    let worse = validation_gate(&untrained, &trained, &data, &device);
+    assert!(!worse.replace);
+    assert!(
+        !validation_gate(&trained, &trained, &data, &device).replace,
+        "a tie keeps the deployed network"
+    );
+}
