@@ -4,10 +4,16 @@
 //! travel as safetensors with PyTorch-style names (`policy.actor.weight`).
 //! This crate holds no training loop and knows nothing of transport or simulation.
 //!
-//! Today it holds a linear actor-critic over flat observations: the model the
-//! foundation's learner trains end to end. The convolutional policy and the
-//! affordance U-Net join it here.
+//! - [`policy`]: the exploration policy (conv encoders, MLPs, optional GRU,
+//!   actor and critic heads with masked logits), on burn;
+//! - [`unet`]: the affordance U-Net and its labelled-pixels-only loss;
+//! - [`weights`]: either network to and from safetensors bytes;
+//! - [`device`]: `--device cpu|gpu` at run time;
+//! - a linear actor-critic over flat observations, which the foundation's
+//!   learner still trains until the loop is closed (issue 6), and the masked
+//!   categorical helpers the actor samples with.
 
+pub mod device;
 mod linear;
 mod masked_categorical;
 pub mod policy;

@@ -1,0 +1,91 @@
+//! Choosing where the networks run, at run time (`--device cpu|gpu`).
+
+use std::str::FromStr;
+
+use burn::prelude::*;
+
+/// Where to run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DeviceChoice {
+    /// burn's pure-Rust `flex` backend: builds offline, runs anywhere.
+    Cpu,
+    /// burn's wgpu backend (Vulkan on Linux); needs the `gpu` feature and a GPU.
+    Gpu,
+}
+
+impl FromStr for DeviceChoice {
+    type Err = DeviceError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "cpu" => Ok(Self::Cpu),
+            "gpu" => Ok(Self::Gpu),
+            other => Err(DeviceError::Unknown(other.to_string())),
+        }
+    }
+}
+
+/// Why a device could not be opened.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum DeviceError {
+    /// Not `cpu` or `gpu`.
+    #[error("unknown device {0:?}: use `cpu` or `gpu`")]
+    Unknown(String),
+    /// This binary was built without the GPU backend.
+    #[error("this build has no GPU backend: rebuild with `--features nets/gpu` (needs a Vulkan driver at run time), or use `--device cpu`")]
+    NotBuilt,
+    /// The GPU backend found no usable adapter.
+    #[error("no usable GPU: {0}; use `--device cpu`")]
+    Unavailable(String),
+}
+
+/// Opens the chosen device and checks that it can run a tensor operation.
+pub fn open_device(choice: DeviceChoice) -> Result<Device, DeviceError> {
+    match choice {
+        DeviceChoice::Cpu => Ok(Device::flex()),
+        DeviceChoice::Gpu => open_gpu(),
+    }
+}
+
+#[cfg(feature = "gpu")]
+fn open_gpu() -> Result<Device, DeviceError> {
+    // wgpu panics when there is no adapter; turn that into an error.
+    std::panic::catch_unwind(|| {
+        let device = Device::wgpu(Default::default());
+        let probe: f32 = Tensor::<1>::ones([4], &device).sum().into_scalar::<f32>();
+        (probe == 4.0).then_some(device)
+    })
+    .map_err(|panic| {
+        let message = panic
+            .downcast_ref::<String>()
+            .cloned()
+            .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+            .unwrap_or_else(|| "the wgpu backend failed to start".into());
+        DeviceError::Unavailable(message)
+    })?
+    .ok_or_else(|| DeviceError::Unavailable("a test computation gave a wrong result".into()))
+}
+
+#[cfg(not(feature = "gpu"))]
+fn open_gpu() -> Result<Device, DeviceError> {
+    Err(DeviceError::NotBuilt)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn choices_parse_and_the_cpu_always_opens() {
+        assert_eq!("cpu".parse::<DeviceChoice>(), Ok(DeviceChoice::Cpu));
+        assert_eq!("gpu".parse::<DeviceChoice>(), Ok(DeviceChoice::Gpu));
+        let err = "tpu".parse::<DeviceChoice>().unwrap_err();
+        assert!(err.to_string().contains("use `cpu` or `gpu`"));
+        assert!(open_device(DeviceChoice::Cpu).is_ok());
+        #[cfg(not(feature = "gpu"))]
+        assert!(matches!(
+            open_device(DeviceChoice::Gpu),
+            Err(DeviceError::NotBuilt)
+        ));
+    }
+}

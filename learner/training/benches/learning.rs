@@ -1,0 +1,213 @@
+//! `cargo bench -p training`: the learning core's costs on this machine, side
+//! by side with the same networks in PyTorch (`benches/torch_reference.py`)
+//! when `python3` has `torch`.
+//!
+//! - U-Net training step, batch 8 of 128 × 128 RGB-D, and single-frame inference;
+//! - one PPO update on 8 × 600 steps (4 epochs × 2 minibatches);
+//! - policy inference for one step.
+//!
+//! Medians over a few repeats (these steps take seconds on a CPU, so this is
+//! a plain timing harness rather than criterion). `AFX_BENCH_QUICK=1` runs
+//! one repeat and a 2 × 600-step PPO batch, for a smoke test.
+
+use std::time::Instant;
+
+use burn::prelude::*;
+use nets::policy::{PolicyConfig, PolicyInput, PolicyNet};
+use nets::unet::AffordanceUnet;
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+use training::affordance::{LabelledFrame, UnetTrainer, UnetTrainingConfig};
+use training::ppo::{Ppo, PpoBatch, PpoConfig};
+
+/// The policy of the benchmark: three image-like inputs (RGB-D, a 4-channel
+/// map projection, 2 affordance maps), an action history of 5 × (8 + 2) and an
+/// inventory flag; 8 actions.
+fn policy_config() -> PolicyConfig {
+    PolicyConfig {
+        image_channels: vec![4, 4, 2],
+        image_size: 128,
+        vector_dims: vec![50, 1],
+        n_actions: 8,
+        gru_hidden: None,
+    }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn time(repeats: usize, mut f: impl FnMut()) -> f64 {
+    f(); // warm-up
+    median(
+        (0..repeats)
+            .map(|_| {
+                let t = Instant::now();
+                f();
+                t.elapsed().as_secs_f64() * 1e3
+            })
+            .collect(),
+    )
+}
+
+fn random_input(rows: usize, rng: &mut StdRng, device: &Device) -> PolicyInput {
+    let c = policy_config();
+    let mut floats = |n: usize| -> Vec<f32> { (0..n).map(|_| rng.random::<f32>()).collect() };
+    PolicyInput {
+        images: c
+            .image_channels
+            .iter()
+            .map(|&ch| {
+                Tensor::<1>::from_floats(floats(rows * ch * 128 * 128).as_slice(), device)
+                    .reshape([rows, ch, 128, 128])
+            })
+            .collect(),
+        vectors: c
+            .vector_dims
+            .iter()
+            .map(|&d| {
+                Tensor::<1>::from_floats(floats(rows * d).as_slice(), device).reshape([rows, d])
+            })
+            .collect(),
+        mask: Tensor::<2, Bool>::full([rows, c.n_actions], true, device),
+    }
+}
+
+fn main() {
+    if std::env::args().any(|a| a == "--list") {
+        return; // `cargo test --benches` asks benches to list themselves
+    }
+    let quick = std::env::var_os("AFX_BENCH_QUICK").is_some();
+    let repeats = if quick { 1 } else { 5 };
+    let device = Device::flex();
+    let mut rng = StdRng::seed_from_u64(1);
+    let mut results: Vec<(&str, f64)> = Vec::new();
+
+    // U-Net.
+    let frames: Vec<LabelledFrame> = (0..8)
+        .map(|_| LabelledFrame {
+            size: [128, 128],
+            rgbd: (0..4 * 128 * 128).map(|_| rng.random::<f32>()).collect(),
+            labels: (0..2 * 128 * 128)
+                .map(|_| [0u8, 1, 255][rng.random_range(0..3)])
+                .collect(),
+        })
+        .collect();
+    let refs: Vec<&LabelledFrame> = frames.iter().collect();
+    let mut trainer = UnetTrainer::new(
+        AffordanceUnet::new(4, 2, &device),
+        UnetTrainingConfig::default(),
+        &device,
+    );
+    results.push((
+        "unet_train_step_batch8_ms",
+        time(repeats, || {
+            trainer.step(&refs);
+        }),
+    ));
+    let unet = trainer.inference_net(&device);
+    let one =
+        Tensor::<1>::from_floats(frames[0].rgbd.as_slice(), &device).reshape([1, 4, 128, 128]);
+    results.push((
+        "unet_inference_1frame_ms",
+        time(repeats.max(5), || {
+            let _: Vec<f32> = unet.forward(one.clone()).into_data().try_to_vec().unwrap();
+        }),
+    ));
+
+    // Policy inference, one step.
+    let policy = PolicyNet::new(&policy_config(), &device);
+    let step_input = random_input(1, &mut rng, &device);
+    results.push((
+        "policy_inference_1step_ms",
+        time(repeats.max(5), || {
+            let _: Vec<f32> = policy
+                .forward(&step_input, None)
+                .log_probs
+                .into_data()
+                .try_to_vec()
+                .unwrap();
+        }),
+    ));
+
+    // PPO update on envs × 600 steps.
+    let envs = if quick { 2 } else { 8 };
+    let rows = envs * 600;
+    let batch = PpoBatch {
+        input: random_input(rows, &mut rng, &device),
+        actions: (0..rows).map(|_| rng.random_range(0..8)).collect(),
+        behaviour_log_probs: vec![-(8f32.ln()); rows],
+        values: (0..rows).map(|_| rng.random::<f32>()).collect(),
+        advantages: (0..rows).map(|_| rng.random::<f32>() - 0.5).collect(),
+        returns: (0..rows).map(|_| rng.random::<f32>()).collect(),
+        policy_versions: vec![0; rows],
+        sequences: None,
+    };
+    let mut ppo = Ppo::new(policy, PpoConfig::default(), &device);
+    let ppo_repeats = 1; // one warm-up, one timed: an update takes minutes on a CPU
+    let name = if quick {
+        "ppo_update_2x600_ms"
+    } else {
+        "ppo_update_8x600_ms"
+    };
+    results.push((
+        name,
+        time(ppo_repeats, || {
+            ppo.update(&batch, &mut rng);
+        }),
+    ));
+
+    println!(
+        "burn 0.22.1 flex (CPU, {} threads available):",
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    );
+    for (name, ms) in &results {
+        println!("  {name}: median {ms:.1} ms");
+    }
+    compare_with_torch(&results, envs, repeats);
+}
+
+/// Runs the PyTorch reference and prints ours / theirs per measurement.
+fn compare_with_torch(ours: &[(&str, f64)], envs: usize, repeats: usize) {
+    let script =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/torch_reference.py");
+    let output = std::process::Command::new("python3")
+        .arg(&script)
+        .args([
+            "--envs",
+            &envs.to_string(),
+            "--repeats",
+            &repeats.to_string(),
+        ])
+        .output();
+    let text = match output {
+        Ok(o) if o.status.success() => String::from_utf8_lossy(&o.stdout).into_owned(),
+        Ok(o) => {
+            println!(
+                "pytorch comparison skipped: {}",
+                String::from_utf8_lossy(&o.stderr).trim()
+            );
+            return;
+        }
+        Err(e) => {
+            println!("pytorch comparison skipped: cannot run python3: {e}");
+            return;
+        }
+    };
+    print!("{text}");
+    for (name, ms) in ours {
+        let theirs = text
+            .lines()
+            .find(|l| l.trim_start().starts_with(&format!("{name}:")))
+            .and_then(|l| l.split("median ").nth(1))
+            .and_then(|r| r.split(' ').next())
+            .and_then(|v| v.parse::<f64>().ok());
+        if let Some(theirs) = theirs {
+            println!(
+                "  ours / pytorch, {name}: {ms:.1} / {theirs:.1} = {:.2}",
+                ms / theirs
+            );
+        }
+    }
+}

@@ -1,0 +1,213 @@
+#!/usr/bin/env python3
+"""The learning core's networks in PyTorch, timed like `cargo bench -p training`.
+
+Same architectures as `learner/nets` (policy: three conv encoders 8x8/4,
+4x4/2, 3x3/2 + linear 64, MLPs for 1-D inputs, tanh heads (64, 32, out);
+U-Net: levels (24, 48, 92, 164), double 3x3 convs, max-pool, transposed
+convs), the same batch sizes and the same PPO update (4 epochs x 2
+minibatches, clipped losses, Adam, global grad-norm clipping). Prints one
+`name: median X ms` line per measurement, on CPU unless --device says otherwise.
+
+Usage: python3 learner/training/benches/torch_reference.py [--envs 8] [--repeats 5] [--device cpu]
+Needs `pip install torch` (CPU wheels: https://download.pytorch.org/whl/cpu).
+"""
+
+import argparse
+import statistics
+import sys
+import time
+
+try:
+    import torch
+    import torch.nn as nn
+    import torch.nn.functional as F
+except ImportError as e:
+    sys.exit(f"needs torch (pip install torch): {e}")
+
+
+class ConvEncoder(nn.Module):
+    def __init__(self, channels, size=128):
+        super().__init__()
+        self.conv1 = nn.Conv2d(channels, 16, 8, stride=4)
+        self.conv2 = nn.Conv2d(16, 32, 4, stride=2)
+        self.conv3 = nn.Conv2d(32, 32, 3, stride=2)
+        side = (((size - 8) // 4 + 1 - 4) // 2 + 1 - 3) // 2 + 1
+        self.fc = nn.Linear(32 * side * side, 64)
+
+    def forward(self, x):
+        x = F.relu(self.conv1(x))
+        x = F.relu(self.conv2(x))
+        x = F.relu(self.conv3(x))
+        return F.relu(self.fc(x.flatten(1)))
+
+
+class VectorEncoder(nn.Module):
+    def __init__(self, dim):
+        super().__init__()
+        self.fc1 = nn.Linear(dim, 64)
+        self.fc2 = nn.Linear(64, 64)
+
+    def forward(self, x):
+        return F.relu(self.fc2(F.relu(self.fc1(x))))
+
+
+class Head(nn.Module):
+    def __init__(self, inp, out):
+        super().__init__()
+        self.fc1 = nn.Linear(inp, 64)
+        self.fc2 = nn.Linear(64, 32)
+        self.out = nn.Linear(32, out)
+
+    def forward(self, x):
+        return self.out(torch.tanh(self.fc2(torch.tanh(self.fc1(x)))))
+
+
+class Policy(nn.Module):
+    def __init__(self, image_channels=(4, 4, 2), vector_dims=(50, 1), n_actions=8):
+        super().__init__()
+        self.images = nn.ModuleList(ConvEncoder(c) for c in image_channels)
+        self.vectors = nn.ModuleList(VectorEncoder(d) for d in vector_dims)
+        fused = 64 * (len(image_channels) + len(vector_dims))
+        self.actor = Head(fused, n_actions)
+        self.critic = Head(fused, 1)
+
+    def forward(self, images, vectors, mask):
+        parts = [e(x) for e, x in zip(self.images, images)] + [e(x) for e, x in zip(self.vectors, vectors)]
+        h = torch.cat(parts, 1)
+        logits = self.actor(h).masked_fill(~mask, -1e9)
+        return F.log_softmax(logits, 1), self.critic(h).squeeze(1)
+
+
+class DoubleConv(nn.Module):
+    def __init__(self, i, o):
+        super().__init__()
+        self.first = nn.Conv2d(i, o, 3, padding=1)
+        self.second = nn.Conv2d(o, o, 3, padding=1)
+
+    def forward(self, x):
+        return F.relu(self.second(F.relu(self.first(x))))
+
+
+class Unet(nn.Module):
+    def __init__(self, inp=4, out=2, c=(24, 48, 92, 164)):
+        super().__init__()
+        self.down = nn.ModuleList([DoubleConv(inp, c[0]), DoubleConv(c[0], c[1]), DoubleConv(c[1], c[2]), DoubleConv(c[2], c[3])])
+        self.ups = nn.ModuleList([nn.ConvTranspose2d(c[3], c[2], 2, 2), nn.ConvTranspose2d(c[2], c[1], 2, 2), nn.ConvTranspose2d(c[1], c[0], 2, 2)])
+        self.up_convs = nn.ModuleList([DoubleConv(2 * c[2], c[2]), DoubleConv(2 * c[1], c[1]), DoubleConv(2 * c[0], c[0])])
+        self.head = nn.Conv2d(c[0], out, 1)
+
+    def forward(self, x):
+        skips = []
+        x = self.down[0](x)
+        for level in self.down[1:]:
+            skips.append(x)
+            x = level(F.max_pool2d(x, 2))
+        for up, conv in zip(self.ups, self.up_convs):
+            x = conv(torch.cat([up(x), skips.pop()], 1))
+        return self.head(x)
+
+
+def masked_bce_dice(logits, labels, known):
+    count = known.sum().clamp_min(1.0)
+    bce = (F.binary_cross_entropy_with_logits(logits, labels, reduction="none") * known).sum() / count
+    p = torch.sigmoid(logits) * known
+    y = labels * known
+    dice = (2 * (p * y).sum() + 1) / (p.sum() + y.sum() + 1)
+    return bce + 1 - dice
+
+
+def timed(repeats, f):
+    f()
+    out = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        f()
+        out.append((time.perf_counter() - t) * 1e3)
+    return statistics.median(out)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--envs", type=int, default=8)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--device", default="cpu")
+    args = parser.parse_args()
+    dev = torch.device(args.device)
+    sync = (lambda: torch.cuda.synchronize()) if dev.type == "cuda" else (lambda: None)
+    torch.manual_seed(1)
+    results = {}
+
+    unet = Unet().to(dev)
+    opt = torch.optim.Adam(unet.parameters(), lr=1e-3, weight_decay=1e-4)
+    x = torch.rand(8, 4, 128, 128, device=dev)
+    raw = torch.randint(0, 3, (8, 2, 128, 128), device=dev)
+    labels, known = (raw == 1).float(), (raw != 2).float()
+
+    def unet_step():
+        opt.zero_grad()
+        masked_bce_dice(unet(x), labels, known).backward()
+        opt.step()
+        sync()
+
+    results["unet_train_step_batch8_ms"] = timed(args.repeats, unet_step)
+    one = x[:1]
+
+    def unet_infer():
+        with torch.no_grad():
+            unet(one).cpu()
+
+    results["unet_inference_1frame_ms"] = timed(max(args.repeats, 5), unet_infer)
+
+    policy = Policy().to(dev)
+
+    def inputs(rows):
+        images = [torch.rand(rows, c, 128, 128, device=dev) for c in (4, 4, 2)]
+        vectors = [torch.rand(rows, d, device=dev) for d in (50, 1)]
+        return images, vectors, torch.ones(rows, 8, dtype=torch.bool, device=dev)
+
+    step = inputs(1)
+
+    def policy_infer():
+        with torch.no_grad():
+            policy(*step)[0].cpu()
+
+    results["policy_inference_1step_ms"] = timed(max(args.repeats, 5), policy_infer)
+
+    rows = args.envs * 600
+    images, vectors, mask = inputs(rows)
+    actions = torch.randint(0, 8, (rows,), device=dev)
+    old_lp = torch.full((rows,), -float(torch.log(torch.tensor(8.0))), device=dev)
+    old_v, returns = torch.rand(rows, device=dev), torch.rand(rows, device=dev)
+    adv_all = torch.rand(rows, device=dev) - 0.5
+    popt = torch.optim.Adam(policy.parameters(), lr=2e-4, eps=1e-5)
+
+    def ppo_update():
+        for _ in range(4):
+            order = torch.randperm(rows, device=dev)
+            for idx in order.chunk(2):
+                lp, v = policy([t[idx] for t in images], [t[idx] for t in vectors], mask[idx])
+                new = lp.gather(1, actions[idx, None]).squeeze(1)
+                ratio = (new - old_lp[idx]).exp()
+                adv = adv_all[idx]
+                adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+                pg = torch.max(-adv * ratio, -adv * ratio.clamp(0.8, 1.2)).mean()
+                vc = old_v[idx] + (v - old_v[idx]).clamp(-0.2, 0.2)
+                vl = 0.5 * torch.max((v - returns[idx]) ** 2, (vc - returns[idx]) ** 2).mean()
+                ent = -(lp.exp() * lp).sum(1).mean()
+                loss = pg - 0.01 * ent + 0.5 * vl
+                popt.zero_grad()
+                loss.backward()
+                nn.utils.clip_grad_norm_(policy.parameters(), 0.5)
+                popt.step()
+        sync()
+
+    name = f"ppo_update_{args.envs}x600_ms"
+    results[name] = timed(1, ppo_update)  # one warm-up, one timed: an update takes minutes on a CPU
+
+    print(f"pytorch {torch.__version__} ({dev}, {torch.get_num_threads()} threads):")
+    for k, v in results.items():
+        print(f"  {k}: median {v:.1f} ms")
+
+
+if __name__ == "__main__":
+    main()
