@@ -1,0 +1,6 @@
+//! The project's simulator (AI2-THOR cannot run here): iTHOR living rooms
+//! imported from AI2-THOR's object metadata, the room closed by walls, and,
+//! in later parts, procedural rooms, physics, robot profiles and rendering.
+
+pub mod ithor;
+pub mod scene;
