@@ -3,4 +3,6 @@
 //! in later parts, procedural rooms, physics, robot profiles and rendering.
 
 pub mod ithor;
+pub mod raycast;
 pub mod scene;
+pub mod shapes;

@@ -167,7 +167,7 @@ pub struct Scene {
     pub floor_max: Point2<f32>,
     /// Height of the floor's top surface, metres.
     pub floor_top_m: f32,
-    /// Walls along the floor's edges.
+    /// Walls along the floor's edges, then the ceiling.
     pub walls: Vec<OrientedBox>,
 }
 
@@ -176,7 +176,8 @@ pub const WALL_THICKNESS_M: f32 = 0.1;
 /// Lowest wall height, metres (raised to clear the tallest object).
 pub const MIN_WALL_HEIGHT_M: f32 = 2.5;
 
-/// Four walls standing outside the floor's rectangle, tall enough for every object.
+/// Four walls standing outside the floor's rectangle, tall enough for every
+/// object, and a ceiling on them (the room is closed: every ray hits something).
 pub fn walls_around(
     floor_min: Point2<f32>,
     floor_max: Point2<f32>,
@@ -192,6 +193,10 @@ pub fn walls_around(
         (Point3::new(x1, y0 - t, z0), Point3::new(x1 + t, y1 + t, z1)),
         (Point3::new(x0, y0 - t, z0), Point3::new(x1, y0, z1)),
         (Point3::new(x0, y1, z0), Point3::new(x1, y1 + t, z1)),
+        (
+            Point3::new(x0 - t, y0 - t, z1),
+            Point3::new(x1 + t, y1 + t, z1 + t),
+        ),
     ]
     .into_iter()
     .map(|(min, max)| OrientedBox::axis_aligned(min, max))

@@ -33,7 +33,7 @@ fn all_thirty_scenes_import_with_the_published_counts() {
             "{}: all / pickupable / moveable / pushable / receptacle",
             f[0]
         );
-        assert_eq!(scene.walls.len(), 4);
+        assert_eq!(scene.walls.len(), 5, "four walls and a ceiling");
         assert!(
             scene.floor_max.x - scene.floor_min.x > 2.0
                 && scene.floor_max.y - scene.floor_min.y > 2.0
