@@ -356,8 +356,8 @@ pub fn render(geometry: &SceneGeometry, camera: &Camera, max_depth_m: f32) -> Fr
                 normal
             };
             let shade = 0.35 + 0.65 * facing.dot(&light).max(0.0);
-            for c in 0..3 {
-                frame.rgb[3 * px + c] = (colour[c] * shade * 255.0).round().clamp(0.0, 255.0) as u8;
+            for (out, c) in frame.rgb[3 * px..3 * px + 3].iter_mut().zip(colour) {
+                *out = (c * shade * 255.0).round().clamp(0.0, 255.0) as u8;
             }
         }
     }
