@@ -2,7 +2,10 @@
 //! imported from AI2-THOR's object metadata, the room closed by walls, and,
 //! in later parts, procedural rooms, physics, robot profiles and rendering.
 
+pub mod agent;
+pub mod geometry;
 pub mod ithor;
+pub mod profile;
 pub mod raycast;
 pub mod scene;
 pub mod shapes;

@@ -2,8 +2,9 @@
 //! conventions, and a look at an imported room.
 
 use nalgebra::{Point2, Point3, UnitQuaternion, Vector3};
+use sim::geometry::SceneGeometry;
 use sim::ithor::load_scene;
-use sim::raycast::{agent_camera_pose, render, Camera, SceneGeometry};
+use sim::raycast::{agent_camera_pose, render, Camera};
 use sim::scene::{walls_around, OrientedBox, Scene, SceneObject};
 
 fn object(id: &str, object_type: &str, bounds: OrientedBox) -> SceneObject {

@@ -1,0 +1,278 @@
+//! The agent and its navigation actions, with AI2-THOR's semantics: move
+//! ahead 0.25 m unless the capsule would collide, turn by 30°, look up or
+//! down by 15° within [−30°, 60°] (positive is down). Every step says whether
+//! it succeeded and, if not, why in machine-readable form.
+
+use std::collections::VecDeque;
+
+use crate::geometry::{AgentBody, Obstacle, SceneGeometry};
+use crate::profile::RobotProfile;
+use crate::raycast::{agent_camera_pose, render, Camera, Frame};
+use crate::scene::Scene;
+
+/// Length of a step, metres.
+pub const STEP_M: f32 = 0.25;
+/// Turn per rotate action, degrees.
+pub const TURN_DEG: f32 = 30.0;
+/// Tilt per look action, degrees.
+pub const LOOK_DEG: f32 = 15.0;
+/// Horizon limits (positive looks down), degrees.
+pub const HORIZON_RANGE_DEG: (f32, f32) = (-30.0, 60.0);
+/// Gap kept between the capsule and the floor, metres (small objects lying
+/// flat on the floor do not block; anything taller does).
+pub const FLOOR_CLEARANCE_M: f32 = 0.02;
+
+/// Where the agent is and where it looks.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AgentState {
+    /// Position on the floor, world x, metres.
+    pub x: f32,
+    /// Position on the floor, world y, metres.
+    pub y: f32,
+    /// Heading, degrees counter-clockwise from +x.
+    pub yaw_deg: f32,
+    /// Camera tilt, degrees, positive looks down.
+    pub horizon_deg: f32,
+}
+
+/// A navigation action.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NavAction {
+    /// Move 0.25 m along the heading.
+    MoveAhead,
+    /// Turn 30° counter-clockwise.
+    RotateLeft,
+    /// Turn 30° clockwise.
+    RotateRight,
+    /// Tilt the camera 15° up.
+    LookUp,
+    /// Tilt the camera 15° down.
+    LookDown,
+}
+
+/// Why an action failed.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Failure {
+    /// The agent would collide with this object (its id) or a wall.
+    Blocked {
+        /// The object's id, or `None` for a wall.
+        object: Option<String>,
+    },
+    /// The camera is already at the horizon limit.
+    HorizonLimit,
+}
+
+/// What a step did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Outcome {
+    /// True if the action happened.
+    pub success: bool,
+    /// Why not, when it did not.
+    pub failure: Option<Failure>,
+}
+
+impl Outcome {
+    fn ok() -> Self {
+        Self {
+            success: true,
+            failure: None,
+        }
+    }
+
+    fn failed(f: Failure) -> Self {
+        Self {
+            success: false,
+            failure: Some(f),
+        }
+    }
+}
+
+/// A scene with an agent in it.
+#[derive(Debug, Clone)]
+pub struct Simulator {
+    scene: Scene,
+    geometry: SceneGeometry,
+    profile: RobotProfile,
+    agent: AgentState,
+}
+
+/// Why a simulator could not be set up.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SetupError {
+    /// The start pose collides with something.
+    #[error("the agent cannot start at ({x:.2}, {y:.2}): it would collide with {what}")]
+    StartBlocked {
+        /// Start x.
+        x: f32,
+        /// Start y.
+        y: f32,
+        /// What it hits.
+        what: String,
+    },
+}
+
+impl Simulator {
+    /// Puts an agent with `profile` into `scene` at `start`.
+    pub fn new(scene: Scene, profile: RobotProfile, start: AgentState) -> Result<Self, SetupError> {
+        let geometry = SceneGeometry::new(&scene);
+        let sim = Self {
+            scene,
+            geometry,
+            profile,
+            agent: start,
+        };
+        if let Some(o) = sim.obstacle_at(start.x, start.y) {
+            return Err(SetupError::StartBlocked {
+                x: start.x,
+                y: start.y,
+                what: sim.describe(o),
+            });
+        }
+        Ok(sim)
+    }
+
+    /// The scene.
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    /// The agent's state.
+    pub fn agent(&self) -> AgentState {
+        self.agent
+    }
+
+    /// The robot profile.
+    pub fn profile(&self) -> &RobotProfile {
+        &self.profile
+    }
+
+    fn is_floor(&self, index: usize) -> bool {
+        self.scene.objects[index].object_type == "Floor"
+    }
+
+    fn obstacle_at(&self, x: f32, y: f32) -> Option<Obstacle> {
+        let body = AgentBody {
+            radius_m: self.profile.agent_radius_m,
+            height_m: self.profile.agent_height_m,
+            clearance_m: FLOOR_CLEARANCE_M,
+        };
+        self.geometry
+            .capsule_obstacle(x, y, self.scene.floor_top_m, &body, &|i| self.is_floor(i))
+    }
+
+    fn describe(&self, o: Obstacle) -> String {
+        match o {
+            Obstacle::Object(i) => self.scene.objects[i].id.clone(),
+            Obstacle::Wall => "a wall".into(),
+        }
+    }
+
+    /// Performs a navigation action.
+    pub fn step(&mut self, action: NavAction) -> Outcome {
+        let a = &mut self.agent;
+        match action {
+            NavAction::RotateLeft => a.yaw_deg = (a.yaw_deg + TURN_DEG).rem_euclid(360.0),
+            NavAction::RotateRight => a.yaw_deg = (a.yaw_deg - TURN_DEG).rem_euclid(360.0),
+            NavAction::LookUp | NavAction::LookDown => {
+                let delta = if action == NavAction::LookUp {
+                    -LOOK_DEG
+                } else {
+                    LOOK_DEG
+                };
+                let next = a.horizon_deg + delta;
+                if next < HORIZON_RANGE_DEG.0 - 1e-3 || next > HORIZON_RANGE_DEG.1 + 1e-3 {
+                    return Outcome::failed(Failure::HorizonLimit);
+                }
+                a.horizon_deg = next;
+            }
+            NavAction::MoveAhead => {
+                let yaw = a.yaw_deg.to_radians();
+                let (x, y) = (a.x + STEP_M * yaw.cos(), a.y + STEP_M * yaw.sin());
+                if let Some(o) = self.obstacle_at(x, y) {
+                    return Outcome::failed(Failure::Blocked {
+                        object: match o {
+                            Obstacle::Object(i) => Some(self.scene.objects[i].id.clone()),
+                            Obstacle::Wall => None,
+                        },
+                    });
+                }
+                self.agent.x = x;
+                self.agent.y = y;
+            }
+        }
+        Outcome::ok()
+    }
+
+    /// The agent's camera.
+    pub fn camera(&self) -> Camera {
+        let a = self.agent;
+        Camera {
+            t_world_camera: agent_camera_pose(
+                a.x,
+                a.y,
+                self.scene.floor_top_m,
+                self.profile.camera_height_m,
+                a.yaw_deg,
+                a.horizon_deg,
+            ),
+            width: self.profile.image_size,
+            height: self.profile.image_size,
+            fov_deg: self.profile.fov_deg,
+        }
+    }
+
+    /// What the agent sees, by the CPU reference renderer.
+    pub fn render_cpu(&self) -> Frame {
+        render(&self.geometry, &self.camera(), 20.0)
+    }
+
+    /// Positions on the 0.25 m grid (aligned to the floor's minimum corner)
+    /// where the agent fits, restricted to the largest set connected by
+    /// single steps; sorted, so deterministic.
+    pub fn reachable_positions(&self) -> Vec<(f32, f32)> {
+        let (min, max) = (self.scene.floor_min, self.scene.floor_max);
+        let nx = ((max.x - min.x) / STEP_M).floor() as i32;
+        let ny = ((max.y - min.y) / STEP_M).floor() as i32;
+        let at = |i: i32, j: i32| (min.x + STEP_M * i as f32, min.y + STEP_M * j as f32);
+        let free: Vec<bool> = (0..=nx)
+            .flat_map(|i| (0..=ny).map(move |j| (i, j)))
+            .map(|(i, j)| {
+                let (x, y) = at(i, j);
+                self.obstacle_at(x, y).is_none()
+            })
+            .collect();
+        let index = |i: i32, j: i32| (i * (ny + 1) + j) as usize;
+        let mut component = vec![usize::MAX; free.len()];
+        let mut best: Vec<(i32, i32)> = Vec::new();
+        for i in 0..=nx {
+            for j in 0..=ny {
+                if !free[index(i, j)] || component[index(i, j)] != usize::MAX {
+                    continue;
+                }
+                let label = index(i, j);
+                let mut members = vec![(i, j)];
+                let mut queue = VecDeque::from([(i, j)]);
+                component[label] = label;
+                while let Some((ci, cj)) = queue.pop_front() {
+                    for (di, dj) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
+                        let (ni, nj) = (ci + di, cj + dj);
+                        if ni < 0 || nj < 0 || ni > nx || nj > ny {
+                            continue;
+                        }
+                        let k = index(ni, nj);
+                        if free[k] && component[k] == usize::MAX {
+                            component[k] = label;
+                            members.push((ni, nj));
+                            queue.push_back((ni, nj));
+                        }
+                    }
+                }
+                if members.len() > best.len() {
+                    best = members;
+                }
+            }
+        }
+        best.sort_unstable();
+        best.into_iter().map(|(i, j)| at(i, j)).collect()
+    }
+}

@@ -1,0 +1,330 @@
+//! A scene as placed convex parts: what rays hit and what the agent bumps
+//! into. Parts come from [`crate::shapes`]; colours from the objects' materials.
+
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use parry3d::math::Pose;
+use parry3d::math::Vector as PVec;
+use parry3d::query::intersection_test;
+use parry3d::query::{Ray, RayCast};
+use parry3d::shape::{Ball, Capsule, Cuboid, Cylinder, Shape};
+
+use crate::scene::{OrientedBox, Scene};
+use crate::shapes::{parts_for, Primitive};
+
+/// A parry primitive.
+#[derive(Debug, Clone, Copy)]
+enum Convex {
+    Cuboid(Cuboid),
+    Cylinder(Cylinder),
+    Ball(Ball),
+}
+
+/// A part placed in the world with what the renderer needs.
+#[derive(Debug, Clone, Copy)]
+struct PlacedPart {
+    t_part_world: Isometry3<f32>,
+    shape: Convex,
+    colour: [f32; 3],
+}
+
+/// Everything that can be hit, grouped per instance with a world box for culling.
+#[derive(Debug, Clone)]
+struct Instance {
+    id: u32,
+    object: Option<usize>,
+    aabb_min: Point3<f32>,
+    aabb_max: Point3<f32>,
+    parts: Vec<PlacedPart>,
+}
+
+/// A scene turned into ray-castable geometry.
+#[derive(Debug, Clone)]
+pub struct SceneGeometry {
+    instances: Vec<Instance>,
+}
+
+/// Base colour of a material (linear 0..1), or `None` if unknown.
+fn material_colour(material: &str) -> Option<[f32; 3]> {
+    Some(match material {
+        "Wood" => [0.55, 0.38, 0.22],
+        "Fabric" => [0.45, 0.47, 0.62],
+        "Leather" => [0.35, 0.22, 0.14],
+        "Metal" => [0.62, 0.63, 0.66],
+        "Glass" => [0.66, 0.78, 0.82],
+        "Plastic" => [0.78, 0.25, 0.22],
+        "Ceramic" => [0.88, 0.86, 0.80],
+        "Stone" => [0.52, 0.52, 0.50],
+        "Paper" | "Cardboard" => [0.86, 0.80, 0.66],
+        "Rubber" => [0.15, 0.15, 0.15],
+        "Sponge" => [0.90, 0.85, 0.30],
+        "Organic" => [0.25, 0.50, 0.22],
+        "Food" => [0.80, 0.55, 0.25],
+        "Soap" => [0.90, 0.90, 0.95],
+        "Wax" => [0.92, 0.90, 0.78],
+        _ => return None,
+    })
+}
+
+/// A small deterministic hash (FNV-1a) for per-instance colour variation.
+fn hash(s: &str) -> u64 {
+    s.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)
+    })
+}
+
+/// The main and accent colours of an object: its first salient material (or a
+/// colour from its type), varied slightly per instance.
+fn object_colours(object_type: &str, id: &str, materials: &[String]) -> [[f32; 3]; 2] {
+    let h = hash(object_type);
+    let base = materials
+        .iter()
+        .find_map(|m| material_colour(m))
+        .unwrap_or([
+            0.3 + (h % 50) as f32 / 100.0,
+            0.3 + ((h >> 8) % 50) as f32 / 100.0,
+            0.3 + ((h >> 16) % 50) as f32 / 100.0,
+        ]);
+    let v = hash(id);
+    let jitter = |k: u32| ((v >> (8 * k)) % 31) as f32 / 100.0 - 0.15;
+    let main = [0, 1, 2].map(|c| (base[c] + jitter(c as u32)).clamp(0.02, 0.98));
+    let accent = materials
+        .get(1)
+        .and_then(|m| material_colour(m))
+        .unwrap_or(main.map(|c| c * 0.6));
+    [main, accent]
+}
+
+fn placed(
+    box_pose: &Isometry3<f32>,
+    part_pose: &Isometry3<f32>,
+    primitive: &Primitive,
+    colour: [f32; 3],
+) -> PlacedPart {
+    let v = |x: Vector3<f32>| PVec::new(x.x, x.y, x.z);
+    // parry's cylinders stand along y; ours along z.
+    let (shape, fix) = match *primitive {
+        Primitive::Cuboid(h) => (
+            Convex::Cuboid(Cuboid::new(v(h))),
+            UnitQuaternion::identity(),
+        ),
+        Primitive::Cylinder {
+            half_height,
+            radius,
+        } => (
+            Convex::Cylinder(Cylinder::new(half_height, radius)),
+            UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f32::consts::FRAC_PI_2),
+        ),
+        Primitive::Ball(r) => (Convex::Ball(Ball::new(r)), UnitQuaternion::identity()),
+    };
+    let t_world_part = box_pose * part_pose * Isometry3::from_parts(Translation3::identity(), fix);
+    PlacedPart {
+        t_part_world: t_world_part.inverse(),
+        shape,
+        colour,
+    }
+}
+
+fn world_aabb(b: &OrientedBox) -> (Point3<f32>, Point3<f32>) {
+    b.corners().iter().fold(
+        (
+            Point3::from([f32::INFINITY; 3]),
+            Point3::from([f32::NEG_INFINITY; 3]),
+        ),
+        |(lo, hi), c| (lo.inf(c), hi.sup(c)),
+    )
+}
+
+impl SceneGeometry {
+    /// Geometry of `scene`: every object's parts; the floor and walls as boxes (id 0).
+    pub fn new(scene: &Scene) -> Self {
+        let mut instances = Vec::with_capacity(scene.objects.len() + 4);
+        for (index, o) in scene.objects.iter().enumerate() {
+            let structural = o.object_type == "Floor";
+            let colours = if structural {
+                [[0.62, 0.50, 0.36], [0.5, 0.4, 0.3]]
+            } else {
+                object_colours(&o.object_type, &o.id, &o.materials)
+            };
+            let box_pose = Isometry3::from_parts(
+                Translation3::from(o.bounds.center.coords),
+                o.bounds.rotation,
+            );
+            let parts = if structural {
+                vec![crate::shapes::Part {
+                    pose: Isometry3::identity(),
+                    primitive: Primitive::Cuboid(o.bounds.half_extents),
+                    tone: 0,
+                }]
+            } else {
+                parts_for(&o.object_type, o.bounds.half_extents)
+            };
+            let (aabb_min, aabb_max) = world_aabb(&o.bounds);
+            instances.push(Instance {
+                id: if structural { 0 } else { index as u32 + 1 },
+                object: Some(index),
+                aabb_min,
+                aabb_max,
+                parts: parts
+                    .iter()
+                    .map(|p| {
+                        placed(
+                            &box_pose,
+                            &p.pose,
+                            &p.primitive,
+                            colours[usize::from(p.tone.min(1))],
+                        )
+                    })
+                    .collect(),
+            });
+        }
+        for wall in &scene.walls {
+            let (aabb_min, aabb_max) = world_aabb(wall);
+            let pose = Isometry3::from_parts(Translation3::from(wall.center.coords), wall.rotation);
+            instances.push(Instance {
+                id: 0,
+                object: None,
+                aabb_min,
+                aabb_max,
+                parts: vec![placed(
+                    &pose,
+                    &Isometry3::identity(),
+                    &Primitive::Cuboid(wall.half_extents),
+                    [0.82, 0.80, 0.74],
+                )],
+            });
+        }
+        Self { instances }
+    }
+
+    /// The nearest hit along a world ray within `max_m`: distance along the
+    /// (unit) direction, instance id, colour (linear RGB) and world normal.
+    pub fn cast(
+        &self,
+        origin: &Point3<f32>,
+        dir: &Vector3<f32>,
+        max_m: f32,
+    ) -> Option<(f32, u32, [f32; 3], Vector3<f32>)> {
+        let mut best: Option<(f32, u32, [f32; 3], Vector3<f32>)> = None;
+        for inst in &self.instances {
+            let limit = best.map_or(max_m, |b| b.0);
+            let Some(enter) = slab(origin, dir, &inst.aabb_min, &inst.aabb_max) else {
+                continue;
+            };
+            if enter > limit {
+                continue;
+            }
+            for part in &inst.parts {
+                let o = part.t_part_world * origin;
+                let d = part.t_part_world.rotation * dir;
+                let ray = Ray::new(PVec::new(o.x, o.y, o.z), PVec::new(d.x, d.y, d.z));
+                let limit = best.map_or(max_m, |b| b.0);
+                let hit = match &part.shape {
+                    Convex::Cuboid(s) => s.cast_local_ray_and_get_normal(&ray, limit, true),
+                    Convex::Cylinder(s) => s.cast_local_ray_and_get_normal(&ray, limit, true),
+                    Convex::Ball(s) => s.cast_local_ray_and_get_normal(&ray, limit, true),
+                };
+                if let Some(hit) = hit {
+                    if best.is_none_or(|b| hit.time_of_impact < b.0) {
+                        let n = Vector3::new(hit.normal.x, hit.normal.y, hit.normal.z);
+                        let world_n = part.t_part_world.rotation.inverse() * n;
+                        best = Some((hit.time_of_impact, inst.id, part.colour, world_n));
+                    }
+                }
+            }
+        }
+        best
+    }
+}
+
+/// The agent's collision body: a vertical capsule standing `clearance_m`
+/// above the floor.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AgentBody {
+    /// Capsule radius, metres.
+    pub radius_m: f32,
+    /// Capsule height (including the caps), metres.
+    pub height_m: f32,
+    /// Gap between the floor and the capsule's bottom, metres.
+    pub clearance_m: f32,
+}
+
+/// What blocked a capsule.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Obstacle {
+    /// A scene object, by index into `Scene::objects`.
+    Object(usize),
+    /// A wall or the ceiling.
+    Wall,
+}
+
+fn to_pose(iso: &Isometry3<f32>) -> Pose {
+    let t = iso.translation.vector;
+    let q = iso.rotation.quaternion();
+    Pose::from_parts(
+        PVec::new(t.x, t.y, t.z),
+        parry3d::math::Rot3::from_xyzw(q.i, q.j, q.k, q.w),
+    )
+}
+
+impl SceneGeometry {
+    /// The first obstacle (in scene order) that the agent's capsule overlaps
+    /// when it stands at `(x, y)` on a floor at height `floor_z`; objects for
+    /// which `ignore` is true are skipped (the floor, a held object).
+    pub fn capsule_obstacle(
+        &self,
+        x: f32,
+        y: f32,
+        floor_z: f32,
+        body: &AgentBody,
+        ignore: &dyn Fn(usize) -> bool,
+    ) -> Option<Obstacle> {
+        let (radius, height, clearance_m) = (body.radius_m, body.height_m, body.clearance_m);
+        let half = (height / 2.0 - radius).max(0.0);
+        let capsule = Capsule::new_z(half, radius);
+        let centre = Point3::new(x, y, floor_z + clearance_m + height / 2.0);
+        let pose = Pose::from_translation(PVec::new(centre.x, centre.y, centre.z));
+        let (lo, hi) = (
+            centre - Vector3::new(radius, radius, height / 2.0),
+            centre + Vector3::new(radius, radius, height / 2.0),
+        );
+        for inst in &self.instances {
+            if inst.object.is_some_and(ignore) {
+                continue;
+            }
+            if (0..3).any(|a| inst.aabb_max[a] < lo[a] || inst.aabb_min[a] > hi[a]) {
+                continue;
+            }
+            for part in &inst.parts {
+                let part_pose = to_pose(&part.t_part_world.inverse());
+                let shape: &dyn Shape = match &part.shape {
+                    Convex::Cuboid(s) => s,
+                    Convex::Cylinder(s) => s,
+                    Convex::Ball(s) => s,
+                };
+                if intersection_test(&pose, &capsule, &part_pose, shape)
+                    .is_ok_and(|r| r.intersecting)
+                {
+                    return Some(inst.object.map_or(Obstacle::Wall, Obstacle::Object));
+                }
+            }
+        }
+        None
+    }
+}
+
+/// Ray parameter where the ray enters the box, if it meets it.
+fn slab(o: &Point3<f32>, d: &Vector3<f32>, lo: &Point3<f32>, hi: &Point3<f32>) -> Option<f32> {
+    let (mut t0, mut t1) = (0.0f32, f32::INFINITY);
+    for a in 0..3 {
+        if d[a].abs() < 1e-12 {
+            if o[a] < lo[a] || o[a] > hi[a] {
+                return None;
+            }
+            continue;
+        }
+        let (ta, tb) = ((lo[a] - o[a]) / d[a], (hi[a] - o[a]) / d[a]);
+        t0 = t0.max(ta.min(tb));
+        t1 = t1.min(ta.max(tb));
+    }
+    (t0 <= t1).then_some(t0)
+}
