@@ -5,6 +5,7 @@
 pub mod agent;
 pub mod geometry;
 pub mod ithor;
+pub mod physics;
 pub mod profile;
 pub mod raycast;
 pub mod scene;
