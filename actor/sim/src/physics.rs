@@ -100,8 +100,10 @@ struct OneBody {
 /// than the real ones, so a pillow on a sofa's seat may overlap the seat
 /// block, and keeping it would shove the sofa at the first step.
 fn build(scene: &Scene, index: usize, start: &OrientedBox) -> OneBody {
-    let mut world = PhysicsWorld::default();
-    world.gravity = Vector::new(0.0, 0.0, -9.81);
+    let mut world = PhysicsWorld {
+        gravity: Vector::new(0.0, 0.0, -9.81),
+        ..Default::default()
+    };
     let moving = &scene.objects[index];
     let moving_shape =
         SharedShape::compound(compound(&moving.object_type, start.half_extents, false));
