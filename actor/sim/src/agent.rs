@@ -3,6 +3,8 @@
 //! down by 15° within [−30°, 60°] (positive is down). Every step says whether
 //! it succeeded and, if not, why in machine-readable form.
 
+mod interact;
+
 use std::collections::VecDeque;
 
 use crate::geometry::{AgentBody, Obstacle, SceneGeometry};
@@ -60,6 +62,43 @@ pub enum Failure {
     },
     /// The camera is already at the horizon limit.
     HorizonLimit,
+    /// No object under the selected pixel (floor, wall or nothing).
+    NothingThere,
+    /// The object is farther from the camera than the robot's reach.
+    OutOfReach {
+        /// Distance to the hit point, metres.
+        distance_m: f32,
+    },
+    /// The object cannot be picked up (AI2-THOR's flag).
+    NotPickupable,
+    /// Heavier than the robot's payload.
+    TooHeavy {
+        /// Its mass, kg.
+        mass_kg: f32,
+    },
+    /// Wider than the gripper opens.
+    TooWide {
+        /// Its narrowest horizontal size, metres.
+        width_m: f32,
+    },
+    /// The hand already holds an object.
+    HandFull,
+    /// The hand is empty.
+    HandEmpty,
+    /// There is no room where the object would be held or released.
+    NoRoom {
+        /// What is in the way.
+        blocked_by: String,
+    },
+    /// The object can be neither picked up nor moved (static).
+    NotPushable,
+    /// The push did not move the object by 2 cm.
+    DidNotMove {
+        /// How far it moved, metres.
+        moved_m: f32,
+    },
+    /// The pixel is outside the image.
+    BadPixel,
 }
 
 /// What a step did.
@@ -94,6 +133,8 @@ pub struct Simulator {
     geometry: SceneGeometry,
     profile: RobotProfile,
     agent: AgentState,
+    /// Index of the object in the hand, if any (it is not in the room's geometry).
+    held: Option<usize>,
 }
 
 /// Why a simulator could not be set up.
@@ -120,6 +161,7 @@ impl Simulator {
             geometry,
             profile,
             agent: start,
+            held: None,
         };
         if let Some(o) = sim.obstacle_at(start.x, start.y) {
             return Err(SetupError::StartBlocked {
@@ -157,7 +199,9 @@ impl Simulator {
             clearance_m: FLOOR_CLEARANCE_M,
         };
         self.geometry
-            .capsule_obstacle(x, y, self.scene.floor_top_m, &body, &|i| self.is_floor(i))
+            .capsule_obstacle(x, y, self.scene.floor_top_m, &body, &|i| {
+                self.is_floor(i) || self.held == Some(i)
+            })
     }
 
     fn describe(&self, o: Obstacle) -> String {

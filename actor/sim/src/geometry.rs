@@ -137,8 +137,16 @@ fn world_aabb(b: &OrientedBox) -> (Point3<f32>, Point3<f32>) {
 impl SceneGeometry {
     /// Geometry of `scene`: every object's parts; the floor and walls as boxes (id 0).
     pub fn new(scene: &Scene) -> Self {
+        Self::without(scene, None)
+    }
+
+    /// Like [`SceneGeometry::new`], leaving out object `hidden` (one in the hand).
+    pub fn without(scene: &Scene, hidden: Option<usize>) -> Self {
         let mut instances = Vec::with_capacity(scene.objects.len() + 4);
         for (index, o) in scene.objects.iter().enumerate() {
+            if hidden == Some(index) {
+                continue;
+            }
             let structural = o.object_type == "Floor";
             let colours = if structural {
                 [[0.62, 0.50, 0.36], [0.5, 0.4, 0.3]]

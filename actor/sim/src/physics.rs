@@ -1,5 +1,6 @@
 //! Rigid-body simulation of one object at a time with rapier3d: a push (a
-//! force along the camera's forward direction, then sliding to rest) or a
+//! force along the camera's forward direction through the object's centre of
+//! mass, then sliding to rest) or a
 //! drop (falling until it rests). Everything else in the room is static:
 //! the floor, the walls and the other objects, as compounds of their convex
 //! parts. Friction is the same everywhere, so whether a push overcomes an
@@ -87,6 +88,47 @@ fn compound(
 
 fn box_pose(b: &OrientedBox) -> Isometry3<f32> {
     Isometry3::from_parts(Translation3::from(b.center.coords), b.rotation)
+}
+
+/// The first thing (object id, or `wall`) that object `index` would overlap
+/// with its box at `at`; objects for which `ignore` is true do not count.
+pub fn first_overlap(
+    scene: &Scene,
+    index: usize,
+    at: &OrientedBox,
+    ignore: &dyn Fn(usize) -> bool,
+) -> Option<String> {
+    let o = &scene.objects[index];
+    let shape = SharedShape::compound(compound(&o.object_type, at.half_extents, false));
+    let here = pose(&box_pose(at));
+    let hits = |other: &SharedShape, other_pose: &Pose| {
+        rapier3d::parry::query::intersection_test(&here, shape.as_ref(), other_pose, other.as_ref())
+            .is_ok_and(|r| r.intersecting)
+    };
+    for (i, other) in scene.objects.iter().enumerate() {
+        if i == index || ignore(i) {
+            continue;
+        }
+        let structural = other.object_type == "Floor";
+        let s = SharedShape::compound(compound(
+            &other.object_type,
+            other.bounds.half_extents,
+            structural,
+        ));
+        if hits(&s, &pose(&box_pose(&other.bounds))) {
+            return Some(other.id.clone());
+        }
+    }
+    scene
+        .walls
+        .iter()
+        .any(|w| {
+            hits(
+                &SharedShape::cuboid(w.half_extents.x, w.half_extents.y, w.half_extents.z),
+                &pose(&box_pose(w)),
+            )
+        })
+        .then(|| "wall".to_string())
 }
 
 /// A room with one dynamic object.
@@ -181,24 +223,22 @@ impl OneBody {
     }
 }
 
-/// Pushes object `index` with `force_n` (world frame, newtons) applied at
-/// `point` (world) for [`PUSH_DURATION_S`], then lets it come to rest.
-/// Returns its new box.
-pub fn simulate_push(
-    scene: &Scene,
-    index: usize,
-    force_n: Vector3<f32>,
-    point: Point3<f32>,
-) -> OrientedBox {
+/// Pushes object `index` with `force_n` (world frame, newtons) through its
+/// centre of mass for [`PUSH_DURATION_S`], as AI2-THOR's `PushObject` does
+/// (Unity's `AddForce`), then lets it come to rest. Returns its new box.
+pub fn simulate_push(scene: &Scene, index: usize, force_n: Vector3<f32>) -> OrientedBox {
     let start = scene.objects[index].bounds;
     let mut sim = build(scene, index, &start);
-    // Let contacts settle before pushing, so resting objects do not jump.
     let dt = sim.world.integration_parameters.dt;
+    // A few steps first, so that contacts settle before the push.
+    for _ in 0..5 {
+        sim.world.step();
+    }
     let steps = (PUSH_DURATION_S / dt).round() as usize;
     for _ in 0..steps {
         let body = &mut sim.world.bodies[sim.body];
         body.reset_forces(false);
-        body.add_force_at_point(vec(&force_n), Vector::new(point.x, point.y, point.z), true);
+        body.add_force(vec(&force_n), true);
         sim.world.step();
     }
     sim.world.bodies[sim.body].reset_forces(false);

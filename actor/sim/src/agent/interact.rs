@@ -1,0 +1,150 @@
+//! Interaction actions: pick up the object under a pixel, drop what is held,
+//! push the object under a pixel. Rules (flags, reach, payload, gripper) come
+//! from the robot profile; outcomes of pushes and drops from the physics.
+
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+
+use super::{Failure, Outcome, Simulator};
+use crate::geometry::SceneGeometry;
+use crate::physics::{first_overlap, simulate_drop, simulate_push};
+use crate::scene::OrientedBox;
+
+/// Where a held object's box centre sits, camera frame (x right, y down, z forward), metres.
+const HOLD_OFFSET: Vector3<f32> = Vector3::new(0.0, 0.25, 0.55);
+/// Least horizontal motion that makes a push a success, metres.
+pub const PUSH_SUCCESS_M: f32 = 0.02;
+
+impl Simulator {
+    /// The object in the hand, by index into the scene's objects.
+    pub fn held(&self) -> Option<usize> {
+        self.held
+    }
+
+    /// The object under pixel `(u, v)`, the world point hit and its distance.
+    fn pixel_hit(&self, u: usize, v: usize) -> Result<(usize, Point3<f32>, f32), Failure> {
+        let camera = self.camera();
+        if u >= camera.width || v >= camera.height {
+            return Err(Failure::BadPixel);
+        }
+        let origin = camera.t_world_camera * Point3::origin();
+        let dir = (camera.t_world_camera.rotation * camera.ray(u as f32, v as f32)).normalize();
+        let (distance, id, _, _) = self
+            .geometry
+            .cast(&origin, &dir, 50.0)
+            .ok_or(Failure::NothingThere)?;
+        if id == 0 {
+            return Err(Failure::NothingThere);
+        }
+        if distance > self.profile.reach_m {
+            return Err(Failure::OutOfReach {
+                distance_m: distance,
+            });
+        }
+        Ok((id as usize - 1, origin + dir * distance, distance))
+    }
+
+    /// Moves object `index` to box `to` (its pivot follows rigidly) and rebuilds the geometry.
+    fn place(&mut self, index: usize, to: OrientedBox) {
+        let o = &mut self.scene.objects[index];
+        let from = Isometry3::from_parts(
+            Translation3::from(o.bounds.center.coords),
+            o.bounds.rotation,
+        );
+        let new = Isometry3::from_parts(Translation3::from(to.center.coords), to.rotation);
+        let motion = new * from.inverse();
+        o.position = motion * o.position;
+        o.rotation = motion.rotation * o.rotation;
+        o.bounds = to;
+        let (lo, hi) = to.corners().iter().fold(
+            (
+                Point3::from([f32::INFINITY; 3]),
+                Point3::from([f32::NEG_INFINITY; 3]),
+            ),
+            |(lo, hi), c| (lo.inf(c), hi.sup(c)),
+        );
+        o.aabb_min = lo;
+        o.aabb_max = hi;
+        self.geometry = SceneGeometry::without(&self.scene, self.held);
+    }
+
+    /// The box of object `index` held in front of the camera, upright, facing the agent's heading.
+    fn hold_box(&self, index: usize) -> OrientedBox {
+        let camera = self.camera();
+        let centre = camera.t_world_camera * Point3::from(HOLD_OFFSET);
+        OrientedBox {
+            center: centre,
+            rotation: UnitQuaternion::from_axis_angle(
+                &Vector3::z_axis(),
+                self.agent.yaw_deg.to_radians(),
+            ),
+            half_extents: self.scene.objects[index].bounds.half_extents,
+        }
+    }
+
+    /// Picks up the object under pixel `(u, v)`.
+    pub fn pick_up(&mut self, u: usize, v: usize) -> Outcome {
+        if self.held.is_some() {
+            return Outcome::failed(Failure::HandFull);
+        }
+        let index = match self.pixel_hit(u, v) {
+            Ok((i, _, _)) => i,
+            Err(f) => return Outcome::failed(f),
+        };
+        let o = &self.scene.objects[index];
+        if !o.pickupable {
+            return Outcome::failed(Failure::NotPickupable);
+        }
+        if o.mass_kg > self.profile.payload_kg {
+            return Outcome::failed(Failure::TooHeavy { mass_kg: o.mass_kg });
+        }
+        let width = 2.0 * o.bounds.half_extents.x.min(o.bounds.half_extents.y);
+        if width > self.profile.gripper_opening_m {
+            return Outcome::failed(Failure::TooWide { width_m: width });
+        }
+        let hold = self.hold_box(index);
+        if let Some(blocked_by) = first_overlap(&self.scene, index, &hold, &|_| false) {
+            return Outcome::failed(Failure::NoRoom { blocked_by });
+        }
+        self.held = Some(index);
+        self.place(index, hold);
+        Outcome::ok()
+    }
+
+    /// Drops the held object from where it is held; it falls until it rests.
+    pub fn drop_held(&mut self) -> Outcome {
+        let Some(index) = self.held else {
+            return Outcome::failed(Failure::HandEmpty);
+        };
+        let hold = self.hold_box(index);
+        if let Some(blocked_by) = first_overlap(&self.scene, index, &hold, &|_| false) {
+            return Outcome::failed(Failure::NoRoom { blocked_by });
+        }
+        let rest = simulate_drop(&self.scene, index, &hold);
+        self.held = None;
+        self.place(index, rest);
+        Outcome::ok()
+    }
+
+    /// Pushes the object under pixel `(u, v)` with the profile's force along
+    /// the camera's horizontal forward direction; it succeeds if the object
+    /// moves at least [`PUSH_SUCCESS_M`].
+    pub fn push(&mut self, u: usize, v: usize) -> Outcome {
+        let (index, _, _) = match self.pixel_hit(u, v) {
+            Ok(hit) => hit,
+            Err(f) => return Outcome::failed(f),
+        };
+        if !self.scene.objects[index].pushable() {
+            return Outcome::failed(Failure::NotPushable);
+        }
+        let yaw = self.agent.yaw_deg.to_radians();
+        let force = Vector3::new(yaw.cos(), yaw.sin(), 0.0) * self.profile.push_force_n;
+        let before = self.scene.objects[index].bounds;
+        let after = simulate_push(&self.scene, index, force);
+        let moved = (after.center - before.center).xy().norm();
+        if moved < PUSH_SUCCESS_M {
+            return Outcome::failed(Failure::DidNotMove { moved_m: moved });
+        }
+        self.place(index, after);
+        Outcome::ok()
+    }
+}

@@ -1,0 +1,177 @@
+//! Picking up, dropping and pushing through the simulator, with the rules
+//! of the robot profiles and the outcomes of the physics.
+
+use sim::agent::{AgentState, Failure, Simulator};
+use sim::ithor::{load_set, SceneSet};
+use sim::profile::RobotProfile;
+use sim::scene::Scene;
+
+fn scenes() -> Vec<Scene> {
+    let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data/ithor-livingrooms");
+    let mut all = load_set(&dir, SceneSet::Test).unwrap();
+    all.extend(load_set(&dir, SceneSet::Val).unwrap());
+    all
+}
+
+/// A simulator with the agent on the reachable grid facing object `index`
+/// from within reach, and the pixel nearest the middle of the object's image.
+fn facing(
+    scene: &Scene,
+    profile: &RobotProfile,
+    index: usize,
+) -> Option<(Simulator, usize, usize)> {
+    let target = scene.objects[index].bounds.center;
+    let probe = (0..60)
+        .flat_map(|i| (0..60).map(move |j| (i, j)))
+        .find_map(|(i, j)| {
+            let (x, y) = (
+                scene.floor_min.x + 0.25 * i as f32,
+                scene.floor_min.y + 0.25 * j as f32,
+            );
+            Simulator::new(
+                scene.clone(),
+                profile.clone(),
+                AgentState {
+                    x,
+                    y,
+                    yaw_deg: 0.0,
+                    horizon_deg: 0.0,
+                },
+            )
+            .ok()
+        })?;
+    let mut spots = probe.reachable_positions();
+    spots.sort_by(|a, b| {
+        let d = |p: &(f32, f32)| ((p.0 - target.x).powi(2) + (p.1 - target.y).powi(2)).sqrt();
+        d(a).total_cmp(&d(b))
+    });
+    for (x, y) in spots.into_iter().take(12) {
+        let (dx, dy) = (target.x - x, target.y - y);
+        let horizontal = (dx * dx + dy * dy).sqrt();
+        let down = scene.floor_top_m + profile.camera_height_m - target.z;
+        let state = AgentState {
+            x,
+            y,
+            yaw_deg: dy.atan2(dx).to_degrees(),
+            horizon_deg: down.atan2(horizontal).to_degrees().clamp(-30.0, 60.0),
+        };
+        let sim = Simulator::new(scene.clone(), profile.clone(), state).ok()?;
+        let frame = sim.render_cpu();
+        let id = index as u32 + 1;
+        let pixels: Vec<usize> = (0..frame.ids.len())
+            .filter(|&p| frame.ids[p] == id)
+            .collect();
+        if pixels.len() < 4 {
+            continue;
+        }
+        let (su, sv) = pixels.iter().fold((0.0, 0.0), |(a, b), &p| {
+            (a + (p % frame.width) as f32, b + (p / frame.width) as f32)
+        });
+        let (cu, cv) = (su / pixels.len() as f32, sv / pixels.len() as f32);
+        let best = *pixels
+            .iter()
+            .min_by(|&&a, &&b| {
+                let d = |p: usize| {
+                    ((p % frame.width) as f32 - cu).powi(2)
+                        + ((p / frame.width) as f32 - cv).powi(2)
+                };
+                d(a).total_cmp(&d(b))
+            })
+            .unwrap();
+        let distance = frame.depth_m[best];
+        if distance < profile.reach_m * 0.9 {
+            return Some((sim, best % frame.width, best / frame.width));
+        }
+    }
+    None
+}
+
+fn find(
+    scenes: &[Scene],
+    object_type: &str,
+    profile: &RobotProfile,
+) -> (Simulator, usize, usize, usize) {
+    for scene in scenes {
+        for (i, o) in scene.objects.iter().enumerate() {
+            if o.object_type == object_type {
+                if let Some((sim, u, v)) = facing(scene, profile, i) {
+                    return (sim, i, u, v);
+                }
+            }
+        }
+    }
+    panic!("no reachable {object_type} in the test and validation scenes");
+}
+
+#[test]
+fn a_pillow_can_be_picked_up_and_dropped_but_a_sofa_cannot_be_picked_up() {
+    let profile = RobotProfile::load("default").unwrap();
+    let all = scenes();
+    let (mut sim, index, u, v) = find(&all, "Pillow", &profile);
+    let outcome = sim.pick_up(u, v);
+    assert!(outcome.success, "{outcome:?}");
+    assert_eq!(sim.held(), Some(index));
+    assert!(!sim.render_cpu().ids.is_empty());
+    assert_eq!(sim.pick_up(u, v).failure, Some(Failure::HandFull));
+    let dropped = sim.drop_held();
+    assert!(dropped.success, "{dropped:?}");
+    assert_eq!(sim.held(), None);
+    let rest = sim.scene().objects[index].bounds;
+    let bottom = rest
+        .corners()
+        .iter()
+        .map(|c| c.z)
+        .fold(f32::INFINITY, f32::min);
+    assert!(
+        bottom >= sim.scene().floor_top_m - 0.02,
+        "the pillow fell through the floor"
+    );
+    assert_eq!(sim.drop_held().failure, Some(Failure::HandEmpty));
+
+    let (mut sim, _, u, v) = find(&all, "Sofa", &profile);
+    assert_eq!(sim.pick_up(u, v).failure, Some(Failure::NotPickupable));
+}
+
+#[test]
+fn the_weak_arm_cannot_pick_up_a_laptop() {
+    let all = scenes();
+    let weak = RobotProfile::load("weak-arm").unwrap();
+    let (mut sim, index, u, v) = find(&all, "Laptop", &weak);
+    let mass = sim.scene().objects[index].mass_kg;
+    assert_eq!(
+        sim.pick_up(u, v).failure,
+        Some(Failure::TooHeavy { mass_kg: mass })
+    );
+    let (mut sim, _, u, v) = find(&all, "Laptop", &RobotProfile::load("default").unwrap());
+    assert!(
+        sim.pick_up(u, v).success,
+        "the default profile lifts a laptop"
+    );
+}
+
+#[test]
+fn pushing_moves_a_chair_and_reports_a_sofa_that_did_not_move() {
+    let profile = RobotProfile::load("default").unwrap();
+    let all = scenes();
+    let (mut sim, index, u, v) = find(&all, "Chair", &profile);
+    let before = sim.scene().objects[index].bounds.center;
+    let outcome = sim.push(u, v);
+    assert!(outcome.success, "{outcome:?}");
+    let moved = (sim.scene().objects[index].bounds.center - before)
+        .xy()
+        .norm();
+    assert!(moved >= 0.02);
+    let (mut sim, index, u, v) = find(&all, "Sofa", &profile);
+    let before = sim.scene().objects[index].bounds;
+    let outcome = sim.push(u, v);
+    assert!(
+        matches!(outcome.failure, Some(Failure::DidNotMove { .. })),
+        "{outcome:?}"
+    );
+    assert_eq!(
+        sim.scene().objects[index].bounds,
+        before,
+        "a failed push changes nothing"
+    );
+}
