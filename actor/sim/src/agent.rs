@@ -5,6 +5,8 @@
 
 mod interact;
 
+pub use interact::{pickup_rule, PUSH_SUCCESS_M};
+
 use std::collections::VecDeque;
 
 use crate::geometry::{AgentBody, Obstacle, SceneGeometry};

@@ -2,6 +2,7 @@
 //! imported from AI2-THOR's object metadata, the room closed by walls, and,
 //! in later parts, procedural rooms, physics, robot profiles and rendering.
 
+pub mod affordances;
 pub mod agent;
 pub mod geometry;
 pub mod ithor;

@@ -107,3 +107,43 @@ fn a_dropped_pillow_comes_to_rest_on_a_surface() {
     );
     assert!(bottom > scene.floor_top_m - 0.02, "fell through the floor");
 }
+
+#[test]
+fn ground_truth_affordances_follow_the_profiles_and_the_physics() {
+    use sim::affordances::ground_truth;
+    let scene = scenes().remove(1);
+    let default = ground_truth(&scene, &RobotProfile::load("default").unwrap());
+    let weak = ground_truth(&scene, &RobotProfile::load("weak-arm").unwrap());
+    let of = |list: &[sim::affordances::ObjectAffordances], t: &str| -> Vec<(bool, bool)> {
+        list.iter()
+            .filter(|a| a.id.starts_with(&format!("{t}|")))
+            .map(|a| (a.pick_up, a.push))
+            .collect()
+    };
+    assert!(
+        of(&default, "Sofa").iter().all(|&(p, s)| !p && !s),
+        "sofas: {:?}",
+        of(&default, "Sofa")
+    );
+    assert!(
+        of(&default, "Chair").iter().all(|&(p, s)| !p && s),
+        "chairs: {:?}",
+        of(&default, "Chair")
+    );
+    assert!(
+        of(&weak, "Chair").iter().all(|&(_, s)| !s),
+        "the weak arm cannot push a chair"
+    );
+    let picks =
+        |list: &[sim::affordances::ObjectAffordances]| list.iter().filter(|a| a.pick_up).count();
+    eprintln!(
+        "{}: default picks {} and pushes {}; weak arm picks {} and pushes {} of {} objects",
+        scene.name,
+        picks(&default),
+        default.iter().filter(|a| a.push).count(),
+        picks(&weak),
+        weak.iter().filter(|a| a.push).count(),
+        default.len()
+    );
+    assert!(picks(&weak) < picks(&default));
+}

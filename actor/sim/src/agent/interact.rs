@@ -7,12 +7,36 @@ use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use super::{Failure, Outcome, Simulator};
 use crate::geometry::SceneGeometry;
 use crate::physics::{first_overlap, simulate_drop, simulate_push};
-use crate::scene::OrientedBox;
+use crate::profile::RobotProfile;
+use crate::scene::{OrientedBox, SceneObject};
 
 /// Where a held object's box centre sits, camera frame (x right, y down, z forward), metres.
 const HOLD_OFFSET: Vector3<f32> = Vector3::new(0.0, 0.25, 0.55);
 /// Least horizontal motion that makes a push a success, metres.
 pub const PUSH_SUCCESS_M: f32 = 0.02;
+
+/// The profile's rule for picking `object` up: AI2-THOR's flag, the payload
+/// and the gripper opening (narrowest horizontal side of the object's box).
+pub fn pickup_rule(object: &SceneObject, profile: &RobotProfile) -> Result<(), Failure> {
+    if !object.pickupable {
+        return Err(Failure::NotPickupable);
+    }
+    if object.mass_kg > profile.payload_kg {
+        return Err(Failure::TooHeavy {
+            mass_kg: object.mass_kg,
+        });
+    }
+    let width = 2.0
+        * object
+            .bounds
+            .half_extents
+            .x
+            .min(object.bounds.half_extents.y);
+    if width > profile.gripper_opening_m {
+        return Err(Failure::TooWide { width_m: width });
+    }
+    Ok(())
+}
 
 impl Simulator {
     /// The object in the hand, by index into the scene's objects.
@@ -90,16 +114,8 @@ impl Simulator {
             Ok((i, _, _)) => i,
             Err(f) => return Outcome::failed(f),
         };
-        let o = &self.scene.objects[index];
-        if !o.pickupable {
-            return Outcome::failed(Failure::NotPickupable);
-        }
-        if o.mass_kg > self.profile.payload_kg {
-            return Outcome::failed(Failure::TooHeavy { mass_kg: o.mass_kg });
-        }
-        let width = 2.0 * o.bounds.half_extents.x.min(o.bounds.half_extents.y);
-        if width > self.profile.gripper_opening_m {
-            return Outcome::failed(Failure::TooWide { width_m: width });
+        if let Err(f) = pickup_rule(&self.scene.objects[index], &self.profile) {
+            return Outcome::failed(f);
         }
         let hold = self.hold_box(index);
         if let Some(blocked_by) = first_overlap(&self.scene, index, &hold, &|_| false) {
