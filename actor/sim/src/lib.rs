@@ -8,6 +8,7 @@ pub mod geometry;
 pub mod ithor;
 pub mod physics;
 pub mod profile;
+pub mod randomise;
 pub mod raycast;
 pub mod scene;
 pub mod shapes;

@@ -131,6 +131,45 @@ pub fn first_overlap(
         .then(|| "wall".to_string())
 }
 
+/// The deepest overlap (metres, 0 if none) between object `index` and
+/// anything else in the room: other objects, the floor, the walls.
+pub fn deepest_penetration(scene: &Scene, index: usize) -> f32 {
+    let o = &scene.objects[index];
+    let shape = SharedShape::compound(compound(&o.object_type, o.bounds.half_extents, false));
+    let here = pose(&box_pose(&o.bounds));
+    let depth = |other: &SharedShape, other_pose: &Pose| match rapier3d::parry::query::contact(
+        &here,
+        shape.as_ref(),
+        other_pose,
+        other.as_ref(),
+        0.0,
+    ) {
+        Ok(Some(c)) if c.dist < 0.0 => -c.dist,
+        _ => 0.0,
+    };
+    let objects = scene
+        .objects
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| *i != index)
+        .map(|(_, other)| {
+            let structural = other.object_type == "Floor";
+            let s = SharedShape::compound(compound(
+                &other.object_type,
+                other.bounds.half_extents,
+                structural,
+            ));
+            depth(&s, &pose(&box_pose(&other.bounds)))
+        });
+    let walls = scene.walls.iter().map(|w| {
+        depth(
+            &SharedShape::cuboid(w.half_extents.x, w.half_extents.y, w.half_extents.z),
+            &pose(&box_pose(w)),
+        )
+    });
+    objects.chain(walls).fold(0.0, f32::max)
+}
+
 /// A room with one dynamic object.
 struct OneBody {
     world: PhysicsWorld,

@@ -147,3 +147,36 @@ fn ground_truth_affordances_follow_the_profiles_and_the_physics() {
     );
     assert!(picks(&weak) < picks(&default));
 }
+
+#[test]
+fn randomised_episodes_interpenetrate_nothing_and_are_deterministic() {
+    use rand::SeedableRng;
+    use sim::physics::deepest_penetration;
+    use sim::randomise::{randomise, MAX_PENETRATION_M};
+    let scene = scenes().remove(2);
+    let profile = RobotProfile::load("default").unwrap();
+    let run = |seed: u64| {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+        randomise(&scene, &profile, &mut rng).unwrap()
+    };
+    let (sim, report) = run(7);
+    eprintln!("{}: {report:?}, agent {:?}", scene.name, sim.agent());
+    assert!(report.moved > report.kept, "{report:?}");
+    for (i, o) in sim.scene().objects.iter().enumerate() {
+        if o.pickupable && o.bounds != scene.objects[i].bounds {
+            let depth = deepest_penetration(sim.scene(), i);
+            assert!(depth <= MAX_PENETRATION_M, "{} overlaps by {depth} m", o.id);
+        }
+    }
+    assert_eq!(sim.agent().yaw_deg % 30.0, 0.0);
+    let (again, _) = run(7);
+    assert_eq!(again.scene(), sim.scene(), "same seed, same room");
+    assert_eq!(again.agent(), sim.agent());
+    assert_eq!(
+        again.render_cpu(),
+        sim.render_cpu(),
+        "same seed, same frame"
+    );
+    let (other, _) = run(8);
+    assert_ne!(other.scene(), sim.scene(), "another seed, another room");
+}
