@@ -3,8 +3,10 @@
 //! down by 15° within [−30°, 60°] (positive is down). Every step says whether
 //! it succeeded and, if not, why in machine-readable form.
 
+mod hand;
 mod interact;
 
+pub use hand::{HandMove, DEFAULT_HAND, HAND_STEP_M};
 pub use interact::{pickup_rule, PUSH_SUCCESS_M};
 
 use std::collections::VecDeque;
@@ -101,6 +103,14 @@ pub enum Failure {
     },
     /// The pixel is outside the image.
     BadPixel,
+    /// The hand would leave the arm's workspace: beyond reach from the eye,
+    /// or into the agent's body.
+    HandLimit {
+        /// How far ahead of the eye the hand would be, metres.
+        ahead_m: f32,
+        /// How far from the eye the hand would be, metres.
+        distance_m: f32,
+    },
 }
 
 /// What a step did.
@@ -137,6 +147,8 @@ pub struct Simulator {
     agent: AgentState,
     /// Index of the object in the hand, if any (it is not in the room's geometry).
     held: Option<usize>,
+    /// The hand's offset from the eye, body frame (ahead, right, up), metres.
+    hand: nalgebra::Vector3<f32>,
 }
 
 /// Why a simulator could not be set up.
@@ -164,6 +176,7 @@ impl Simulator {
             profile,
             agent: start,
             held: None,
+            hand: DEFAULT_HAND,
         };
         if let Some(o) = sim.obstacle_at(start.x, start.y) {
             return Err(SetupError::StartBlocked {
@@ -213,9 +226,11 @@ impl Simulator {
         }
     }
 
-    /// Performs a navigation action.
+    /// Performs a navigation action. With an object in the hand, moving and
+    /// turning also fail when the held object would collide.
     pub fn step(&mut self, action: NavAction) -> Outcome {
-        let a = &mut self.agent;
+        let before = self.agent;
+        let mut a = before;
         match action {
             NavAction::RotateLeft => a.yaw_deg = (a.yaw_deg + TURN_DEG).rem_euclid(360.0),
             NavAction::RotateRight => a.yaw_deg = (a.yaw_deg - TURN_DEG).rem_euclid(360.0),
@@ -233,8 +248,8 @@ impl Simulator {
             }
             NavAction::MoveAhead => {
                 let yaw = a.yaw_deg.to_radians();
-                let (x, y) = (a.x + STEP_M * yaw.cos(), a.y + STEP_M * yaw.sin());
-                if let Some(o) = self.obstacle_at(x, y) {
+                (a.x, a.y) = (a.x + STEP_M * yaw.cos(), a.y + STEP_M * yaw.sin());
+                if let Some(o) = self.obstacle_at(a.x, a.y) {
                     return Outcome::failed(Failure::Blocked {
                         object: match o {
                             Obstacle::Object(i) => Some(self.scene.objects[i].id.clone()),
@@ -242,9 +257,18 @@ impl Simulator {
                         },
                     });
                 }
-                self.agent.x = x;
-                self.agent.y = y;
             }
+        }
+        self.agent = a;
+        if let Some(index) = self.held {
+            let carried = self.hold_box(index);
+            if let Some(what) = self.hold_blocked(index, &carried) {
+                self.agent = before;
+                return Outcome::failed(Failure::Blocked {
+                    object: (what != crate::physics::WALL_NAME).then_some(what),
+                });
+            }
+            self.follow_hand();
         }
         Outcome::ok()
     }

@@ -13,7 +13,7 @@ use crate::shapes::{parts_for, Primitive};
 
 /// A parry primitive.
 #[derive(Debug, Clone, Copy)]
-enum Convex {
+pub(crate) enum Convex {
     Cuboid(Cuboid),
     Cylinder(Cylinder),
     Ball(Ball),
@@ -21,27 +21,33 @@ enum Convex {
 
 /// A part placed in the world with what the renderer needs.
 #[derive(Debug, Clone, Copy)]
-struct PlacedPart {
-    t_part_world: Isometry3<f32>,
-    shape: Convex,
-    colour: [f32; 3],
+pub(crate) struct PlacedPart {
+    /// World to part frame (parry's cylinders stand along the part's y).
+    pub(crate) t_part_world: Isometry3<f32>,
+    pub(crate) shape: Convex,
+    pub(crate) colour: [f32; 3],
 }
 
 /// Everything that can be hit, grouped per instance with a world box for culling.
 #[derive(Debug, Clone)]
-struct Instance {
-    id: u32,
+pub(crate) struct Instance {
+    /// Instance id: object index + 1, or 0 for the floor and walls.
+    pub(crate) id: u32,
     object: Option<usize>,
     aabb_min: Point3<f32>,
     aabb_max: Point3<f32>,
-    parts: Vec<PlacedPart>,
+    pub(crate) parts: Vec<PlacedPart>,
 }
 
 /// A scene turned into ray-castable geometry.
 #[derive(Debug, Clone)]
 pub struct SceneGeometry {
-    instances: Vec<Instance>,
+    pub(crate) instances: Vec<Instance>,
+    generation: u64,
 }
+
+/// Source of [`SceneGeometry::generation`] numbers.
+static GENERATIONS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
 
 /// Base colour of a material (linear 0..1), or `None` if unknown.
 fn material_colour(material: &str) -> Option<[f32; 3]> {
@@ -201,7 +207,16 @@ impl SceneGeometry {
                 )],
             });
         }
-        Self { instances }
+        Self {
+            instances,
+            generation: GENERATIONS.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
+        }
+    }
+
+    /// A number unique to this geometry (shared by its clones): renderers
+    /// that upload the geometry re-upload only when it changes.
+    pub fn generation(&self) -> u64 {
+        self.generation
     }
 
     /// The nearest hit along a world ray within `max_m`: distance along the

@@ -6,6 +6,7 @@ pub mod affordances;
 pub mod agent;
 pub mod geometry;
 pub mod ithor;
+pub mod mesh;
 pub mod physics;
 pub mod profile;
 pub mod randomise;

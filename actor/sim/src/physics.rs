@@ -105,8 +105,11 @@ pub fn first_overlap(
         rapier3d::parry::query::intersection_test(&here, shape.as_ref(), other_pose, other.as_ref())
             .is_ok_and(|r| r.intersecting)
     };
+    let (lo, hi) = corner_bounds(&at.corners());
+    let apart =
+        |min: &Point3<f32>, max: &Point3<f32>| (0..3).any(|a| max[a] < lo[a] || min[a] > hi[a]);
     for (i, other) in scene.objects.iter().enumerate() {
-        if i == index || ignore(i) {
+        if i == index || ignore(i) || apart(&other.aabb_min, &other.aabb_max) {
             continue;
         }
         let structural = other.object_type == "Floor";
@@ -122,13 +125,31 @@ pub fn first_overlap(
     scene
         .walls
         .iter()
+        .filter(|w| {
+            let (min, max) = corner_bounds(&w.corners());
+            !apart(&min, &max)
+        })
         .any(|w| {
             hits(
                 &SharedShape::cuboid(w.half_extents.x, w.half_extents.y, w.half_extents.z),
                 &pose(&box_pose(w)),
             )
         })
-        .then(|| "wall".to_string())
+        .then(|| WALL_NAME.to_string())
+}
+
+/// What [`first_overlap`] names a wall or the ceiling.
+pub const WALL_NAME: &str = "wall";
+
+/// The axis-aligned bounds of a set of corners.
+fn corner_bounds(corners: &[Point3<f32>]) -> (Point3<f32>, Point3<f32>) {
+    corners.iter().fold(
+        (
+            Point3::from([f32::INFINITY; 3]),
+            Point3::from([f32::NEG_INFINITY; 3]),
+        ),
+        |(lo, hi), c| (lo.inf(c), hi.sup(c)),
+    )
 }
 
 /// The deepest overlap (metres, 0 if none) between object `index` and

@@ -1,7 +1,8 @@
 //! Picking up, dropping and pushing through the simulator, with the rules
 //! of the robot profiles and the outcomes of the physics.
 
-use sim::agent::{AgentState, Failure, Simulator};
+use nalgebra::Vector3;
+use sim::agent::{AgentState, Failure, HandMove, NavAction, Simulator, DEFAULT_HAND, HAND_STEP_M};
 use sim::ithor::{load_set, SceneSet};
 use sim::profile::RobotProfile;
 use sim::scene::Scene;
@@ -174,4 +175,65 @@ fn pushing_moves_a_chair_and_reports_a_sofa_that_did_not_move() {
         before,
         "a failed push changes nothing"
     );
+}
+
+#[test]
+fn the_held_object_moves_with_the_hand_and_the_agent_and_stops_at_limits() {
+    let profile = RobotProfile::load("default").unwrap();
+    let all = scenes();
+    let (mut sim, index, u, v) = find(&all, "Pillow", &profile);
+    assert_eq!(
+        sim.move_held(HandMove::Up).failure,
+        Some(Failure::HandEmpty)
+    );
+    assert!(sim.pick_up(u, v).success);
+    let start = sim.scene().objects[index].bounds.center;
+    let outcome = sim.move_held(HandMove::Up);
+    assert!(outcome.success, "{outcome:?}");
+    let up = sim.scene().objects[index].bounds.center - start;
+    assert!(
+        (up - Vector3::new(0.0, 0.0, HAND_STEP_M)).norm() < 1e-5,
+        "{up:?}"
+    );
+    assert!((sim.hand_offset() - DEFAULT_HAND - Vector3::z() * HAND_STEP_M).norm() < 1e-5);
+
+    // Towards the body: stops before the object enters the agent's capsule.
+    let mut backs = 0;
+    let failure = loop {
+        let o = sim.move_held(HandMove::Back);
+        if !o.success {
+            break o.failure.unwrap();
+        }
+        backs += 1;
+        assert!(backs < 10, "the hand never met its limit");
+    };
+    assert!(matches!(failure, Failure::HandLimit { .. }), "{failure:?}");
+    let half = sim.scene().objects[index].bounds.half_extents;
+    assert!(sim.hand_offset().x >= profile.agent_radius_m + half.x.min(half.y) - 1e-5);
+
+    // Ahead: stops at reach (or on collision), never past it.
+    let failure = loop {
+        let o = sim.move_held(HandMove::Ahead);
+        if !o.success {
+            break o.failure.unwrap();
+        }
+    };
+    assert!(
+        matches!(failure, Failure::HandLimit { .. } | Failure::NoRoom { .. }),
+        "{failure:?}"
+    );
+    assert!(sim.hand_offset().norm() <= profile.reach_m + 1e-5);
+
+    // The object follows the agent when it turns.
+    let before = sim.scene().objects[index].bounds.center;
+    let agent = sim.agent();
+    if sim.step(NavAction::RotateLeft).success {
+        let after = sim.scene().objects[index].bounds.center;
+        let eye_to = |p: nalgebra::Point3<f32>| (p.x - agent.x).atan2(p.y - agent.y);
+        assert!((after - before).norm() > 0.05, "the object stayed behind");
+        assert!((eye_to(after) - eye_to(before)).abs() > 0.1);
+    }
+    let dropped = sim.drop_held();
+    assert!(dropped.success, "{dropped:?}");
+    assert_eq!(sim.hand_offset(), DEFAULT_HAND, "the hand resets");
 }

@@ -2,16 +2,15 @@
 //! push the object under a pixel. Rules (flags, reach, payload, gripper) come
 //! from the robot profile; outcomes of pushes and drops from the physics.
 
-use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Point3, Translation3, Vector3};
 
+use super::hand::DEFAULT_HAND;
 use super::{Failure, Outcome, Simulator};
 use crate::geometry::SceneGeometry;
-use crate::physics::{first_overlap, simulate_drop, simulate_push};
+use crate::physics::{simulate_drop, simulate_push};
 use crate::profile::RobotProfile;
 use crate::scene::{OrientedBox, SceneObject};
 
-/// Where a held object's box centre sits, camera frame (x right, y down, z forward), metres.
-const HOLD_OFFSET: Vector3<f32> = Vector3::new(0.0, 0.25, 0.55);
 /// Least horizontal motion that makes a push a success, metres.
 pub const PUSH_SUCCESS_M: f32 = 0.02;
 
@@ -69,6 +68,12 @@ impl Simulator {
 
     /// Moves object `index` to box `to` (its pivot follows rigidly) and rebuilds the geometry.
     fn place(&mut self, index: usize, to: OrientedBox) {
+        self.set_box(index, to);
+        self.geometry = SceneGeometry::without(&self.scene, self.held);
+    }
+
+    /// Moves object `index` to box `to` (its pivot follows rigidly), leaving the geometry as it is.
+    pub(super) fn set_box(&mut self, index: usize, to: OrientedBox) {
         let o = &mut self.scene.objects[index];
         let from = Isometry3::from_parts(
             Translation3::from(o.bounds.center.coords),
@@ -88,21 +93,6 @@ impl Simulator {
         );
         o.aabb_min = lo;
         o.aabb_max = hi;
-        self.geometry = SceneGeometry::without(&self.scene, self.held);
-    }
-
-    /// The box of object `index` held in front of the camera, upright, facing the agent's heading.
-    fn hold_box(&self, index: usize) -> OrientedBox {
-        let camera = self.camera();
-        let centre = camera.t_world_camera * Point3::from(HOLD_OFFSET);
-        OrientedBox {
-            center: centre,
-            rotation: UnitQuaternion::from_axis_angle(
-                &Vector3::z_axis(),
-                self.agent.yaw_deg.to_radians(),
-            ),
-            half_extents: self.scene.objects[index].bounds.half_extents,
-        }
     }
 
     /// Picks up the object under pixel `(u, v)`.
@@ -117,11 +107,12 @@ impl Simulator {
         if let Err(f) = pickup_rule(&self.scene.objects[index], &self.profile) {
             return Outcome::failed(f);
         }
-        let hold = self.hold_box(index);
-        if let Some(blocked_by) = first_overlap(&self.scene, index, &hold, &|_| false) {
+        let hold = self.hold_box_at(index, DEFAULT_HAND);
+        if let Some(blocked_by) = self.hold_blocked(index, &hold) {
             return Outcome::failed(Failure::NoRoom { blocked_by });
         }
         self.held = Some(index);
+        self.hand = DEFAULT_HAND;
         self.place(index, hold);
         Outcome::ok()
     }
@@ -132,11 +123,12 @@ impl Simulator {
             return Outcome::failed(Failure::HandEmpty);
         };
         let hold = self.hold_box(index);
-        if let Some(blocked_by) = first_overlap(&self.scene, index, &hold, &|_| false) {
+        if let Some(blocked_by) = self.hold_blocked(index, &hold) {
             return Outcome::failed(Failure::NoRoom { blocked_by });
         }
         let rest = simulate_drop(&self.scene, index, &hold);
         self.held = None;
+        self.hand = DEFAULT_HAND;
         self.place(index, rest);
         Outcome::ok()
     }
