@@ -5,6 +5,7 @@
 pub mod affordances;
 pub mod agent;
 pub mod geometry;
+pub mod gpu;
 pub mod ithor;
 pub mod mesh;
 pub mod physics;

@@ -107,13 +107,7 @@ pub fn randomise(
             report.kept += 1;
         }
     }
-    let start_probe = probe_start(&scene, profile)?;
-    let reachable = start_probe.reachable_positions();
-    if reachable.is_empty() {
-        return Err(RandomiseError::NoReachablePosition {
-            scene: scene.name.clone(),
-        });
-    }
+    let reachable = reachable_grid(&scene, profile)?;
     let (x, y) = reachable[rng.random_range(0..reachable.len())];
     let start = AgentState {
         x,
@@ -147,6 +141,21 @@ fn release_above(
         rotation: UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw),
         half_extents: object.half_extents,
     })
+}
+
+/// The reachable 0.25 m grid of `scene` for an agent with `profile` (see
+/// [`Simulator::reachable_positions`]); an error if the agent fits nowhere.
+pub fn reachable_grid(
+    scene: &Scene,
+    profile: &RobotProfile,
+) -> Result<Vec<(f32, f32)>, RandomiseError> {
+    let reachable = probe_start(scene, profile)?.reachable_positions();
+    if reachable.is_empty() {
+        return Err(RandomiseError::NoReachablePosition {
+            scene: scene.name.clone(),
+        });
+    }
+    Ok(reachable)
 }
 
 /// A simulator at the first free grid spot, only to ask for the reachable grid.

@@ -81,7 +81,7 @@ pub struct Frame {
 }
 
 /// Direction of the light used for shading (from above and a little to the side).
-const LIGHT: Vector3<f32> = Vector3::new(0.3, 0.2, 0.93);
+pub const LIGHT: Vector3<f32> = Vector3::new(0.3, 0.2, 0.93);
 
 /// Renders `geometry` from `camera` by ray casting; depths beyond `max_depth_m` are 0.
 pub fn render(geometry: &SceneGeometry, camera: &Camera, max_depth_m: f32) -> Frame {
