@@ -12,10 +12,14 @@ pub use interact::{pickup_rule, PUSH_SUCCESS_M};
 use std::collections::VecDeque;
 
 use crate::geometry::{AgentBody, Obstacle, SceneGeometry};
+use crate::gpu::GpuError;
 use crate::profile::RobotProfile;
 use crate::raycast::{agent_camera_pose, render, Camera, Frame};
+use crate::renderer::Renderer;
 use crate::scene::Scene;
 
+/// Farthest depth the agent's camera sees, metres.
+pub const MAX_DEPTH_M: f32 = 20.0;
 /// Length of a step, metres.
 pub const STEP_M: f32 = 0.25;
 /// Turn per rotate action, degrees.
@@ -54,6 +58,31 @@ pub enum NavAction {
     LookUp,
     /// Tilt the camera 15° down.
     LookDown,
+}
+
+/// Any action the agent can take; interactions aim at an image pixel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Action {
+    /// A navigation action.
+    Nav(NavAction),
+    /// Pick up the object under pixel `(u, v)`.
+    PickUp {
+        /// Column.
+        u: usize,
+        /// Row.
+        v: usize,
+    },
+    /// Push the object under pixel `(u, v)`.
+    Push {
+        /// Column.
+        u: usize,
+        /// Row.
+        v: usize,
+    },
+    /// Drop the held object.
+    Drop,
+    /// Move the held object.
+    MoveHeld(HandMove),
 }
 
 /// Why an action failed.
@@ -273,6 +302,17 @@ impl Simulator {
         Outcome::ok()
     }
 
+    /// Performs any action.
+    pub fn apply(&mut self, action: Action) -> Outcome {
+        match action {
+            Action::Nav(a) => self.step(a),
+            Action::PickUp { u, v } => self.pick_up(u, v),
+            Action::Push { u, v } => self.push(u, v),
+            Action::Drop => self.drop_held(),
+            Action::MoveHeld(m) => self.move_held(m),
+        }
+    }
+
     /// The agent's camera.
     pub fn camera(&self) -> Camera {
         let a = self.agent;
@@ -293,7 +333,17 @@ impl Simulator {
 
     /// What the agent sees, by the CPU reference renderer.
     pub fn render_cpu(&self) -> Frame {
-        render(&self.geometry, &self.camera(), 20.0)
+        render(&self.geometry, &self.camera(), MAX_DEPTH_M)
+    }
+
+    /// What the agent sees, by `renderer`.
+    pub fn render(&self, renderer: &mut Renderer) -> Result<Frame, GpuError> {
+        renderer.render(&self.geometry, &self.camera(), MAX_DEPTH_M)
+    }
+
+    /// The room as rendered and ray-cast (without the held object).
+    pub fn geometry(&self) -> &SceneGeometry {
+        &self.geometry
     }
 
     /// Positions on the 0.25 m grid (aligned to the floor's minimum corner)

@@ -39,6 +39,13 @@ pub(crate) struct Instance {
     pub(crate) parts: Vec<PlacedPart>,
 }
 
+impl Instance {
+    /// The instance's world box.
+    pub(crate) fn world_box(&self) -> (Point3<f32>, Point3<f32>) {
+        (self.aabb_min, self.aabb_max)
+    }
+}
+
 /// A scene turned into ray-castable geometry.
 #[derive(Debug, Clone)]
 pub struct SceneGeometry {
@@ -227,8 +234,20 @@ impl SceneGeometry {
         dir: &Vector3<f32>,
         max_m: f32,
     ) -> Option<(f32, u32, [f32; 3], Vector3<f32>)> {
+        self.cast_among(&self.instances, origin, dir, max_m)
+    }
+
+    /// Like [`SceneGeometry::cast`], against `candidates` only (instances a
+    /// renderer has found may lie under the ray).
+    pub(crate) fn cast_among<'a>(
+        &'a self,
+        candidates: impl IntoIterator<Item = &'a Instance>,
+        origin: &Point3<f32>,
+        dir: &Vector3<f32>,
+        max_m: f32,
+    ) -> Option<(f32, u32, [f32; 3], Vector3<f32>)> {
         let mut best: Option<(f32, u32, [f32; 3], Vector3<f32>)> = None;
-        for inst in &self.instances {
+        for inst in candidates {
             let limit = best.map_or(max_m, |b| b.0);
             let Some(enter) = slab(origin, dir, &inst.aabb_min, &inst.aabb_max) else {
                 continue;

@@ -8,7 +8,7 @@ use nalgebra::{Matrix4, Point3};
 use wgpu::util::DeviceExt;
 
 use crate::geometry::SceneGeometry;
-use crate::mesh::{scene_triangles, MeshVertex};
+use crate::mesh::{scene_mesh, InstanceRange, MeshVertex};
 use crate::raycast::{Camera, Frame, LIGHT};
 
 /// Nearest depth the renderer draws, metres (reverse-Z keeps precision far out).
@@ -64,7 +64,7 @@ struct Targets {
 struct Uploaded {
     generation: u64,
     vertices: wgpu::Buffer,
-    count: u32,
+    instances: Vec<InstanceRange>,
 }
 
 /// A headless renderer on one wgpu device.
@@ -237,18 +237,18 @@ impl GpuRenderer {
         {
             return;
         }
-        let triangles = scene_triangles(geometry);
+        let mesh = scene_mesh(geometry);
         let vertices = self
             .device
             .create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some("scene"),
-                contents: bytemuck::cast_slice(&triangles),
+                contents: bytemuck::cast_slice(&mesh.vertices),
                 usage: wgpu::BufferUsages::VERTEX,
             });
         self.scene = Some(Uploaded {
             generation: geometry.generation(),
             vertices,
-            count: triangles.len() as u32,
+            instances: mesh.instances,
         });
     }
 
@@ -320,7 +320,9 @@ impl GpuRenderer {
             pass.set_pipeline(&self.pipeline);
             pass.set_bind_group(0, &self.bind_group, &[]);
             pass.set_vertex_buffer(0, scene.vertices.slice(..));
-            pass.draw(0..scene.count, 0..1);
+            for range in visible_ranges(&scene.instances, camera, max_depth_m) {
+                pass.draw(range, 0..1);
+            }
         }
         let plane = u64::from(targets.padded_row) * u64::from(height);
         for (k, texture) in [&targets.colour, &targets.depth_out, &targets.ids]
@@ -393,6 +395,48 @@ fn view_projection(camera: &Camera) -> Matrix4<f32> {
         0.0, 0.0, 1.0,    0.0,
     );
     projection * camera.t_world_camera.inverse().to_homogeneous()
+}
+
+/// The vertex ranges of the instances whose boxes may be in view (a box is
+/// left out only when all its corners lie outside one plane of the view
+/// frustum), adjacent ranges merged into one draw.
+fn visible_ranges(
+    instances: &[InstanceRange],
+    camera: &Camera,
+    max_depth_m: f32,
+) -> Vec<std::ops::Range<u32>> {
+    let t_camera_world = camera.t_world_camera.inverse();
+    let f = camera.focal_px();
+    // One pixel of margin on each side.
+    let tan_x = (camera.width as f32 / 2.0 + 1.0) / f;
+    let tan_y = (camera.height as f32 / 2.0 + 1.0) / f;
+    let mut draws: Vec<std::ops::Range<u32>> = Vec::new();
+    for instance in instances {
+        let (lo, hi) = (instance.aabb_min, instance.aabb_max);
+        let corners: [Point3<f32>; 8] = std::array::from_fn(|i| {
+            t_camera_world
+                * Point3::new(
+                    if i & 1 == 0 { lo.x } else { hi.x },
+                    if i & 2 == 0 { lo.y } else { hi.y },
+                    if i & 4 == 0 { lo.z } else { hi.z },
+                )
+        });
+        let outside = |test: &dyn Fn(&Point3<f32>) -> bool| corners.iter().all(test);
+        if outside(&|p| p.z < NEAR_M)
+            || outside(&|p| p.z > max_depth_m)
+            || outside(&|p| p.x > tan_x * p.z)
+            || outside(&|p| p.x < -tan_x * p.z)
+            || outside(&|p| p.y > tan_y * p.z)
+            || outside(&|p| p.y < -tan_y * p.z)
+        {
+            continue;
+        }
+        match draws.last_mut() {
+            Some(last) if last.end == instance.vertices.start => last.end = instance.vertices.end,
+            _ => draws.push(instance.vertices.clone()),
+        }
+    }
+    draws
 }
 
 fn make_targets(device: &wgpu::Device, width: u32, height: u32) -> Targets {

@@ -4,13 +4,17 @@
 
 pub mod affordances;
 pub mod agent;
+pub mod catalogue;
 pub mod geometry;
 pub mod gpu;
 pub mod ithor;
 pub mod mesh;
 pub mod physics;
+pub mod procgen;
 pub mod profile;
 pub mod randomise;
 pub mod raycast;
+pub mod renderer;
 pub mod scene;
+pub mod script;
 pub mod shapes;

@@ -6,11 +6,18 @@ use nalgebra::{Point3, Vector3};
 
 use crate::geometry::{Convex, SceneGeometry};
 
-/// Segments around a cylinder or a sphere's equator (48: an inscribed
-/// polygon lies within 0.22 % of the radius).
-const AROUND: usize = 48;
-/// Rings from pole to pole of a sphere.
-const RINGS: usize = 24;
+/// Largest distance between a curved surface and its tessellation, metres.
+const CHORD_ERROR_M: f32 = 0.0015;
+/// Fewest and most segments around a cylinder or a sphere's equator.
+const SEGMENTS: (usize, usize) = (8, 64);
+
+/// Segments around a circle of `radius` so that chords stay within
+/// [`CHORD_ERROR_M`] of it.
+fn segments(radius: f32) -> usize {
+    let ratio = (1.0 - CHORD_ERROR_M / radius.max(1e-4)).clamp(-1.0, 1.0);
+    let n = (std::f32::consts::PI / ratio.acos()).ceil() as usize;
+    n.clamp(SEGMENTS.0, SEGMENTS.1)
+}
 
 /// One vertex as the GPU sees it.
 #[repr(C)]
@@ -26,10 +33,32 @@ pub struct MeshVertex {
     pub id: u32,
 }
 
-/// Triangle list (three vertices per triangle) of everything in `geometry`.
-pub fn scene_triangles(geometry: &SceneGeometry) -> Vec<MeshVertex> {
+/// The scene as one triangle list with each instance's share of it.
+#[derive(Debug, Clone, Default)]
+pub struct SceneMesh {
+    /// Three vertices per triangle.
+    pub vertices: Vec<MeshVertex>,
+    /// Per instance: its world box and its range in `vertices`.
+    pub instances: Vec<InstanceRange>,
+}
+
+/// One instance's vertices and world box, for culling.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InstanceRange {
+    /// World box, lower corner.
+    pub aabb_min: Point3<f32>,
+    /// World box, upper corner.
+    pub aabb_max: Point3<f32>,
+    /// Range in [`SceneMesh::vertices`].
+    pub vertices: std::ops::Range<u32>,
+}
+
+/// Everything in `geometry` as triangles.
+pub fn scene_mesh(geometry: &SceneGeometry) -> SceneMesh {
     let mut out = Vec::new();
+    let mut instances = Vec::with_capacity(geometry.instances.len());
     for instance in &geometry.instances {
+        let first = out.len() as u32;
         for part in &instance.parts {
             let t_world_part = part.t_part_world.inverse();
             let emit = &mut |p: Point3<f32>, n: Vector3<f32>| {
@@ -46,8 +75,17 @@ pub fn scene_triangles(geometry: &SceneGeometry) -> Vec<MeshVertex> {
                 Convex::Ball(b) => ball(b.radius, emit),
             }
         }
+        let (aabb_min, aabb_max) = instance.world_box();
+        instances.push(InstanceRange {
+            aabb_min,
+            aabb_max,
+            vertices: first..out.len() as u32,
+        });
     }
-    out
+    SceneMesh {
+        vertices: out,
+        instances,
+    }
 }
 
 type Emit<'a> = dyn FnMut(Point3<f32>, Vector3<f32>) + 'a;
@@ -80,11 +118,12 @@ fn cuboid(h: [f32; 3], emit: &mut Emit) {
 
 /// A cylinder along y (parry's convention).
 fn cylinder(half_height: f32, radius: f32, emit: &mut Emit) {
+    let around = segments(radius);
     let ring = |k: usize| {
-        let a = std::f32::consts::TAU * k as f32 / AROUND as f32;
+        let a = std::f32::consts::TAU * k as f32 / around as f32;
         (a.cos(), a.sin())
     };
-    for k in 0..AROUND {
+    for k in 0..around {
         let ((c0, s0), (c1, s1)) = (ring(k), ring(k + 1));
         let p = |c: f32, s: f32, y: f32| Point3::new(radius * c, y, radius * s);
         let n = |c: f32, s: f32| Vector3::new(c, 0.0, s);
@@ -109,13 +148,15 @@ fn cylinder(half_height: f32, radius: f32, emit: &mut Emit) {
 }
 
 fn ball(radius: f32, emit: &mut Emit) {
+    let around = segments(radius);
+    let rings = around.div_ceil(2);
     let point = |ring: usize, k: usize| {
-        let polar = std::f32::consts::PI * ring as f32 / RINGS as f32;
-        let a = std::f32::consts::TAU * k as f32 / AROUND as f32;
+        let polar = std::f32::consts::PI * ring as f32 / rings as f32;
+        let a = std::f32::consts::TAU * k as f32 / around as f32;
         Vector3::new(polar.sin() * a.cos(), polar.cos(), polar.sin() * a.sin())
     };
-    for ring in 0..RINGS {
-        for k in 0..AROUND {
+    for ring in 0..rings {
+        for k in 0..around {
             let quad = [
                 point(ring, k),
                 point(ring + 1, k),

@@ -120,7 +120,7 @@ pub fn randomise(
 
 /// A release pose for `object` a little above a random point of the
 /// support's top face, with a random heading; `None` if it does not fit.
-fn release_above(
+pub(crate) fn release_above(
     support: &OrientedBox,
     object: &OrientedBox,
     rng: &mut impl Rng,

@@ -5,7 +5,7 @@
 
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 
-use crate::geometry::SceneGeometry;
+use crate::geometry::{Instance, SceneGeometry};
 
 /// A pinhole camera: x right, y down, z forward (the mapper's convention).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -83,6 +83,67 @@ pub struct Frame {
 /// Direction of the light used for shading (from above and a little to the side).
 pub const LIGHT: Vector3<f32> = Vector3::new(0.3, 0.2, 0.93);
 
+/// Side of the square image tiles that instances are binned into, pixels.
+const TILE: usize = 16;
+/// Nearest depth at which an instance box is projected; boxes reaching
+/// closer go into every tile.
+const NEAR_M: f32 = 0.01;
+
+/// For each tile (row-major, `TILE` pixels square) the instances whose
+/// world box projects onto it, in scene order.
+fn bin_instances<'a>(
+    geometry: &'a SceneGeometry,
+    camera: &Camera,
+    max_depth_m: f32,
+) -> (usize, Vec<Vec<&'a Instance>>) {
+    let (tiles_x, tiles_y) = (camera.width.div_ceil(TILE), camera.height.div_ceil(TILE));
+    let mut tiles = vec![Vec::new(); tiles_x * tiles_y];
+    let t_camera_world = camera.t_world_camera.inverse();
+    let f = camera.focal_px();
+    let (cu, cv) = (
+        (camera.width as f32 - 1.0) / 2.0,
+        (camera.height as f32 - 1.0) / 2.0,
+    );
+    for instance in &geometry.instances {
+        let (lo, hi) = instance.world_box();
+        let corners: [Point3<f32>; 8] = std::array::from_fn(|i| {
+            t_camera_world
+                * Point3::new(
+                    if i & 1 == 0 { lo.x } else { hi.x },
+                    if i & 2 == 0 { lo.y } else { hi.y },
+                    if i & 4 == 0 { lo.z } else { hi.z },
+                )
+        });
+        if corners.iter().all(|p| p.z < NEAR_M) || corners.iter().all(|p| p.z > max_depth_m) {
+            continue;
+        }
+        let (mut u0, mut v0, mut u1, mut v1) =
+            (0.0f32, 0.0f32, camera.width as f32, camera.height as f32);
+        if corners.iter().all(|p| p.z >= NEAR_M) {
+            let us = corners.iter().map(|p| f * p.x / p.z + cu);
+            let vs = corners.iter().map(|p| f * p.y / p.z + cv);
+            u0 = us.clone().fold(f32::INFINITY, f32::min) - 1.0;
+            u1 = us.fold(f32::NEG_INFINITY, f32::max) + 1.0;
+            v0 = vs.clone().fold(f32::INFINITY, f32::min) - 1.0;
+            v1 = vs.fold(f32::NEG_INFINITY, f32::max) + 1.0;
+        }
+        let tile_range = |a: f32, b: f32, tiles: usize| {
+            let first = (a.max(0.0) as usize / TILE).min(tiles);
+            let last = ((b.max(0.0) as usize) / TILE).min(tiles - 1);
+            first..=last
+        };
+        if u1 < 0.0 || v1 < 0.0 || u0 >= camera.width as f32 || v0 >= camera.height as f32 {
+            continue;
+        }
+        for ty in tile_range(v0, v1, tiles_y) {
+            for tx in tile_range(u0, u1, tiles_x) {
+                tiles[ty * tiles_x + tx].push(instance);
+            }
+        }
+    }
+    (tiles_x, tiles)
+}
+
 /// Renders `geometry` from `camera` by ray casting; depths beyond `max_depth_m` are 0.
 pub fn render(geometry: &SceneGeometry, camera: &Camera, max_depth_m: f32) -> Frame {
     let n = camera.width * camera.height;
@@ -95,13 +156,15 @@ pub fn render(geometry: &SceneGeometry, camera: &Camera, max_depth_m: f32) -> Fr
     };
     let origin = camera.t_world_camera * Point3::origin();
     let light = LIGHT.normalize();
+    let (tiles_x, tiles) = bin_instances(geometry, camera, max_depth_m);
     for v in 0..camera.height {
         for u in 0..camera.width {
             let ray_camera = camera.ray(u as f32, v as f32);
             let z_per_metre = 1.0 / ray_camera.norm();
             let dir = camera.t_world_camera.rotation * ray_camera.normalize();
+            let candidates = tiles[(v / TILE) * tiles_x + u / TILE].iter().copied();
             let Some((distance, id, colour, normal)) =
-                geometry.cast(&origin, &dir, max_depth_m / z_per_metre)
+                geometry.cast_among(candidates, &origin, &dir, max_depth_m / z_per_metre)
             else {
                 continue;
             };

@@ -178,3 +178,35 @@ fn an_imported_room_renders_with_many_objects_in_view() {
         seen.len()
     );
 }
+
+#[test]
+fn tile_binning_changes_no_pixel() {
+    let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data/ithor-livingrooms");
+    let scene = load_scene(&dir.join("FloorPlan229.json")).unwrap();
+    let geometry = SceneGeometry::new(&scene);
+    let centre = scene.floor_min + (scene.floor_max - scene.floor_min) / 2.0;
+    for (yaw, horizon) in [(0.0, 0.0), (75.0, 30.0), (200.0, -30.0), (300.0, 60.0)] {
+        let camera = Camera {
+            t_world_camera: agent_camera_pose(centre.x, centre.y, 0.0, 1.5, yaw, horizon),
+            width: 96,
+            height: 64,
+            fov_deg: 90.0,
+        };
+        let frame = render(&geometry, &camera, 20.0);
+        let origin = camera.t_world_camera * Point3::origin();
+        for v in 0..camera.height {
+            for u in 0..camera.width {
+                let ray = camera.ray(u as f32, v as f32);
+                let dir = camera.t_world_camera.rotation * ray.normalize();
+                let max = 20.0 * ray.norm();
+                let expected = geometry.cast(&origin, &dir, max).map_or(0, |h| h.1);
+                assert_eq!(
+                    frame.ids[v * camera.width + u],
+                    expected,
+                    "pixel ({u}, {v})"
+                );
+            }
+        }
+    }
+}
