@@ -7,3 +7,4 @@
 pub mod config;
 pub mod env;
 pub mod episode_loop;
+pub mod sim_view;

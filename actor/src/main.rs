@@ -8,8 +8,10 @@ use std::time::Duration;
 
 use actor::env::{BanditFixture, Environment};
 use actor::episode_loop::{run, LoopSettings};
+use actor::sim_view::SimViewSettings;
 use anyhow::Context;
-use clap::{Parser, ValueEnum};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use sim::renderer::RendererChoice;
 use transport::TransportConfig;
 
 /// Environments the actor can run.
@@ -20,11 +22,52 @@ enum EnvKind {
 }
 
 #[derive(Parser)]
-#[command(version, about = "An actor of the affordance-exploration service", long_about = None)]
+#[command(
+    version,
+    about = "An actor of the affordance-exploration service",
+    long_about = None,
+    args_conflicts_with_subcommands = true,
+    subcommand_negates_reqs = true
+)]
 struct Cli {
-    /// This actor's id, unique in the run, below the transport's max_actors.
+    #[command(subcommand)]
+    command: Option<Command>,
+    #[command(flatten)]
+    run: RunArgs,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Walks the agent along a short scripted path through one room and writes
+    /// PNGs of what it sees (RGB, colour-mapped depth, instance ids) plus a
+    /// top-down map of the room with the path.
+    SimView(SimViewArgs),
+}
+
+#[derive(Args)]
+struct SimViewArgs {
+    /// The room: FloorPlan201 … FloorPlan230 (iTHOR) or generated:SEED (procedural).
+    #[arg(long, default_value = "FloorPlan227")]
+    scene: String,
+    /// Directory to write the PNGs to (created).
     #[arg(long)]
-    actor_id: u32,
+    out: PathBuf,
+    /// Shared data directory with ithor-livingrooms/ and ithor-object-types.tsv.
+    #[arg(long, env = "AFX_DATA", default_value = "../shared/data")]
+    data: PathBuf,
+    /// Robot profile: a shipped name (default, weak-arm) or a TOML file.
+    #[arg(long, default_value = "default")]
+    profile: String,
+    /// Renderer: gpu (wgpu: a GPU or Mesa lavapipe) or cpu (ray casting).
+    #[arg(long, default_value = "gpu")]
+    renderer: RendererChoice,
+}
+
+#[derive(Args)]
+struct RunArgs {
+    /// This actor's id, unique in the run, below the transport's max_actors.
+    #[arg(long, required = true)]
+    actor_id: Option<u32>,
     /// Service-name prefix of the learner to connect to (overrides the config).
     #[arg(long, value_name = "PREFIX")]
     learner: Option<String>,
@@ -33,8 +76,8 @@ struct Cli {
     config: Option<PathBuf>,
     /// Environment to run. There is no default: the simulator is not built yet,
     /// and the bandit fixture exists only to test the wiring.
-    #[arg(long, value_enum)]
-    env: EnvKind,
+    #[arg(long, value_enum, required = true)]
+    env: Option<EnvKind>,
     /// Steps per rollout chunk sent to the learner.
     #[arg(long, default_value_t = 32)]
     chunk_steps: usize,
@@ -55,6 +98,37 @@ fn main() -> anyhow::Result<()> {
         .init();
     transport::init_iceoryx_logging();
     let cli = Cli::parse();
+    match cli.command {
+        Some(Command::SimView(args)) => sim_view(args),
+        None => run_actor(cli.run),
+    }
+}
+
+fn sim_view(args: SimViewArgs) -> anyhow::Result<()> {
+    let settings = SimViewSettings {
+        scene: args.scene,
+        data_dir: args.data,
+        profile: args.profile,
+        renderer: args.renderer,
+        out: args.out,
+    };
+    let summary = actor::sim_view::run(&settings)?;
+    eprintln!(
+        "sim-view: {} ({} of {} walk steps moved the agent), rendered with {}; wrote {} PNGs to {}",
+        settings.scene,
+        summary.moved,
+        actor::sim_view::WALK.len(),
+        summary.renderer,
+        summary.files.len(),
+        settings.out.display()
+    );
+    Ok(())
+}
+
+fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
+    let (Some(actor_id), Some(env_kind)) = (cli.actor_id, cli.env) else {
+        anyhow::bail!("--actor-id and --env are required (see --help)");
+    };
     anyhow::ensure!(
         (1..=proto::MAX_STEPS as usize).contains(&cli.chunk_steps),
         "--chunk-steps must be in 1..={}",
@@ -71,19 +145,19 @@ fn main() -> anyhow::Result<()> {
     if let Some(prefix) = &cli.learner {
         transport.service_prefix = prefix.clone();
     }
-    eprintln!("actor {}: {}", cli.actor_id, transport.describe());
+    eprintln!("actor {}: {}", actor_id, transport.describe());
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(signal, stop.clone()).context("installing signal handlers")?;
     }
-    let mut env: Box<dyn Environment> = match cli.env {
+    let mut env: Box<dyn Environment> = match env_kind {
         EnvKind::BanditFixture => Box::new(BanditFixture::new()),
     };
-    let mut ports = transport::ActorPorts::open(&transport, cli.actor_id).context(
+    let mut ports = transport::ActorPorts::open(&transport, actor_id).context(
         "opening the shared-memory services (same --learner prefix and config as the learner?)",
     )?;
     let settings = LoopSettings {
-        actor_id: cli.actor_id,
+        actor_id: actor_id,
         chunk_steps: cli.chunk_steps,
         seed: cli.seed,
         max_episodes: cli.max_episodes,
@@ -92,7 +166,7 @@ fn main() -> anyhow::Result<()> {
     let summary = run(env.as_mut(), &mut ports, &transport, &settings, &stop)?;
     eprintln!(
         "actor {}: stopped after {} episodes, {} steps; {} messages delivered, {} dropped; policy version {}",
-        cli.actor_id, summary.episodes, summary.steps, summary.delivered, summary.dropped, summary.policy_version
+        actor_id, summary.episodes, summary.steps, summary.delivered, summary.dropped, summary.policy_version
     );
     Ok(())
 }
