@@ -74,8 +74,8 @@ struct RunArgs {
     /// Run config (the learner's config.toml); only its [transport] table is read.
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Environment to run. There is no default: the simulator is not built yet,
-    /// and the bandit fixture exists only to test the wiring.
+    /// Environment to run. Only the bandit fixture (a wiring test) exists so far;
+    /// the simulator-backed environment with map and networks is the next step.
     #[arg(long, value_enum, required = true)]
     env: Option<EnvKind>,
     /// Steps per rollout chunk sent to the learner.
@@ -157,7 +157,7 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
         "opening the shared-memory services (same --learner prefix and config as the learner?)",
     )?;
     let settings = LoopSettings {
-        actor_id: actor_id,
+        actor_id,
         chunk_steps: cli.chunk_steps,
         seed: cli.seed,
         max_episodes: cli.max_episodes,

@@ -10,6 +10,7 @@ use parry3d::shape::{Ball, Capsule, Cuboid, Cylinder, Shape};
 
 use crate::scene::{OrientedBox, Scene};
 use crate::shapes::{parts_for, Primitive};
+use crate::texture::{material_pattern, shade, PLAIN, WOOD};
 
 /// A parry primitive.
 #[derive(Debug, Clone, Copy)]
@@ -26,6 +27,8 @@ pub(crate) struct PlacedPart {
     pub(crate) t_part_world: Isometry3<f32>,
     pub(crate) shape: Convex,
     pub(crate) colour: [f32; 3],
+    /// Procedural texture ([`crate::texture`]).
+    pub(crate) pattern: u32,
 }
 
 /// Everything that can be hit, grouped per instance with a world box for culling.
@@ -87,7 +90,7 @@ fn hash(s: &str) -> u64 {
 
 /// The main and accent colours of an object: its first salient material (or a
 /// colour from its type), varied slightly per instance.
-fn object_colours(object_type: &str, id: &str, materials: &[String]) -> [[f32; 3]; 2] {
+fn object_colours(object_type: &str, id: &str, materials: &[String]) -> [([f32; 3], u32); 2] {
     let h = hash(object_type);
     let base = materials
         .iter()
@@ -104,14 +107,20 @@ fn object_colours(object_type: &str, id: &str, materials: &[String]) -> [[f32; 3
         .get(1)
         .and_then(|m| material_colour(m))
         .unwrap_or(main.map(|c| c * 0.6));
-    [main, accent]
+    let pattern = |i: usize| {
+        materials
+            .get(i)
+            .or(materials.first())
+            .map_or(PLAIN, |m| material_pattern(m))
+    };
+    [(main, pattern(0)), (accent, pattern(1))]
 }
 
 fn placed(
     box_pose: &Isometry3<f32>,
     part_pose: &Isometry3<f32>,
     primitive: &Primitive,
-    colour: [f32; 3],
+    (colour, pattern): ([f32; 3], u32),
 ) -> PlacedPart {
     let v = |x: Vector3<f32>| PVec::new(x.x, x.y, x.z);
     // parry's cylinders stand along y; ours along z.
@@ -134,6 +143,7 @@ fn placed(
         t_part_world: t_world_part.inverse(),
         shape,
         colour,
+        pattern,
     }
 }
 
@@ -162,7 +172,7 @@ impl SceneGeometry {
             }
             let structural = o.object_type == "Floor";
             let colours = if structural {
-                [[0.62, 0.50, 0.36], [0.5, 0.4, 0.3]]
+                [([0.62, 0.50, 0.36], WOOD), ([0.5, 0.4, 0.3], WOOD)]
             } else {
                 object_colours(&o.object_type, &o.id, &o.materials)
             };
@@ -210,7 +220,7 @@ impl SceneGeometry {
                     &pose,
                     &Isometry3::identity(),
                     &Primitive::Cuboid(wall.half_extents),
-                    [0.82, 0.80, 0.74],
+                    ([0.82, 0.80, 0.74], PLAIN),
                 )],
             });
         }
@@ -269,7 +279,10 @@ impl SceneGeometry {
                     if best.is_none_or(|b| hit.time_of_impact < b.0) {
                         let n = Vector3::new(hit.normal.x, hit.normal.y, hit.normal.z);
                         let world_n = part.t_part_world.rotation.inverse() * n;
-                        best = Some((hit.time_of_impact, inst.id, part.colour, world_n));
+                        let local = o + d * hit.time_of_impact;
+                        let k = shade(part.pattern, [local.x, local.y, local.z]);
+                        let colour = part.colour.map(|c| c * k);
+                        best = Some((hit.time_of_impact, inst.id, colour, world_n));
                     }
                 }
             }

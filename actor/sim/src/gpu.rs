@@ -154,7 +154,7 @@ impl GpuRenderer {
             immediate_size: 0,
         });
         let attributes = wgpu::vertex_attr_array![
-            0 => Float32x3, 1 => Float32x3, 2 => Float32x3, 3 => Uint32
+            0 => Float32x3, 1 => Float32x3, 2 => Float32x3, 3 => Uint32, 4 => Float32x3, 5 => Uint32
         ];
         let target = |format| {
             Some(wgpu::ColorTargetState {

@@ -18,3 +18,4 @@ pub mod renderer;
 pub mod scene;
 pub mod script;
 pub mod shapes;
+pub mod texture;

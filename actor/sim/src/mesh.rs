@@ -31,6 +31,10 @@ pub struct MeshVertex {
     pub colour: [f32; 3],
     /// Instance id (object index + 1; 0 for floor and walls).
     pub id: u32,
+    /// Position in the part's own frame, for the procedural texture.
+    pub local: [f32; 3],
+    /// Procedural texture ([`crate::texture`]).
+    pub pattern: u32,
 }
 
 /// The scene as one triangle list with each instance's share of it.
@@ -67,6 +71,8 @@ pub fn scene_mesh(geometry: &SceneGeometry) -> SceneMesh {
                     normal: (t_world_part.rotation * n).into(),
                     colour: part.colour,
                     id: instance.id,
+                    local: p.coords.into(),
+                    pattern: part.pattern,
                 });
             };
             match part.shape {
