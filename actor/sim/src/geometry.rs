@@ -8,7 +8,7 @@ use parry3d::query::intersection_test;
 use parry3d::query::{Ray, RayCast};
 use parry3d::shape::{Ball, Capsule, Cuboid, Cylinder, Shape};
 
-use crate::scene::{OrientedBox, Scene};
+use crate::scene::Scene;
 use crate::shapes::{parts_for, Primitive};
 use crate::texture::{material_pattern, shade, PLAIN, WOOD};
 
@@ -147,16 +147,6 @@ fn placed(
     }
 }
 
-fn world_aabb(b: &OrientedBox) -> (Point3<f32>, Point3<f32>) {
-    b.corners().iter().fold(
-        (
-            Point3::from([f32::INFINITY; 3]),
-            Point3::from([f32::NEG_INFINITY; 3]),
-        ),
-        |(lo, hi), c| (lo.inf(c), hi.sup(c)),
-    )
-}
-
 impl SceneGeometry {
     /// Geometry of `scene`: every object's parts; the floor and walls as boxes (id 0).
     pub fn new(scene: &Scene) -> Self {
@@ -189,7 +179,7 @@ impl SceneGeometry {
             } else {
                 parts_for(&o.object_type, o.bounds.half_extents)
             };
-            let (aabb_min, aabb_max) = world_aabb(&o.bounds);
+            let (aabb_min, aabb_max) = o.bounds.world_aabb();
             instances.push(Instance {
                 id: if structural { 0 } else { index as u32 + 1 },
                 object: Some(index),
@@ -209,7 +199,7 @@ impl SceneGeometry {
             });
         }
         for wall in &scene.walls {
-            let (aabb_min, aabb_max) = world_aabb(wall);
+            let (aabb_min, aabb_max) = wall.world_aabb();
             let pose = Isometry3::from_parts(Translation3::from(wall.center.coords), wall.rotation);
             instances.push(Instance {
                 id: 0,

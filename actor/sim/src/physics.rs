@@ -105,7 +105,7 @@ pub fn first_overlap(
         rapier3d::parry::query::intersection_test(&here, shape.as_ref(), other_pose, other.as_ref())
             .is_ok_and(|r| r.intersecting)
     };
-    let (lo, hi) = corner_bounds(&at.corners());
+    let (lo, hi) = at.world_aabb();
     let apart =
         |min: &Point3<f32>, max: &Point3<f32>| (0..3).any(|a| max[a] < lo[a] || min[a] > hi[a]);
     for (i, other) in scene.objects.iter().enumerate() {
@@ -126,7 +126,7 @@ pub fn first_overlap(
         .walls
         .iter()
         .filter(|w| {
-            let (min, max) = corner_bounds(&w.corners());
+            let (min, max) = w.world_aabb();
             !apart(&min, &max)
         })
         .any(|w| {
@@ -140,17 +140,6 @@ pub fn first_overlap(
 
 /// What [`first_overlap`] names a wall or the ceiling.
 pub const WALL_NAME: &str = "wall";
-
-/// The axis-aligned bounds of a set of corners.
-fn corner_bounds(corners: &[Point3<f32>]) -> (Point3<f32>, Point3<f32>) {
-    corners.iter().fold(
-        (
-            Point3::from([f32::INFINITY; 3]),
-            Point3::from([f32::NEG_INFINITY; 3]),
-        ),
-        |(lo, hi), c| (lo.inf(c), hi.sup(c)),
-    )
-}
 
 /// The deepest overlap (metres, 0 if none) between object `index` and
 /// anything else in the room: other objects, the floor, the walls.

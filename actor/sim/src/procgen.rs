@@ -111,25 +111,21 @@ pub fn generate(catalogue: &Catalogue, seed: u64, profile: &RobotProfile) -> Sce
     // Largest furniture first, so it finds room.
     floor_items.sort_by(|a, b| (b.1.x * b.1.y).total_cmp(&(a.1.x * a.1.y)));
 
-    for (entry, size) in floor_items {
+    let standing = floor_items.into_iter().map(|(e, s)| (e, s, false));
+    let hanging = wall_items.into_iter().map(|(e, s)| (e, s, true));
+    for (entry, size, on_wall) in standing.chain(hanging) {
         for _ in 0..ATTEMPTS {
-            let bounds = floor_pose(entry, size, &scene, &mut rng);
+            let bounds = if on_wall {
+                wall_pose(entry, size, &scene, &mut rng)
+            } else {
+                floor_pose(entry, size, &scene, &mut rng)
+            };
             if fits_on_floor(&scene, &bounds) {
                 let object = make_object(&scene, entry, bounds, &mut rng);
                 scene.objects.push(object);
-                if !leaves_room_to_move(&scene, profile) {
+                if !on_wall && !leaves_room_to_move(&scene, profile) {
                     scene.objects.pop();
                 }
-                break;
-            }
-        }
-    }
-    for (entry, size) in wall_items {
-        for _ in 0..ATTEMPTS {
-            let bounds = wall_pose(entry, size, &scene, &mut rng);
-            if fits_on_floor(&scene, &bounds) {
-                let object = make_object(&scene, entry, bounds, &mut rng);
-                scene.objects.push(object);
                 break;
             }
         }
@@ -141,7 +137,7 @@ pub fn generate(catalogue: &Catalogue, seed: u64, profile: &RobotProfile) -> Sce
 }
 
 fn structural_floor(bounds: OrientedBox) -> SceneObject {
-    let (aabb_min, aabb_max) = world_bounds(&bounds);
+    let (aabb_min, aabb_max) = bounds.world_aabb();
     SceneObject {
         id: "Floor|0".into(),
         object_type: "Floor".into(),
@@ -167,16 +163,6 @@ fn sample_size(entry: &CatalogueEntry, rng: &mut StdRng) -> Vector3<f32> {
         let (lo, hi) = (entry.size_min_m[axis], entry.size_max_m[axis]);
         (entry.size_m[axis] * scale).clamp(lo.min(hi), hi.max(lo))
     })
-}
-
-fn world_bounds(b: &OrientedBox) -> (Point3<f32>, Point3<f32>) {
-    b.corners().iter().fold(
-        (
-            Point3::from([f32::INFINITY; 3]),
-            Point3::from([f32::NEG_INFINITY; 3]),
-        ),
-        |(lo, hi), c| (lo.inf(c), hi.sup(c)),
-    )
 }
 
 /// A box of `size` (width along the box's x, depth along y) standing on the
@@ -251,7 +237,7 @@ fn wall_pose(
 /// True if `bounds` lies inside the room and clear (by [`FLOOR_GAP_M`]) of
 /// every object's box but the floor.
 fn fits_on_floor(scene: &Scene, bounds: &OrientedBox) -> bool {
-    let (lo, hi) = world_bounds(bounds);
+    let (lo, hi) = bounds.world_aabb();
     let inside = lo.x >= scene.floor_min.x - 1e-3
         && lo.y >= scene.floor_min.y - 1e-3
         && hi.x <= scene.floor_max.x + 1e-3
@@ -309,8 +295,8 @@ fn place_on_surface(
         scene.objects.push(object);
         let index = scene.objects.len() - 1;
         let rest = simulate_drop(scene, index, &release);
-        set_bounds(&mut scene.objects[index], rest);
-        let (lo, hi) = world_bounds(&rest);
+        scene.objects[index].move_to(rest);
+        let (lo, hi) = rest.world_aabb();
         let footprint = scene.objects[support].bounds;
         let local = footprint.rotation.inverse() * (rest.center - footprint.center);
         let on_support = local.x.abs() <= footprint.half_extents.x
@@ -325,15 +311,6 @@ fn place_on_surface(
         }
         scene.objects.pop();
     }
-}
-
-fn set_bounds(object: &mut SceneObject, bounds: OrientedBox) {
-    let (lo, hi) = world_bounds(&bounds);
-    object.position = Point3::new(bounds.center.x, bounds.center.y, lo.z);
-    object.rotation = bounds.rotation;
-    object.bounds = bounds;
-    object.aabb_min = lo;
-    object.aabb_max = hi;
 }
 
 /// A new instance of `entry` with box `bounds`; mixed flags drawn per instance.
@@ -372,6 +349,6 @@ fn make_object(
         materials: materials(&entry.object_type),
         parent_receptacles: vec![],
     };
-    set_bounds(&mut object, bounds);
+    object.move_to(bounds);
     object
 }

@@ -5,7 +5,7 @@
 //! random heading (a multiple of 30°) and horizon. Object states (open,
 //! toggled) are not modelled by this simulator, so they are not randomised.
 
-use nalgebra::{Point3, UnitQuaternion, Vector3};
+use nalgebra::{UnitQuaternion, Vector3};
 use rand::Rng;
 
 use crate::agent::{AgentState, SetupError, Simulator};
@@ -77,26 +77,7 @@ pub fn randomise(
                 && rest.center.y < scene.floor_max.y
                 && rest.center.z > scene.floor_top_m - 0.05;
             if inside_room && deepest_penetration(&candidate, index) <= MAX_PENETRATION_M {
-                let o = &mut scene.objects[index];
-                let motion =
-                    nalgebra::Isometry3::from_parts(rest.center.coords.into(), rest.rotation)
-                        * nalgebra::Isometry3::from_parts(
-                            original.center.coords.into(),
-                            original.rotation,
-                        )
-                        .inverse();
-                o.position = motion * o.position;
-                o.rotation = motion.rotation * o.rotation;
-                o.bounds = rest;
-                let (lo, hi) = rest.corners().iter().fold(
-                    (
-                        Point3::from([f32::INFINITY; 3]),
-                        Point3::from([f32::NEG_INFINITY; 3]),
-                    ),
-                    |(lo, hi), c| (lo.inf(c), hi.sup(c)),
-                );
-                o.aabb_min = lo;
-                o.aabb_max = hi;
+                scene.objects[index].move_to(rest);
                 placed = true;
                 break;
             }

@@ -102,6 +102,17 @@ impl OrientedBox {
     }
 
     /// The 8 corners, world frame.
+    /// The axis-aligned world box around this box: (lower, upper) corner.
+    pub fn world_aabb(&self) -> (Point3<f32>, Point3<f32>) {
+        self.corners().iter().fold(
+            (
+                Point3::from([f32::INFINITY; 3]),
+                Point3::from([f32::NEG_INFINITY; 3]),
+            ),
+            |(lo, hi), c| (lo.inf(c), hi.sup(c)),
+        )
+    }
+
     pub fn corners(&self) -> [Point3<f32>; 8] {
         std::array::from_fn(|i| {
             let s = Vector3::new(
@@ -151,6 +162,18 @@ impl SceneObject {
     /// AI2-THOR's rule: anything pickupable or moveable can be pushed.
     pub fn pushable(&self) -> bool {
         self.pickupable || self.moveable
+    }
+
+    /// Moves the object so that its box becomes `to`; the pivot and
+    /// rotation follow rigidly and the world box is recomputed.
+    pub fn move_to(&mut self, to: OrientedBox) {
+        let pose =
+            |b: &OrientedBox| nalgebra::Isometry3::from_parts(b.center.coords.into(), b.rotation);
+        let motion = pose(&to) * pose(&self.bounds).inverse();
+        self.position = motion * self.position;
+        self.rotation = motion.rotation * self.rotation;
+        self.bounds = to;
+        (self.aabb_min, self.aabb_max) = to.world_aabb();
     }
 }
 

@@ -2,7 +2,7 @@
 //! push the object under a pixel. Rules (flags, reach, payload, gripper) come
 //! from the robot profile; outcomes of pushes and drops from the physics.
 
-use nalgebra::{Isometry3, Point3, Translation3, Vector3};
+use nalgebra::{Point3, Vector3};
 
 use super::hand::DEFAULT_HAND;
 use super::{Failure, Outcome, Simulator};
@@ -74,25 +74,7 @@ impl Simulator {
 
     /// Moves object `index` to box `to` (its pivot follows rigidly), leaving the geometry as it is.
     pub(super) fn set_box(&mut self, index: usize, to: OrientedBox) {
-        let o = &mut self.scene.objects[index];
-        let from = Isometry3::from_parts(
-            Translation3::from(o.bounds.center.coords),
-            o.bounds.rotation,
-        );
-        let new = Isometry3::from_parts(Translation3::from(to.center.coords), to.rotation);
-        let motion = new * from.inverse();
-        o.position = motion * o.position;
-        o.rotation = motion.rotation * o.rotation;
-        o.bounds = to;
-        let (lo, hi) = to.corners().iter().fold(
-            (
-                Point3::from([f32::INFINITY; 3]),
-                Point3::from([f32::NEG_INFINITY; 3]),
-            ),
-            |(lo, hi), c| (lo.inf(c), hi.sup(c)),
-        );
-        o.aabb_min = lo;
-        o.aabb_max = hi;
+        self.scene.objects[index].move_to(to);
     }
 
     /// Picks up the object under pixel `(u, v)`.
