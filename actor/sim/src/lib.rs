@@ -16,6 +16,7 @@ pub mod randomise;
 pub mod raycast;
 pub mod renderer;
 pub mod scene;
+pub mod scenes;
 pub mod script;
 pub mod shapes;
 pub mod texture;

@@ -133,3 +133,27 @@ fn generated_rooms_are_deterministic_furnished_like_ithor_and_sound() {
         );
     }
 }
+
+#[test]
+fn without_a_scene_directory_episodes_get_generated_rooms_of_the_split() {
+    use sim::ithor::SceneSet;
+    use sim::scenes::SceneSource;
+    let profile = RobotProfile::load("default").unwrap();
+    let catalogue = data().join("ithor-object-types.tsv");
+    let generated = SceneSource::open(None, SceneSet::Val, &catalogue, &profile).unwrap();
+    let (index, room) = generated.pick(3);
+    assert_eq!(room.name, format!("Generated{}", 1_000_000 + index));
+    assert_eq!(
+        generated.pick(3).1,
+        room,
+        "the same seed picks the same room"
+    );
+
+    let dir = data().join("ithor-livingrooms");
+    let ithor = SceneSource::open(Some(&dir), SceneSet::Test, &catalogue, &profile).unwrap();
+    assert_eq!(ithor.len(), 5);
+    let names: Vec<String> = (0..5).map(|s| ithor.pick(s).1.name).collect();
+    assert_eq!(names, SceneSet::Test.scene_names());
+    let missing = SceneSource::open(None, SceneSet::Train, &dir.join("nope.tsv"), &profile);
+    assert!(missing.unwrap_err().to_string().contains("nope.tsv"));
+}
