@@ -7,4 +7,6 @@
 pub mod config;
 pub mod env;
 pub mod episode_loop;
+pub mod labeler;
+pub mod mapping;
 pub mod sim_view;

@@ -1,0 +1,303 @@
+//! The labeler: at the end of an episode it turns what the agent learned by
+//! interacting into dense per-pixel labels for the affordance U-Net.
+//!
+//! - **By interaction, through the map** (method `ours`): the outcome stored
+//!   on a map object labels that object's mask in every frame of the episode
+//!   where it is visible, before and after the interaction.
+//! - **By confidence**: an object nobody touched gets a label when the
+//!   calibrated network is sure of it across the episode: positive if the
+//!   largest per-frame 95th percentile of its pixels' probability exceeds
+//!   ξ_T, negative if the smallest 5th percentile falls below ξ_F (both at
+//!   once: the network contradicts itself and the object stays unlabelled).
+//! - **Spheres** (baselines `nomap-noseg`, `intexp`): each interaction drops
+//!   a 3-D point that moves with its object; pixels within 0.2 m of a point
+//!   get its outcome in every frame where the point is in view; a positive
+//!   wins over a negative.
+//!
+//! Only frames with both positive and negative pixels (in some affordance)
+//! are kept when the balanced filter is on.
+
+use mapper::{Affordance, Intrinsics, Map, MapError, ObjectId, Pose};
+use nalgebra::Point3;
+use proto::{FrameBatch, LABEL_NEGATIVE, LABEL_POSITIVE, LABEL_UNKNOWN};
+
+/// One frame of an episode as the labeler needs it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EpisodeFrame {
+    /// Row-major RGB, 3 bytes per pixel.
+    pub rgb: Vec<u8>,
+    /// Z-depth, metres (0 where nothing was seen).
+    pub depth_m: Vec<f32>,
+    /// Map object id per pixel, as [`Map::integrate`] returned it for this frame.
+    pub map_ids: Vec<u32>,
+    /// Where the camera was.
+    pub t_world_camera: Pose,
+}
+
+/// Thresholds of annotation by confidence.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ConfidenceRule {
+    /// ξ_T: an object is positive when its largest per-frame P95 exceeds this.
+    pub positive_above: f32,
+    /// ξ_F: an object is negative when its smallest per-frame P5 is below this.
+    pub negative_below: f32,
+    /// Fewest pixels of an object in a frame for that frame to count.
+    pub min_pixels: usize,
+}
+
+impl Default for ConfidenceRule {
+    fn default() -> Self {
+        Self {
+            positive_above: 0.9,
+            negative_below: 0.1,
+            min_pixels: 10,
+        }
+    }
+}
+
+/// The `q`-quantile (0..1) of `values` by nearest rank; `values` is sorted in place.
+fn nearest_rank(values: &mut [f32], q: f32) -> f32 {
+    values.sort_by(f32::total_cmp);
+    let rank = ((q * values.len() as f32).ceil() as usize).clamp(1, values.len());
+    values[rank - 1]
+}
+
+/// Labels for the objects in the map that were never tried with
+/// `affordance`, from the network's calibrated per-pixel probabilities of
+/// that affordance (`probabilities[f]` is frame `f`'s `h · w` plane).
+/// Returns `(object, label)` for every object the rule decides.
+pub fn confidence_labels(
+    map: &Map,
+    frames: &[EpisodeFrame],
+    probabilities: &[Vec<f32>],
+    affordance: Affordance,
+    rule: &ConfidenceRule,
+) -> Vec<(ObjectId, bool)> {
+    let mut decided = Vec::new();
+    for object in map.objects().values() {
+        if object.labels.interacted(affordance) {
+            continue;
+        }
+        let (mut best_p95, mut worst_p5) = (f32::NEG_INFINITY, f32::INFINITY);
+        for (frame, plane) in frames.iter().zip(probabilities) {
+            let mut values: Vec<f32> = frame
+                .map_ids
+                .iter()
+                .zip(plane)
+                .filter(|(&id, _)| id == object.id.0)
+                .map(|(_, &p)| p)
+                .collect();
+            if values.len() < rule.min_pixels.max(1) {
+                continue;
+            }
+            best_p95 = best_p95.max(nearest_rank(&mut values, 0.95));
+            worst_p5 = worst_p5.min(nearest_rank(&mut values, 0.05));
+        }
+        let positive = best_p95 > rule.positive_above;
+        let negative = worst_p5 < rule.negative_below;
+        if positive != negative {
+            decided.push((object.id, positive));
+        }
+    }
+    decided
+}
+
+/// Stores confidence labels on the map, where interaction labels already live.
+pub fn apply_confidence_labels(
+    map: &mut Map,
+    affordance: Affordance,
+    labels: &[(ObjectId, bool)],
+) -> Result<(), MapError> {
+    for &(id, label) in labels {
+        map.set_confidence_label(id, affordance, Some(label))?;
+    }
+    Ok(())
+}
+
+/// Per frame, `affordances.len()` label planes from the labels stored on
+/// the map's objects (interaction outcomes, else confidence labels): each
+/// labelled object's mask in each frame gets its label; everything else is
+/// [`LABEL_UNKNOWN`].
+pub fn map_labels(map: &Map, frames: &[EpisodeFrame], affordances: &[Affordance]) -> Vec<Vec<u8>> {
+    let label_of = |id: u32, affordance: Affordance| {
+        map.object(ObjectId(id))
+            .and_then(|o| o.labels.label(affordance))
+            .map_or(LABEL_UNKNOWN, |l| {
+                if l {
+                    LABEL_POSITIVE
+                } else {
+                    LABEL_NEGATIVE
+                }
+            })
+    };
+    frames
+        .iter()
+        .map(|frame| {
+            affordances
+                .iter()
+                .flat_map(|&a| {
+                    frame.map_ids.iter().map(move |&id| {
+                        if id == 0 {
+                            LABEL_UNKNOWN
+                        } else {
+                            label_of(id, a)
+                        }
+                    })
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// An interaction remembered as a 3-D point on its object (baselines).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InteractionPoint {
+    /// The object the point sticks to (the caller's key, e.g. a simulator index).
+    pub object: usize,
+    /// Index of the affordance plane.
+    pub affordance: usize,
+    /// Whether the interaction succeeded.
+    pub success: bool,
+    /// The point in the object's frame.
+    pub p_object: Point3<f32>,
+}
+
+/// Settings of the sphere labeler.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SphereRule {
+    /// Pixels whose 3-D point lies within this distance of an interaction point are labelled, metres.
+    pub radius_m: f32,
+    /// A point counts as in view if the frame's depth at its pixel is not
+    /// nearer than the point by more than this, metres.
+    pub occlusion_tolerance_m: f32,
+}
+
+impl Default for SphereRule {
+    fn default() -> Self {
+        Self {
+            radius_m: 0.2,
+            occlusion_tolerance_m: 0.1,
+        }
+    }
+}
+
+/// Per frame, `n_affordances` label planes from interaction points:
+/// `object_pose(f, object)` is where the point's object was in frame `f`.
+pub fn sphere_labels(
+    frames: &[EpisodeFrame],
+    intrinsics: &Intrinsics,
+    points: &[InteractionPoint],
+    n_affordances: usize,
+    object_pose: &dyn Fn(usize, usize) -> Pose,
+    rule: &SphereRule,
+) -> Vec<Vec<u8>> {
+    let pixels = intrinsics.pixels();
+    frames
+        .iter()
+        .enumerate()
+        .map(|(f, frame)| {
+            let mut planes = vec![LABEL_UNKNOWN; n_affordances * pixels];
+            let t_camera_world = frame.t_world_camera.inverse();
+            for point in points {
+                let p_camera = t_camera_world * (object_pose(f, point.object) * point.p_object);
+                if !in_view(frame, intrinsics, &p_camera, rule) {
+                    continue;
+                }
+                let plane = &mut planes[point.affordance * pixels..][..pixels];
+                for (px, label) in plane.iter_mut().enumerate() {
+                    let z = frame.depth_m[px];
+                    if *label == LABEL_POSITIVE || z.is_nan() || z <= 0.0 {
+                        continue;
+                    }
+                    let (u, v) = (
+                        (px % intrinsics.width) as f32,
+                        (px / intrinsics.width) as f32,
+                    );
+                    if (intrinsics.back_project(u, v, z) - p_camera).norm() <= rule.radius_m {
+                        *label = if point.success {
+                            LABEL_POSITIVE
+                        } else {
+                            LABEL_NEGATIVE
+                        };
+                    }
+                }
+            }
+            planes
+        })
+        .collect()
+}
+
+/// True if a camera-frame point projects into the image and is not hidden
+/// behind what the frame saw there.
+fn in_view(frame: &EpisodeFrame, k: &Intrinsics, p: &Point3<f32>, rule: &SphereRule) -> bool {
+    let Some((u, v, z)) = k.project(p) else {
+        return false;
+    };
+    let (u, v) = (u.round(), v.round());
+    if u < 0.0 || v < 0.0 || u >= k.width as f32 || v >= k.height as f32 {
+        return false;
+    }
+    let seen = frame.depth_m[v as usize * k.width + u as usize];
+    !(seen > 0.0 && seen < z - rule.occlusion_tolerance_m)
+}
+
+/// True if some affordance plane of the frame has both positive and negative pixels.
+pub fn is_balanced(planes: &[u8], pixels: usize) -> bool {
+    planes
+        .chunks(pixels)
+        .any(|plane| plane.contains(&LABEL_POSITIVE) && plane.contains(&LABEL_NEGATIVE))
+}
+
+/// The frames worth sending: those with any label, or (with `balanced`)
+/// only those with both classes in some affordance; packed for the learner.
+pub fn frame_batch(
+    episode_id: u64,
+    intrinsics: &Intrinsics,
+    frames: &[EpisodeFrame],
+    labels: &[Vec<u8>],
+    n_affordances: usize,
+    balanced: bool,
+) -> FrameBatch {
+    let pixels = intrinsics.pixels();
+    let mut batch = FrameBatch {
+        episode_id,
+        height: intrinsics.height as u32,
+        width: intrinsics.width as u32,
+        n_affordances: n_affordances as u32,
+        depth_m: Vec::new(),
+        rgb: Vec::new(),
+        labels: Vec::new(),
+    };
+    for (frame, planes) in frames.iter().zip(labels) {
+        let keep = if balanced {
+            is_balanced(planes, pixels)
+        } else {
+            planes.iter().any(|&l| l != LABEL_UNKNOWN)
+        };
+        if keep {
+            batch.depth_m.extend(frame.depth_m.iter().map(|d| {
+                if d.is_finite() {
+                    d.max(0.0)
+                } else {
+                    0.0
+                }
+            }));
+            batch.rgb.extend_from_slice(&frame.rgb);
+            batch.labels.extend_from_slice(planes);
+        }
+    }
+    batch
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nearest_rank_quantiles() {
+        let mut v: Vec<f32> = (1..=20).map(|i| i as f32).collect();
+        assert_eq!(nearest_rank(&mut v, 0.95), 19.0);
+        assert_eq!(nearest_rank(&mut v, 0.05), 1.0);
+        assert_eq!(nearest_rank(&mut [0.3], 0.95), 0.3);
+    }
+}
