@@ -1,5 +1,6 @@
 //! What the episode loop needs from an environment.
 
+pub mod actions;
 mod bandit_fixture;
 
 pub use bandit_fixture::BanditFixture;

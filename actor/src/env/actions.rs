@@ -1,0 +1,363 @@
+//! The paper's action space, derived from the configured affordances: five
+//! navigation actions; per affordance a 3 × 3 grid over the image's centre
+//! region where each cell selects its largest object; and, when picking up
+//! is configured, drop and six moves of the held object. With pick up
+//! alone that is 5 + 9 + 1 + 6 = 21 actions, the paper's head.
+//!
+//! Each visible map object goes to the grid cell whose centre is nearest
+//! its pixel centroid; a cell with no object, or only objects the current
+//! U-Net is not confident about, is masked.
+
+use mapper::Affordance;
+use sim::agent::{Action, HandMove, NavAction};
+
+/// Cells per side of the selection grid.
+pub const GRID: usize = 3;
+/// The navigation actions, in index order.
+pub const NAV: [NavAction; 5] = [
+    NavAction::MoveAhead,
+    NavAction::RotateRight,
+    NavAction::RotateLeft,
+    NavAction::LookUp,
+    NavAction::LookDown,
+];
+
+/// One action of the policy's head.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PolicyAction {
+    /// Navigate.
+    Nav(NavAction),
+    /// Try `affordance` on the object of grid cell `cell` (row-major).
+    Select {
+        /// What to try.
+        affordance: Affordance,
+        /// Grid cell, 0..9.
+        cell: usize,
+    },
+    /// Drop the held object.
+    Drop,
+    /// Move the held object.
+    MoveHeld(HandMove),
+}
+
+/// The action space for a set of affordances.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ActionSpace {
+    actions: Vec<PolicyAction>,
+}
+
+impl ActionSpace {
+    /// The actions for `affordances` (each listed once, in the given order).
+    pub fn new(affordances: &[Affordance]) -> Self {
+        let mut actions: Vec<PolicyAction> = NAV.iter().map(|&a| PolicyAction::Nav(a)).collect();
+        for &affordance in affordances {
+            actions.extend((0..GRID * GRID).map(|cell| PolicyAction::Select { affordance, cell }));
+        }
+        if affordances.contains(&Affordance::PickUp) {
+            actions.push(PolicyAction::Drop);
+            actions.extend(HandMove::ALL.iter().map(|&m| PolicyAction::MoveHeld(m)));
+        }
+        Self { actions }
+    }
+
+    /// Number of actions (the policy head's width).
+    pub fn len(&self) -> usize {
+        self.actions.len()
+    }
+
+    /// True if there are no actions (never: navigation is always there).
+    pub fn is_empty(&self) -> bool {
+        self.actions.is_empty()
+    }
+
+    /// The action at `index`, if any.
+    pub fn get(&self, index: usize) -> Option<PolicyAction> {
+        self.actions.get(index).copied()
+    }
+
+    /// All actions in index order.
+    pub fn actions(&self) -> &[PolicyAction] {
+        &self.actions
+    }
+
+    /// The mask (1 = allowed): drop and moves need a held object, pick up
+    /// needs an empty hand, a selection needs a target in its cell.
+    pub fn mask(&self, holding: bool, targets: &CellTargets) -> Vec<u8> {
+        self.actions
+            .iter()
+            .map(|a| {
+                let allowed = match *a {
+                    PolicyAction::Nav(_) => true,
+                    PolicyAction::Select { affordance, cell } => {
+                        !(holding && affordance == Affordance::PickUp)
+                            && targets.target(affordance, cell).is_some()
+                    }
+                    PolicyAction::Drop | PolicyAction::MoveHeld(_) => holding,
+                };
+                u8::from(allowed)
+            })
+            .collect()
+    }
+
+    /// The simulator action for a policy action; `None` for a selection
+    /// whose cell has no target.
+    pub fn to_sim(&self, action: PolicyAction, targets: &CellTargets) -> Option<Action> {
+        Some(match action {
+            PolicyAction::Nav(a) => Action::Nav(a),
+            PolicyAction::Select { affordance, cell } => {
+                let t = targets.target(affordance, cell)?;
+                match affordance {
+                    Affordance::PickUp => Action::PickUp { u: t.u, v: t.v },
+                    Affordance::Push => Action::Push { u: t.u, v: t.v },
+                }
+            }
+            PolicyAction::Drop => Action::Drop,
+            PolicyAction::MoveHeld(m) => Action::MoveHeld(m),
+        })
+    }
+}
+
+/// The object a grid cell selects.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Target {
+    /// Map object id.
+    pub object: u32,
+    /// The object's pixel nearest its centroid (where the robot aims).
+    pub u: usize,
+    /// Row of that pixel.
+    pub v: usize,
+    /// The object's pixel count in the frame.
+    pub pixels: usize,
+}
+
+/// Per affordance and grid cell, the selected object.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct CellTargets {
+    cells: Vec<(Affordance, [Option<Target>; GRID * GRID])>,
+}
+
+impl CellTargets {
+    /// The target of `cell` for `affordance`.
+    pub fn target(&self, affordance: Affordance, cell: usize) -> Option<Target> {
+        self.cells
+            .iter()
+            .find(|(a, _)| *a == affordance)
+            .and_then(|(_, t)| t.get(cell).copied().flatten())
+    }
+}
+
+/// Settings of object selection.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SelectionRule {
+    /// Fraction of the image's width and height that the grid covers, centred.
+    pub centre_fraction: f32,
+    /// Objects with fewer pixels are ignored.
+    pub min_pixels: usize,
+    /// Objects whose mean predicted probability is below this are filtered out.
+    pub min_confidence: f32,
+}
+
+impl Default for SelectionRule {
+    fn default() -> Self {
+        Self {
+            centre_fraction: 0.75,
+            min_pixels: 10,
+            min_confidence: 0.05,
+        }
+    }
+}
+
+/// Pixel statistics of one object in a frame.
+#[derive(Debug, Clone, Copy, Default)]
+struct Blob {
+    pixels: usize,
+    sum_u: f64,
+    sum_v: f64,
+}
+
+/// The grid targets for a frame: `map_ids` is the frame's map-id image
+/// (`width` wide); `probabilities[k]`, when given, is the U-Net's plane for
+/// `affordances[k]`, used to filter objects it is not confident about.
+pub fn cell_targets(
+    map_ids: &[u32],
+    width: usize,
+    affordances: &[Affordance],
+    probabilities: Option<&[Vec<f32>]>,
+    rule: &SelectionRule,
+) -> CellTargets {
+    let height = map_ids.len() / width.max(1);
+    let mut blobs: std::collections::BTreeMap<u32, Blob> = Default::default();
+    for (p, &id) in map_ids.iter().enumerate() {
+        if id == 0 {
+            continue;
+        }
+        let b = blobs.entry(id).or_default();
+        b.pixels += 1;
+        b.sum_u += (p % width) as f64;
+        b.sum_v += (p / width) as f64;
+    }
+    let region = |n: usize| {
+        let span = rule.centre_fraction * n as f32;
+        ((n as f32 - span) / 2.0, span / GRID as f32)
+    };
+    let ((u0, cell_w), (v0, cell_h)) = (region(width), region(height));
+    let centre = |cell: usize| {
+        (
+            u0 + cell_w * ((cell % GRID) as f32 + 0.5),
+            v0 + cell_h * ((cell / GRID) as f32 + 0.5),
+        )
+    };
+    let mut cells = Vec::with_capacity(affordances.len());
+    for (k, &affordance) in affordances.iter().enumerate() {
+        let mut best: [Option<Target>; GRID * GRID] = [None; GRID * GRID];
+        for (&id, blob) in &blobs {
+            if blob.pixels < rule.min_pixels {
+                continue;
+            }
+            let (cu, cv) = (
+                (blob.sum_u / blob.pixels as f64) as f32,
+                (blob.sum_v / blob.pixels as f64) as f32,
+            );
+            if let Some(planes) = probabilities {
+                let plane = &planes[k];
+                let mean = map_ids
+                    .iter()
+                    .zip(plane)
+                    .filter(|(&m, _)| m == id)
+                    .map(|(_, &p)| f64::from(p))
+                    .sum::<f64>()
+                    / blob.pixels as f64;
+                if (mean as f32) < rule.min_confidence {
+                    continue;
+                }
+            }
+            let cell = (0..GRID * GRID)
+                .min_by(|&a, &b| {
+                    let d = |c: usize| {
+                        let (x, y) = centre(c);
+                        (x - cu).powi(2) + (y - cv).powi(2)
+                    };
+                    d(a).total_cmp(&d(b))
+                })
+                .expect("nine cells");
+            if best[cell].is_some_and(|t| t.pixels >= blob.pixels) {
+                continue;
+            }
+            let aim = map_ids
+                .iter()
+                .enumerate()
+                .filter(|(_, &m)| m == id)
+                .map(|(p, _)| p)
+                .min_by(|&a, &b| {
+                    let d = |p: usize| {
+                        ((p % width) as f32 - cu).powi(2) + ((p / width) as f32 - cv).powi(2)
+                    };
+                    d(a).total_cmp(&d(b))
+                })
+                .expect("the blob has pixels");
+            best[cell] = Some(Target {
+                object: id,
+                u: aim % width,
+                v: aim / width,
+                pixels: blob.pixels,
+            });
+        }
+        cells.push((affordance, best));
+    }
+    CellTargets { cells }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 30 × 30 id image with rectangles `(id, u0, v0, u1, v1)` (exclusive ends).
+    fn image(rects: &[(u32, usize, usize, usize, usize)]) -> Vec<u32> {
+        let mut ids = vec![0; 900];
+        for &(id, u0, v0, u1, v1) in rects {
+            for v in v0..v1 {
+                for u in u0..u1 {
+                    ids[v * 30 + u] = id;
+                }
+            }
+        }
+        ids
+    }
+
+    #[test]
+    fn the_action_count_follows_the_affordances() {
+        assert_eq!(ActionSpace::new(&[Affordance::PickUp]).len(), 21);
+        assert_eq!(ActionSpace::new(&[Affordance::Push]).len(), 14);
+        assert_eq!(
+            ActionSpace::new(&[Affordance::PickUp, Affordance::Push]).len(),
+            30
+        );
+    }
+
+    #[test]
+    fn the_mask_follows_the_hand_and_the_cells() {
+        let space = ActionSpace::new(&[Affordance::PickUp, Affordance::Push]);
+        // One object in the middle cell.
+        let targets = cell_targets(
+            &image(&[(7, 12, 12, 18, 18)]),
+            30,
+            &[Affordance::PickUp, Affordance::Push],
+            None,
+            &SelectionRule::default(),
+        );
+        for holding in [false, true] {
+            let mask = space.mask(holding, &targets);
+            for (a, &m) in space.actions().iter().zip(&mask) {
+                let expected = match *a {
+                    PolicyAction::Nav(_) => true,
+                    PolicyAction::Select { affordance, cell } => {
+                        cell == 4 && !(holding && affordance == Affordance::PickUp)
+                    }
+                    PolicyAction::Drop | PolicyAction::MoveHeld(_) => holding,
+                };
+                assert_eq!(m == 1, expected, "{a:?} holding={holding}");
+            }
+        }
+        let pick = space
+            .to_sim(
+                PolicyAction::Select {
+                    affordance: Affordance::PickUp,
+                    cell: 4,
+                },
+                &targets,
+            )
+            .unwrap();
+        assert_eq!(
+            pick,
+            Action::PickUp { u: 14, v: 14 },
+            "aims at the centroid (14.5, 14.5)"
+        );
+        assert!(space
+            .to_sim(
+                PolicyAction::Select {
+                    affordance: Affordance::Push,
+                    cell: 0
+                },
+                &targets
+            )
+            .is_none());
+    }
+
+    #[test]
+    fn a_cell_selects_its_largest_confident_object() {
+        // Top-left: a big object (2) and a small one (3); bottom-right: object 5.
+        let ids = image(&[(2, 3, 3, 10, 10), (3, 10, 3, 12, 8), (5, 22, 22, 27, 27)]);
+        let rule = SelectionRule::default();
+        let t = cell_targets(&ids, 30, &[Affordance::Push], None, &rule);
+        assert_eq!(t.target(Affordance::Push, 0).unwrap().object, 2);
+        assert_eq!(t.target(Affordance::Push, 8).unwrap().object, 5);
+        assert!(t.target(Affordance::Push, 4).is_none());
+        // The U-Net is sure object 2 cannot be pushed: the small one takes the cell.
+        let plane: Vec<f32> = ids
+            .iter()
+            .map(|&id| if id == 2 { 0.01 } else { 0.6 })
+            .collect();
+        let t = cell_targets(&ids, 30, &[Affordance::Push], Some(&[plane]), &rule);
+        assert_eq!(t.target(Affordance::Push, 0).unwrap().object, 3);
+    }
+}
