@@ -1,0 +1,232 @@
+//! The policy's state for method `ours`, as the paper lists it, in three
+//! image-like inputs (one conv encoder each) and two vectors:
+//!
+//! - **camera** `[3 + 1 + 3A, S, S]`: RGB in 0..1; the distance image (each
+//!   pixel's horizontal distance from the agent's vertical axis over twice
+//!   the reach, clamped to 1: below 0.5 is within reach); the U-Net's
+//!   probability per affordance; per affordance the interacted-objects mask
+//!   in the image (successful, unsuccessful).
+//! - **global map** and **local map** `[2 + 3A, M, M]`: egocentric grids
+//!   (agent at the centre, heading up) of 10 m and 2 m: visited positions,
+//!   occupancy, and per affordance objects interacted with successfully,
+//!   unsuccessfully, and not yet.
+//! - **history** `[5 · (n_actions + 2)]`: the last five actions one-hot
+//!   with their success (0/1) and reward, newest first, zeros before the
+//!   episode's start.
+//! - **inventory** `[1]`: 1 while holding an object.
+
+use std::collections::VecDeque;
+
+use mapper::projection::visited;
+use mapper::{Affordance, GridSpec, Map, ObjectId, Pose, ProjectionKind};
+use nalgebra::Point2;
+
+/// Sizes and extents of the state.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StateConfig {
+    /// The configured affordances, in plane order.
+    pub affordances: Vec<Affordance>,
+    /// Number of actions (for the history's one-hot).
+    pub n_actions: usize,
+    /// Side of the camera images, pixels.
+    pub image_size: usize,
+    /// Cells per side of the map grids.
+    pub map_cells: usize,
+    /// Edge of the global map, metres.
+    pub global_extent_m: f32,
+    /// Edge of the local map, metres.
+    pub local_extent_m: f32,
+    /// Actions remembered.
+    pub history: usize,
+    /// Heights above the floor that count as occupied, metres.
+    pub occupancy_heights_m: (f32, f32),
+}
+
+impl StateConfig {
+    /// The paper's state for `affordances` and an action space of `n_actions`.
+    pub fn paper(affordances: &[Affordance], n_actions: usize) -> Self {
+        Self {
+            affordances: affordances.to_vec(),
+            n_actions,
+            image_size: 128,
+            map_cells: 128,
+            global_extent_m: 10.0,
+            local_extent_m: 2.0,
+            history: 5,
+            occupancy_heights_m: (0.05, 1.8),
+        }
+    }
+
+    /// Channels of the camera input.
+    pub fn camera_channels(&self) -> usize {
+        4 + 3 * self.affordances.len()
+    }
+
+    /// Channels of each map input.
+    pub fn map_channels(&self) -> usize {
+        2 + 3 * self.affordances.len()
+    }
+
+    /// Length of the history vector.
+    pub fn history_len(&self) -> usize {
+        self.history * (self.n_actions + 2)
+    }
+}
+
+/// The last actions of the episode, newest first.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ActionHistory {
+    entries: VecDeque<(usize, bool, f32)>,
+}
+
+impl ActionHistory {
+    /// Remembers an action, its success and its reward, keeping the newest `keep`.
+    pub fn push(&mut self, action: usize, success: bool, reward: f32, keep: usize) {
+        self.entries.push_front((action, success, reward));
+        self.entries.truncate(keep);
+    }
+}
+
+/// What one step's state is built from.
+#[derive(Debug, Clone, Copy)]
+pub struct StateInputs<'a> {
+    /// Row-major RGB of the frame.
+    pub rgb: &'a [u8],
+    /// Z-depth of the frame, metres.
+    pub depth_m: &'a [f32],
+    /// Map object id per pixel for this frame.
+    pub map_ids: &'a [u32],
+    /// Where the camera is.
+    pub t_world_camera: &'a Pose,
+    /// Intrinsics of the frame.
+    pub intrinsics: &'a mapper::Intrinsics,
+    /// The agent on the floor: x, y (metres) and heading (radians from +x).
+    pub agent: (f32, f32, f32),
+    /// The floor's height, metres.
+    pub floor_z: f32,
+    /// The robot's reach, metres.
+    pub reach_m: f32,
+    /// Positions visited this episode.
+    pub visited: &'a [Point2<f32>],
+    /// The U-Net's calibrated probability planes, one per affordance.
+    pub probabilities: &'a [Vec<f32>],
+    /// The map.
+    pub map: &'a Map,
+    /// Recent actions.
+    pub history: &'a ActionHistory,
+    /// Whether the hand holds an object.
+    pub holding: bool,
+}
+
+/// One state, ready to become the policy's tensors.
+#[derive(Debug, Clone, PartialEq)]
+pub struct State {
+    /// `[camera_channels, S, S]`.
+    pub camera: Vec<f32>,
+    /// `[map_channels, M, M]`, 10 m.
+    pub global_map: Vec<f32>,
+    /// `[map_channels, M, M]`, 2 m.
+    pub local_map: Vec<f32>,
+    /// `[history_len]`.
+    pub history: Vec<f32>,
+    /// `[1]`.
+    pub inventory: Vec<f32>,
+}
+
+/// Builds the state.
+pub fn build_state(config: &StateConfig, input: &StateInputs<'_>) -> State {
+    State {
+        camera: camera_planes(config, input),
+        global_map: map_planes(config, input, config.global_extent_m),
+        local_map: map_planes(config, input, config.local_extent_m),
+        history: history_vector(config, input.history),
+        inventory: vec![f32::from(u8::from(input.holding))],
+    }
+}
+
+fn camera_planes(config: &StateConfig, input: &StateInputs<'_>) -> Vec<f32> {
+    let n = input.depth_m.len();
+    let mut out = Vec::with_capacity(config.camera_channels() * n);
+    for c in 0..3 {
+        out.extend(
+            input
+                .rgb
+                .iter()
+                .skip(c)
+                .step_by(3)
+                .map(|&b| f32::from(b) / 255.0),
+        );
+    }
+    let k = input.intrinsics;
+    let (ax, ay, _) = input.agent;
+    out.extend(input.depth_m.iter().enumerate().map(|(p, &z)| {
+        if !(z.is_finite() && z > 0.0) {
+            return 1.0;
+        }
+        let world =
+            input.t_world_camera * k.back_project((p % k.width) as f32, (p / k.width) as f32, z);
+        let horizontal = ((world.x - ax).powi(2) + (world.y - ay).powi(2)).sqrt();
+        (horizontal / (2.0 * input.reach_m)).min(1.0)
+    }));
+    for plane in input.probabilities.iter().take(config.affordances.len()) {
+        out.extend(plane.iter().map(|p| p.clamp(0.0, 1.0)));
+    }
+    for &affordance in &config.affordances {
+        for wanted in [true, false] {
+            out.extend(input.map_ids.iter().map(|&id| {
+                let label = input
+                    .map
+                    .object(ObjectId(id))
+                    .filter(|o| o.labels.interacted(affordance))
+                    .and_then(|o| o.labels.label(affordance));
+                f32::from(u8::from(id != 0 && label == Some(wanted)))
+            }));
+        }
+    }
+    out
+}
+
+fn map_planes(config: &StateConfig, input: &StateInputs<'_>, extent_m: f32) -> Vec<f32> {
+    let (x, y, heading) = input.agent;
+    let grid = GridSpec {
+        center: Point2::new(x, y),
+        up_heading_rad: heading,
+        extent_m,
+        cells: config.map_cells,
+    };
+    let (lo, hi) = config.occupancy_heights_m;
+    let mut out = visited(input.visited, &grid);
+    out.extend(input.map.project(
+        ProjectionKind::Occupancy {
+            min_height_m: input.floor_z + lo,
+            max_height_m: input.floor_z + hi,
+        },
+        &grid,
+    ));
+    for &a in &config.affordances {
+        for kind in [
+            ProjectionKind::InteractedSuccess(a),
+            ProjectionKind::InteractedFailure(a),
+            ProjectionKind::NotInteracted(a),
+        ] {
+            out.extend(input.map.project(kind, &grid));
+        }
+    }
+    out
+}
+
+fn history_vector(config: &StateConfig, history: &ActionHistory) -> Vec<f32> {
+    let width = config.n_actions + 2;
+    let mut out = vec![0.0; config.history_len()];
+    for (slot, &(action, success, reward)) in
+        history.entries.iter().take(config.history).enumerate()
+    {
+        let row = &mut out[slot * width..(slot + 1) * width];
+        if action < config.n_actions {
+            row[action] = 1.0;
+        }
+        row[config.n_actions] = f32::from(u8::from(success));
+        row[config.n_actions + 1] = reward;
+    }
+    out
+}

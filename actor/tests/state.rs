@@ -1,0 +1,151 @@
+//! The `ours` state from a real simulator frame and map: shapes, value
+//! ranges, the interacted-objects mask, the history, and egocentric maps
+//! that turn with the agent.
+
+use actor::env::actions::ActionSpace;
+use actor::env::state::{build_state, ActionHistory, State, StateConfig, StateInputs};
+use actor::mapping::{intrinsics, map_frame};
+use mapper::{Affordance, Map, MapConfig, ObjectId, Outcome};
+use nalgebra::Point2;
+use sim::agent::{AgentState, NavAction, Simulator};
+use sim::ithor::load_scene;
+use sim::profile::RobotProfile;
+use sim::randomise::reachable_grid;
+
+const AFFORDANCES: [Affordance; 2] = [Affordance::PickUp, Affordance::Push];
+
+fn simulator() -> Simulator {
+    let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data/ithor-livingrooms");
+    let scene = load_scene(&dir.join("FloorPlan227.json")).unwrap();
+    let profile = RobotProfile::load("default").unwrap();
+    let centre = scene.floor_min + (scene.floor_max - scene.floor_min) / 2.0;
+    let (x, y) = reachable_grid(&scene, &profile)
+        .unwrap()
+        .into_iter()
+        .min_by(|a, b| {
+            let d = |p: &(f32, f32)| (p.0 - centre.x).powi(2) + (p.1 - centre.y).powi(2);
+            d(a).total_cmp(&d(b))
+        })
+        .unwrap();
+    let start = AgentState {
+        x,
+        y,
+        yaw_deg: 0.0,
+        horizon_deg: 30.0,
+    };
+    Simulator::new(scene, profile, start).unwrap()
+}
+
+/// Integrates the current view and builds the state.
+fn observe(
+    sim: &Simulator,
+    map: &mut Map,
+    history: &ActionHistory,
+    config: &StateConfig,
+) -> (State, Vec<u32>) {
+    let camera = sim.camera();
+    let frame = sim.render_cpu();
+    let map_ids = map.integrate(&map_frame(&camera, &frame)).unwrap();
+    let a = sim.agent();
+    let probabilities = vec![vec![0.25; frame.ids.len()]; AFFORDANCES.len()];
+    let inputs = StateInputs {
+        rgb: &frame.rgb,
+        depth_m: &frame.depth_m,
+        map_ids: &map_ids,
+        t_world_camera: &camera.t_world_camera,
+        intrinsics: &intrinsics(&camera),
+        agent: (a.x, a.y, a.yaw_deg.to_radians()),
+        floor_z: sim.scene().floor_top_m,
+        reach_m: sim.profile().reach_m,
+        visited: &[Point2::new(a.x, a.y)],
+        probabilities: &probabilities,
+        map,
+        history,
+        holding: false,
+    };
+    (build_state(config, &inputs), map_ids)
+}
+
+/// Centroid (row, col) of the non-zero cells of a plane.
+fn centroid(plane: &[f32], side: usize) -> (f32, f32) {
+    let cells: Vec<usize> = (0..plane.len()).filter(|&i| plane[i] > 0.0).collect();
+    assert!(!cells.is_empty(), "the plane is empty");
+    let n = cells.len() as f32;
+    (
+        cells.iter().map(|&i| (i / side) as f32).sum::<f32>() / n,
+        cells.iter().map(|&i| (i % side) as f32).sum::<f32>() / n,
+    )
+}
+
+#[test]
+fn state_shapes_ranges_masks_and_egocentric_maps() {
+    let space = ActionSpace::new(&AFFORDANCES);
+    let config = StateConfig::paper(&AFFORDANCES, space.len());
+    let mut sim = simulator();
+    let mut map = Map::new(MapConfig::default());
+    let mut history = ActionHistory::default();
+    let (state, map_ids) = observe(&sim, &mut map, &history, &config);
+    let (s, m) = (config.image_size, config.map_cells);
+    assert_eq!(state.camera.len(), config.camera_channels() * s * s);
+    assert_eq!(state.camera.len(), 10 * s * s);
+    assert_eq!(state.global_map.len(), config.map_channels() * m * m);
+    assert_eq!(state.local_map.len(), 8 * m * m);
+    assert_eq!(state.history, vec![0.0; 5 * (30 + 2)]);
+    assert_eq!(state.inventory, vec![0.0]);
+    assert!(state.camera.iter().all(|v| (0.0..=1.0).contains(v)));
+    for plane in [&state.global_map, &state.local_map] {
+        assert!(plane.iter().all(|&v| v == 0.0 || v == 1.0));
+    }
+    // The distance image: some pixels within reach (< 0.5), some beyond.
+    let distance = &state.camera[3 * s * s..4 * s * s];
+    assert!(distance.iter().any(|&d| d < 0.5) && distance.iter().any(|&d| d > 0.5));
+    // Occupancy and the agent's own cell appear on both maps.
+    let occupancy = &state.global_map[m * m..2 * m * m];
+    assert!(occupancy.iter().filter(|&&v| v > 0.0).count() > 50);
+    let visited_cell = (m / 2) * m + m / 2;
+    assert_eq!(state.global_map[visited_cell], 1.0);
+
+    // The object nearest the image's middle column, told it can be picked up.
+    let width = s;
+    let mut best = (0u32, 0usize);
+    let mut ids = map_ids.clone();
+    ids.sort_unstable();
+    ids.dedup();
+    for &id in ids.iter().filter(|&&id| id != 0) {
+        let pixels: Vec<usize> = (0..map_ids.len()).filter(|&p| map_ids[p] == id).collect();
+        let mean_u = pixels.iter().map(|p| (p % width) as f32).sum::<f32>() / pixels.len() as f32;
+        if (mean_u - 63.5).abs() < 12.0 && pixels.len() > best.1 {
+            best = (id, pixels.len());
+        }
+    }
+    assert!(best.1 > 50, "no object ahead");
+    map.record_interaction(ObjectId(best.0), Affordance::PickUp, Outcome::Success)
+        .unwrap();
+    history.push(7, true, 1.0, 5);
+    let (state, map_ids) = observe(&sim, &mut map, &history, &config);
+    // Camera channel 4 + 2A + 0 is pick-up success: exactly the object's pixels.
+    let success_mask = &state.camera[6 * s * s..7 * s * s];
+    for (p, &v) in success_mask.iter().enumerate() {
+        assert_eq!(v == 1.0, map_ids[p] == best.0, "pixel {p}");
+    }
+    assert_eq!(state.history[7], 1.0);
+    assert_eq!(state.history[30], 1.0, "success");
+    assert_eq!(state.history[31], 1.0, "reward");
+
+    // Global map plane 2 (pick-up success): the object is ahead (upper half, middle).
+    let plane = |state: &State| state.global_map[2 * m * m..3 * m * m].to_vec();
+    let (row, col) = centroid(&plane(&state), m);
+    println!("facing it: row {row:.1}, col {col:.1}");
+    assert!(row < m as f32 / 2.0 - 3.0, "ahead means up: row {row}");
+    assert!((col - m as f32 / 2.0).abs() < m as f32 / 8.0, "col {col}");
+    // A quarter turn left puts it on the agent's right.
+    for _ in 0..3 {
+        assert!(sim.step(NavAction::RotateLeft).success);
+    }
+    let (state, _) = observe(&sim, &mut map, &history, &config);
+    let (row, col) = centroid(&plane(&state), m);
+    println!("after turning left 90°: row {row:.1}, col {col:.1}");
+    assert!(col > m as f32 / 2.0 + 3.0, "on the right: col {col}");
+    assert!((row - m as f32 / 2.0).abs() < m as f32 / 8.0, "row {row}");
+}
