@@ -2,6 +2,7 @@
 
 pub mod actions;
 mod bandit_fixture;
+pub mod reward;
 pub mod state;
 
 pub use bandit_fixture::BanditFixture;

@@ -1,0 +1,181 @@
+//! The paper's reward, R = α1·R_nav + α2·R_int + α3·R_fail:
+//! R_nav is 1 for a position not visited before in the episode and 0.3 for
+//! a new heading at a visited position; R_int is 1 for the first successful
+//! interaction of each kind with an object instance; R_fail is −1 for any
+//! failed action.
+
+use std::collections::HashSet;
+
+use mapper::Affordance;
+use sim::agent::{AgentState, STEP_M};
+
+/// The α weights.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RewardWeights {
+    /// α1, navigation novelty.
+    pub navigation: f32,
+    /// α2, new successful interactions.
+    pub interaction: f32,
+    /// α3, failed actions (R_fail is −1, so a positive α3 penalises).
+    pub failure: f32,
+}
+
+impl Default for RewardWeights {
+    fn default() -> Self {
+        Self {
+            navigation: 1.0,
+            interaction: 1.0,
+            failure: 1.0,
+        }
+    }
+}
+
+/// Reward for a new position.
+const NEW_POSITION: f32 = 1.0;
+/// Reward for a new heading at a known position.
+const NEW_HEADING: f32 = 0.3;
+
+/// What happened in a step, as the reward sees it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepEvent {
+    /// The agent after the step.
+    pub agent: AgentState,
+    /// Whether the action succeeded.
+    pub success: bool,
+    /// For interactions: the affordance tried and the object instance.
+    pub interaction: Option<(Affordance, usize)>,
+}
+
+/// The reward's memory of one episode.
+#[derive(Debug, Clone, Default)]
+pub struct RewardTracker {
+    weights: RewardWeights,
+    positions: HashSet<(i32, i32)>,
+    headings: HashSet<(i32, i32, i32)>,
+    interacted: HashSet<(Affordance, usize)>,
+}
+
+impl RewardTracker {
+    /// A tracker for a new episode starting at `start` (the start counts as visited).
+    pub fn new(weights: RewardWeights, start: AgentState) -> Self {
+        let mut tracker = Self {
+            weights,
+            ..Default::default()
+        };
+        tracker.visit(&start);
+        tracker
+    }
+
+    /// Marks a pose visited; returns R_nav for it.
+    fn visit(&mut self, a: &AgentState) -> f32 {
+        let cell = ((a.x / STEP_M).round() as i32, (a.y / STEP_M).round() as i32);
+        let heading = (cell.0, cell.1, a.yaw_deg.round() as i32 % 360);
+        let new_position = self.positions.insert(cell);
+        let new_heading = self.headings.insert(heading);
+        if new_position {
+            NEW_POSITION
+        } else if new_heading {
+            NEW_HEADING
+        } else {
+            0.0
+        }
+    }
+
+    /// The reward for a step.
+    pub fn reward(&mut self, event: &StepEvent) -> f32 {
+        let navigation = self.visit(&event.agent);
+        let interaction = match event.interaction {
+            Some(key) if event.success && self.interacted.insert(key) => 1.0,
+            _ => 0.0,
+        };
+        let failure = if event.success { 0.0 } else { -1.0 };
+        self.weights.navigation * navigation
+            + self.weights.interaction * interaction
+            + self.weights.failure * failure
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn at(x: f32, y: f32, yaw_deg: f32) -> AgentState {
+        AgentState {
+            x,
+            y,
+            yaw_deg,
+            horizon_deg: 0.0,
+        }
+    }
+
+    fn step(
+        agent: AgentState,
+        success: bool,
+        interaction: Option<(Affordance, usize)>,
+    ) -> StepEvent {
+        StepEvent {
+            agent,
+            success,
+            interaction,
+        }
+    }
+
+    #[test]
+    fn novelty_interactions_and_failures_are_rewarded_as_the_paper_says() {
+        let mut r = RewardTracker::new(RewardWeights::default(), at(0.0, 0.0, 0.0));
+        assert_eq!(
+            r.reward(&step(at(0.25, 0.0, 0.0), true, None)),
+            1.0,
+            "new position"
+        );
+        assert_eq!(
+            r.reward(&step(at(0.25, 0.0, 30.0), true, None)),
+            0.3,
+            "new heading"
+        );
+        assert_eq!(
+            r.reward(&step(at(0.25, 0.0, 30.0), true, None)),
+            0.0,
+            "looked up"
+        );
+        assert_eq!(
+            r.reward(&step(at(0.25, 0.0, 30.0), false, None)),
+            -1.0,
+            "blocked"
+        );
+        let pick = Some((Affordance::PickUp, 4));
+        assert_eq!(
+            r.reward(&step(at(0.25, 0.0, 30.0), true, pick)),
+            1.0,
+            "new object"
+        );
+        assert_eq!(
+            r.reward(&step(at(0.25, 0.0, 30.0), true, pick)),
+            0.0,
+            "same object"
+        );
+        let push = Some((Affordance::Push, 4));
+        assert_eq!(
+            r.reward(&step(at(0.25, 0.0, 30.0), true, push)),
+            1.0,
+            "new kind"
+        );
+        assert_eq!(
+            r.reward(&step(
+                at(0.25, 0.0, 30.0),
+                false,
+                Some((Affordance::Push, 5))
+            )),
+            -1.0
+        );
+        // The weights scale each term.
+        let weights = RewardWeights {
+            navigation: 0.5,
+            interaction: 2.0,
+            failure: 0.1,
+        };
+        let mut r = RewardTracker::new(weights, at(0.0, 0.0, 0.0));
+        assert_eq!(r.reward(&step(at(0.25, 0.0, 0.0), true, pick)), 0.5 + 2.0);
+        assert!((r.reward(&step(at(0.25, 0.0, 0.0), false, None)) + 0.1).abs() < 1e-6);
+    }
+}
