@@ -17,7 +17,9 @@
 //! Only frames with both positive and negative pixels (in some affordance)
 //! are kept when the balanced filter is on.
 
-use mapper::{Affordance, Intrinsics, Map, MapError, ObjectId, Pose};
+use std::collections::BTreeMap;
+
+use mapper::{Affordance, Intrinsics, Map, MapError, ObjectId, ObjectLabels, Pose};
 use nalgebra::Point3;
 use proto::{FrameBatch, LABEL_NEGATIVE, LABEL_POSITIVE, LABEL_UNKNOWN};
 
@@ -117,11 +119,19 @@ pub fn apply_confidence_labels(
 /// Per frame, `affordances.len()` label planes from the labels stored on
 /// the map's objects (interaction outcomes, else confidence labels): each
 /// labelled object's mask in each frame gets its label; everything else is
-/// [`LABEL_UNKNOWN`].
-pub fn map_labels(map: &Map, frames: &[EpisodeFrame], affordances: &[Affordance]) -> Vec<Vec<u8>> {
+/// [`LABEL_UNKNOWN`]. `remembered` holds the records of objects the map
+/// has since deleted (an object carried away stops being seen).
+pub fn map_labels(
+    map: &Map,
+    remembered: &BTreeMap<u32, ObjectLabels>,
+    frames: &[EpisodeFrame],
+    affordances: &[Affordance],
+) -> Vec<Vec<u8>> {
     let label_of = |id: u32, affordance: Affordance| {
         map.object(ObjectId(id))
-            .and_then(|o| o.labels.label(affordance))
+            .map(|o| &o.labels)
+            .or_else(|| remembered.get(&id))
+            .and_then(|labels| labels.label(affordance))
             .map_or(LABEL_UNKNOWN, |l| {
                 if l {
                     LABEL_POSITIVE

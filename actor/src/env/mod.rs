@@ -1,8 +1,10 @@
 //! What the episode loop needs from an environment.
 
 pub mod actions;
+pub mod affordance_model;
 mod bandit_fixture;
 pub mod reward;
+pub mod sim_env;
 pub mod state;
 
 pub use bandit_fixture::BanditFixture;

@@ -1,0 +1,362 @@
+//! The simulator environment of method `ours`: each step goes simulator →
+//! map integration → U-Net inference → state → (policy, outside) → action;
+//! at the end of an episode the labeler turns the map's interaction records
+//! into labelled frames for the learner.
+
+use std::collections::BTreeMap;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use mapper::{Affordance, Map, MapConfig, ObjectId, ObjectLabels, Outcome as MapOutcome};
+use nalgebra::Point2;
+use proto::FrameBatch;
+use rand::rngs::StdRng;
+use rand::SeedableRng;
+use sim::agent::{Failure, Simulator};
+use sim::profile::RobotProfile;
+use sim::randomise::randomise;
+use sim::raycast::Frame;
+use sim::renderer::Renderer;
+use sim::scenes::SceneSource;
+
+use crate::env::actions::{cell_targets, ActionSpace, CellTargets, PolicyAction, SelectionRule};
+use crate::env::affordance_model::AffordanceModel;
+use crate::env::reward::{RewardTracker, RewardWeights, StepEvent};
+use crate::env::state::{build_state, ActionHistory, State, StateConfig, StateInputs};
+use crate::labeler::{frame_batch, map_labels, EpisodeFrame};
+use crate::mapping::{intrinsics, map_frame};
+
+/// Settings of the environment.
+#[derive(Debug, Clone)]
+pub struct SimEnvConfig {
+    /// Affordances tried and labelled, in plane order.
+    pub affordances: Vec<Affordance>,
+    /// Steps per episode (600 in the paper).
+    pub episode_steps: usize,
+    /// Reward weights.
+    pub reward: RewardWeights,
+    /// Object selection.
+    pub selection: SelectionRule,
+    /// The map.
+    pub map: MapConfig,
+    /// Send only frames with both label classes.
+    pub balanced_frames: bool,
+}
+
+impl SimEnvConfig {
+    /// The paper's settings for `affordances`.
+    pub fn paper(affordances: &[Affordance]) -> Self {
+        Self {
+            affordances: affordances.to_vec(),
+            episode_steps: 600,
+            reward: RewardWeights::default(),
+            selection: SelectionRule::default(),
+            map: MapConfig::default(),
+            balanced_frames: true,
+        }
+    }
+}
+
+/// What the policy gets after a reset or a step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimObservation {
+    /// The state.
+    pub state: State,
+    /// One byte per action, 1 = allowed.
+    pub mask: Vec<u8>,
+}
+
+/// The result of a step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimStep {
+    /// The next observation.
+    pub observation: SimObservation,
+    /// The reward.
+    pub reward: f32,
+    /// Whether the action succeeded.
+    pub success: bool,
+    /// Why not.
+    pub failure: Option<Failure>,
+    /// True when the episode's step budget is used up.
+    pub done: bool,
+}
+
+/// Where a step's time went.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StepTimings {
+    /// Simulator action.
+    pub sim: Duration,
+    /// Rendering.
+    pub render: Duration,
+    /// Map integration.
+    pub map: Duration,
+    /// U-Net inference.
+    pub unet: Duration,
+    /// State building, targets and mask.
+    pub state: Duration,
+}
+
+/// The environment.
+pub struct SimEnv {
+    config: SimEnvConfig,
+    source: SceneSource,
+    profile: RobotProfile,
+    renderer: Renderer,
+    model: AffordanceModel,
+    space: ActionSpace,
+    state_config: StateConfig,
+    episode: Option<Episode>,
+    timings: StepTimings,
+}
+
+/// One episode's working state.
+struct Episode {
+    sim: Simulator,
+    map: Map,
+    reward: RewardTracker,
+    history: ActionHistory,
+    visited: Vec<Point2<f32>>,
+    frames: Vec<EpisodeFrame>,
+    targets: CellTargets,
+    /// Interaction records, kept here too: the map forgets objects it stops seeing.
+    remembered: BTreeMap<u32, ObjectLabels>,
+    steps: usize,
+    scene_index: u64,
+}
+
+impl SimEnv {
+    /// An environment drawing rooms from `source`.
+    pub fn new(
+        config: SimEnvConfig,
+        source: SceneSource,
+        profile: RobotProfile,
+        renderer: Renderer,
+        model: AffordanceModel,
+    ) -> Self {
+        let space = ActionSpace::new(&config.affordances);
+        let state_config = StateConfig {
+            image_size: profile.image_size,
+            ..StateConfig::paper(&config.affordances, space.len())
+        };
+        Self {
+            config,
+            source,
+            profile,
+            renderer,
+            model,
+            space,
+            state_config,
+            episode: None,
+            timings: StepTimings::default(),
+        }
+    }
+
+    /// The action space.
+    pub fn action_space(&self) -> &ActionSpace {
+        &self.space
+    }
+
+    /// The state's layout.
+    pub fn state_config(&self) -> &StateConfig {
+        &self.state_config
+    }
+
+    /// The U-Net, for new weights.
+    pub fn model_mut(&mut self) -> &mut AffordanceModel {
+        &mut self.model
+    }
+
+    /// Time spent in the last step (or reset), by stage.
+    pub fn last_timings(&self) -> StepTimings {
+        self.timings
+    }
+
+    /// Index of the current room in the scene source.
+    pub fn scene_index(&self) -> u64 {
+        self.episode.as_ref().map_or(0, |e| e.scene_index)
+    }
+
+    /// The simulator of the running episode.
+    pub fn simulator(&self) -> Option<&Simulator> {
+        self.episode.as_ref().map(|e| &e.sim)
+    }
+
+    /// Starts an episode: a room picked and randomised by `seed`.
+    pub fn reset(&mut self, seed: u64) -> anyhow::Result<SimObservation> {
+        let (scene_index, scene) = self.source.pick(seed);
+        let mut rng = StdRng::seed_from_u64(seed);
+        let (sim, _) = randomise(&scene, &self.profile, &mut rng)
+            .with_context(|| format!("setting up an episode in {}", scene.name))?;
+        let start = sim.agent();
+        self.episode = Some(Episode {
+            reward: RewardTracker::new(self.config.reward, start),
+            visited: vec![Point2::new(start.x, start.y)],
+            sim,
+            map: Map::new(self.config.map),
+            history: ActionHistory::default(),
+            frames: Vec::new(),
+            targets: CellTargets::default(),
+            remembered: BTreeMap::new(),
+            steps: 0,
+            scene_index,
+        });
+        self.timings = StepTimings::default();
+        self.observe()
+    }
+
+    /// Applies action `index` of the action space.
+    pub fn step(&mut self, index: usize) -> anyhow::Result<SimStep> {
+        let action = self.space.get(index).with_context(|| {
+            format!(
+                "action {index} is outside the action space ({})",
+                self.space.len()
+            )
+        })?;
+        let episode = self.episode.as_mut().context("step before reset")?;
+        let started = Instant::now();
+        let interaction = match action {
+            PolicyAction::Select { affordance, cell } => episode
+                .targets
+                .target(affordance, cell)
+                .map(|t| (affordance, t.object)),
+            _ => None,
+        };
+        let outcome = match self.space.to_sim(action, &episode.targets) {
+            Some(sim_action) => episode.sim.apply(sim_action),
+            None => sim::agent::Outcome {
+                success: false,
+                failure: Some(Failure::NothingThere),
+            },
+        };
+        // The interaction's outcome goes onto the map object that was selected.
+        let mut interacted_instance = None;
+        if let Some((affordance, object)) = interaction {
+            let id = ObjectId(object);
+            let result = if outcome.success {
+                MapOutcome::Success
+            } else {
+                MapOutcome::Failure
+            };
+            if episode
+                .map
+                .record_interaction(id, affordance, result)
+                .is_ok()
+            {
+                episode
+                    .remembered
+                    .entry(object)
+                    .or_default()
+                    .record(affordance, result);
+            }
+            if outcome.success && affordance == Affordance::Push {
+                // The map tracks the pushed object from the next frame on.
+                let _ = episode.map.notify_moved(id, None);
+            }
+            interacted_instance = Some((affordance, object as usize));
+        }
+        let agent = episode.sim.agent();
+        let reward = episode.reward.reward(&StepEvent {
+            agent,
+            success: outcome.success,
+            interaction: interacted_instance,
+        });
+        episode.visited.push(Point2::new(agent.x, agent.y));
+        episode
+            .history
+            .push(index, outcome.success, reward, self.state_config.history);
+        episode.steps += 1;
+        let done = episode.steps >= self.config.episode_steps;
+        let sim_time = started.elapsed();
+        let observation = self.observe()?;
+        self.timings.sim = sim_time;
+        Ok(SimStep {
+            observation,
+            reward,
+            success: outcome.success,
+            failure: outcome.failure,
+            done,
+        })
+    }
+
+    /// Renders, integrates, predicts and builds the observation.
+    fn observe(&mut self) -> anyhow::Result<SimObservation> {
+        let episode = self.episode.as_mut().context("observe before reset")?;
+        let t0 = Instant::now();
+        let frame: Frame = episode.sim.render(&mut self.renderer)?;
+        let camera = episode.sim.camera();
+        let t1 = Instant::now();
+        let map_ids = episode
+            .map
+            .integrate(&map_frame(&camera, &frame))
+            .context("integrating the frame into the map")?;
+        let t2 = Instant::now();
+        let probabilities =
+            self.model
+                .predict(&frame.rgb, &frame.depth_m, frame.height, frame.width);
+        let t3 = Instant::now();
+        let k = intrinsics(&camera);
+        let agent = episode.sim.agent();
+        let holding = episode.sim.held().is_some();
+        episode.targets = cell_targets(
+            &map_ids,
+            frame.width,
+            &self.config.affordances,
+            Some(&probabilities),
+            &self.config.selection,
+        );
+        let state = build_state(
+            &self.state_config,
+            &StateInputs {
+                rgb: &frame.rgb,
+                depth_m: &frame.depth_m,
+                map_ids: &map_ids,
+                t_world_camera: &camera.t_world_camera,
+                intrinsics: &k,
+                agent: (agent.x, agent.y, agent.yaw_deg.to_radians()),
+                floor_z: episode.sim.scene().floor_top_m,
+                reach_m: self.profile.reach_m,
+                visited: &episode.visited,
+                probabilities: &probabilities,
+                map: &episode.map,
+                history: &episode.history,
+                holding,
+            },
+        );
+        let mask = self.space.mask(holding, &episode.targets);
+        episode.frames.push(EpisodeFrame {
+            rgb: frame.rgb,
+            depth_m: frame.depth_m,
+            map_ids,
+            t_world_camera: camera.t_world_camera,
+        });
+        self.timings = StepTimings {
+            sim: Duration::ZERO,
+            render: t1 - t0,
+            map: t2 - t1,
+            unet: t3 - t2,
+            state: t3.elapsed(),
+        };
+        Ok(SimObservation { state, mask })
+    }
+
+    /// Ends the episode: its labelled frames for the learner (interaction
+    /// labels through the map, remembered for objects the map dropped).
+    pub fn finish_episode(&mut self, episode_id: u64) -> anyhow::Result<FrameBatch> {
+        let episode = self.episode.take().context("finish before reset")?;
+        let labels = map_labels(
+            &episode.map,
+            &episode.remembered,
+            &episode.frames,
+            &self.config.affordances,
+        );
+        let camera = episode.sim.camera();
+        Ok(frame_batch(
+            episode_id,
+            &intrinsics(&camera),
+            &episode.frames,
+            &labels,
+            self.config.affordances.len(),
+            self.config.balanced_frames,
+        ))
+    }
+}

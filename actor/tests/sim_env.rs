@@ -1,0 +1,111 @@
+//! The `ours` environment end to end on a generated room: simulator, map,
+//! U-Net, state, mask, reward and the labeler at the episode's end.
+
+use actor::env::actions::PolicyAction;
+use actor::env::affordance_model::AffordanceModel;
+use actor::env::sim_env::{SimEnv, SimEnvConfig, SimObservation};
+use mapper::Affordance;
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+use sim::ithor::SceneSet;
+use sim::profile::RobotProfile;
+use sim::renderer::{Renderer, RendererChoice};
+use sim::scenes::SceneSource;
+
+const AFFORDANCES: [Affordance; 2] = [Affordance::PickUp, Affordance::Push];
+
+fn environment(steps: usize) -> SimEnv {
+    let data = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
+    let profile = RobotProfile::load("default").unwrap();
+    let source = SceneSource::open(
+        Some(&data.join("ithor-livingrooms")),
+        SceneSet::Test,
+        &data.join("ithor-object-types.tsv"),
+        &profile,
+    )
+    .unwrap();
+    let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).unwrap();
+    let config = SimEnvConfig {
+        episode_steps: steps,
+        balanced_frames: false,
+        ..SimEnvConfig::paper(&AFFORDANCES)
+    };
+    SimEnv::new(
+        config,
+        source,
+        profile,
+        Renderer::open(RendererChoice::Cpu).unwrap(),
+        AffordanceModel::new(AFFORDANCES.len(), &device),
+    )
+}
+
+/// An allowed action: interactions whenever one is allowed, else navigation.
+fn choose(env: &SimEnv, observation: &SimObservation, rng: &mut StdRng) -> usize {
+    let allowed: Vec<usize> = (0..observation.mask.len())
+        .filter(|&i| observation.mask[i] == 1)
+        .collect();
+    let interactions: Vec<usize> = allowed
+        .iter()
+        .copied()
+        .filter(|&i| !matches!(env.action_space().get(i), Some(PolicyAction::Nav(_))))
+        .collect();
+    if !interactions.is_empty() && rng.random_bool(0.5) {
+        interactions[rng.random_range(0..interactions.len())]
+    } else {
+        allowed[rng.random_range(0..allowed.len())]
+    }
+}
+
+fn run(env: &mut SimEnv, seed: u64, steps: usize) -> (Vec<(f32, bool)>, Vec<SimObservation>) {
+    let mut rng = StdRng::seed_from_u64(seed);
+    let mut observation = env.reset(seed).unwrap();
+    let (mut outcomes, mut observations) = (Vec::new(), vec![observation.clone()]);
+    for step in 0..steps {
+        let action = choose(env, &observation, &mut rng);
+        assert_eq!(observation.mask[action], 1);
+        let result = env.step(action).unwrap();
+        assert!(result.reward.is_finite());
+        assert_eq!(result.done, step + 1 == steps, "done exactly at the budget");
+        outcomes.push((result.reward, result.success));
+        observation = result.observation;
+        observations.push(observation.clone());
+    }
+    (outcomes, observations)
+}
+
+#[test]
+fn an_episode_runs_labels_and_repeats_exactly() {
+    let steps = 40;
+    let mut env = environment(steps);
+    let n_actions = env.action_space().len();
+    assert_eq!(n_actions, 30);
+    let (outcomes, observations) = run(&mut env, 2, steps);
+    let config = env.state_config().clone();
+    for o in &observations {
+        assert_eq!(o.mask.len(), n_actions);
+        assert_eq!(o.state.camera.len(), config.camera_channels() * 128 * 128);
+        assert_eq!(o.state.global_map.len(), config.map_channels() * 128 * 128);
+        assert_eq!(o.state.history.len(), config.history_len());
+    }
+    let interactions = outcomes.iter().filter(|(r, _)| *r != 0.0).count();
+    println!(
+        "{} of {steps} steps succeeded, return {:.1}",
+        outcomes.iter().filter(|o| o.1).count(),
+        outcomes.iter().map(|o| o.0).sum::<f32>()
+    );
+    assert!(interactions > 0);
+    let timings = env.last_timings();
+    println!("last step: {timings:?}");
+    let batch = env.finish_episode(9).unwrap();
+    assert_eq!(batch.n_affordances, 2);
+    assert!(batch.n_frames() <= steps + 1);
+    println!("labelled frames: {}", batch.n_frames());
+
+    let (again, observations_again) = run(&mut env, 2, steps);
+    assert_eq!(outcomes, again, "same seed, same episode");
+    assert!(observations == observations_again);
+    assert!(
+        env.step(99).is_err(),
+        "an action outside the space is an error"
+    );
+}
