@@ -1,12 +1,12 @@
 //! The `ours` environment end to end on a generated room: simulator, map,
 //! U-Net, state, mask, reward and the labeler at the episode's end.
 
-use actor::env::actions::PolicyAction;
+use actor::env::actions::random_allowed_action;
 use actor::env::affordance_model::AffordanceModel;
 use actor::env::sim_env::{SimEnv, SimEnvConfig, SimObservation};
 use mapper::Affordance;
 use rand::rngs::StdRng;
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use sim::ithor::SceneSet;
 use sim::profile::RobotProfile;
 use sim::renderer::{Renderer, RendererChoice};
@@ -39,29 +39,12 @@ fn environment(steps: usize) -> SimEnv {
     )
 }
 
-/// An allowed action: interactions whenever one is allowed, else navigation.
-fn choose(env: &SimEnv, observation: &SimObservation, rng: &mut StdRng) -> usize {
-    let allowed: Vec<usize> = (0..observation.mask.len())
-        .filter(|&i| observation.mask[i] == 1)
-        .collect();
-    let interactions: Vec<usize> = allowed
-        .iter()
-        .copied()
-        .filter(|&i| !matches!(env.action_space().get(i), Some(PolicyAction::Nav(_))))
-        .collect();
-    if !interactions.is_empty() && rng.random_bool(0.5) {
-        interactions[rng.random_range(0..interactions.len())]
-    } else {
-        allowed[rng.random_range(0..allowed.len())]
-    }
-}
-
 fn run(env: &mut SimEnv, seed: u64, steps: usize) -> (Vec<(f32, bool)>, Vec<SimObservation>) {
     let mut rng = StdRng::seed_from_u64(seed);
     let mut observation = env.reset(seed).unwrap();
     let (mut outcomes, mut observations) = (Vec::new(), vec![observation.clone()]);
     for step in 0..steps {
-        let action = choose(env, &observation, &mut rng);
+        let action = random_allowed_action(env.action_space(), &observation.mask, 0.5, &mut rng);
         assert_eq!(observation.mask[action], 1);
         let result = env.step(action).unwrap();
         assert!(result.reward.is_finite());

@@ -117,6 +117,28 @@ impl ActionSpace {
     }
 }
 
+/// A random allowed action, an interaction (anything but navigation) with
+/// probability `interaction_share` whenever one is allowed: the scripted
+/// explorer of tests and benchmarks.
+pub fn random_allowed_action(
+    space: &ActionSpace,
+    mask: &[u8],
+    interaction_share: f64,
+    rng: &mut impl rand::Rng,
+) -> usize {
+    let allowed: Vec<usize> = (0..mask.len()).filter(|&i| mask[i] == 1).collect();
+    let interactions: Vec<usize> = allowed
+        .iter()
+        .copied()
+        .filter(|&i| !matches!(space.get(i), Some(PolicyAction::Nav(_))))
+        .collect();
+    if !interactions.is_empty() && rng.random_bool(interaction_share) {
+        interactions[rng.random_range(0..interactions.len())]
+    } else {
+        allowed[rng.random_range(0..allowed.len())]
+    }
+}
+
 /// The object a grid cell selects.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Target {

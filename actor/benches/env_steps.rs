@@ -1,0 +1,91 @@
+//! End-to-end environment steps/s of method `ours` on one actor, state
+//! building included, and where the time goes (simulator, render, map,
+//! U-Net, state). A 120-step episode in FloorPlan227 with random allowed
+//! actions (half of them interactions when any is allowed), per renderer.
+//! The policy's forward pass is not part of the environment; its time is
+//! measured by `cargo bench -p training` (policy inference, one step).
+//!
+//! `cargo bench -p actor --bench env_steps`
+
+use std::time::{Duration, Instant};
+
+use actor::env::actions::random_allowed_action;
+use actor::env::affordance_model::AffordanceModel;
+use actor::env::sim_env::{SimEnv, SimEnvConfig, StepTimings};
+use mapper::Affordance;
+use rand::rngs::StdRng;
+use rand::SeedableRng;
+use sim::ithor::SceneSet;
+use sim::profile::RobotProfile;
+use sim::renderer::{Renderer, RendererChoice};
+use sim::scenes::SceneSource;
+
+const STEPS: usize = 120;
+const AFFORDANCES: [Affordance; 2] = [Affordance::PickUp, Affordance::Push];
+
+fn median(mut xs: Vec<Duration>) -> Duration {
+    xs.sort();
+    xs[xs.len() / 2]
+}
+
+fn main() {
+    if std::env::var_os("LP_NUM_THREADS").is_none() {
+        std::env::set_var("LP_NUM_THREADS", "1");
+    }
+    let data = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
+    let profile = RobotProfile::load("default").expect("profile");
+    let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).expect("cpu");
+    println!("| renderer | steps/s | sim | render | map | U-Net | state |");
+    println!("|---|---|---|---|---|---|---|");
+    for choice in [RendererChoice::Gpu, RendererChoice::Cpu] {
+        let renderer = match Renderer::open(choice) {
+            Ok(r) => r,
+            Err(e) => {
+                println!("{choice:?}: skipped: {e}");
+                continue;
+            }
+        };
+        let name = renderer.describe();
+        let source = SceneSource::open(
+            Some(&data.join("ithor-livingrooms")),
+            SceneSet::Test,
+            &data.join("ithor-object-types.tsv"),
+            &profile,
+        )
+        .expect("scenes");
+        let config = SimEnvConfig {
+            episode_steps: STEPS,
+            ..SimEnvConfig::paper(&AFFORDANCES)
+        };
+        let mut env = SimEnv::new(
+            config,
+            source,
+            profile.clone(),
+            renderer,
+            AffordanceModel::new(AFFORDANCES.len(), &device),
+        );
+        let mut rng = StdRng::seed_from_u64(1);
+        let mut observation = env.reset(1).expect("reset");
+        let mut stages: Vec<StepTimings> = Vec::with_capacity(STEPS);
+        let start = Instant::now();
+        for _ in 0..STEPS {
+            let action =
+                random_allowed_action(env.action_space(), &observation.mask, 0.5, &mut rng);
+            observation = env.step(action).expect("step").observation;
+            stages.push(env.last_timings());
+        }
+        let elapsed = start.elapsed();
+        let ms = |f: fn(&StepTimings) -> Duration| {
+            median(stages.iter().map(f).collect()).as_secs_f64() * 1e3
+        };
+        println!(
+            "| {name} | {:.1} | {:.2} ms | {:.2} ms | {:.2} ms | {:.1} ms | {:.2} ms |",
+            STEPS as f64 / elapsed.as_secs_f64(),
+            ms(|t| t.sim),
+            ms(|t| t.render),
+            ms(|t| t.map),
+            ms(|t| t.unet),
+            ms(|t| t.state),
+        );
+    }
+}
