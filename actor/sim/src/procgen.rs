@@ -178,15 +178,7 @@ fn floor_pose(
     let (lo, hi) = (scene.floor_min, scene.floor_max);
     let (yaw, x, y) = if AGAINST_WALL.contains(&entry.object_type.as_str()) {
         // The box's +y (its back) goes to the wall.
-        let wall = rng.random_range(0..4);
-        let mut along = |a: f32, b: f32, h: f32| rng.random_range(a + h..(b - h).max(a + h + 1e-3));
-        let gap = 0.02;
-        match wall {
-            0 => (0.0, along(lo.x, hi.x, half.x), hi.y - half.y - gap),
-            1 => (180f32, along(lo.x, hi.x, half.x), lo.y + half.y + gap),
-            2 => (90.0, lo.x + half.y + gap, along(lo.y, hi.y, half.x)),
-            _ => (-90.0, hi.x - half.y - gap, along(lo.y, hi.y, half.x)),
-        }
+        against_wall(scene, half, 0.02, 0.0, rng)
     } else {
         let yaw = 90.0 * rng.random_range(0..4) as f32 + rng.random_range(-10.0..10.0f32);
         let r = half.x.max(half.y);
@@ -198,6 +190,30 @@ fn floor_pose(
         center: Point3::new(x, y, scene.floor_top_m + half.z + 0.001),
         rotation: UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw.to_radians()),
         half_extents: half,
+    }
+}
+
+/// Yaw (degrees) and floor position of a box with half extents `half`
+/// whose +y side faces a random wall `gap` away from it, at a random place
+/// along that wall at least `margin` from the corners.
+fn against_wall(
+    scene: &Scene,
+    half: Vector3<f32>,
+    gap: f32,
+    margin: f32,
+    rng: &mut StdRng,
+) -> (f32, f32, f32) {
+    let (lo, hi) = (scene.floor_min, scene.floor_max);
+    let wall = rng.random_range(0..4);
+    let mut along = |a: f32, b: f32| {
+        let (from, to) = (a + half.x + margin, b - half.x - margin);
+        rng.random_range(from..to.max(from + 1e-3))
+    };
+    match wall {
+        0 => (0.0, along(lo.x, hi.x), hi.y - half.y - gap),
+        1 => (180.0, along(lo.x, hi.x), lo.y + half.y + gap),
+        2 => (90.0, lo.x + half.y + gap, along(lo.y, hi.y)),
+        _ => (-90.0, hi.x - half.y - gap, along(lo.y, hi.y)),
     }
 }
 
@@ -216,17 +232,7 @@ fn wall_pose(
         "Window" | "Blinds" => (1.45f32).max(half.z + 0.4),
         _ => (1.5f32).max(half.z + 0.9),
     };
-    let (lo, hi) = (scene.floor_min, scene.floor_max);
-    let along = |a: f32, b: f32, rng: &mut StdRng| {
-        rng.random_range(a + half.x + 0.1..(b - half.x - 0.1).max(a + half.x + 0.1 + 1e-3))
-    };
-    let gap = 0.002;
-    let (yaw, x, y): (f32, f32, f32) = match rng.random_range(0..4) {
-        0 => (0.0, along(lo.x, hi.x, rng), hi.y - half.y - gap),
-        1 => (180.0, along(lo.x, hi.x, rng), lo.y + half.y + gap),
-        2 => (90.0, lo.x + half.y + gap, along(lo.y, hi.y, rng)),
-        _ => (-90.0, hi.x - half.y - gap, along(lo.y, hi.y, rng)),
-    };
+    let (yaw, x, y) = against_wall(scene, half, 0.002, 0.1, rng);
     OrientedBox {
         center: Point3::new(x, y, scene.floor_top_m + centre_height),
         rotation: UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw.to_radians()),
