@@ -117,6 +117,9 @@ pub struct MapObject {
     pub misses: u32,
     /// Interaction outcomes and confidence labels.
     pub labels: ObjectLabels,
+    /// In the robot's hand: not rendered, associated, integrated or
+    /// projected, and never counted as missed, until released.
+    pub held: bool,
 }
 
 impl MapObject {
@@ -384,6 +387,7 @@ impl Map {
             observations: 0,
             misses: 0,
             labels: ObjectLabels::default(),
+            held: false,
         };
         self.objects.insert(id, object);
         id
@@ -415,6 +419,7 @@ impl Map {
         let mut order: Vec<(f32, &MapObject)> = self
             .objects
             .values()
+            .filter(|o| !o.held)
             .map(|o| ((t_camera_world * o.t_world_object).translation.vector.z, o))
             .collect();
         order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.id.cmp(&b.1.id)));
@@ -498,6 +503,30 @@ impl Map {
             .filter(|o| o.labels.label(affordance) == label)
             .map(|o| o.id)
             .collect()
+    }
+
+    /// The robot picked the object up: the map stops expecting to see it
+    /// where it was (it is neither rendered nor missed) and keeps its
+    /// volume and labels until [`Map::release`].
+    pub fn hold(&mut self, id: ObjectId) -> Result<(), MapError> {
+        self.objects
+            .get_mut(&id)
+            .ok_or(MapError::UnknownObject(id))?
+            .held = true;
+        Ok(())
+    }
+
+    /// The robot let go of a held object, which moved rigidly by `motion`
+    /// (world frame) between pick-up and release.
+    pub fn release(&mut self, id: ObjectId, motion: Pose) -> Result<(), MapError> {
+        let object = self
+            .objects
+            .get_mut(&id)
+            .ok_or(MapError::UnknownObject(id))?;
+        object.held = false;
+        object.t_world_object = motion * object.t_world_object;
+        object.misses = 0;
+        Ok(())
     }
 
     /// Moves an object (e.g. after the robot pushed it): a pose update, no resampling.

@@ -75,7 +75,7 @@ impl Map {
                 }
             }
         }
-        for object in self.objects().values() {
+        for object in self.objects().values().filter(|o| !o.held) {
             let include = match kind {
                 ProjectionKind::Occupancy { .. } => true,
                 ProjectionKind::InteractedSuccess(a) => {

@@ -178,3 +178,72 @@ fn a_jump_beyond_the_gate_fails_without_touching_the_model() {
         Err(mapper::MapError::UnknownObject(_))
     ));
 }
+
+/// A picked-up object: while held the map neither expects it where it was
+/// nor forgets it, however long the robot looks at the empty spot; released
+/// elsewhere with the hand's motion, it is drawn where it now stands and
+/// keeps its labels.
+#[test]
+fn a_held_object_survives_being_out_of_sight_and_returns_where_it_was_put() {
+    let (mut map, [box_id, ..]) = mapped_scene();
+    map.record_interaction(box_id, mapper::Affordance::PickUp, mapper::Outcome::Success)
+        .unwrap();
+    map.hold(box_id).unwrap();
+    let empty: Vec<Shape> = std::iter::once(floor()).chain(statics()).collect();
+    let views = views();
+    for round in 0..3 {
+        for pose in &views {
+            let frame = OwnedFrame::capture(&empty, *pose, k128());
+            let owner = map.integrate(&frame.frame()).unwrap();
+            assert!(
+                !owner.contains(&box_id.0),
+                "round {round}: the held box was seen"
+            );
+        }
+    }
+    assert!(
+        map.object(box_id).is_some(),
+        "36 frames without it, still in the map"
+    );
+    let ids = map.render_ids(&views[0], &k128()).ids;
+    assert!(!ids.contains(&box_id.0), "a held object is not drawn");
+
+    // Put down 0.6 m along y, turned 90°.
+    let start = Isometry3::translation(BOX_CENTRE.x, BOX_CENTRE.y, BOX_CENTRE.z);
+    let put = Isometry3::from_parts(
+        Translation3::new(0.0, -0.6, BOX_CENTRE.z),
+        UnitQuaternion::from_euler_angles(0.0, 0.0, std::f32::consts::FRAC_PI_2),
+    );
+    map.release(box_id, put * start.inverse()).unwrap();
+    let mut shapes = vec![floor(), moving_box(put)];
+    shapes.extend(statics());
+    let frame = OwnedFrame::capture(&shapes, views[3], k128());
+    let rendered = map.render_ids(&views[3], &k128()).ids;
+    let (mut agree, mut mask) = (0, 0);
+    for (px, &instance) in frame.ids.iter().enumerate() {
+        if instance == 1 {
+            mask += 1;
+            agree += usize::from(rendered[px] == box_id.0);
+        }
+    }
+    println!("released box: {agree} of {mask} pixels drawn where it stands");
+    assert!(mask > 100 && agree as f32 >= 0.9 * mask as f32);
+    let owner = map.integrate(&frame.frame()).unwrap();
+    let seen = frame
+        .ids
+        .iter()
+        .zip(&owner)
+        .filter(|(&i, &o)| i == 1 && o == box_id.0)
+        .count();
+    assert!(
+        seen as f32 >= 0.9 * mask as f32,
+        "re-associated: {seen} of {mask}"
+    );
+    assert_eq!(
+        map.object(box_id)
+            .unwrap()
+            .labels
+            .label(mapper::Affordance::PickUp),
+        Some(true)
+    );
+}

@@ -1,13 +1,14 @@
 //! The simulator environment of method `ours`: each step goes simulator →
 //! map integration → U-Net inference → state → (policy, outside) → action;
 //! at the end of an episode the labeler turns the map's interaction records
-//! into labelled frames for the learner.
+//! into labelled frames for the learner. A picked-up object is held in the
+//! map (kept, unseen) and released where the simulator put it down.
 
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use mapper::{Affordance, Map, MapConfig, ObjectId, ObjectLabels, Outcome as MapOutcome};
+use mapper::{Affordance, Map, MapConfig, ObjectId, ObjectLabels, Outcome as MapOutcome, Pose};
 use nalgebra::Point2;
 use proto::FrameBatch;
 use rand::rngs::StdRng;
@@ -17,6 +18,7 @@ use sim::profile::RobotProfile;
 use sim::randomise::randomise;
 use sim::raycast::Frame;
 use sim::renderer::Renderer;
+use sim::scene::OrientedBox;
 use sim::scenes::SceneSource;
 
 use crate::env::actions::{cell_targets, ActionSpace, CellTargets, PolicyAction, SelectionRule};
@@ -122,6 +124,8 @@ struct Episode {
     remembered: BTreeMap<u32, ObjectLabels>,
     steps: usize,
     scene_index: u64,
+    /// The object in the hand: its map id and its box when it was picked up.
+    in_hand: Option<(ObjectId, OrientedBox)>,
 }
 
 impl SimEnv {
@@ -199,6 +203,7 @@ impl SimEnv {
             remembered: BTreeMap::new(),
             steps: 0,
             scene_index,
+            in_hand: None,
         });
         self.timings = StepTimings::default();
         self.observe()
@@ -214,12 +219,26 @@ impl SimEnv {
         })?;
         let episode = self.episode.as_mut().context("step before reset")?;
         let started = Instant::now();
+        let dropped = episode.sim.held();
         let interaction = match action {
             PolicyAction::Select { affordance, cell } => episode
                 .targets
                 .target(affordance, cell)
                 .map(|t| (affordance, t.object)),
             _ => None,
+        };
+        let boxes_before: Vec<OrientedBox> = match action {
+            PolicyAction::Select {
+                affordance: Affordance::PickUp,
+                ..
+            } => episode
+                .sim
+                .scene()
+                .objects
+                .iter()
+                .map(|o| o.bounds)
+                .collect(),
+            _ => Vec::new(),
         };
         let outcome = match self.space.to_sim(action, &episode.targets) {
             Some(sim_action) => episode.sim.apply(sim_action),
@@ -252,7 +271,24 @@ impl SimEnv {
                 // The map tracks the pushed object from the next frame on.
                 let _ = episode.map.notify_moved(id, None);
             }
+            if outcome.success && affordance == Affordance::PickUp {
+                // The map keeps the object, unseen, until it is put down.
+                if let Some(index) = episode.sim.held() {
+                    if episode.map.hold(id).is_ok() {
+                        episode.in_hand = Some((id, boxes_before[index]));
+                    }
+                }
+            }
             interacted_instance = Some((affordance, object as usize));
+        }
+        if action == PolicyAction::Drop && outcome.success {
+            if let (Some((id, before)), Some(index)) = (episode.in_hand.take(), dropped) {
+                let after = episode.sim.scene().objects[index].bounds;
+                let pose = |b: &OrientedBox| Pose::from_parts(b.center.coords.into(), b.rotation);
+                let _ = episode
+                    .map
+                    .release(id, pose(&after) * pose(&before).inverse());
+            }
         }
         let agent = episode.sim.agent();
         let reward = episode.reward.reward(&StepEvent {
