@@ -9,4 +9,5 @@ pub mod env;
 pub mod episode_loop;
 pub mod labeler;
 pub mod mapping;
+pub mod metrics;
 pub mod sim_view;

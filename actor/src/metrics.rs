@@ -1,0 +1,109 @@
+//! Per-frame scores against the simulator's ground truth (the paper's
+//! training metrics): affordance IoU of the U-Net's prediction, object-level
+//! accuracy by majority vote of each visible object's pixels, and the
+//! interactable / non-interactable annotation rates of the labeller.
+//!
+//! Ground truth comes as a per-pixel instance image (the simulator's ids,
+//! 0 for structure) and a function telling whether an instance affords the
+//! affordance (from `sim::affordances::ground_truth`).
+
+use std::collections::BTreeMap;
+
+use proto::{LABEL_NEGATIVE, LABEL_POSITIVE};
+
+/// Scores of one frame for one affordance.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameScores {
+    /// |predicted ∩ true| / |predicted ∪ true| over object pixels; `None`
+    /// when both are empty.
+    pub iou: Option<f32>,
+    /// Fraction of visible objects whose majority-voted prediction is right;
+    /// `None` when no object is visible.
+    pub object_accuracy: Option<f32>,
+}
+
+/// Scores a probability plane (threshold 0.5) against the ground truth.
+pub fn score_frame(
+    probabilities: &[f32],
+    instances: &[u32],
+    affords: &dyn Fn(u32) -> bool,
+) -> FrameScores {
+    let (mut intersection, mut union) = (0usize, 0usize);
+    let mut votes: BTreeMap<u32, (usize, usize)> = BTreeMap::new();
+    for (&p, &id) in probabilities.iter().zip(instances) {
+        if id == 0 {
+            continue;
+        }
+        let (predicted, truth) = (p >= 0.5, affords(id));
+        intersection += usize::from(predicted && truth);
+        union += usize::from(predicted || truth);
+        let v = votes.entry(id).or_default();
+        v.0 += usize::from(predicted);
+        v.1 += 1;
+    }
+    let correct = votes
+        .iter()
+        .filter(|(&id, &(yes, all))| (2 * yes > all) == affords(id))
+        .count();
+    FrameScores {
+        iou: (union > 0).then(|| intersection as f32 / union as f32),
+        object_accuracy: (!votes.is_empty()).then(|| correct as f32 / votes.len() as f32),
+    }
+}
+
+/// The annotation rates of a label plane: pixels correctly labelled
+/// positive over all pixels, and pixels correctly labelled negative over
+/// all pixels.
+pub fn annotation_rates(
+    labels: &[u8],
+    instances: &[u32],
+    affords: &dyn Fn(u32) -> bool,
+) -> (f32, f32) {
+    let (mut positive, mut negative) = (0usize, 0usize);
+    for (&l, &id) in labels.iter().zip(instances) {
+        let truth = id != 0 && affords(id);
+        positive += usize::from(l == LABEL_POSITIVE && truth);
+        negative += usize::from(l == LABEL_NEGATIVE && !truth);
+    }
+    let n = labels.len().max(1) as f32;
+    (positive as f32 / n, negative as f32 / n)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proto::LABEL_UNKNOWN;
+
+    #[test]
+    fn iou_and_object_accuracy_on_a_crafted_frame() {
+        // Object 1 affords (4 px), object 2 does not (4 px), structure (2 px).
+        let ids = [1, 1, 1, 1, 2, 2, 2, 2, 0, 0];
+        let affords = |id: u32| id == 1;
+        // Predicted: three of object 1, one of object 2, and structure (ignored).
+        let p = [0.9, 0.9, 0.9, 0.1, 0.8, 0.2, 0.2, 0.2, 0.9, 0.9];
+        let s = score_frame(&p, &ids, &affords);
+        assert_eq!(s.iou, Some(3.0 / 5.0));
+        assert_eq!(s.object_accuracy, Some(1.0), "both majorities are right");
+        let all_yes = [0.9; 10];
+        let s = score_frame(&all_yes, &ids, &affords);
+        assert_eq!(s.iou, Some(0.5));
+        assert_eq!(s.object_accuracy, Some(0.5));
+        let s = score_frame(&[0.1; 2], &[0, 0], &affords);
+        assert_eq!((s.iou, s.object_accuracy), (None, None));
+    }
+
+    #[test]
+    fn annotation_rates_count_only_correct_labels() {
+        let ids = [1, 1, 2, 2, 0];
+        let affords = |id: u32| id == 1;
+        let u = LABEL_UNKNOWN;
+        let labels = [
+            LABEL_POSITIVE,
+            u,
+            LABEL_POSITIVE,
+            LABEL_NEGATIVE,
+            LABEL_NEGATIVE,
+        ];
+        assert_eq!(annotation_rates(&labels, &ids, &affords), (0.2, 0.4));
+    }
+}
