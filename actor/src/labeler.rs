@@ -75,33 +75,39 @@ pub fn confidence_labels(
     affordance: Affordance,
     rule: &ConfidenceRule,
 ) -> Vec<(ObjectId, bool)> {
-    let mut decided = Vec::new();
-    for object in map.objects().values() {
-        if object.labels.interacted(affordance) {
-            continue;
+    // Per untouched object: the largest per-frame P95 and the smallest P5.
+    let mut extremes: BTreeMap<u32, (f32, f32)> = map
+        .objects()
+        .values()
+        .filter(|o| !o.labels.interacted(affordance))
+        .map(|o| (o.id.0, (f32::NEG_INFINITY, f32::INFINITY)))
+        .collect();
+    for (frame, plane) in frames.iter().zip(probabilities) {
+        let mut values: BTreeMap<u32, Vec<f32>> = BTreeMap::new();
+        for (&id, &p) in frame.map_ids.iter().zip(plane) {
+            if extremes.contains_key(&id) {
+                values.entry(id).or_default().push(p);
+            }
         }
-        let (mut best_p95, mut worst_p5) = (f32::NEG_INFINITY, f32::INFINITY);
-        for (frame, plane) in frames.iter().zip(probabilities) {
-            let mut values: Vec<f32> = frame
-                .map_ids
-                .iter()
-                .zip(plane)
-                .filter(|(&id, _)| id == object.id.0)
-                .map(|(_, &p)| p)
-                .collect();
-            if values.len() < rule.min_pixels.max(1) {
+        for (id, mut v) in values {
+            if v.len() < rule.min_pixels.max(1) {
                 continue;
             }
-            best_p95 = best_p95.max(nearest_rank(&mut values, 0.95));
-            worst_p5 = worst_p5.min(nearest_rank(&mut values, 0.05));
-        }
-        let positive = best_p95 > rule.positive_above;
-        let negative = worst_p5 < rule.negative_below;
-        if positive != negative {
-            decided.push((object.id, positive));
+            let e = extremes
+                .get_mut(&id)
+                .expect("only untouched objects are gathered");
+            e.0 = e.0.max(nearest_rank(&mut v, 0.95));
+            e.1 = e.1.min(nearest_rank(&mut v, 0.05));
         }
     }
-    decided
+    extremes
+        .into_iter()
+        .filter_map(|(id, (best_p95, worst_p5))| {
+            let positive = best_p95 > rule.positive_above;
+            let negative = worst_p5 < rule.negative_below;
+            (positive != negative).then_some((ObjectId(id), positive))
+        })
+        .collect()
 }
 
 /// Stores confidence labels on the map, where interaction labels already live.

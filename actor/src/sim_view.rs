@@ -129,14 +129,7 @@ pub fn run(settings: &SimViewSettings) -> anyhow::Result<SimViewSummary> {
 /// The reachable grid position nearest the room's centre, facing +x.
 fn central_start(scene: &Scene, profile: &RobotProfile) -> anyhow::Result<AgentState> {
     let centre = scene.floor_min + (scene.floor_max - scene.floor_min) / 2.0;
-    let reachable = sim::randomise::reachable_grid(scene, profile)?;
-    let (x, y) = reachable
-        .into_iter()
-        .min_by(|a, b| {
-            let d = |p: &(f32, f32)| (p.0 - centre.x).powi(2) + (p.1 - centre.y).powi(2);
-            d(a).total_cmp(&d(b))
-        })
-        .context("the room has no reachable position")?;
+    let (x, y) = sim::randomise::reachable_nearest(scene, profile, centre.x, centre.y)?;
     Ok(AgentState {
         x,
         y,

@@ -10,7 +10,7 @@ use nalgebra::Point2;
 use sim::agent::{AgentState, NavAction, Simulator};
 use sim::ithor::load_scene;
 use sim::profile::RobotProfile;
-use sim::randomise::reachable_grid;
+use sim::randomise::reachable_nearest;
 
 const AFFORDANCES: [Affordance; 2] = [Affordance::PickUp, Affordance::Push];
 
@@ -20,14 +20,7 @@ fn simulator() -> Simulator {
     let scene = load_scene(&dir.join("FloorPlan227.json")).unwrap();
     let profile = RobotProfile::load("default").unwrap();
     let centre = scene.floor_min + (scene.floor_max - scene.floor_min) / 2.0;
-    let (x, y) = reachable_grid(&scene, &profile)
-        .unwrap()
-        .into_iter()
-        .min_by(|a, b| {
-            let d = |p: &(f32, f32)| (p.0 - centre.x).powi(2) + (p.1 - centre.y).powi(2);
-            d(a).total_cmp(&d(b))
-        })
-        .unwrap();
+    let (x, y) = reachable_nearest(&scene, &profile, centre.x, centre.y).unwrap();
     let start = AgentState {
         x,
         y,

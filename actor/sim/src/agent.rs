@@ -297,7 +297,8 @@ impl Simulator {
                     object: (what != crate::physics::WALL_NAME).then_some(what),
                 });
             }
-            self.follow_hand();
+            // The held object follows the agent.
+            self.set_box(index, carried);
         }
         Outcome::ok()
     }

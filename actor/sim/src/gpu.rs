@@ -10,6 +10,7 @@ use wgpu::util::DeviceExt;
 use crate::geometry::SceneGeometry;
 use crate::mesh::{scene_mesh, InstanceRange, MeshVertex};
 use crate::raycast::{Camera, Frame, LIGHT};
+use crate::scene::aabb_corners;
 
 /// Nearest depth the renderer draws, metres (reverse-Z keeps precision far out).
 const NEAR_M: f32 = 0.01;
@@ -55,6 +56,8 @@ struct Targets {
     colour: wgpu::Texture,
     depth_out: wgpu::Texture,
     ids: wgpu::Texture,
+    /// Views of colour, depth_out and ids, in that order.
+    views: [wgpu::TextureView; 3],
     zbuffer: wgpu::TextureView,
     readback: wgpu::Buffer,
     padded_row: u32,
@@ -281,8 +284,7 @@ impl GpuRenderer {
             self.targets.as_ref().expect("made above"),
             self.scene.as_ref().expect("uploaded above"),
         );
-        let views = [&targets.colour, &targets.depth_out, &targets.ids]
-            .map(|t| t.create_view(&wgpu::TextureViewDescriptor::default()));
+        let views = &targets.views;
         let mut encoder = self
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
@@ -413,14 +415,7 @@ fn visible_ranges(
     let mut draws: Vec<std::ops::Range<u32>> = Vec::new();
     for instance in instances {
         let (lo, hi) = (instance.aabb_min, instance.aabb_max);
-        let corners: [Point3<f32>; 8] = std::array::from_fn(|i| {
-            t_camera_world
-                * Point3::new(
-                    if i & 1 == 0 { lo.x } else { hi.x },
-                    if i & 2 == 0 { lo.y } else { hi.y },
-                    if i & 4 == 0 { lo.z } else { hi.z },
-                )
-        });
+        let corners = aabb_corners(&lo, &hi).map(|c| t_camera_world * c);
         let outside = |test: &dyn Fn(&Point3<f32>) -> bool| corners.iter().all(test);
         if outside(&|p| p.z < NEAR_M)
             || outside(&|p| p.z > max_depth_m)
@@ -459,12 +454,20 @@ fn make_targets(device: &wgpu::Device, width: u32, height: u32) -> Targets {
     let out = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC;
     let align = wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
     let padded_row = (4 * width).div_ceil(align) * align;
+    let (colour, depth_out, ids) = (
+        texture(COLOUR_FORMAT, out),
+        texture(DEPTH_OUT_FORMAT, out),
+        texture(ID_FORMAT, out),
+    );
+    let views =
+        [&colour, &depth_out, &ids].map(|t| t.create_view(&wgpu::TextureViewDescriptor::default()));
     Targets {
         width,
         height,
-        colour: texture(COLOUR_FORMAT, out),
-        depth_out: texture(DEPTH_OUT_FORMAT, out),
-        ids: texture(ID_FORMAT, out),
+        colour,
+        depth_out,
+        ids,
+        views,
         zbuffer: texture(ZBUFFER_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT)
             .create_view(&wgpu::TextureViewDescriptor::default()),
         readback: device.create_buffer(&wgpu::BufferDescriptor {

@@ -10,7 +10,7 @@ use std::str::FromStr;
 use nalgebra::{Point2, Point3, Rotation3, UnitQuaternion};
 use serde::Deserialize;
 
-use crate::scene::{walls_around, OrientedBox, Scene, SceneObject};
+use crate::scene::{points_aabb, walls_around, OrientedBox, Scene, SceneObject};
 
 /// Why a scene could not be imported.
 #[derive(Debug, thiserror::Error)]
@@ -136,13 +136,7 @@ pub fn load_scene(path: &Path) -> Result<Scene, ImportError> {
     for (id, o) in raw {
         let aabb = corners(&o.axis_aligned_bounding_box)
             .ok_or_else(|| invalid(&id, "axisAlignedBoundingBox needs 8 corner points".into()))?;
-        let (min, max) = aabb.iter().fold(
-            (
-                Point3::from([f32::INFINITY; 3]),
-                Point3::from([f32::NEG_INFINITY; 3]),
-            ),
-            |(lo, hi), p| (lo.inf(p), hi.sup(p)),
-        );
+        let (min, max) = points_aabb(&aabb);
         if !(min.iter().chain(max.iter()).all(|v| v.is_finite())) {
             return Err(invalid(&id, "non-finite bounding box".into()));
         }
@@ -186,14 +180,7 @@ pub fn load_scene(path: &Path) -> Result<Scene, ImportError> {
         .ok_or_else(|| ImportError::NoFloor {
             path: path.to_owned(),
         })?;
-    let floor_corners = floor.bounds.corners();
-    let (lo, hi) = floor_corners.iter().fold(
-        (
-            Point3::from([f32::INFINITY; 3]),
-            Point3::from([f32::NEG_INFINITY; 3]),
-        ),
-        |(lo, hi), p| (lo.inf(p), hi.sup(p)),
-    );
+    let (lo, hi) = floor.bounds.world_aabb();
     let tallest = objects
         .iter()
         .flat_map(|o| o.bounds.corners())

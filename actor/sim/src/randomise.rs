@@ -139,6 +139,21 @@ pub fn reachable_grid(
     Ok(reachable)
 }
 
+/// The reachable grid position of `scene` nearest `(x, y)` (the first on ties).
+pub fn reachable_nearest(
+    scene: &Scene,
+    profile: &RobotProfile,
+    x: f32,
+    y: f32,
+) -> Result<(f32, f32), RandomiseError> {
+    let d = |p: &(f32, f32)| (p.0 - x).powi(2) + (p.1 - y).powi(2);
+    let reachable = reachable_grid(scene, profile)?;
+    Ok(reachable
+        .into_iter()
+        .min_by(|a, b| d(a).total_cmp(&d(b)))
+        .expect("reachable_grid is never empty"))
+}
+
 /// A simulator at the first free grid spot, only to ask for the reachable grid.
 fn probe_start(scene: &Scene, profile: &RobotProfile) -> Result<Simulator, RandomiseError> {
     let nx = ((scene.floor_max.x - scene.floor_min.x) / 0.25) as i32;

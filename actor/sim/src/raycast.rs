@@ -6,6 +6,7 @@
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 
 use crate::geometry::{Instance, SceneGeometry};
+use crate::scene::aabb_corners;
 
 /// A pinhole camera: x right, y down, z forward (the mapper's convention).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -106,14 +107,7 @@ fn bin_instances<'a>(
     );
     for instance in &geometry.instances {
         let (lo, hi) = instance.world_box();
-        let corners: [Point3<f32>; 8] = std::array::from_fn(|i| {
-            t_camera_world
-                * Point3::new(
-                    if i & 1 == 0 { lo.x } else { hi.x },
-                    if i & 2 == 0 { lo.y } else { hi.y },
-                    if i & 4 == 0 { lo.z } else { hi.z },
-                )
-        });
+        let corners = aabb_corners(&lo, &hi).map(|c| t_camera_world * c);
         if corners.iter().all(|p| p.z < NEAR_M) || corners.iter().all(|p| p.z > max_depth_m) {
             continue;
         }

@@ -19,6 +19,29 @@ pub struct OrientedBox {
     pub half_extents: Vector3<f32>,
 }
 
+/// The axis-aligned box around `points`: (lower, upper) corner; infinite
+/// bounds for no points.
+pub fn points_aabb(points: &[Point3<f32>]) -> (Point3<f32>, Point3<f32>) {
+    points.iter().fold(
+        (
+            Point3::from([f32::INFINITY; 3]),
+            Point3::from([f32::NEG_INFINITY; 3]),
+        ),
+        |(lo, hi), p| (lo.inf(p), hi.sup(p)),
+    )
+}
+
+/// The 8 corners of the axis-aligned box between `lo` and `hi`.
+pub fn aabb_corners(lo: &Point3<f32>, hi: &Point3<f32>) -> [Point3<f32>; 8] {
+    std::array::from_fn(|i| {
+        Point3::new(
+            if i & 1 == 0 { lo.x } else { hi.x },
+            if i & 2 == 0 { lo.y } else { hi.y },
+            if i & 4 == 0 { lo.z } else { hi.z },
+        )
+    })
+}
+
 /// Smallest half extent kept for flat objects (paintings, rugs), metres.
 pub const MIN_HALF_EXTENT_M: f32 = 0.005;
 
@@ -104,13 +127,7 @@ impl OrientedBox {
     /// The 8 corners, world frame.
     /// The axis-aligned world box around this box: (lower, upper) corner.
     pub fn world_aabb(&self) -> (Point3<f32>, Point3<f32>) {
-        self.corners().iter().fold(
-            (
-                Point3::from([f32::INFINITY; 3]),
-                Point3::from([f32::NEG_INFINITY; 3]),
-            ),
-            |(lo, hi), c| (lo.inf(c), hi.sup(c)),
-        )
+        points_aabb(&self.corners())
     }
 
     pub fn corners(&self) -> [Point3<f32>; 8] {

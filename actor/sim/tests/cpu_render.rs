@@ -8,13 +8,7 @@ use sim::raycast::{agent_camera_pose, render, Camera};
 use sim::scene::{walls_around, OrientedBox, Scene, SceneObject};
 
 fn object(id: &str, object_type: &str, bounds: OrientedBox) -> SceneObject {
-    let (lo, hi) = bounds.corners().iter().fold(
-        (
-            Point3::from([f32::INFINITY; 3]),
-            Point3::from([f32::NEG_INFINITY; 3]),
-        ),
-        |(lo, hi), c| (lo.inf(c), hi.sup(c)),
-    );
+    let (lo, hi) = bounds.world_aabb();
     SceneObject {
         id: id.into(),
         object_type: object_type.into(),

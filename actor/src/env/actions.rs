@@ -190,11 +190,22 @@ impl Default for SelectionRule {
 }
 
 /// Pixel statistics of one object in a frame.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Default)]
 struct Blob {
     pixels: usize,
     sum_u: f64,
     sum_v: f64,
+    /// Per affordance, the sum of the predicted probability over its pixels.
+    sum_probability: Vec<f64>,
+}
+
+impl Blob {
+    fn centroid(&self) -> (f32, f32) {
+        (
+            (self.sum_u / self.pixels as f64) as f32,
+            (self.sum_v / self.pixels as f64) as f32,
+        )
+    }
 }
 
 /// The grid targets for a frame: `map_ids` is the frame's map-id image
@@ -208,15 +219,24 @@ pub fn cell_targets(
     rule: &SelectionRule,
 ) -> CellTargets {
     let height = map_ids.len() / width.max(1);
+    // One pass over the image gathers every object's statistics.
     let mut blobs: std::collections::BTreeMap<u32, Blob> = Default::default();
     for (p, &id) in map_ids.iter().enumerate() {
         if id == 0 {
             continue;
         }
-        let b = blobs.entry(id).or_default();
+        let b = blobs.entry(id).or_insert_with(|| Blob {
+            sum_probability: vec![0.0; affordances.len()],
+            ..Blob::default()
+        });
         b.pixels += 1;
         b.sum_u += (p % width) as f64;
         b.sum_v += (p / width) as f64;
+        if let Some(planes) = probabilities {
+            for (sum, plane) in b.sum_probability.iter_mut().zip(planes) {
+                *sum += f64::from(plane[p]);
+            }
+        }
     }
     let region = |n: usize| {
         let span = rule.centre_fraction * n as f32;
@@ -229,30 +249,35 @@ pub fn cell_targets(
             v0 + cell_h * ((cell / GRID) as f32 + 0.5),
         )
     };
+    // The pixel of object `id` nearest its centroid (the first on ties).
+    let aim = |id: u32, (cu, cv): (f32, f32)| {
+        map_ids
+            .iter()
+            .enumerate()
+            .filter(|(_, &m)| m == id)
+            .map(|(p, _)| p)
+            .min_by(|&a, &b| {
+                let d = |p: usize| {
+                    ((p % width) as f32 - cu).powi(2) + ((p / width) as f32 - cv).powi(2)
+                };
+                d(a).total_cmp(&d(b))
+            })
+            .expect("the blob has pixels")
+    };
     let mut cells = Vec::with_capacity(affordances.len());
     for (k, &affordance) in affordances.iter().enumerate() {
-        let mut best: [Option<Target>; GRID * GRID] = [None; GRID * GRID];
+        // Per cell, the largest confident object (the lowest id on ties).
+        let mut best: [Option<(u32, &Blob)>; GRID * GRID] = [None; GRID * GRID];
         for (&id, blob) in &blobs {
             if blob.pixels < rule.min_pixels {
                 continue;
             }
-            let (cu, cv) = (
-                (blob.sum_u / blob.pixels as f64) as f32,
-                (blob.sum_v / blob.pixels as f64) as f32,
-            );
-            if let Some(planes) = probabilities {
-                let plane = &planes[k];
-                let mean = map_ids
-                    .iter()
-                    .zip(plane)
-                    .filter(|(&m, _)| m == id)
-                    .map(|(_, &p)| f64::from(p))
-                    .sum::<f64>()
-                    / blob.pixels as f64;
-                if (mean as f32) < rule.min_confidence {
-                    continue;
-                }
+            let confident = probabilities.is_none()
+                || (blob.sum_probability[k] / blob.pixels as f64) as f32 >= rule.min_confidence;
+            if !confident {
+                continue;
             }
+            let (cu, cv) = blob.centroid();
             let cell = (0..GRID * GRID)
                 .min_by(|&a, &b| {
                     let d = |c: usize| {
@@ -262,29 +287,22 @@ pub fn cell_targets(
                     d(a).total_cmp(&d(b))
                 })
                 .expect("nine cells");
-            if best[cell].is_some_and(|t| t.pixels >= blob.pixels) {
-                continue;
+            if best[cell].is_none_or(|(_, b)| b.pixels < blob.pixels) {
+                best[cell] = Some((id, blob));
             }
-            let aim = map_ids
-                .iter()
-                .enumerate()
-                .filter(|(_, &m)| m == id)
-                .map(|(p, _)| p)
-                .min_by(|&a, &b| {
-                    let d = |p: usize| {
-                        ((p % width) as f32 - cu).powi(2) + ((p / width) as f32 - cv).powi(2)
-                    };
-                    d(a).total_cmp(&d(b))
-                })
-                .expect("the blob has pixels");
-            best[cell] = Some(Target {
-                object: id,
-                u: aim % width,
-                v: aim / width,
-                pixels: blob.pixels,
-            });
         }
-        cells.push((affordance, best));
+        let targets = best.map(|chosen| {
+            chosen.map(|(id, blob)| {
+                let p = aim(id, blob.centroid());
+                Target {
+                    object: id,
+                    u: p % width,
+                    v: p / width,
+                    pixels: blob.pixels,
+                }
+            })
+        });
+        cells.push((affordance, targets));
     }
     CellTargets { cells }
 }

@@ -93,15 +93,6 @@ impl Simulator {
         first_overlap(&self.scene, index, box_, &|_| false)
     }
 
-    /// Moves the held object (not rendered, not in the room's geometry) to
-    /// where the hand now is; called after the agent moved or turned.
-    pub(super) fn follow_hand(&mut self) {
-        if let Some(index) = self.held {
-            let to = self.hold_box(index);
-            self.set_box(index, to);
-        }
-    }
-
     /// Moves the held object by one step along `direction`. Fails when the
     /// hand is empty, when the hand would leave the workspace (beyond the
     /// profile's reach from the eye, or into the agent's body), or when the
