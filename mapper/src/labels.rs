@@ -1,18 +1,8 @@
 //! Interaction outcomes and confidence labels stored on map objects.
 
-/// What the robot can try on an object.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum Affordance {
-    /// Pick the object up.
-    PickUp = 0,
-    /// Push the object.
-    Push = 1,
-}
-
-impl Affordance {
-    /// Every affordance, in index order.
-    pub const ALL: [Affordance; 2] = [Affordance::PickUp, Affordance::Push];
-}
+/// What the robot can try on an object: the wire contract's enum, so the
+/// map, the actor and the learner share one definition.
+pub use proto::Affordance;
 
 /// The result of one interaction attempt.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -17,6 +17,7 @@ mod message;
 mod rollout;
 pub mod service;
 mod stats;
+pub mod task;
 mod weights;
 
 pub use arrays::{F32Array, U32Array};
@@ -28,4 +29,5 @@ pub use rollout::{
     obs_bytes_from_f32, ObsDtype, RolloutChunk, RolloutView, MAX_ACTIONS, MAX_STEPS,
 };
 pub use stats::{EpisodeStats, StatField};
+pub use task::{Affordance, EnvKind, Method, PolicyLayout, TaskError, TaskSpec};
 pub use weights::{WeightsBlob, WeightsView, WEIGHTS_POLICY_PREFIX, WEIGHTS_UNET_PREFIX};

@@ -24,6 +24,93 @@ pub struct PolicyConfig {
     pub gru_hidden: Option<usize>,
 }
 
+impl PolicyConfig {
+    /// The network for a task's input layout (`gru_hidden` for the GRU methods).
+    pub fn from_layout(layout: &proto::PolicyLayout, gru_hidden: Option<usize>) -> Self {
+        Self {
+            image_channels: layout.image_channels.clone(),
+            image_size: layout.image_size,
+            vector_dims: layout.vector_dims.clone(),
+            n_actions: layout.n_actions,
+            gru_hidden,
+        }
+    }
+
+    /// Elements of one flat observation: images, then vectors.
+    pub fn obs_len(&self) -> usize {
+        self.image_channels.iter().sum::<usize>() * self.image_size * self.image_size
+            + self.vector_dims.iter().sum::<usize>()
+    }
+}
+
+impl PolicyInput {
+    /// Splits `rows` flat observations (`rows · obs_len` values, each row
+    /// images then vectors, as [`PolicyConfig::obs_len`] counts them) and
+    /// their masks (`rows · n_actions` bytes, nonzero = allowed) into tensors.
+    ///
+    /// # Panics
+    /// If the lengths do not match `config`: callers validate first.
+    pub fn from_flat(
+        config: &PolicyConfig,
+        obs: &[f32],
+        masks: &[u8],
+        rows: usize,
+        device: &Device,
+    ) -> Self {
+        let len = config.obs_len();
+        assert_eq!(obs.len(), rows * len, "observation length");
+        assert_eq!(masks.len(), rows * config.n_actions, "mask length");
+        let side = config.image_size;
+        let mut offsets = Vec::new();
+        let mut at = 0;
+        for &c in &config.image_channels {
+            offsets.push((at, c * side * side));
+            at += c * side * side;
+        }
+        for &d in &config.vector_dims {
+            offsets.push((at, d));
+            at += d;
+        }
+        let gather = |(start, width): (usize, usize)| -> Vec<f32> {
+            let mut out = Vec::with_capacity(rows * width);
+            for r in 0..rows {
+                out.extend_from_slice(&obs[r * len + start..r * len + start + width]);
+            }
+            out
+        };
+        let n_images = config.image_channels.len();
+        let images = config
+            .image_channels
+            .iter()
+            .zip(&offsets)
+            .map(|(&c, &o)| {
+                Tensor::<1>::from_floats(gather(o).as_slice(), device)
+                    .reshape([rows, c, side, side])
+            })
+            .collect();
+        let vectors = config
+            .vector_dims
+            .iter()
+            .zip(&offsets[n_images..])
+            .map(|(&d, &o)| {
+                Tensor::<1>::from_floats(gather(o).as_slice(), device).reshape([rows, d])
+            })
+            .collect();
+        let mask = Tensor::<2, Bool>::from_data(
+            TensorData::new(
+                masks.iter().map(|&m| m != 0).collect::<Vec<_>>(),
+                [rows, config.n_actions],
+            ),
+            device,
+        );
+        Self {
+            images,
+            vectors,
+            mask,
+        }
+    }
+}
+
 /// Features out of each encoder.
 const ENCODER_FEATURES: usize = 64;
 
@@ -322,6 +409,30 @@ mod tests {
             assert_eq!(row[2], 0.0);
             assert_eq!(row[5], 0.0);
         }
+    }
+
+    #[test]
+    fn flat_observations_split_into_the_inputs_in_order() {
+        let device = Device::flex();
+        let config = PolicyConfig {
+            image_channels: vec![2],
+            image_size: 2,
+            vector_dims: vec![3, 1],
+            n_actions: 2,
+            gru_hidden: None,
+        };
+        assert_eq!(config.obs_len(), 12);
+        let obs: Vec<f32> = (0..24).map(|i| i as f32).collect();
+        let input = PolicyInput::from_flat(&config, &obs, &[1, 0, 0, 1], 2, &device);
+        let image: Vec<f32> = input.images[0].clone().into_data().try_to_vec().unwrap();
+        assert_eq!(image[..8], obs[..8]);
+        assert_eq!(image[8..], obs[12..20]);
+        let v0: Vec<f32> = input.vectors[0].clone().into_data().try_to_vec().unwrap();
+        assert_eq!(v0, vec![8.0, 9.0, 10.0, 20.0, 21.0, 22.0]);
+        let v1: Vec<f32> = input.vectors[1].clone().into_data().try_to_vec().unwrap();
+        assert_eq!(v1, vec![11.0, 23.0]);
+        let mask: Vec<bool> = input.mask.into_data().try_to_vec().unwrap();
+        assert_eq!(mask, vec![true, false, false, true]);
     }
 
     #[test]

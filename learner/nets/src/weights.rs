@@ -5,6 +5,7 @@
 
 use burn::module::Module;
 use burn::store::{BurnToPyTorchAdapter, ModuleSnapshot, PyTorchToBurnAdapter, SafetensorsStore};
+use safetensors::SafeTensors;
 
 /// Why weights could not be written or read.
 #[derive(Debug, thiserror::Error)]
@@ -17,6 +18,44 @@ pub enum WeightsError {
         "the weights do not fit this network (were they made for another configuration?): {0}"
     )]
     Mismatch(String),
+}
+
+/// Puts several networks' safetensors bytes into one file, each tensor name
+/// prefixed with its network's prefix (`policy.`, `unet.`): the weights
+/// message and the checkpoint carry both networks in one blob.
+pub fn bundle(parts: &[(&str, &[u8])]) -> Result<Vec<u8>, WeightsError> {
+    let parsed = parts
+        .iter()
+        .map(|(prefix, bytes)| {
+            SafeTensors::deserialize(bytes)
+                .map(|t| (*prefix, t))
+                .map_err(|e| WeightsError::Format(e.to_string()))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut views = Vec::new();
+    for (prefix, tensors) in &parsed {
+        for (name, view) in tensors.iter() {
+            views.push((format!("{prefix}{name}"), view));
+        }
+    }
+    safetensors::serialize(views, None).map_err(|e| WeightsError::Format(e.to_string()))
+}
+
+/// The tensors of `bytes` whose names start with `prefix`, prefix removed, as
+/// a safetensors file of their own; an error if there are none.
+pub fn unbundle(bytes: &[u8], prefix: &str) -> Result<Vec<u8>, WeightsError> {
+    let tensors =
+        SafeTensors::deserialize(bytes).map_err(|e| WeightsError::Format(e.to_string()))?;
+    let views: Vec<_> = tensors
+        .iter()
+        .filter_map(|(name, view)| name.strip_prefix(prefix).map(|n| (n.to_string(), view)))
+        .collect();
+    if views.is_empty() {
+        return Err(WeightsError::Mismatch(format!(
+            "no tensor named {prefix}… in the weights"
+        )));
+    }
+    safetensors::serialize(views, None).map_err(|e| WeightsError::Format(e.to_string()))
 }
 
 /// Serialises every parameter of `module`.
@@ -101,6 +140,34 @@ mod tests {
         assert_ne!(parameters(&a), parameters(&b));
         load_safetensors(&mut b, bytes).unwrap();
         assert_eq!(parameters(&a), parameters(&b));
+    }
+
+    #[test]
+    fn bundled_networks_come_back_out_bit_exact() {
+        let device = Device::flex();
+        let a = PolicyNet::new(&config(5), &device);
+        let b = crate::unet::AffordanceUnet::new(4, 2, &device);
+        let (pa, pb) = (to_safetensors(&a).unwrap(), to_safetensors(&b).unwrap());
+        let both = bundle(&[("policy.", &pa), ("unet.", &pb)]).unwrap();
+        let names: Vec<String> = SafeTensors::deserialize(&both)
+            .unwrap()
+            .names()
+            .into_iter()
+            .map(String::from)
+            .collect();
+        assert!(names
+            .iter()
+            .all(|n| n.starts_with("policy.") || n.starts_with("unet.")));
+        let mut a2 = PolicyNet::new(&config(5), &device);
+        load_safetensors(&mut a2, unbundle(&both, "policy.").unwrap()).unwrap();
+        assert_eq!(parameters(&a), parameters(&a2));
+        let mut b2 = crate::unet::AffordanceUnet::new(4, 2, &device);
+        load_safetensors(&mut b2, unbundle(&both, "unet.").unwrap()).unwrap();
+        assert_eq!(
+            to_safetensors(&b).unwrap().len(),
+            to_safetensors(&b2).unwrap().len()
+        );
+        assert!(unbundle(&both, "critic.").is_err());
     }
 
     #[test]

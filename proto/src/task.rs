@@ -1,0 +1,288 @@
+//! What a run trains: the environment, the method, the affordances and the
+//! image size. The learner and every actor read it from the run config's
+//! `[task]` table and derive the policy's input layout and action count from
+//! it here, in one place, so the two sides cannot disagree about shapes.
+
+use serde::{Deserialize, Serialize};
+
+use crate::ObsDtype;
+
+/// What the robot can try on an object.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Affordance {
+    /// Pick the object up.
+    PickUp = 0,
+    /// Push the object.
+    Push = 1,
+}
+
+impl Affordance {
+    /// Every affordance, in index order.
+    pub const ALL: [Affordance; 2] = [Affordance::PickUp, Affordance::Push];
+
+    /// snake_case name, as in configs and metrics.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Affordance::PickUp => "pick_up",
+            Affordance::Push => "push",
+        }
+    }
+}
+
+/// The four methods of the paper's comparison (ARCHITECTURE.md, "Methods").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    /// Map-based state and labels: annotation by interaction and by confidence.
+    Ours,
+    /// No map: GRU memory, labels from segmentation masks.
+    NomapSeg,
+    /// No map: GRU memory, 20 cm sphere labels.
+    NomapNoseg,
+    /// IntExp: RGB + affordances, most-centred object, sphere labels.
+    Intexp,
+}
+
+impl Method {
+    /// kebab-case name, as on the command line.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Method::Ours => "ours",
+            Method::NomapSeg => "nomap-seg",
+            Method::NomapNoseg => "nomap-noseg",
+            Method::Intexp => "intexp",
+        }
+    }
+}
+
+/// Which environment the actors run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum EnvKind {
+    /// The simulator with map, U-Net and labeler: the real task.
+    Sim,
+    /// A deterministic contextual bandit: a wiring test fixture.
+    BanditFixture,
+}
+
+/// Observation length of the bandit fixture (one-hot context).
+pub const BANDIT_OBS_DIM: usize = 8;
+/// Actions of the bandit fixture.
+pub const BANDIT_ACTIONS: usize = 4;
+/// Actions remembered in the policy's history input.
+pub const HISTORY_STEPS: usize = 5;
+/// Navigation actions of the simulator's action space.
+pub const NAV_ACTIONS: usize = 5;
+/// Cells of the object-selection grid per affordance (3 × 3).
+pub const GRID_CELLS: usize = 9;
+/// Moves of a held object (± 0.1 m along three axes).
+pub const HAND_MOVES: usize = 6;
+
+/// The run's task.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TaskSpec {
+    /// Environment of the actors.
+    pub env: EnvKind,
+    /// Method (what the state holds, how labels are made).
+    pub method: Method,
+    /// Affordances tried and learnt, each once, in plane order.
+    pub affordances: Vec<Affordance>,
+    /// Side of the camera images and of the 2-D maps, pixels (128 in the paper).
+    pub image_size: usize,
+    /// Steps per episode (600 in the paper).
+    pub episode_steps: usize,
+}
+
+impl Default for TaskSpec {
+    fn default() -> Self {
+        Self {
+            env: EnvKind::Sim,
+            method: Method::Ours,
+            affordances: vec![Affordance::PickUp, Affordance::Push],
+            image_size: 128,
+            episode_steps: 600,
+        }
+    }
+}
+
+/// Shapes of the policy's inputs: image-like inputs first, then vectors,
+/// concatenated in this order in a rollout's flat observation.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct PolicyLayout {
+    /// Channels of each image-like input, all `image_size` square.
+    pub image_channels: Vec<usize>,
+    /// Side of the image-like inputs.
+    pub image_size: usize,
+    /// Length of each vector input.
+    pub vector_dims: Vec<usize>,
+    /// Actions of the head.
+    pub n_actions: usize,
+    /// Element type on the wire: images in 0..1 travel as bytes.
+    pub obs_dtype: ObsDtype,
+}
+
+impl PolicyLayout {
+    /// Elements of one flat observation.
+    pub fn obs_len(&self) -> usize {
+        self.image_channels.iter().sum::<usize>() * self.image_size * self.image_size
+            + self.vector_dims.iter().sum::<usize>()
+    }
+}
+
+/// Why a task cannot run.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum TaskError {
+    /// No affordance, or one listed twice.
+    #[error("task.affordances must list pick_up and/or push, each once")]
+    Affordances,
+    /// The image is too small for the policy's convolutions or not a multiple of 16 (the U-Net halves it four times).
+    #[error("task.image_size {0} must be a multiple of 16 and at least 48")]
+    ImageSize(usize),
+    /// No steps.
+    #[error("task.episode_steps must be at least 1")]
+    EpisodeSteps,
+    /// A method not built yet.
+    #[error("method {0:?} is not available yet: only `ours` runs (the GRU methods need recurrent rollouts)")]
+    MethodUnavailable(&'static str),
+}
+
+impl TaskSpec {
+    /// Checks that the task can run.
+    pub fn validate(&self) -> Result<(), TaskError> {
+        if self.env == EnvKind::BanditFixture {
+            return Ok(());
+        }
+        let mut sorted = self.affordances.clone();
+        sorted.sort_unstable();
+        sorted.dedup();
+        if self.affordances.is_empty() || sorted.len() != self.affordances.len() {
+            return Err(TaskError::Affordances);
+        }
+        if self.image_size < 48 || !self.image_size.is_multiple_of(16) {
+            return Err(TaskError::ImageSize(self.image_size));
+        }
+        if self.episode_steps == 0 {
+            return Err(TaskError::EpisodeSteps);
+        }
+        if self.method != Method::Ours {
+            return Err(TaskError::MethodUnavailable(self.method.as_str()));
+        }
+        Ok(())
+    }
+
+    /// Actions of the simulator's head: navigation, a grid per affordance,
+    /// and drop plus hand moves when picking up is configured.
+    pub fn n_actions(&self) -> usize {
+        match self.env {
+            EnvKind::BanditFixture => BANDIT_ACTIONS,
+            EnvKind::Sim => {
+                let pick = self.affordances.contains(&Affordance::PickUp);
+                NAV_ACTIONS
+                    + GRID_CELLS * self.affordances.len()
+                    + usize::from(pick) * (1 + HAND_MOVES)
+            }
+        }
+    }
+
+    /// Channels of the camera input: RGB, distance, and per affordance the
+    /// U-Net's probability and the interacted (success, failure) masks.
+    pub fn camera_channels(&self) -> usize {
+        4 + 3 * self.affordances.len()
+    }
+
+    /// Channels of each 2-D map: visited, occupancy, and per affordance
+    /// interacted (success, failure) and not interacted.
+    pub fn map_channels(&self) -> usize {
+        2 + 3 * self.affordances.len()
+    }
+
+    /// Length of the action-history input: per remembered action its
+    /// one-hot, success and reward.
+    pub fn history_len(&self) -> usize {
+        HISTORY_STEPS * (self.n_actions() + 2)
+    }
+
+    /// The policy's input layout.
+    pub fn layout(&self) -> PolicyLayout {
+        match self.env {
+            EnvKind::BanditFixture => PolicyLayout {
+                image_channels: Vec::new(),
+                image_size: 0,
+                vector_dims: vec![BANDIT_OBS_DIM],
+                n_actions: BANDIT_ACTIONS,
+                obs_dtype: ObsDtype::F32,
+            },
+            EnvKind::Sim => PolicyLayout {
+                // Camera, global map (10 m), local map (2 m).
+                image_channels: vec![
+                    self.camera_channels(),
+                    self.map_channels(),
+                    self.map_channels(),
+                ],
+                image_size: self.image_size,
+                // History and inventory.
+                vector_dims: vec![self.history_len(), 1],
+                n_actions: self.n_actions(),
+                obs_dtype: ObsDtype::U8,
+            },
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn action_counts_follow_the_paper() {
+        let task = |affordances: Vec<Affordance>| TaskSpec {
+            affordances,
+            ..TaskSpec::default()
+        };
+        assert_eq!(task(vec![Affordance::PickUp]).n_actions(), 21);
+        assert_eq!(task(vec![Affordance::Push]).n_actions(), 14);
+        assert_eq!(
+            task(vec![Affordance::PickUp, Affordance::Push]).n_actions(),
+            30
+        );
+        let layout = task(vec![Affordance::PickUp]).layout();
+        assert_eq!(layout.image_channels, vec![7, 5, 5]);
+        assert_eq!(layout.vector_dims, vec![5 * 23, 1]);
+        assert_eq!(layout.obs_len(), 17 * 128 * 128 + 116);
+    }
+
+    #[test]
+    fn bad_tasks_are_refused_with_the_key_to_fix() {
+        let ok = TaskSpec::default();
+        assert_eq!(ok.validate(), Ok(()));
+        let twice = TaskSpec {
+            affordances: vec![Affordance::Push, Affordance::Push],
+            ..ok.clone()
+        };
+        assert!(twice
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("task.affordances"));
+        let small = TaskSpec {
+            image_size: 40,
+            ..ok.clone()
+        };
+        assert!(small
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("task.image_size"));
+        let gru = TaskSpec {
+            method: Method::NomapSeg,
+            ..ok
+        };
+        assert!(gru
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("nomap-seg"));
+    }
+}
