@@ -1,12 +1,19 @@
 //! The actor's episode loop: act with the newest broadcast policy, send
-//! rollout chunks and episode stats, pick up new weights between steps.
+//! rollout chunks, the episode's labelled frames and its stats, and pick up
+//! new weights (policy, and the U-Net when its version changes) between steps.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
-use nets::{log_softmax_masked, sample, LinearActorCritic};
-use proto::{EpisodeStats, Limits, Message, ObsDtype, RolloutChunk, StatField};
+use burn::prelude::*;
+use nets::policy::{PolicyConfig, PolicyInput, PolicyNet};
+use nets::sample;
+use nets::weights::{load_safetensors, unbundle};
+use proto::{
+    EpisodeStats, FrameBatch, Limits, Message, ObsDtype, RolloutChunk, StatField,
+    WEIGHTS_POLICY_PREFIX, WEIGHTS_UNET_PREFIX,
+};
 use rand::rngs::SmallRng;
 use rand::{Rng, SeedableRng};
 use transport::{ActorPorts, Delivery, ReceivedMessage, TransportConfig};
@@ -41,18 +48,26 @@ pub struct LoopSummary {
     pub dropped: u64,
     /// Newest policy version used.
     pub policy_version: u64,
+    /// Newest U-Net version used.
+    pub unet_version: u64,
 }
 
+/// The broadcast policy the actor acts with.
 struct Policy {
-    net: LinearActorCritic,
+    net: PolicyNet,
+    config: PolicyConfig,
     policy_version: u64,
     unet_version: u64,
 }
 
-fn load_policy(
+/// Loads a weights message: the policy always, the U-Net when the message
+/// carries one of another version than `current`'s.
+fn load_weights(
     message: &ReceivedMessage,
     transport: &TransportConfig,
-    env: &dyn Environment,
+    env: &mut dyn Environment,
+    device: &Device,
+    current: Option<&Policy>,
 ) -> anyhow::Result<Policy> {
     let limits = Limits {
         max_actors: transport.max_actors,
@@ -66,40 +81,118 @@ fn load_policy(
             message.kind()
         );
     };
-    let net = LinearActorCritic::from_safetensors(weights.bytes(), env.obs_dim(), env.n_actions())
-        .context("the learner's policy does not fit this environment (check [policy] obs_dim / n_actions in the learner config)")?;
+    let config = PolicyConfig::from_layout(env.layout(), None);
+    let mut net = PolicyNet::new(&config, device);
+    let policy_bytes = unbundle(weights.bytes(), WEIGHTS_POLICY_PREFIX)
+        .context("the learner's weights hold no policy")?;
+    load_safetensors(&mut net, policy_bytes).context(
+        "the learner's policy does not fit this actor's task (start the actor with the learner's config.toml: --config RUN_DIR/config.toml)",
+    )?;
+    let has_unet = weights
+        .tensors()
+        .names()
+        .iter()
+        .any(|n| n.starts_with(WEIGHTS_UNET_PREFIX));
+    let unet_changed = current.is_none_or(|p| p.unet_version != header.unet_version);
+    if has_unet && unet_changed {
+        env.load_unet(unbundle(weights.bytes(), WEIGHTS_UNET_PREFIX)?)?;
+    }
     Ok(Policy {
         net,
+        config,
         policy_version: header.policy_version,
         unet_version: header.unet_version,
     })
 }
 
-/// Collects steps until a chunk is full or the episode ends.
-struct ChunkBuilder {
-    chunk: RolloutChunk,
-}
-
-impl ChunkBuilder {
-    fn new(episode_id: u64, first_step: u32, env: &dyn Environment) -> Self {
-        Self {
-            chunk: RolloutChunk {
-                episode_id,
-                first_step,
-                n_actions: env.n_actions() as u32,
-                obs_dtype: ObsDtype::F32,
-                obs_elems: env.obs_dim() as u32,
-                obs: Vec::new(),
-                actions: Vec::new(),
-                masks: Vec::new(),
-                log_probs: Vec::new(),
-                values: Vec::new(),
-                rewards: Vec::new(),
-                dones: Vec::new(),
-                bootstrap_value: 0.0,
-            },
+/// One action sampled from the policy: index, its log-probability, and the
+/// critic's value of the observation.
+fn act(
+    policy: &Policy,
+    observation: &Observation,
+    uniform: f32,
+    device: &Device,
+) -> Option<(u32, f32, f32)> {
+    let out = policy.net.forward(
+        &PolicyInput::from_flat(
+            &policy.config,
+            &observation.features,
+            &observation.action_mask,
+            1,
+            device,
+        ),
+        None,
+    );
+    let mut log_probs: Vec<f32> = out.log_probs.into_data().try_to_vec().ok()?;
+    for (lp, &allowed) in log_probs.iter_mut().zip(&observation.action_mask) {
+        if allowed == 0 {
+            *lp = f32::NEG_INFINITY;
         }
     }
+    let value = out.values.into_scalar::<f32>();
+    sample(&log_probs, uniform).map(|(a, lp)| (a, lp, value))
+}
+
+fn value_of(policy: &Policy, observation: &Observation, device: &Device) -> f32 {
+    act(policy, observation, 0.0, device).map_or(0.0, |(_, _, v)| v)
+}
+
+/// An empty chunk for `env`'s layout.
+fn new_chunk(episode_id: u64, first_step: u32, env: &dyn Environment) -> RolloutChunk {
+    let layout = env.layout();
+    RolloutChunk {
+        episode_id,
+        first_step,
+        n_actions: layout.n_actions as u32,
+        obs_dtype: layout.obs_dtype,
+        obs_elems: layout.obs_len() as u32,
+        obs: Vec::new(),
+        actions: Vec::new(),
+        masks: Vec::new(),
+        log_probs: Vec::new(),
+        values: Vec::new(),
+        rewards: Vec::new(),
+        dones: Vec::new(),
+        bootstrap_value: 0.0,
+    }
+}
+
+/// Appends an observation in the chunk's element type.
+fn push_obs(chunk: &mut RolloutChunk, features: &[f32]) {
+    match chunk.obs_dtype {
+        ObsDtype::U8 => chunk.obs.extend(
+            features
+                .iter()
+                .map(|&v| (v.clamp(0.0, 1.0) * 255.0).round() as u8),
+        ),
+        ObsDtype::F32 => chunk
+            .obs
+            .extend(features.iter().flat_map(|v| v.to_le_bytes())),
+    }
+}
+
+/// Splits an episode's frames into messages of at most `max_bytes` payload.
+fn split_frames(batch: FrameBatch, max_bytes: usize) -> Vec<FrameBatch> {
+    let pixels = (batch.height * batch.width) as usize;
+    let planes = batch.n_affordances as usize;
+    let per_frame = pixels * (4 + 3 + planes);
+    let per_message = (max_bytes.saturating_sub(64) / per_frame.max(1)).max(1);
+    let n = batch.n_frames();
+    (0..n)
+        .step_by(per_message)
+        .map(|start| {
+            let end = (start + per_message).min(n);
+            FrameBatch {
+                episode_id: batch.episode_id,
+                height: batch.height,
+                width: batch.width,
+                n_affordances: batch.n_affordances,
+                depth_m: batch.depth_m[start * pixels..end * pixels].to_vec(),
+                rgb: batch.rgb[3 * start * pixels..3 * end * pixels].to_vec(),
+                labels: batch.labels[planes * start * pixels..planes * end * pixels].to_vec(),
+            }
+        })
+        .collect()
 }
 
 /// Runs episodes until `stop` is set or `max_episodes` are done.
@@ -108,6 +201,7 @@ pub fn run(
     ports: &mut ActorPorts,
     transport: &TransportConfig,
     settings: &LoopSettings,
+    device: &Device,
     stop: &AtomicBool,
 ) -> anyhow::Result<LoopSummary> {
     eprintln!(
@@ -124,11 +218,11 @@ pub fn run(
             settings.weights_timeout.as_secs_f64()
         );
     };
-    let mut policy = load_policy(&first, transport, env)?;
+    let mut policy = load_weights(&first, transport, env, device, None)?;
     drop(first);
     eprintln!(
-        "actor {}: got policy version {}",
-        settings.actor_id, policy.policy_version
+        "actor {}: got policy version {}, U-Net version {}",
+        settings.actor_id, policy.policy_version, policy.unet_version
     );
 
     let mut rng = SmallRng::seed_from_u64(settings.seed ^ (u64::from(settings.actor_id) << 32));
@@ -147,46 +241,39 @@ pub fn run(
                 .seed
                 .wrapping_add(episode_id.wrapping_mul(1_000_003))
                 .wrapping_add(u64::from(settings.actor_id)),
-        );
-        let (mut step, mut episode_return, mut successes) = (0u32, 0.0f32, 0u32);
-        let mut builder = ChunkBuilder::new(episode_id, 0, env);
+        )?;
+        let (mut step, mut episode_return) = (0u32, 0.0f32);
+        let mut chunk = new_chunk(episode_id, 0, env);
         loop {
             if let Some(message) = ports.take_latest_weights()? {
-                policy = load_policy(&message, transport, env)?;
+                policy = load_weights(&message, transport, env, device, Some(&policy))?;
             }
-            let log_probs = log_softmax_masked(
-                &policy.net.logits(&observation.features),
-                &observation.action_mask,
-            );
-            let Some((action, log_prob)) = sample(&log_probs, rng.random::<f32>()) else {
+            let Some((action, log_prob, value)) =
+                act(&policy, &observation, rng.random::<f32>(), device)
+            else {
                 bail!("the environment allowed no action at step {step}");
             };
-            let value = policy.net.value(&observation.features);
-            let transition = env.step(action);
+            let transition = env.step(action)?;
             step += 1;
             episode_return += transition.reward;
-            successes += u32::from(transition.success);
-            let c = &mut builder.chunk;
-            c.obs
-                .extend(observation.features.iter().flat_map(|v| v.to_le_bytes()));
-            c.masks.extend_from_slice(&observation.action_mask);
-            c.actions.push(action);
-            c.log_probs.push(log_prob);
-            c.values.push(value);
-            c.rewards.push(transition.reward);
-            c.dones.push(u8::from(transition.done));
+            push_obs(&mut chunk, &observation.features);
+            chunk.masks.extend_from_slice(&observation.action_mask);
+            chunk.actions.push(action);
+            chunk.log_probs.push(log_prob);
+            chunk.values.push(value);
+            chunk.rewards.push(transition.reward);
+            chunk.dones.push(u8::from(transition.done));
             observation = transition.observation;
             let stopping = stop.load(Ordering::Relaxed);
-            if c.actions.len() >= settings.chunk_steps || transition.done || stopping {
-                c.bootstrap_value = if transition.done {
+            if chunk.actions.len() >= settings.chunk_steps || transition.done || stopping {
+                chunk.bootstrap_value = if transition.done {
                     0.0
                 } else {
-                    policy.net.value(&observation.features)
+                    value_of(&policy, &observation, device)
                 };
-                let delivery =
-                    ports.publish(&builder.chunk, policy.policy_version, policy.unet_version)?;
+                let delivery = ports.publish(&chunk, policy.policy_version, policy.unet_version)?;
                 count(delivery, &mut summary);
-                builder = ChunkBuilder::new(episode_id, step, env);
+                chunk = new_chunk(episode_id, step, env);
             }
             if transition.done || stopping {
                 break;
@@ -194,20 +281,59 @@ pub fn run(
         }
         summary.steps += u64::from(step);
         let seconds = started.elapsed().as_secs_f64().max(1e-9);
-        let stats = EpisodeStats::new(episode_id, step, env.scene_index())
+        let end = env.finish_episode(episode_id)?;
+        if let Some(frames) = end.frames.filter(|f| f.n_frames() > 0) {
+            for part in split_frames(frames, transport.max_frames_bytes) {
+                let delivery = ports.publish(&part, policy.policy_version, policy.unet_version)?;
+                count(delivery, &mut summary);
+            }
+        }
+        let mut stats = EpisodeStats::new(episode_id, step, env.scene_index())
             .with(StatField::EpisodeReturn, episode_return)
-            .with(
-                StatField::InteractionSuccessRate,
-                successes as f32 / step.max(1) as f32,
-            )
             .with(
                 StatField::StepsPerSecond,
                 (f64::from(step) / seconds) as f32,
             );
+        for (field, value) in end.stats {
+            stats = stats.with(field, value);
+        }
         let delivery = ports.publish(&stats, policy.policy_version, policy.unet_version)?;
         count(delivery, &mut summary);
         summary.episodes += 1;
     }
     summary.policy_version = policy.policy_version;
+    summary.unet_version = policy.unet_version;
     Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frames_split_into_messages_that_fit_and_lose_nothing() {
+        let (h, w, a, n) = (4u32, 5u32, 2u32, 7usize);
+        let pixels = (h * w) as usize;
+        let batch = FrameBatch {
+            episode_id: 3,
+            height: h,
+            width: w,
+            n_affordances: a,
+            depth_m: (0..n * pixels).map(|i| i as f32).collect(),
+            rgb: (0..3 * n * pixels).map(|i| i as u8).collect(),
+            labels: (0..2 * n * pixels).map(|i| (i % 2) as u8).collect(),
+        };
+        let per_frame = pixels * 9;
+        let parts = split_frames(batch.clone(), 64 + 3 * per_frame);
+        assert_eq!(parts.len(), 3);
+        assert_eq!(
+            parts.iter().map(|p| p.n_frames()).collect::<Vec<_>>(),
+            [3, 3, 1]
+        );
+        let joined: Vec<f32> = parts.iter().flat_map(|p| p.depth_m.clone()).collect();
+        assert_eq!(joined, batch.depth_m);
+        let labels: Vec<u8> = parts.iter().flat_map(|p| p.labels.clone()).collect();
+        assert_eq!(labels, batch.labels);
+        assert!(parts.iter().all(|p| p.episode_id == 3));
+    }
 }

@@ -6,19 +6,27 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Duration;
 
-use actor::env::{BanditFixture, Environment};
+use actor::config::RunConfig;
+use actor::env::affordance_model::AffordanceModel;
+use actor::env::sim_env::{SimEnv, SimEnvConfig};
+use actor::env::{BanditFixture, Environment, SimEnvironment};
 use actor::episode_loop::{run, LoopSettings};
 use actor::sim_view::SimViewSettings;
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use sim::renderer::RendererChoice;
-use transport::TransportConfig;
+use proto::{EnvKind, TaskSpec};
+use sim::ithor::SceneSet;
+use sim::profile::RobotProfile;
+use sim::renderer::{Renderer, RendererChoice};
+use sim::scenes::SceneSource;
 
-/// Environments the actor can run.
+/// Where the simulator's rooms come from.
 #[derive(Debug, Clone, Copy, ValueEnum)]
-enum EnvKind {
-    /// Deterministic contextual bandit: a wiring test fixture, not a simulator.
-    BanditFixture,
+enum Scenes {
+    /// The 20 iTHOR training living rooms (FloorPlan201–220) under --data.
+    Ithor,
+    /// Procedurally generated rooms from the object catalogue under --data.
+    Generated,
 }
 
 #[derive(Parser)]
@@ -71,15 +79,12 @@ struct RunArgs {
     /// Service-name prefix of the learner to connect to (overrides the config).
     #[arg(long, value_name = "PREFIX")]
     learner: Option<String>,
-    /// Run config (the learner's config.toml); only its [transport] table is read.
+    /// Run config (the learner's RUN_DIR/config.toml): its [transport] and
+    /// [task] tables are read, so the actor runs what the learner trains.
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Environment to run. Only the bandit fixture (a wiring test) exists so far;
-    /// the simulator-backed environment with map and networks is the next step.
-    #[arg(long, value_enum, required = true)]
-    env: Option<EnvKind>,
     /// Steps per rollout chunk sent to the learner.
-    #[arg(long, default_value_t = 32)]
+    #[arg(long, default_value_t = 16)]
     chunk_steps: usize,
     /// Base random seed.
     #[arg(long, default_value_t = 0)]
@@ -90,6 +95,21 @@ struct RunArgs {
     /// Seconds to wait for the learner's first weights before giving up.
     #[arg(long, default_value_t = 30.0)]
     weights_timeout_s: f64,
+    /// Shared data directory with ithor-livingrooms/ and ithor-object-types.tsv.
+    #[arg(long, env = "AFX_DATA", default_value = "../shared/data")]
+    data: PathBuf,
+    /// Rooms to explore.
+    #[arg(long, value_enum, default_value = "ithor")]
+    scenes: Scenes,
+    /// Robot profile: a shipped name (default, weak-arm) or a TOML file.
+    #[arg(long, default_value = "default")]
+    profile: String,
+    /// Renderer: gpu (wgpu: a GPU or Mesa lavapipe) or cpu (ray casting).
+    #[arg(long, default_value = "gpu")]
+    renderer: RendererChoice,
+    /// Where the networks infer: cpu, or gpu in a build with `--features nets/gpu`.
+    #[arg(long, default_value = "cpu")]
+    device: String,
 }
 
 fn main() -> anyhow::Result<()> {
@@ -125,9 +145,39 @@ fn sim_view(args: SimViewArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The simulator environment for `task`.
+fn sim_environment(
+    task: &TaskSpec,
+    cli: &RunArgs,
+    device: &burn::prelude::Device,
+) -> anyhow::Result<SimEnvironment> {
+    let mut profile = RobotProfile::load(&cli.profile)?;
+    profile.image_size = task.image_size;
+    let rooms = cli.data.join("ithor-livingrooms");
+    let source = SceneSource::open(
+        matches!(cli.scenes, Scenes::Ithor).then_some(rooms.as_path()),
+        SceneSet::Train,
+        &cli.data.join("ithor-object-types.tsv"),
+        &profile,
+    )
+    .with_context(|| {
+        format!(
+            "opening the rooms under {} (set --data or AFX_DATA to the shared data directory)",
+            cli.data.display()
+        )
+    })?;
+    let renderer = Renderer::open(cli.renderer)?;
+    let config = SimEnvConfig {
+        episode_steps: task.episode_steps,
+        ..SimEnvConfig::paper(&task.affordances)
+    };
+    let model = AffordanceModel::new(task.affordances.len(), device);
+    SimEnvironment::new(SimEnv::new(config, source, profile, renderer, model), task)
+}
+
 fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
-    let (Some(actor_id), Some(env_kind)) = (cli.actor_id, cli.env) else {
-        anyhow::bail!("--actor-id and --env are required (see --help)");
+    let Some(actor_id) = cli.actor_id else {
+        anyhow::bail!("--actor-id is required (see --help)");
     };
     anyhow::ensure!(
         (1..=proto::MAX_STEPS as usize).contains(&cli.chunk_steps),
@@ -138,20 +188,37 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
         cli.weights_timeout_s.is_finite() && cli.weights_timeout_s >= 0.0,
         "--weights-timeout-s must be a non-negative number"
     );
-    let mut transport = match &cli.config {
-        Some(path) => actor::config::transport_from_toml_file(path)?,
-        None => TransportConfig::default(),
+    let RunConfig {
+        mut transport,
+        task,
+    } = match &cli.config {
+        Some(path) => actor::config::run_config_from_toml_file(path)?,
+        None => RunConfig::default(),
     };
     if let Some(prefix) = &cli.learner {
         transport.service_prefix = prefix.clone();
     }
-    eprintln!("actor {}: {}", actor_id, transport.describe());
+    eprintln!(
+        "actor {}: {}; task {:?} {} {:?} at {} px",
+        actor_id,
+        transport.describe(),
+        task.env,
+        task.method.as_str(),
+        task.affordances,
+        task.image_size
+    );
+    let choice: nets::device::DeviceChoice = cli
+        .device
+        .parse()
+        .map_err(|e| anyhow::anyhow!("--device: {e}"))?;
+    let device = nets::device::open_device(choice).context("opening the inference device")?;
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(signal, stop.clone()).context("installing signal handlers")?;
     }
-    let mut env: Box<dyn Environment> = match env_kind {
+    let mut env: Box<dyn Environment> = match task.env {
         EnvKind::BanditFixture => Box::new(BanditFixture::new()),
+        EnvKind::Sim => Box::new(sim_environment(&task, &cli, &device)?),
     };
     let mut ports = transport::ActorPorts::open(&transport, actor_id).context(
         "opening the shared-memory services (same --learner prefix and config as the learner?)",
@@ -163,10 +230,23 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
         max_episodes: cli.max_episodes,
         weights_timeout: Duration::from_secs_f64(cli.weights_timeout_s),
     };
-    let summary = run(env.as_mut(), &mut ports, &transport, &settings, &stop)?;
+    let summary = run(
+        env.as_mut(),
+        &mut ports,
+        &transport,
+        &settings,
+        &device,
+        &stop,
+    )?;
     eprintln!(
-        "actor {}: stopped after {} episodes, {} steps; {} messages delivered, {} dropped; policy version {}",
-        actor_id, summary.episodes, summary.steps, summary.delivered, summary.dropped, summary.policy_version
+        "actor {}: stopped after {} episodes, {} steps; {} messages delivered, {} dropped; policy version {}, U-Net version {}",
+        actor_id,
+        summary.episodes,
+        summary.steps,
+        summary.delivered,
+        summary.dropped,
+        summary.policy_version,
+        summary.unet_version
     );
     Ok(())
 }

@@ -124,7 +124,10 @@ fn state_shapes_ranges_masks_and_egocentric_maps() {
     }
     assert_eq!(state.history[7], 1.0);
     assert_eq!(state.history[30], 1.0, "success");
-    assert_eq!(state.history[31], 1.0, "reward");
+    assert!(
+        (state.history[31] - 2.0 / 3.0).abs() < 1e-6,
+        "reward 1 is stored as 2/3 of the [-1, 2] range"
+    );
 
     // Global map plane 2 (pick-up success): the object is ahead (upper half, middle).
     let plane = |state: &State| state.global_map[2 * m * m..3 * m * m].to_vec();

@@ -53,14 +53,10 @@ fn weights_of(bytes: usize) -> Vec<u8> {
     let data: Vec<u8> = (0..values)
         .flat_map(|i| ((i % 97) as f32 * 0.01).to_le_bytes())
         .collect();
-    nets::NamedTensors(vec![(
-        "policy.bench".into(),
-        vec![values],
-        data.chunks_exact(4)
-            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-            .collect(),
-    )])
-    .to_safetensors()
+    let view = safetensors::tensor::TensorView::new(safetensors::Dtype::F32, vec![values], &data)
+        .expect("shape and data length agree by construction");
+    safetensors::serialize([("policy.bench", view)], None)
+        .expect("serialising in-memory f32 tensors cannot fail")
 }
 
 fn median(mut v: Vec<f64>) -> f64 {

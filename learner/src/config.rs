@@ -19,38 +19,72 @@ pub struct LearnerConfig {
     pub checkpoint_interval_s: f64,
     /// How many checkpoints to keep; older ones are deleted.
     pub keep_checkpoints: usize,
-    /// Policy settings.
+    /// What the actors run and the learner trains (shared with the actors).
+    pub task: proto::TaskSpec,
+    /// Where the networks train: `cpu` (burn's flex backend) or `gpu` (needs a build with `nets/gpu`).
+    pub device: String,
+    /// PPO settings.
     pub policy: PolicyConfig,
+    /// U-Net settings.
+    pub unet: UnetConfig,
     /// Shared-memory transport limits (must match the actors').
     pub transport: TransportConfig,
 }
 
-/// The policy the learner trains and broadcasts.
+/// PPO settings (the paper's, i.e. IntExp's, values by default).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PolicyConfig {
-    /// Observation length the actors' environment produces.
-    pub obs_dim: usize,
-    /// Size of the actors' action space.
-    pub n_actions: usize,
     /// Adam learning rate.
-    pub learning_rate: f32,
+    pub learning_rate: f64,
     /// Adam epsilon.
     pub adam_eps: f32,
     /// Discount factor γ.
     pub gamma: f32,
     /// GAE λ.
     pub gae_lambda: f32,
-    /// PPO ratio clip ε.
+    /// PPO ratio clip ε (also clips the value loss).
     pub clip: f32,
+    /// Passes over each batch.
+    pub epochs: usize,
+    /// Minibatches per pass.
+    pub minibatches: usize,
     /// Weight of the value loss.
     pub value_coef: f32,
     /// Weight of the entropy bonus.
     pub entropy_coef: f32,
     /// Largest global gradient norm; larger gradients are scaled down.
     pub max_grad_norm: f32,
-    /// Publish new weights after this many updates.
-    pub publish_every_updates: u64,
+    /// Environment steps (from any actors) per update. The paper used 8
+    /// actors × 600 steps; the default fits a 2-core machine's memory and
+    /// time at 128 × 128 (each step's observation is ~0.4 MB as floats).
+    pub batch_steps: usize,
+    /// Seed of minibatch shuffling and of the dataset split.
+    pub seed: u64,
+}
+
+/// Affordance U-Net training on the global dataset of labelled frames.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct UnetConfig {
+    /// Adam learning rate.
+    pub learning_rate: f64,
+    /// L2 weight decay.
+    pub weight_decay: f32,
+    /// Frames per gradient step.
+    pub batch_frames: usize,
+    /// Gradient steps after each episode's frames arrive.
+    pub steps_per_episode: usize,
+    /// A training frame leaves the dataset after this many uses (the paper's 35).
+    pub max_uses: u32,
+    /// Frames held at most; the oldest go first.
+    pub max_frames: usize,
+    /// Share of new frames that go to validation.
+    pub validation_fraction: f64,
+    /// Share of new frames that go to test.
+    pub test_fraction: f64,
+    /// Newest validation frames the gate compares the networks on.
+    pub max_validation_frames: usize,
 }
 
 impl Default for LearnerConfig {
@@ -61,7 +95,10 @@ impl Default for LearnerConfig {
             checkpoint_every_updates: 10_000,
             checkpoint_interval_s: 300.0,
             keep_checkpoints: 3,
+            task: proto::TaskSpec::default(),
+            device: "cpu".into(),
             policy: PolicyConfig::default(),
+            unet: UnetConfig::default(),
             transport: TransportConfig::default(),
         }
     }
@@ -70,17 +107,34 @@ impl Default for LearnerConfig {
 impl Default for PolicyConfig {
     fn default() -> Self {
         Self {
-            obs_dim: 8,
-            n_actions: 4,
-            learning_rate: 2e-2,
+            learning_rate: 2e-4,
             adam_eps: 1e-5,
             gamma: 0.99,
             gae_lambda: 0.95,
             clip: 0.2,
+            epochs: 4,
+            minibatches: 2,
             value_coef: 0.5,
             entropy_coef: 0.01,
             max_grad_norm: 0.5,
-            publish_every_updates: 1,
+            batch_steps: 128,
+            seed: 0,
+        }
+    }
+}
+
+impl Default for UnetConfig {
+    fn default() -> Self {
+        Self {
+            learning_rate: 1e-3,
+            weight_decay: 1e-4,
+            batch_frames: 8,
+            steps_per_episode: 8,
+            max_uses: 35,
+            max_frames: 4_000,
+            validation_fraction: 0.15,
+            test_fraction: 0.15,
+            max_validation_frames: 64,
         }
     }
 }
@@ -103,20 +157,35 @@ impl LearnerConfig {
 
     /// Checks values that would make the learner misbehave.
     pub fn validate(&self) -> anyhow::Result<()> {
-        anyhow::ensure!(self.policy.obs_dim > 0, "policy.obs_dim must be > 0");
+        self.task.validate()?;
+        self.device
+            .parse::<nets::device::DeviceChoice>()
+            .map_err(|e| anyhow::anyhow!("device: {e}"))?;
+        let p = &self.policy;
+        anyhow::ensure!(p.batch_steps >= 1, "policy.batch_steps must be >= 1");
         anyhow::ensure!(
-            (1..=proto::MAX_ACTIONS as usize).contains(&self.policy.n_actions),
-            "policy.n_actions must be in 1..={}",
-            proto::MAX_ACTIONS
+            p.epochs >= 1 && p.minibatches >= 1 && p.minibatches <= p.batch_steps,
+            "policy.epochs must be >= 1 and policy.minibatches in 1..=policy.batch_steps"
+        );
+        anyhow::ensure!(
+            p.learning_rate > 0.0 && p.clip > 0.0 && p.max_grad_norm > 0.0,
+            "policy.learning_rate, policy.clip and policy.max_grad_norm must be > 0"
+        );
+        let u = &self.unet;
+        anyhow::ensure!(
+            u.batch_frames >= 1 && u.max_uses >= 1 && u.max_frames >= 1,
+            "unet.batch_frames, unet.max_uses and unet.max_frames must be >= 1"
+        );
+        anyhow::ensure!(
+            u.validation_fraction >= 0.0
+                && u.test_fraction >= 0.0
+                && u.validation_fraction + u.test_fraction < 1.0,
+            "unet.validation_fraction + unet.test_fraction must be in 0..1"
         );
         anyhow::ensure!(self.keep_checkpoints >= 1, "keep_checkpoints must be >= 1");
         anyhow::ensure!(
             self.transport.max_actors >= 1,
             "transport.max_actors must be >= 1"
-        );
-        anyhow::ensure!(
-            self.policy.publish_every_updates >= 1,
-            "policy.publish_every_updates must be >= 1"
         );
         anyhow::ensure!(self.actor_timeout_s > 0.0, "actor_timeout_s must be > 0");
         Ok(())
@@ -135,8 +204,16 @@ mod tests {
             config
         );
         assert!(toml::from_str::<LearnerConfig>("actor_timeout = 3").is_err());
-        let partial: LearnerConfig = toml::from_str("[policy]\nn_actions = 6").unwrap();
-        assert_eq!(partial.policy.n_actions, 6);
-        assert_eq!(partial.policy.obs_dim, 8);
+        let partial: LearnerConfig =
+            toml::from_str("[policy]\nbatch_steps = 6\n[task]\nenv = \"bandit-fixture\"").unwrap();
+        assert_eq!(partial.policy.batch_steps, 6);
+        assert_eq!(partial.policy.epochs, 4);
+        assert_eq!(partial.task.env, proto::EnvKind::BanditFixture);
+        let bad: LearnerConfig = toml::from_str("[task]\nmethod = \"nomap-seg\"").unwrap();
+        assert!(bad
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("nomap-seg"));
     }
 }

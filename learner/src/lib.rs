@@ -1,9 +1,10 @@
 //! The learner process as a library: configuration, validation of incoming
-//! messages, the policy update, checkpoints, and the HTTP metrics edge.
+//! messages, the policy update (PPO), U-Net training on labelled frames, checkpoints, and the HTTP metrics edge.
 //!
 //! It never runs a simulator or a map; it only sees what actors send through
 //! the `transport` crate, in the layouts of `proto`.
 
+pub mod affordance;
 pub mod bench_transport;
 pub mod checkpoint;
 pub mod config;

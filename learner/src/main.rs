@@ -9,9 +9,8 @@ use std::sync::{Arc, Mutex};
 use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
 use learner::config::LearnerConfig;
-use learner::service::{resume, Learner, Shared};
+use learner::service::{resume, Learner, Shared, Trainers};
 use learner::status::LearnerStatus;
-use learner::train::Trainer;
 use tracing_subscriber::EnvFilter;
 
 #[derive(Parser)]
@@ -57,6 +56,9 @@ struct ServeArgs {
     /// Most actors that may connect (overrides the config).
     #[arg(long)]
     max_actors: Option<u32>,
+    /// Where the networks train: cpu, or gpu in a build with `--features nets/gpu` (overrides the config).
+    #[arg(long)]
+    device: Option<String>,
 }
 
 fn main() -> anyhow::Result<()> {
@@ -110,6 +112,9 @@ fn load_config(args: &ServeArgs, run_dir: &Path) -> anyhow::Result<LearnerConfig
     if let Some(n) = args.max_actors {
         config.transport.max_actors = n;
     }
+    if let Some(device) = &args.device {
+        config.device = device.clone();
+    }
     config.validate()?;
     Ok(config)
 }
@@ -139,10 +144,15 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
     tracing::info!("{}", config.transport.describe());
 
     let checkpoint_dir = run_dir.join("checkpoints");
-    let mut trainer = Trainer::new(config.policy.clone());
+    let choice: nets::device::DeviceChoice = config
+        .device
+        .parse()
+        .map_err(|e| anyhow::anyhow!("--device: {e}"))?;
+    let device = nets::device::open_device(choice).context("opening the training device")?;
+    let mut trainers = Trainers::new(&config, &device);
     let mut status = LearnerStatus::new(run_id);
     if args.resume.is_some() {
-        resume(&checkpoint_dir, &mut trainer, &mut status)?;
+        resume(&checkpoint_dir, &mut trainers, &mut status)?;
     }
 
     let shared = Arc::new(Shared {
@@ -181,7 +191,7 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
                 }
             };
             let _ = opened_tx.send(Ok(()));
-            let result = Learner::new(loop_shared.clone(), ports, trainer, checkpoint_dir).run();
+            let result = Learner::new(loop_shared.clone(), ports, trainers, checkpoint_dir).run();
             loop_shared.shutdown.store(true, Ordering::Relaxed);
             result
         })?;

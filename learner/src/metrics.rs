@@ -82,6 +82,18 @@ pub fn render(s: &StatusSnapshot) -> String {
     );
     counter(
         &mut r,
+        "frames_received",
+        "Labelled frames received for U-Net training",
+        s.frames_received,
+    );
+    counter(
+        &mut r,
+        "unet_rounds",
+        "Rounds of U-Net training (a few steps each, after every episode's frames)",
+        s.unet_rounds,
+    );
+    counter(
+        &mut r,
         "messages_dropped",
         "Actor messages lost in transit (sequence gaps)",
         s.dropped,
@@ -188,6 +200,8 @@ pub fn render(s: &StatusSnapshot) -> String {
             ("approx_kl", u.approx_kl),
             ("clip_fraction", u.clip_fraction),
             ("explained_variance", u.explained_variance),
+            ("grad_norm", u.grad_norm),
+            ("mean_policy_lag", u.mean_policy_lag),
         ] {
             update
                 .get_or_create(&FieldLabel {
@@ -196,6 +210,27 @@ pub fn render(s: &StatusSnapshot) -> String {
                 .set(f64::from(v));
         }
         r.register("ppo", "Statistics of the latest policy update", update);
+    }
+
+    if let Some(u) = &s.last_unet {
+        let unet = Family::<FieldLabel, Gauge<f64, AtomicU64>>::default();
+        for (field, v) in [
+            ("train_loss", u.train_loss),
+            ("validation_loss", u.candidate_loss),
+            ("validation_iou", u.candidate_iou),
+            ("deployed_validation_loss", u.deployed_loss),
+            ("deployed_validation_iou", u.deployed_iou),
+        ] {
+            unet.get_or_create(&FieldLabel {
+                field: field.into(),
+            })
+            .set(f64::from(v));
+        }
+        r.register(
+            "unet",
+            "Statistics of the latest U-Net training round",
+            unet,
+        );
     }
 
     let mut out = String::new();

@@ -11,10 +11,11 @@ use proto::{decode, Limits, Message, MessageKind};
 use serde::{Deserialize, Serialize};
 use transport::{Delivery, LearnerPorts};
 
+use crate::affordance::AffordanceLearner;
 use crate::checkpoint;
 use crate::config::LearnerConfig;
 use crate::status::LearnerStatus;
-use crate::train::Trainer;
+use crate::train::PolicyTrainer;
 
 /// State shared between the training loop and the HTTP edge.
 pub struct Shared {
@@ -50,15 +51,53 @@ pub struct Counters {
     pub policy_version: u64,
     /// U-Net version.
     pub unet_version: u64,
-    /// Adam steps taken.
-    pub adam_steps: u64,
+}
+
+/// What the learner trains: the policy, and the U-Net when the task has one.
+pub struct Trainers {
+    /// PPO on the policy network.
+    pub policy: PolicyTrainer,
+    /// U-Net training on labelled frames (`None` for the bandit fixture).
+    pub affordance: Option<AffordanceLearner>,
+}
+
+impl Trainers {
+    /// Fresh networks for the configured task on `device`.
+    pub fn new(config: &LearnerConfig, device: &burn::prelude::Device) -> Self {
+        let affordance = (config.task.env == proto::EnvKind::Sim).then(|| {
+            AffordanceLearner::new(
+                config.task.affordances.len(),
+                &config.unet,
+                config.policy.seed,
+                device,
+            )
+        });
+        Self {
+            policy: PolicyTrainer::new(&config.task, &config.policy, device),
+            affordance,
+        }
+    }
+
+    /// Both networks in one safetensors blob, names prefixed `policy.` and `unet.`.
+    pub fn weights_blob(&self) -> anyhow::Result<Vec<u8>> {
+        let policy = self.policy.weights().context("serialising the policy")?;
+        let unet = match &self.affordance {
+            Some(a) => Some(a.deployed_weights().context("serialising the U-Net")?),
+            None => None,
+        };
+        let mut parts: Vec<(&str, &[u8])> = vec![(proto::WEIGHTS_POLICY_PREFIX, &policy)];
+        if let Some(unet) = &unet {
+            parts.push((proto::WEIGHTS_UNET_PREFIX, unet));
+        }
+        nets::weights::bundle(&parts).context("bundling the weights")
+    }
 }
 
 /// The training loop and what it owns.
 pub struct Learner {
     shared: Arc<Shared>,
     ports: LearnerPorts,
-    trainer: Trainer,
+    trainers: Trainers,
     checkpoint_dir: PathBuf,
     warned: HashSet<(MessageKind, &'static str)>,
     last_checkpoint: Instant,
@@ -70,14 +109,17 @@ impl Learner {
     pub fn new(
         shared: Arc<Shared>,
         ports: LearnerPorts,
-        trainer: Trainer,
+        mut trainers: Trainers,
         checkpoint_dir: PathBuf,
     ) -> Self {
+        trainers
+            .policy
+            .set_version(shared.status().policy_version.max(1));
         let updates_at_checkpoint = shared.status().updates;
         Self {
             shared,
             ports,
-            trainer,
+            trainers,
             checkpoint_dir,
             warned: HashSet::new(),
             last_checkpoint: Instant::now(),
@@ -95,12 +137,18 @@ impl Learner {
         let mut last_maintenance = Instant::now();
         while !self.shared.shutdown.load(Ordering::Relaxed) {
             self.ports.wait(Duration::from_millis(100))?;
+            // At most one buffer's worth per kind per pass, so that a fast
+            // stream of rollouts cannot starve stats, frames or checkpoints.
+            let per_pass = self.shared.config.transport.learner_buffer.max(1);
             for kind in [
                 MessageKind::Stats,
                 MessageKind::Frames,
                 MessageKind::Rollout,
             ] {
-                while let Some(message) = self.ports.receive(kind)? {
+                for _ in 0..per_pass {
+                    let Some(message) = self.ports.receive(kind)? else {
+                        break;
+                    };
                     self.handle(kind, message.bytes())?;
                 }
             }
@@ -160,33 +208,65 @@ impl Learner {
             );
         }
         match message {
-            Message::Rollout(chunk) => match self.trainer.update(&chunk) {
-                Ok(stats) => {
-                    let publish = {
+            Message::Rollout(chunk) => {
+                self.shared
+                    .status()
+                    .add_steps(header.actor_id, chunk.n_steps() as u64);
+                match self
+                    .trainers
+                    .policy
+                    .add_chunk(&chunk, header.policy_version)
+                {
+                    Ok(Some(stats)) => {
+                        {
+                            let mut status = self.shared.status();
+                            status.updates += 1;
+                            status.last_update = Some(stats);
+                            status.policy_version = self.trainers.policy.version();
+                        }
+                        self.publish_weights()?;
+                    }
+                    Ok(None) => {}
+                    Err(error) => {
+                        self.shared.status().untrainable_chunks += 1;
+                        if self.warned.insert((kind, "untrainable")) {
+                            tracing::warn!("actor {}: {error}", header.actor_id);
+                        }
+                    }
+                }
+            }
+            Message::Stats(stats) => self.shared.status().add_episode(&stats),
+            Message::Frames(frames) => {
+                let Some(affordance) = self.trainers.affordance.as_mut() else {
+                    return Ok(());
+                };
+                let episode = (u64::from(header.actor_id) << 40) | frames.episode_id;
+                match affordance.add_episode(episode, &frames) {
+                    Ok(n) => self.shared.status().frames_received += n as u64,
+                    Err(error) => {
+                        self.shared.status().untrainable_chunks += 1;
+                        if self.warned.insert((kind, "untrainable")) {
+                            tracing::warn!("actor {}: {error}", header.actor_id);
+                        }
+                        return Ok(());
+                    }
+                }
+                if let Some(round) = affordance.train_round() {
+                    let replaced = round.replaced;
+                    {
                         let mut status = self.shared.status();
-                        status.add_steps(header.actor_id, chunk.n_steps() as u64);
-                        status.updates += 1;
-                        status.last_update = Some(stats);
-                        status
-                            .updates
-                            .is_multiple_of(self.shared.config.policy.publish_every_updates)
-                    };
-                    if publish {
-                        self.shared.status().policy_version += 1;
+                        status.unet_rounds += 1;
+                        status.last_unet = Some(round);
+                        if replaced {
+                            status.unet_version += 1;
+                        }
+                    }
+                    if replaced {
                         self.publish_weights()?;
                     }
                 }
-                Err(error) => {
-                    self.shared.status().untrainable_chunks += 1;
-                    if self.warned.insert((kind, "untrainable")) {
-                        tracing::warn!("actor {}: {error}", header.actor_id);
-                    }
-                }
-            },
-            Message::Stats(stats) => self.shared.status().add_episode(&stats),
-            // Labelled frames are validated and counted; the U-Net trains on them
-            // once the affordance learner is part of the loop.
-            Message::Frames(_) | Message::Weights(_) => {}
+            }
+            Message::Weights(_) => {}
         }
         Ok(())
     }
@@ -196,7 +276,7 @@ impl Learner {
             let status = self.shared.status();
             (status.policy_version, status.unet_version)
         };
-        let blob = self.trainer.net.to_tensors().to_safetensors();
+        let blob = self.trainers.weights_blob()?;
         match self
             .ports
             .publish_weights(policy_version, unet_version, &blob)?
@@ -233,18 +313,15 @@ impl Learner {
                 episodes: status.episodes,
                 policy_version: status.policy_version,
                 unet_version: status.unet_version,
-                adam_steps: self.trainer.adam_steps,
             }
         };
-        let weights = self.trainer.net.to_tensors().to_safetensors();
-        let optimizer = self.trainer.optimizer_tensors().to_safetensors();
+        let weights = self.trainers.weights_blob()?;
         let counters_json = serde_json::to_vec_pretty(&counters)?;
         let dir = checkpoint::write(
             &self.checkpoint_dir,
             counters.env_steps,
             &[
                 ("weights.safetensors", &weights),
-                ("optimizer.safetensors", &optimizer),
                 ("counters.json", &counters_json),
             ],
             self.shared.config.keep_checkpoints,
@@ -263,7 +340,7 @@ impl Learner {
 /// Restores trainer and counters from the newest checkpoint that verifies.
 pub fn resume(
     checkpoint_dir: &std::path::Path,
-    trainer: &mut Trainer,
+    trainers: &mut Trainers,
     status: &mut LearnerStatus,
 ) -> anyhow::Result<()> {
     let Some(loaded) = checkpoint::load_newest_valid(checkpoint_dir)? else {
@@ -286,18 +363,32 @@ pub fn resume(
     };
     let counters: Counters =
         serde_json::from_slice(file("counters.json")?).context("parsing counters.json")?;
-    trainer
+    let weights = file("weights.safetensors")?;
+    let restore = |prefix: &str| {
+        nets::weights::unbundle(weights, prefix).with_context(|| {
+            format!(
+                "reading the {prefix}* weights of {} (does the [task] config match the run's?)",
+                loaded.dir.display()
+            )
+        })
+    };
+    trainers
+        .policy
         .restore(
-            file("weights.safetensors")?,
-            file("optimizer.safetensors")?,
-            counters.adam_steps,
+            restore(proto::WEIGHTS_POLICY_PREFIX)?,
+            counters.policy_version,
         )
         .with_context(|| {
             format!(
-                "loading weights from {} (does the [policy] config match the run's?)",
+                "loading the policy from {} (does the [task] config match the run's?)",
                 loaded.dir.display()
             )
         })?;
+    if let Some(affordance) = trainers.affordance.as_mut() {
+        affordance
+            .restore(restore(proto::WEIGHTS_UNET_PREFIX)?)
+            .with_context(|| format!("loading the U-Net from {}", loaded.dir.display()))?;
+    }
     status.env_steps = counters.env_steps;
     status.updates = counters.updates;
     status.episodes = counters.episodes;

@@ -8,7 +8,9 @@ use std::time::Instant;
 use proto::{EpisodeStats, MessageKind};
 use serde::Serialize;
 
-use crate::train::UpdateStats;
+use training::ppo::PpoStats;
+
+use crate::affordance::UnetRound;
 
 /// Per-actor book-keeping.
 #[derive(Debug, Clone)]
@@ -56,7 +58,13 @@ pub struct LearnerStatus {
     /// Chunks that were valid but could not train the policy.
     pub untrainable_chunks: u64,
     /// Latest update's statistics.
-    pub last_update: Option<UpdateStats>,
+    pub last_update: Option<PpoStats>,
+    /// Labelled frames received.
+    pub frames_received: u64,
+    /// Rounds of U-Net training.
+    pub unet_rounds: u64,
+    /// Latest U-Net round.
+    pub last_unet: Option<UnetRound>,
     /// Latest episode's reported metrics.
     pub last_episode: BTreeMap<&'static str, f32>,
     /// Per-actor state, by actor id.
@@ -97,7 +105,13 @@ pub struct StatusSnapshot {
     /// Valid chunks that did not fit the policy's shapes.
     pub untrainable_chunks: u64,
     /// Latest update's statistics.
-    pub last_update: Option<UpdateStats>,
+    pub last_update: Option<PpoStats>,
+    /// Labelled frames received.
+    pub frames_received: u64,
+    /// Rounds of U-Net training.
+    pub unet_rounds: u64,
+    /// Latest U-Net round.
+    pub last_unet: Option<UnetRound>,
     /// Latest episode's metrics.
     pub last_episode: BTreeMap<String, f32>,
     /// Every actor ever seen.
@@ -154,6 +168,9 @@ impl LearnerStatus {
             rejected: BTreeMap::new(),
             untrainable_chunks: 0,
             last_update: None,
+            frames_received: 0,
+            unet_rounds: 0,
+            last_unet: None,
             last_episode: BTreeMap::new(),
             actors: BTreeMap::new(),
         }
@@ -274,6 +291,9 @@ impl LearnerStatus {
             dropped: actors.iter().map(|a| a.dropped).sum(),
             untrainable_chunks: self.untrainable_chunks,
             last_update: self.last_update,
+            frames_received: self.frames_received,
+            unet_rounds: self.unet_rounds,
+            last_unet: self.last_unet,
             last_episode: self
                 .last_episode
                 .iter()

@@ -1,18 +1,25 @@
-//! The policy update: clipped-ratio policy gradient with GAE on one rollout
-//! chunk at a time, for the linear actor-critic, with Adam. Reads like the
-//! algorithm: GAE → per-step clipped losses → gradient clip → Adam.
+//! The policy update: rollout chunks from any actors are gathered until a
+//! batch is full; advantages are estimated per chunk (GAE, bootstrapped with
+//! the critic's value after the chunk's last step); PPO then updates the
+//! policy network. Chunks carry the behaviour policy's log-probabilities, so
+//! a chunk acted with a slightly older policy is corrected by the ratio.
 
-use nets::{entropy, log_softmax_masked, LinearActorCritic, NamedTensors, NetsError};
-use proto::{ObsDtype, RolloutView};
-use serde::Serialize;
+use burn::prelude::*;
+use nets::policy::{PolicyConfig as NetConfig, PolicyInput, PolicyNet};
+use nets::weights::{load_safetensors, to_safetensors, WeightsError};
+use proto::{ObsDtype, PolicyLayout, RolloutView, TaskSpec};
+use rand::rngs::StdRng;
+use rand::SeedableRng;
+use training::gae::gae;
+use training::ppo::{Ppo, PpoBatch, PpoConfig, PpoStats};
 
 use crate::config::PolicyConfig;
 
 /// Why a chunk cannot train the current network.
 #[derive(Debug, thiserror::Error)]
 pub enum TrainError {
-    /// The chunk's shapes do not match the configured policy.
-    #[error("rollout has obs {obs_elems} x {dtype:?} and {n_actions} actions; the learner's policy expects obs {obs_dim} x F32 and {expected_actions} actions (check [policy] in the learner config)")]
+    /// The chunk's shapes do not match the run's task.
+    #[error("rollout has obs {obs_elems} x {dtype:?} and {n_actions} actions; this run's task expects obs {obs_len} x {expected_dtype:?} and {expected_actions} actions (is the actor using the learner's config.toml?)")]
     Shape {
         /// Observation elements in the chunk.
         obs_elems: u32,
@@ -20,260 +27,166 @@ pub enum TrainError {
         dtype: ObsDtype,
         /// Actions in the chunk.
         n_actions: u32,
-        /// Configured observation length.
-        obs_dim: usize,
-        /// Configured action count.
+        /// The task's observation length.
+        obs_len: usize,
+        /// The task's dtype.
+        expected_dtype: ObsDtype,
+        /// The task's action count.
         expected_actions: usize,
     },
 }
 
-/// What one update measured, in CleanRL's terms.
-#[derive(Debug, Clone, Copy, Default, Serialize)]
-pub struct UpdateStats {
-    /// Clipped surrogate loss.
-    pub policy_loss: f32,
-    /// Value loss (½ squared error).
-    pub value_loss: f32,
-    /// Mean entropy of the masked policy.
-    pub entropy: f32,
-    /// Mean of `(r − 1) − ln r`.
-    pub approx_kl: f32,
-    /// Fraction of steps whose ratio left `[1 − ε, 1 + ε]`.
-    pub clip_fraction: f32,
-    /// `1 − Var(returns − values) / Var(returns)`.
-    pub explained_variance: f32,
+/// Steps gathered for the next update.
+#[derive(Debug, Default)]
+struct Gathered {
+    obs: Vec<f32>,
+    masks: Vec<u8>,
+    actions: Vec<u32>,
+    log_probs: Vec<f32>,
+    values: Vec<f32>,
+    advantages: Vec<f32>,
+    returns: Vec<f32>,
+    versions: Vec<u64>,
 }
 
-/// The network and its optimiser state.
-#[derive(Debug, Clone)]
-pub struct Trainer {
-    /// The network being trained.
-    pub net: LinearActorCritic,
-    adam_m: Vec<f32>,
-    adam_v: Vec<f32>,
-    /// Adam steps taken.
-    pub adam_steps: u64,
-    config: PolicyConfig,
+/// The policy network, its optimiser, and the batch being gathered.
+pub struct PolicyTrainer {
+    layout: PolicyLayout,
+    net_config: NetConfig,
+    settings: PolicyConfig,
+    ppo: Ppo,
+    device: Device,
+    rng: StdRng,
+    gathered: Gathered,
 }
 
-/// Generalised advantage estimates and returns for one chunk.
-pub fn gae(
-    rewards: &[f32],
-    values: &[f32],
-    dones: &[u8],
-    bootstrap: f32,
-    gamma: f32,
-    lambda: f32,
-) -> (Vec<f32>, Vec<f32>) {
-    let t = rewards.len();
-    let mut advantages = vec![0.0; t];
-    let mut last = 0.0;
-    for i in (0..t).rev() {
-        let next_value = if i + 1 == t { bootstrap } else { values[i + 1] };
-        let nonterminal = 1.0 - f32::from(dones[i]);
-        let delta = rewards[i] + gamma * next_value * nonterminal - values[i];
-        last = delta + gamma * lambda * nonterminal * last;
-        advantages[i] = last;
-    }
-    let returns = advantages.iter().zip(values).map(|(a, v)| a + v).collect();
-    (advantages, returns)
-}
-
-impl Trainer {
-    /// A fresh network (uniform policy) and optimiser.
-    pub fn new(config: PolicyConfig) -> Self {
-        let net = LinearActorCritic::zeros(config.obs_dim, config.n_actions);
-        let n = net.params.len();
+impl PolicyTrainer {
+    /// A freshly initialised policy for `task`, trained on `device`.
+    pub fn new(task: &TaskSpec, settings: &PolicyConfig, device: &Device) -> Self {
+        let layout = task.layout();
+        let net_config = NetConfig::from_layout(&layout, None);
+        let net = PolicyNet::new(&net_config, device);
+        let ppo_config = PpoConfig {
+            learning_rate: settings.learning_rate,
+            adam_epsilon: settings.adam_eps,
+            clip: settings.clip,
+            clip_value_loss: true,
+            epochs: settings.epochs,
+            minibatches: settings.minibatches,
+            value_coef: settings.value_coef,
+            entropy_coef: settings.entropy_coef,
+            max_grad_norm: settings.max_grad_norm,
+            gamma: settings.gamma,
+            gae_lambda: settings.gae_lambda,
+            normalize_advantages: true,
+        };
         Self {
-            net,
-            adam_m: vec![0.0; n],
-            adam_v: vec![0.0; n],
-            adam_steps: 0,
-            config,
+            layout,
+            net_config,
+            settings: settings.clone(),
+            ppo: Ppo::new(net, ppo_config, device),
+            device: device.clone(),
+            rng: StdRng::seed_from_u64(settings.seed),
+            gathered: Gathered::default(),
         }
     }
 
-    /// One update on one chunk.
-    pub fn update(&mut self, chunk: &RolloutView<'_>) -> Result<UpdateStats, TrainError> {
-        let cfg = &self.config;
-        if chunk.obs_dtype != ObsDtype::F32
-            || chunk.obs_elems as usize != cfg.obs_dim
-            || chunk.n_actions as usize != cfg.n_actions
+    /// The version of the current weights.
+    pub fn version(&self) -> u64 {
+        self.ppo.version()
+    }
+
+    /// Steps waiting for the next update.
+    pub fn pending_steps(&self) -> usize {
+        self.gathered.actions.len()
+    }
+
+    /// Adds a chunk; when the batch is full, runs one PPO update and returns
+    /// its statistics (the version then goes up by one).
+    pub fn add_chunk(
+        &mut self,
+        chunk: &RolloutView<'_>,
+        policy_version: u64,
+    ) -> Result<Option<PpoStats>, TrainError> {
+        let obs_len = self.layout.obs_len();
+        if chunk.obs_dtype != self.layout.obs_dtype
+            || chunk.obs_elems as usize != obs_len
+            || chunk.n_actions as usize != self.layout.n_actions
         {
             return Err(TrainError::Shape {
                 obs_elems: chunk.obs_elems,
                 dtype: chunk.obs_dtype,
                 n_actions: chunk.n_actions,
-                obs_dim: cfg.obs_dim,
-                expected_actions: cfg.n_actions,
+                obs_len,
+                expected_dtype: self.layout.obs_dtype,
+                expected_actions: self.layout.n_actions,
             });
         }
-        let t = chunk.n_steps();
+        let steps = chunk.n_steps();
+        let g = &mut self.gathered;
+        for i in 0..steps {
+            let bytes = chunk.obs(i).unwrap_or_default();
+            match chunk.obs_dtype {
+                ObsDtype::U8 => g.obs.extend(bytes.iter().map(|&b| f32::from(b) / 255.0)),
+                ObsDtype::F32 => g.obs.extend(
+                    bytes
+                        .chunks_exact(4)
+                        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+                ),
+            }
+            g.masks.extend_from_slice(chunk.mask(i).unwrap_or_default());
+        }
         let values = chunk.values.to_vec();
-        let (mut advantages, returns) = gae(
+        let dones: Vec<bool> = chunk.dones.iter().map(|&d| d != 0).collect();
+        let (advantages, returns) = gae(
             &chunk.rewards.to_vec(),
             &values,
-            chunk.dones,
+            &dones,
             chunk.bootstrap_value,
-            cfg.gamma,
-            cfg.gae_lambda,
+            self.settings.gamma,
+            self.settings.gae_lambda,
         );
-        if t > 1 {
-            let mean = advantages.iter().sum::<f32>() / t as f32;
-            let std =
-                (advantages.iter().map(|a| (a - mean).powi(2)).sum::<f32>() / t as f32).sqrt();
-            advantages
-                .iter_mut()
-                .for_each(|a| *a = (*a - mean) / (std + 1e-8));
+        g.actions.extend(chunk.actions.iter());
+        g.log_probs.extend(chunk.log_probs.iter());
+        g.values.extend(values);
+        g.advantages.extend(advantages);
+        g.returns.extend(returns);
+        g.versions
+            .extend(std::iter::repeat_n(policy_version, steps));
+        if g.actions.len() < self.settings.batch_steps {
+            return Ok(None);
         }
-
-        let mut grad = vec![0.0f32; self.net.params.len()];
-        let mut stats = UpdateStats::default();
-        let scale = 1.0 / t as f32;
-        for i in 0..t {
-            let obs: Vec<f32> = chunk
-                .obs(i)
-                .unwrap_or_default()
-                .chunks_exact(4)
-                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-                .collect();
-            let mask = chunk.mask(i).unwrap_or_default();
-            let action = chunk.actions.get(i).unwrap_or(0) as usize;
-            let log_probs = log_softmax_masked(&self.net.logits(&obs), mask);
-            let h = entropy(&log_probs);
-            let log_ratio = log_probs[action] - chunk.log_probs.get(i).unwrap_or(0.0);
-            let ratio = log_ratio.exp();
-            let adv = advantages[i];
-            let clipped = ratio.clamp(1.0 - cfg.clip, 1.0 + cfg.clip);
-            stats.policy_loss += -(ratio * adv).min(clipped * adv) * scale;
-            stats.approx_kl += ((ratio - 1.0) - log_ratio) * scale;
-            stats.entropy += h * scale;
-            if (ratio - 1.0).abs() > cfg.clip {
-                stats.clip_fraction += scale;
-            }
-            // d(policy loss)/d logits: zero where the clipped branch is active.
-            let clip_active =
-                (adv > 0.0 && ratio > 1.0 + cfg.clip) || (adv < 0.0 && ratio < 1.0 - cfg.clip);
-            let g_logits: Vec<f32> = log_probs
-                .iter()
-                .enumerate()
-                .map(|(j, &lp)| {
-                    let p = if lp.is_finite() { lp.exp() } else { 0.0 };
-                    let onehot = if j == action { 1.0 } else { 0.0 };
-                    let policy = if clip_active {
-                        0.0
-                    } else {
-                        -adv * ratio * (onehot - p)
-                    };
-                    let entropy_bonus = if lp.is_finite() {
-                        cfg.entropy_coef * p * (lp + h)
-                    } else {
-                        0.0
-                    };
-                    policy + entropy_bonus
-                })
-                .collect();
-            let value = self.net.value(&obs);
-            stats.value_loss += 0.5 * (value - returns[i]).powi(2) * scale;
-            let g_value = cfg.value_coef * (value - returns[i]);
-            self.net
-                .accumulate_grad(&obs, &g_logits, g_value, scale, &mut grad);
-        }
-        stats.explained_variance = explained_variance(&values, &returns);
-        self.adam_step(&mut grad);
-        Ok(stats)
+        let g = std::mem::take(&mut self.gathered);
+        let rows = g.actions.len();
+        let batch = PpoBatch {
+            input: PolicyInput::from_flat(&self.net_config, &g.obs, &g.masks, rows, &self.device),
+            actions: g.actions,
+            behaviour_log_probs: g.log_probs,
+            values: g.values,
+            advantages: g.advantages,
+            returns: g.returns,
+            policy_versions: g.versions,
+            sequences: None,
+        };
+        Ok(Some(self.ppo.update(&batch, &mut self.rng)))
     }
 
-    fn adam_step(&mut self, grad: &mut [f32]) {
-        let cfg = &self.config;
-        let norm = grad.iter().map(|g| g * g).sum::<f32>().sqrt();
-        if norm > cfg.max_grad_norm {
-            grad.iter_mut().for_each(|g| *g *= cfg.max_grad_norm / norm);
-        }
-        let (b1, b2) = (0.9f32, 0.999f32);
-        self.adam_steps += 1;
-        let step = self.adam_steps as i32;
-        let (c1, c2) = (1.0 - b1.powi(step), 1.0 - b2.powi(step));
-        for (((p, g), m), v) in self
-            .net
-            .params
-            .iter_mut()
-            .zip(grad.iter())
-            .zip(&mut self.adam_m)
-            .zip(&mut self.adam_v)
-        {
-            *m = b1 * *m + (1.0 - b1) * g;
-            *v = b2 * *v + (1.0 - b2) * g * g;
-            *p -= cfg.learning_rate * (*m / c1) / ((*v / c2).sqrt() + cfg.adam_eps);
-        }
+    /// The current weights as safetensors bytes (PyTorch names, no prefix).
+    pub fn weights(&self) -> Result<Vec<u8>, WeightsError> {
+        to_safetensors(&self.ppo.inference_net(&self.device))
     }
 
-    /// Adam's moment estimates as named tensors (for checkpoints).
-    pub fn optimizer_tensors(&self) -> NamedTensors {
-        let n = self.adam_m.len();
-        NamedTensors(vec![
-            ("policy.adam.m".into(), vec![n], self.adam_m.clone()),
-            ("policy.adam.v".into(), vec![n], self.adam_v.clone()),
-        ])
-    }
-
-    /// Restores network and optimiser from checkpoint bytes.
-    pub fn restore(
-        &mut self,
-        weights: &[u8],
-        optimizer: &[u8],
-        adam_steps: u64,
-    ) -> Result<(), NetsError> {
-        let net = LinearActorCritic::from_safetensors(
-            weights,
-            self.config.obs_dim,
-            self.config.n_actions,
-        )?;
-        let n = net.params.len();
-        let file = NamedTensors::parse(optimizer)?;
-        self.adam_m = NamedTensors::read(&file, "policy.adam.m", &[n])?;
-        self.adam_v = NamedTensors::read(&file, "policy.adam.v", &[n])?;
-        self.net = net;
-        self.adam_steps = adam_steps;
+    /// Continues from saved weights and version (the optimiser starts afresh).
+    pub fn restore(&mut self, bytes: Vec<u8>, version: u64) -> Result<(), WeightsError> {
+        let mut net = PolicyNet::new(&self.net_config, &self.device);
+        load_safetensors(&mut net, bytes)?;
+        self.ppo = Ppo::new(net, *self.ppo.config(), &self.device);
+        self.ppo.set_version(version);
         Ok(())
     }
-}
 
-fn explained_variance(values: &[f32], returns: &[f32]) -> f32 {
-    let var = |x: &[f32]| {
-        let mean = x.iter().sum::<f32>() / x.len() as f32;
-        x.iter().map(|v| (v - mean).powi(2)).sum::<f32>() / x.len() as f32
-    };
-    let residual: Vec<f32> = returns.iter().zip(values).map(|(r, v)| r - v).collect();
-    let var_returns = var(returns);
-    if var_returns == 0.0 {
-        return 0.0;
-    }
-    1.0 - var(&residual) / var_returns
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn gae_matches_a_hand_computed_example() {
-        // γ = 0.5, λ = 0.5; episode ends after step 1, so step 2 starts a new one.
-        let (adv, ret) = gae(
-            &[1.0, 2.0, 3.0],
-            &[0.5, 1.0, 1.5],
-            &[0, 1, 0],
-            2.0,
-            0.5,
-            0.5,
-        );
-        // step 2: δ = 3 + 0.5·2 − 1.5 = 2.5
-        // step 1: δ = 2 − 1 = 1 (terminal)            → A = 1
-        // step 0: δ = 1 + 0.5·1 − 0.5 = 1; A = 1 + 0.25·1 = 1.25
-        let expected = [1.25, 1.0, 2.5];
-        for (a, e) in adv.iter().zip(expected) {
-            assert!((a - e).abs() < 1e-6, "{adv:?}");
-        }
-        assert!((ret[0] - 1.75).abs() < 1e-6);
+    /// Sets the version the next update counts from.
+    pub fn set_version(&mut self, version: u64) {
+        self.ppo.set_version(version);
     }
 }

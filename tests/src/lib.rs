@@ -163,15 +163,26 @@ impl Learner {
     }
 }
 
-/// Starts an actor with the bandit fixture.
+/// Writes a run config for the bandit fixture (a wiring test environment)
+/// with service prefix `prefix`, plus `extra` TOML lines at the top level.
+pub fn bandit_config(dir: &Path, prefix: &str, extra: &str) -> PathBuf {
+    let path = dir.join("bandit.toml");
+    std::fs::write(
+        &path,
+        format!("{extra}\n[task]\nenv = \"bandit-fixture\"\n[transport]\nservice_prefix = \"{prefix}\"\nmax_actors = 4\n"),
+    )
+    .expect("writing the test config");
+    path
+}
+
+/// Starts an actor of the learner on `prefix`; `extra` should name the run
+/// config (`--config`), which says what environment to run.
 pub fn start_actor(id: u32, prefix: &str, dir: &Path, extra: &[&str]) -> Process {
     let mut args = vec![
         "--actor-id".to_string(),
         id.to_string(),
         "--learner".into(),
         prefix.into(),
-        "--env".into(),
-        "bandit-fixture".into(),
     ];
     args.extend(extra.iter().map(|s| s.to_string()));
     Process::start(

@@ -52,7 +52,7 @@ fn resume_after_kill_and_fall_back_past_a_corrupt_checkpoint() {
     let prefix = format!("it-ckpt-{}", std::process::id());
     let run_dir = dir.join("run");
     let config = dir.join("learner.toml");
-    std::fs::write(&config, format!("checkpoint_interval_s = 0.3\ncheckpoint_every_updates = 0\nkeep_checkpoints = 3\n[transport]\nservice_prefix = \"{prefix}\"\nmax_actors = 2\n")).unwrap();
+    std::fs::write(&config, format!("checkpoint_interval_s = 0.3\ncheckpoint_every_updates = 0\nkeep_checkpoints = 3\n[transport]\nservice_prefix = \"{prefix}\"\nmax_actors = 2\n[task]\nenv = \"bandit-fixture\"\n[policy]\nbatch_steps = 32\n")).unwrap();
     let run_args = |resume: bool| {
         let flag = if resume { "--resume" } else { "--run-dir" };
         vec![

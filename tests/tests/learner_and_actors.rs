@@ -5,7 +5,7 @@
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use system_tests::{metric_value, scratch_dir, start_actor, wait_for, Learner};
+use system_tests::{bandit_config, metric_value, scratch_dir, start_actor, wait_for, Learner};
 
 fn rollouts_of(status: &serde_json::Value, id: u64) -> u64 {
     status["actors"]
@@ -63,9 +63,12 @@ fn learner_serves_three_actors_and_survives_a_killed_one() {
     let dir = scratch_dir("three-actors");
     let prefix = format!("it-three-{}", std::process::id());
     let run_dir = dir.join("run");
+    let bandit = bandit_config(&dir, &prefix, "");
     let learner = Learner::start(
         &run_dir,
         &[
+            "--config".into(),
+            bandit.display().to_string(),
             "--run-dir".into(),
             run_dir.display().to_string(),
             "--service-prefix".into(),
@@ -160,6 +163,7 @@ fn learner_serves_three_actors_and_survives_a_killed_one() {
             log.lines().find_map(|l| {
                 l.split("got policy version ")
                     .nth(1)
+                    .and_then(|v| v.split(',').next())
                     .and_then(|v| v.trim().parse::<u64>().ok())
             })
         },

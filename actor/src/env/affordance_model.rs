@@ -30,6 +30,15 @@ impl AffordanceModel {
         self.net = net;
     }
 
+    /// Loads safetensors weights from the learner; on error the current
+    /// network stays.
+    pub fn load_weights(&mut self, bytes: Vec<u8>) -> Result<(), nets::weights::WeightsError> {
+        let mut net = AffordanceUnet::new(4, self.affordances, &self.device);
+        nets::weights::load_safetensors(&mut net, bytes)?;
+        self.net = net;
+        Ok(())
+    }
+
     /// Per affordance, the `h · w` probability plane for an RGB-D frame
     /// (`rgb` interleaved bytes, `depth_m` metres).
     pub fn predict(

@@ -7,7 +7,9 @@
 use rand::rngs::SmallRng;
 use rand::{Rng, SeedableRng};
 
-use super::{Environment, Observation, Transition};
+use proto::{EnvKind, PolicyLayout, StatField, TaskSpec};
+
+use super::{Environment, EpisodeEnd, Observation, Transition};
 
 /// The bandit fixture.
 #[derive(Debug, Clone)]
@@ -16,20 +18,28 @@ pub struct BanditFixture {
     n_actions: usize,
     episode_steps: u32,
     step: u32,
+    successes: u32,
     context: usize,
     rng: SmallRng,
+    layout: PolicyLayout,
 }
 
 impl BanditFixture {
     /// Contexts = observation length 8, 4 actions, 64 steps per episode.
     pub fn new() -> Self {
         Self {
-            contexts: 8,
-            n_actions: 4,
+            contexts: proto::task::BANDIT_OBS_DIM,
+            n_actions: proto::task::BANDIT_ACTIONS,
             episode_steps: 64,
             step: 0,
+            successes: 0,
             context: 0,
             rng: SmallRng::seed_from_u64(0),
+            layout: TaskSpec {
+                env: EnvKind::BanditFixture,
+                ..TaskSpec::default()
+            }
+            .layout(),
         }
     }
 
@@ -55,29 +65,40 @@ impl Default for BanditFixture {
 }
 
 impl Environment for BanditFixture {
-    fn obs_dim(&self) -> usize {
-        self.contexts
-    }
-    fn n_actions(&self) -> usize {
-        self.n_actions
+    fn layout(&self) -> &PolicyLayout {
+        &self.layout
     }
     fn scene_index(&self) -> u32 {
         0
     }
-    fn reset(&mut self, seed: u64) -> Observation {
+    fn reset(&mut self, seed: u64) -> anyhow::Result<Observation> {
         self.rng = SmallRng::seed_from_u64(seed);
         self.step = 0;
-        self.observe()
+        self.successes = 0;
+        Ok(self.observe())
     }
-    fn step(&mut self, action: u32) -> Transition {
+    fn step(&mut self, action: u32) -> anyhow::Result<Transition> {
         let success = action as usize == self.context % self.n_actions;
         self.step += 1;
-        Transition {
+        self.successes += u32::from(success);
+        Ok(Transition {
             observation: self.observe(),
             reward: if success { 1.0 } else { 0.0 },
             done: self.step >= self.episode_steps,
             success,
-        }
+        })
+    }
+    fn finish_episode(&mut self, _episode_id: u64) -> anyhow::Result<EpisodeEnd> {
+        Ok(EpisodeEnd {
+            frames: None,
+            stats: vec![(
+                StatField::InteractionSuccessRate,
+                self.successes as f32 / self.step.max(1) as f32,
+            )],
+        })
+    }
+    fn load_unet(&mut self, _weights: Vec<u8>) -> anyhow::Result<()> {
+        Ok(())
     }
 }
 
@@ -88,10 +109,10 @@ mod tests {
     #[test]
     fn same_seed_same_episode_and_the_right_action_is_never_masked() {
         let (mut a, mut b) = (BanditFixture::new(), BanditFixture::new());
-        assert_eq!(a.reset(7), b.reset(7));
+        assert_eq!(a.reset(7).unwrap(), b.reset(7).unwrap());
         for i in 0..64 {
-            let ta = a.step(i % 4);
-            assert_eq!(ta, b.step(i % 4));
+            let ta = a.step(i % 4).unwrap();
+            assert_eq!(ta, b.step(i % 4).unwrap());
             assert_eq!(ta.observation.action_mask[a.context % 4], 1);
             assert_eq!(
                 ta.observation

@@ -10,9 +10,10 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use mapper::{Affordance, Map, MapConfig, ObjectId, ObjectLabels, Outcome as MapOutcome, Pose};
 use nalgebra::Point2;
-use proto::FrameBatch;
+use proto::{FrameBatch, StatField};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
+use sim::affordances::{can_pick_up, can_push};
 use sim::agent::{Failure, Simulator};
 use sim::profile::RobotProfile;
 use sim::randomise::randomise;
@@ -27,6 +28,7 @@ use crate::env::reward::{RewardTracker, RewardWeights, StepEvent};
 use crate::env::state::{build_state, ActionHistory, State, StateConfig, StateInputs};
 use crate::labeler::{frame_batch, map_labels, EpisodeFrame};
 use crate::mapping::{intrinsics, map_frame};
+use crate::metrics::{annotation_rates, score_frame};
 
 /// Settings of the environment.
 #[derive(Debug, Clone)]
@@ -126,6 +128,37 @@ struct Episode {
     scene_index: u64,
     /// The object in the hand: its map id and its box when it was picked up.
     in_hand: Option<(ObjectId, OrientedBox)>,
+    /// Ground truth per scene object and affordance (plane order).
+    truth: Vec<Vec<bool>>,
+    /// The simulator's instance ids of every frame (object index + 1).
+    truth_ids: Vec<Vec<u32>>,
+    /// Per affordance: sums and counts of the U-Net's frame IoU and object accuracy.
+    scores: Vec<ScoreSums>,
+    /// Interactions tried and those that succeeded.
+    attempts: u32,
+    successes: u32,
+    /// Interactable scene objects an interaction succeeded on.
+    interacted: std::collections::BTreeSet<usize>,
+    episode_return: f32,
+}
+
+/// Running sums of per-frame scores.
+#[derive(Debug, Clone, Copy, Default)]
+struct ScoreSums {
+    iou: f64,
+    iou_frames: u32,
+    accuracy: f64,
+    accuracy_frames: u32,
+}
+
+/// What an episode leaves behind: labelled frames for the learner and the
+/// paper's per-episode metrics against the simulator's ground truth.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EpisodeSummary {
+    /// The labelled frames (balanced ones only, if so configured).
+    pub frames: FrameBatch,
+    /// Metrics, means over the configured affordances where per affordance.
+    pub stats: Vec<(StatField, f32)>,
 }
 
 impl SimEnv {
@@ -140,6 +173,7 @@ impl SimEnv {
         let space = ActionSpace::new(&config.affordances);
         let state_config = StateConfig {
             image_size: profile.image_size,
+            map_cells: profile.image_size,
             ..StateConfig::paper(&config.affordances, space.len())
         };
         Self {
@@ -192,7 +226,30 @@ impl SimEnv {
         let (sim, _) = randomise(&scene, &self.profile, &mut rng)
             .with_context(|| format!("setting up an episode in {}", scene.name))?;
         let start = sim.agent();
+        let truth = (0..scene.objects.len())
+            .map(|i| {
+                let object = &sim.scene().objects[i];
+                self.config
+                    .affordances
+                    .iter()
+                    .map(|a| {
+                        object.object_type != "Floor"
+                            && match a {
+                                Affordance::PickUp => can_pick_up(object, &self.profile),
+                                Affordance::Push => can_push(sim.scene(), i, &self.profile),
+                            }
+                    })
+                    .collect()
+            })
+            .collect();
         self.episode = Some(Episode {
+            truth,
+            truth_ids: Vec::new(),
+            scores: vec![ScoreSums::default(); self.config.affordances.len()],
+            attempts: 0,
+            successes: 0,
+            interacted: Default::default(),
+            episode_return: 0.0,
             reward: RewardTracker::new(self.config.reward, start),
             visited: vec![Point2::new(start.x, start.y)],
             sim,
@@ -280,6 +337,23 @@ impl SimEnv {
                 }
             }
             interacted_instance = Some((affordance, object as usize));
+            episode.attempts += 1;
+            episode.successes += u32::from(outcome.success);
+        }
+        if let (
+            Some(sim::agent::Action::PickUp { u, v } | sim::agent::Action::Push { u, v }),
+            true,
+        ) = (self.space.to_sim(action, &episode.targets), outcome.success)
+        {
+            let width = self.profile.image_size;
+            let instance = episode
+                .truth_ids
+                .last()
+                .and_then(|ids| ids.get(v as usize * width + u as usize).copied())
+                .unwrap_or(0);
+            if instance > 0 {
+                episode.interacted.insert(instance as usize - 1);
+            }
         }
         if action == PolicyAction::Drop && outcome.success {
             if let (Some((id, before)), Some(index)) = (episode.in_hand.take(), dropped) {
@@ -296,6 +370,7 @@ impl SimEnv {
             success: outcome.success,
             interaction: interacted_instance,
         });
+        episode.episode_return += reward;
         episode.visited.push(Point2::new(agent.x, agent.y));
         episode
             .history
@@ -330,6 +405,21 @@ impl SimEnv {
             self.model
                 .predict(&frame.rgb, &frame.depth_m, frame.height, frame.width);
         let t3 = Instant::now();
+        for (plane, (probabilities, sums)) in
+            probabilities.iter().zip(&mut episode.scores).enumerate()
+        {
+            let truth = &episode.truth;
+            let affords = |id: u32| truth.get(id as usize - 1).is_some_and(|t| t[plane]);
+            let scores = score_frame(probabilities, &frame.ids, &affords);
+            if let Some(iou) = scores.iou {
+                sums.iou += f64::from(iou);
+                sums.iou_frames += 1;
+            }
+            if let Some(accuracy) = scores.object_accuracy {
+                sums.accuracy += f64::from(accuracy);
+                sums.accuracy_frames += 1;
+            }
+        }
         let k = intrinsics(&camera);
         let agent = episode.sim.agent();
         let holding = episode.sim.held().is_some();
@@ -359,6 +449,7 @@ impl SimEnv {
             },
         );
         let mask = self.space.mask(holding, &episode.targets);
+        episode.truth_ids.push(frame.ids);
         episode.frames.push(EpisodeFrame {
             rgb: frame.rgb,
             depth_m: frame.depth_m,
@@ -376,8 +467,9 @@ impl SimEnv {
     }
 
     /// Ends the episode: its labelled frames for the learner (interaction
-    /// labels through the map, remembered for objects the map dropped).
-    pub fn finish_episode(&mut self, episode_id: u64) -> anyhow::Result<FrameBatch> {
+    /// labels through the map, remembered for objects the map dropped) and
+    /// its metrics against the simulator's ground truth.
+    pub fn finish_episode(&mut self, episode_id: u64) -> anyhow::Result<EpisodeSummary> {
         let episode = self.episode.take().context("finish before reset")?;
         let labels = map_labels(
             &episode.map,
@@ -386,13 +478,74 @@ impl SimEnv {
             &self.config.affordances,
         );
         let camera = episode.sim.camera();
-        Ok(frame_batch(
-            episode_id,
-            &intrinsics(&camera),
-            &episode.frames,
-            &labels,
-            self.config.affordances.len(),
-            self.config.balanced_frames,
-        ))
+        let k = intrinsics(&camera);
+        let planes = self.config.affordances.len();
+        let pixels = k.pixels();
+        // Annotation rates of the labels over every frame of the episode.
+        let (mut positive, mut negative) = (0.0f64, 0.0f64);
+        for (frame_labels, ids) in labels.iter().zip(&episode.truth_ids) {
+            for (plane, plane_labels) in frame_labels.chunks(pixels).enumerate() {
+                let truth = &episode.truth;
+                let affords = |id: u32| truth.get(id as usize - 1).is_some_and(|t| t[plane]);
+                let (p, n) = annotation_rates(plane_labels, ids, &affords);
+                positive += f64::from(p);
+                negative += f64::from(n);
+            }
+        }
+        let rated = (episode.truth_ids.len() * planes).max(1) as f64;
+        let interactable = episode
+            .truth
+            .iter()
+            .filter(|t| t.iter().any(|&x| x))
+            .count();
+        let interacted = episode
+            .interacted
+            .iter()
+            .filter(|&&i| episode.truth.get(i).is_some_and(|t| t.iter().any(|&x| x)))
+            .count();
+        let mean = |f: fn(&ScoreSums) -> (f64, u32)| -> Option<f32> {
+            let (sum, n) = episode
+                .scores
+                .iter()
+                .map(f)
+                .fold((0.0, 0), |(s, c), (x, k)| (s + x, c + k));
+            (n > 0).then(|| (sum / f64::from(n)) as f32)
+        };
+        let mut stats = vec![
+            (StatField::EpisodeReturn, episode.episode_return),
+            (
+                StatField::InteractionSuccessRate,
+                episode.successes as f32 / episode.attempts.max(1) as f32,
+            ),
+            (
+                StatField::InteractedObjectRate,
+                interacted as f32 / interactable.max(1) as f32,
+            ),
+            (
+                StatField::InteractableAnnotationRate,
+                (positive / rated) as f32,
+            ),
+            (
+                StatField::NonInteractableAnnotationRate,
+                (negative / rated) as f32,
+            ),
+        ];
+        if let Some(iou) = mean(|s| (s.iou, s.iou_frames)) {
+            stats.push((StatField::AffordanceIou, iou));
+        }
+        if let Some(accuracy) = mean(|s| (s.accuracy, s.accuracy_frames)) {
+            stats.push((StatField::ObjectAccuracy, accuracy));
+        }
+        Ok(EpisodeSummary {
+            frames: frame_batch(
+                episode_id,
+                &k,
+                &episode.frames,
+                &labels,
+                planes,
+                self.config.balanced_frames,
+            ),
+            stats,
+        })
     }
 }

@@ -11,8 +11,9 @@
 //!   occupancy, and per affordance objects interacted with successfully,
 //!   unsuccessfully, and not yet.
 //! - **history** `[5 · (n_actions + 2)]`: the last five actions one-hot
-//!   with their success (0/1) and reward, newest first, zeros before the
-//!   episode's start.
+//!   with their success (0/1) and reward (mapped from [-1, 2] onto [0, 1]),
+//!   newest first, zeros before the episode's start. Every input lies in
+//!   0..1, so the state travels to the learner as bytes.
 //! - **inventory** `[1]`: 1 while holding an object.
 
 use std::collections::VecDeque;
@@ -215,6 +216,12 @@ fn map_planes(config: &StateConfig, input: &StateInputs<'_>, extent_m: f32) -> V
     out
 }
 
+/// A reward as the history holds it: `[-1, 2]` mapped onto `[0, 1]` (clamped),
+/// so that every input of the state lies in 0..1 and travels as a byte.
+pub fn encode_reward(reward: f32) -> f32 {
+    ((reward + 1.0) / 3.0).clamp(0.0, 1.0)
+}
+
 fn history_vector(config: &StateConfig, history: &ActionHistory) -> Vec<f32> {
     let width = config.n_actions + 2;
     let mut out = vec![0.0; config.history_len()];
@@ -226,7 +233,7 @@ fn history_vector(config: &StateConfig, history: &ActionHistory) -> Vec<f32> {
             row[action] = 1.0;
         }
         row[config.n_actions] = f32::from(u8::from(success));
-        row[config.n_actions + 1] = reward;
+        row[config.n_actions + 1] = encode_reward(reward);
     }
     out
 }

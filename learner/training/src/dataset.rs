@@ -197,17 +197,19 @@ pub struct GateDecision {
 }
 
 /// Validation gate: both networks are evaluated on the *current* validation
-/// split, and the candidate replaces the deployed network only if its mean
+/// split (its newest `max_frames` frames, to bound the cost), and the candidate replaces the deployed network only if its mean
 /// masked BCE + Dice loss is lower. With no validation frames, nothing is
 /// replaced (there is no evidence).
 pub fn validation_gate(
     candidate: &AffordanceUnet,
     deployed: &AffordanceUnet,
     dataset: &AffordanceDataset,
+    max_frames: usize,
     device: &Device,
 ) -> GateDecision {
     let frames = dataset.frames(Split::Validation);
-    let refs: Vec<&LabelledFrame> = frames.iter().map(|f| f.as_ref()).collect();
+    let newest = &frames[frames.len().saturating_sub(max_frames)..];
+    let refs: Vec<&LabelledFrame> = newest.iter().map(|f| f.as_ref()).collect();
     let candidate = evaluate(candidate, &refs, device);
     let deployed = evaluate(deployed, &refs, device);
     GateDecision {

@@ -124,7 +124,7 @@ pub struct LossTerms {
 }
 
 /// What one update did (means over minibatches; explained variance over the batch).
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
 pub struct PpoStats {
     /// See [`LossTerms`].
     pub policy_loss: f32,
@@ -284,6 +284,11 @@ impl Ppo {
     /// Updates applied so far (the version of the current weights).
     pub fn version(&self) -> u64 {
         self.version
+    }
+
+    /// Continues counting versions from `version` (after a resume).
+    pub fn set_version(&mut self, version: u64) {
+        self.version = version;
     }
 
     /// The settings.

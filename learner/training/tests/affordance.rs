@@ -222,7 +222,7 @@ fn a_candidate_replaces_the_deployed_network_only_if_better_on_validation() {
     });
     let untrained = AffordanceUnet::new(4, 1, &device);
     assert!(
-        !validation_gate(&untrained, &untrained, &data, &device).replace,
+        !validation_gate(&untrained, &untrained, &data, usize::MAX, &device).replace,
         "no validation data, no replacement"
     );
     data.add_episode(
@@ -247,13 +247,13 @@ fn a_candidate_replaces_the_deployed_network_only_if_better_on_validation() {
         trainer.step(&refs);
     }
     let trained = trainer.inference_net(&device);
-    let better = validation_gate(&trained, &untrained, &data, &device);
+    let better = validation_gate(&trained, &untrained, &data, usize::MAX, &device);
     eprintln!("gate: {better:?}");
     assert!(better.replace, "{better:?}");
-    let worse = validation_gate(&untrained, &trained, &data, &device);
+    let worse = validation_gate(&untrained, &trained, &data, usize::MAX, &device);
     assert!(!worse.replace);
     assert!(
-        !validation_gate(&trained, &trained, &data, &device).replace,
+        !validation_gate(&trained, &trained, &data, usize::MAX, &device).replace,
         "a tie keeps the deployed network"
     );
 }

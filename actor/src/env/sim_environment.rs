@@ -1,0 +1,111 @@
+//! The simulator environment behind the episode loop's [`Environment`]
+//! interface: the state's five inputs flattened in the task's layout order
+//! (camera, global map, local map, history, inventory) and quantised to
+//! bytes, which is exactly what the policy acts on and what the learner
+//! trains on.
+
+use anyhow::{ensure, Context};
+use proto::{PolicyLayout, TaskSpec};
+
+use super::sim_env::{SimEnv, SimObservation};
+use super::{Environment, EpisodeEnd, Observation, Transition};
+
+/// [`SimEnv`] as an [`Environment`].
+pub struct SimEnvironment {
+    env: SimEnv,
+    layout: PolicyLayout,
+}
+
+/// Rounds a value in 0..1 to the nearest of the 256 byte levels.
+fn quantise(v: f32) -> f32 {
+    (v.clamp(0.0, 1.0) * 255.0).round() / 255.0
+}
+
+impl SimEnvironment {
+    /// Wraps `env`, which must produce `task`'s layout.
+    pub fn new(env: SimEnv, task: &TaskSpec) -> anyhow::Result<Self> {
+        let layout = task.layout();
+        let config = env.state_config();
+        ensure!(
+            env.action_space().len() == layout.n_actions
+                && layout.image_channels
+                    == [
+                        config.camera_channels(),
+                        config.map_channels(),
+                        config.map_channels(),
+                    ]
+                && layout.vector_dims == [config.history_len(), 1]
+                && config.image_size == layout.image_size
+                && config.map_cells == layout.image_size,
+            "the environment's state ({} actions, {} px) does not match the task's layout ({} actions, {} px)",
+            env.action_space().len(),
+            config.image_size,
+            layout.n_actions,
+            layout.image_size
+        );
+        Ok(Self { env, layout })
+    }
+
+    /// The wrapped environment.
+    pub fn inner(&self) -> &SimEnv {
+        &self.env
+    }
+
+    fn observation(&self, o: SimObservation) -> Observation {
+        let s = o.state;
+        let mut features = Vec::with_capacity(self.layout.obs_len());
+        for part in [
+            &s.camera,
+            &s.global_map,
+            &s.local_map,
+            &s.history,
+            &s.inventory,
+        ] {
+            features.extend(part.iter().map(|&v| quantise(v)));
+        }
+        Observation {
+            features,
+            action_mask: o.mask,
+        }
+    }
+}
+
+impl Environment for SimEnvironment {
+    fn layout(&self) -> &PolicyLayout {
+        &self.layout
+    }
+
+    fn scene_index(&self) -> u32 {
+        self.env.scene_index() as u32
+    }
+
+    fn reset(&mut self, seed: u64) -> anyhow::Result<Observation> {
+        let o = self.env.reset(seed)?;
+        Ok(self.observation(o))
+    }
+
+    fn step(&mut self, action: u32) -> anyhow::Result<Transition> {
+        let step = self.env.step(action as usize)?;
+        Ok(Transition {
+            observation: self.observation(step.observation),
+            reward: step.reward,
+            done: step.done,
+            success: step.success,
+        })
+    }
+
+    fn finish_episode(&mut self, episode_id: u64) -> anyhow::Result<EpisodeEnd> {
+        let summary = self.env.finish_episode(episode_id)?;
+        Ok(EpisodeEnd {
+            frames: Some(summary.frames),
+            stats: summary.stats,
+        })
+    }
+
+    fn load_unet(&mut self, weights: Vec<u8>) -> anyhow::Result<()> {
+        self.env
+            .model_mut()
+            .load_weights(weights)
+            .context("loading the learner's U-Net")
+    }
+}

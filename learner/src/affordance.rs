@@ -1,0 +1,187 @@
+//! Affordance learning in the learner: every episode's labelled frames join
+//! the global dataset (split into train / validation / test), the U-Net
+//! trains on the training split, and the trained network replaces the one
+//! the actors use only when it beats it on validation.
+
+use burn::prelude::*;
+use nets::unet::AffordanceUnet;
+use nets::weights::{load_safetensors, to_safetensors, WeightsError};
+use proto::{FrameBatchView, LABEL_UNKNOWN};
+use rand::rngs::StdRng;
+use rand::SeedableRng;
+use serde::Serialize;
+use training::affordance::{Evaluation, LabelledFrame, UnetTrainer, UnetTrainingConfig, UNKNOWN};
+use training::dataset::{validation_gate, AffordanceDataset, DatasetConfig};
+
+use crate::config::UnetConfig;
+
+/// Why an episode's frames were refused.
+#[derive(Debug, thiserror::Error)]
+pub enum FramesError {
+    /// Another number of affordance planes than the run's task.
+    #[error("frames carry {got} affordance planes; this run's task has {expected} (is the actor using the learner's config.toml?)")]
+    Affordances {
+        /// Planes in the message.
+        got: u32,
+        /// Planes of the task.
+        expected: usize,
+    },
+}
+
+/// What one round of U-Net training did.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct UnetRound {
+    /// Mean training loss (masked BCE + Dice) of the round's steps.
+    pub train_loss: f32,
+    /// The trained network on validation.
+    pub candidate_loss: f32,
+    /// The trained network's IoU on validation.
+    pub candidate_iou: f32,
+    /// The deployed network on the same frames.
+    pub deployed_loss: f32,
+    /// The deployed network's IoU on validation.
+    pub deployed_iou: f32,
+    /// Whether the trained network now replaces the deployed one.
+    pub replaced: bool,
+    /// Frames in the dataset: train, validation, test.
+    pub frames: (usize, usize, usize),
+}
+
+/// The U-Net being trained, the deployed one, and the dataset.
+pub struct AffordanceLearner {
+    trainer: UnetTrainer,
+    deployed: AffordanceUnet,
+    dataset: AffordanceDataset,
+    settings: UnetConfig,
+    affordances: usize,
+    device: Device,
+    rng: StdRng,
+}
+
+/// An episode's frames in the U-Net's layout: planar RGB in 0..1 and depth.
+pub fn labelled_frames(view: &FrameBatchView<'_>) -> Vec<LabelledFrame> {
+    let (h, w) = (view.height as usize, view.width as usize);
+    let pixels = h * w;
+    let planes = view.n_affordances as usize;
+    let depth = view.depth_m.to_vec();
+    (0..view.n_frames as usize)
+        .map(|f| {
+            let rgb = &view.rgb[3 * pixels * f..3 * pixels * (f + 1)];
+            let mut rgbd = Vec::with_capacity(4 * pixels);
+            for c in 0..3 {
+                rgbd.extend(rgb.iter().skip(c).step_by(3).map(|&b| f32::from(b) / 255.0));
+            }
+            rgbd.extend_from_slice(&depth[pixels * f..pixels * (f + 1)]);
+            let labels = view.labels[planes * pixels * f..planes * pixels * (f + 1)]
+                .iter()
+                .map(|&l| if l == LABEL_UNKNOWN { UNKNOWN } else { l })
+                .collect();
+            LabelledFrame {
+                size: [h, w],
+                rgbd,
+                labels,
+            }
+        })
+        .collect()
+}
+
+impl AffordanceLearner {
+    /// A fresh U-Net for `affordances` planes, trained on `device`.
+    pub fn new(affordances: usize, settings: &UnetConfig, seed: u64, device: &Device) -> Self {
+        let net = AffordanceUnet::new(4, affordances, device);
+        Self {
+            trainer: UnetTrainer::new(net.clone(), Self::training(settings), device),
+            deployed: net,
+            dataset: AffordanceDataset::new(DatasetConfig {
+                max_uses: settings.max_uses,
+                max_frames: settings.max_frames,
+                validation_fraction: settings.validation_fraction,
+                test_fraction: settings.test_fraction,
+            }),
+            settings: settings.clone(),
+            affordances,
+            device: device.clone(),
+            rng: StdRng::seed_from_u64(seed ^ 0x5eed_a11),
+        }
+    }
+
+    fn training(settings: &UnetConfig) -> UnetTrainingConfig {
+        UnetTrainingConfig {
+            learning_rate: settings.learning_rate,
+            weight_decay: settings.weight_decay,
+        }
+    }
+
+    /// Adds an episode's frames (keyed by `episode`, unique over actors);
+    /// returns how many joined.
+    pub fn add_episode(
+        &mut self,
+        episode: u64,
+        view: &FrameBatchView<'_>,
+    ) -> Result<usize, FramesError> {
+        if view.n_affordances as usize != self.affordances {
+            return Err(FramesError::Affordances {
+                got: view.n_affordances,
+                expected: self.affordances,
+            });
+        }
+        let frames = labelled_frames(view);
+        let n = frames.len();
+        self.dataset.add_episode(episode, frames, &mut self.rng);
+        Ok(n)
+    }
+
+    /// Trains `steps_per_episode` steps on the training split, then gates
+    /// the result on validation; `None` without training frames.
+    pub fn train_round(&mut self) -> Option<UnetRound> {
+        let mut losses = Vec::new();
+        for _ in 0..self.settings.steps_per_episode {
+            let batch = self
+                .dataset
+                .sample_train(self.settings.batch_frames, &mut self.rng);
+            if batch.is_empty() {
+                break;
+            }
+            let refs: Vec<&LabelledFrame> = batch.iter().map(|f| f.as_ref()).collect();
+            losses.push(self.trainer.step(&refs));
+        }
+        if losses.is_empty() {
+            return None;
+        }
+        let candidate = self.trainer.inference_net(&self.device);
+        let gate = validation_gate(
+            &candidate,
+            &self.deployed,
+            &self.dataset,
+            self.settings.max_validation_frames,
+            &self.device,
+        );
+        if gate.replace {
+            self.deployed = candidate;
+        }
+        let Evaluation { loss, iou, .. } = gate.candidate;
+        Some(UnetRound {
+            train_loss: losses.iter().sum::<f32>() / losses.len() as f32,
+            candidate_loss: loss,
+            candidate_iou: iou,
+            deployed_loss: gate.deployed.loss,
+            deployed_iou: gate.deployed.iou,
+            replaced: gate.replace,
+            frames: self.dataset.sizes(),
+        })
+    }
+
+    /// The deployed network's weights (what the actors should use).
+    pub fn deployed_weights(&self) -> Result<Vec<u8>, WeightsError> {
+        to_safetensors(&self.deployed)
+    }
+
+    /// Continues from saved deployed weights (training restarts from them).
+    pub fn restore(&mut self, bytes: Vec<u8>) -> Result<(), WeightsError> {
+        let mut net = AffordanceUnet::new(4, self.affordances, &self.device);
+        load_safetensors(&mut net, bytes)?;
+        self.trainer = UnetTrainer::new(net.clone(), Self::training(&self.settings), &self.device);
+        self.deployed = net;
+        Ok(())
+    }
+}
