@@ -96,6 +96,7 @@ fn load_weights(
     let unet_changed = current.is_none_or(|p| p.unet_version != header.unet_version);
     if has_unet && unet_changed {
         env.load_unet(unbundle(weights.bytes(), WEIGHTS_UNET_PREFIX)?)?;
+        eprintln!("actor: loaded U-Net version {}", header.unet_version);
     }
     Ok(Policy {
         net,

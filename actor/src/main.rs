@@ -169,6 +169,7 @@ fn sim_environment(
     let renderer = Renderer::open(cli.renderer)?;
     let config = SimEnvConfig {
         episode_steps: task.episode_steps,
+        balanced_frames: task.balanced_frames,
         ..SimEnvConfig::paper(&task.affordances)
     };
     let model = AffordanceModel::new(task.affordances.len(), device);

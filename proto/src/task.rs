@@ -93,6 +93,9 @@ pub struct TaskSpec {
     pub image_size: usize,
     /// Steps per episode (600 in the paper).
     pub episode_steps: usize,
+    /// Send only frames with both positive and negative labels (the paper's
+    /// rule); off, every frame with any label is sent.
+    pub balanced_frames: bool,
 }
 
 impl Default for TaskSpec {
@@ -103,6 +106,7 @@ impl Default for TaskSpec {
             affordances: vec![Affordance::PickUp, Affordance::Push],
             image_size: 128,
             episode_steps: 600,
+            balanced_frames: true,
         }
     }
 }

@@ -1,0 +1,180 @@
+//! The closed loop, CI-sized: a learner and two simulator actors (method
+//! `ours`, 64 × 64 images, short episodes). Labelled frames reach the
+//! learner, the U-Net trains on them and passes its validation gate, the
+//! policy updates, and both networks' new weights reach the actors.
+
+use std::time::Duration;
+
+use system_tests::{scratch_dir, start_actor, wait_for, Learner, Process};
+
+fn data_dir() -> String {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data")
+        .display()
+        .to_string()
+}
+
+/// The highest `… version N` an actor's log reports after `marker`.
+fn newest_version(actor: &Process, marker: &str) -> Option<u64> {
+    actor
+        .log_text()
+        .lines()
+        .filter_map(|l| l.split(marker).nth(1))
+        .filter_map(|v| {
+            v.split(|c: char| !c.is_ascii_digit())
+                .next()
+                .and_then(|n| n.parse().ok())
+        })
+        .max()
+}
+
+#[test]
+fn frames_train_the_unet_and_new_weights_reach_both_actors() {
+    let dir = scratch_dir("closed-loop");
+    let prefix = format!("it-loop-{}", std::process::id());
+    let run_dir = dir.join("run");
+    let config = dir.join("loop.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "[task]\nenv = \"sim\"\nmethod = \"ours\"\naffordances = [\"pick_up\", \"push\"]\nimage_size = 64\nepisode_steps = 16\nbalanced_frames = false\n\
+             [policy]\nbatch_steps = 16\nepochs = 2\n\
+             [unet]\nsteps_per_episode = 3\nbatch_frames = 4\nvalidation_fraction = 0.5\ntest_fraction = 0.0\n\
+             [transport]\nservice_prefix = \"{prefix}\"\nmax_actors = 2\n"
+        ),
+    )
+    .unwrap();
+    let learner = Learner::start(
+        &run_dir,
+        &[
+            "--config".into(),
+            config.display().to_string(),
+            "--run-dir".into(),
+            run_dir.display().to_string(),
+        ],
+        dir.join("learner.log"),
+    );
+    let run_config = run_dir.join("config.toml").display().to_string();
+    let data = data_dir();
+    let mut actors: Vec<Process> = (0..2)
+        .map(|id| {
+            start_actor(
+                id,
+                &prefix,
+                &dir,
+                &[
+                    "--config",
+                    &run_config,
+                    "--data",
+                    &data,
+                    "--renderer",
+                    "cpu",
+                    "--chunk-steps",
+                    "8",
+                    "--seed",
+                    &id.to_string(),
+                ],
+            )
+        })
+        .collect();
+
+    // The U-Net trains on the frames and beats the deployed one on validation.
+    let status = wait_for(
+        Duration::from_secs(240),
+        "frames from both actors, a policy update and a U-Net that passed the validation gate",
+        || {
+            for actor in &mut actors {
+                if let Some(exit) = actor.wait_exit(Duration::ZERO) {
+                    panic!("actor exited early ({exit}):\n{}", actor.log_text());
+                }
+            }
+            let s = learner.status();
+            let both_sent_frames = (0..2).all(|id| {
+                s["actors"].as_array().is_some_and(|all| {
+                    all.iter()
+                        .any(|a| a["id"] == id && a["received"]["frames"].as_u64() > Some(0))
+                })
+            });
+            (s["unet_version"].as_u64() >= Some(1)
+                && both_sent_frames
+                && s["updates"].as_u64() >= Some(1))
+            .then_some(s)
+        },
+    );
+    assert!(status["frames_received"].as_u64() > Some(0), "{status}");
+    assert!(status["unet_rounds"].as_u64() >= Some(1), "{status}");
+    let unet = &status["last_unet"];
+    assert!(
+        unet["train_loss"].as_f64().is_some_and(f64::is_finite),
+        "{unet}"
+    );
+    assert!(status["updates"].as_u64() >= Some(1), "{status}");
+    // Both actors streamed rollouts and reported ground-truth metrics.
+    for id in 0..2 {
+        let actor = status["actors"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|a| a["id"] == id)
+            .unwrap_or_else(|| panic!("actor {id} never reached the learner: {status}"));
+        assert!(actor["received"]["rollout"].as_u64() > Some(0), "{actor}");
+        assert!(actor["received"]["frames"].as_u64() > Some(0), "{actor}");
+    }
+    let episode = &status["last_episode"];
+    for field in [
+        "affordance_iou",
+        "object_accuracy",
+        "interaction_success_rate",
+        "non_interactable_annotation_rate",
+    ] {
+        let v = episode[field].as_f64();
+        assert!(
+            v.is_some_and(|v| (0.0..=1.0).contains(&v)),
+            "{field}: {episode}"
+        );
+    }
+
+    // New weights of both networks reach both actors.
+    wait_for(
+        Duration::from_secs(120),
+        "new weights in both actors",
+        || {
+            actors
+                .iter()
+                .all(|a| {
+                    newest_version(a, "loaded U-Net version ") >= Some(1)
+                        && a.log_text().contains("got policy version")
+                })
+                .then_some(())
+        },
+    );
+
+    for actor in &mut actors {
+        actor.signal(libc::SIGINT);
+        let exit = actor
+            .wait_exit(Duration::from_secs(60))
+            .expect("actor exits on SIGINT");
+        assert!(exit.success(), "actor exit {exit}:\n{}", actor.log_text());
+        let log = actor.log_text();
+        let final_policy = log
+            .lines()
+            .find_map(|l| l.split("; policy version ").nth(1))
+            .and_then(|v| v.split(',').next())
+            .and_then(|v| v.trim().parse::<u64>().ok());
+        assert!(
+            final_policy > Some(1),
+            "the actor acted only with the first policy:\n{log}"
+        );
+    }
+    let mut learner = learner;
+    learner.process.signal(libc::SIGINT);
+    let exit = learner
+        .process
+        .wait_exit(Duration::from_secs(60))
+        .expect("learner exits on SIGINT");
+    assert!(
+        exit.success(),
+        "learner exit {exit}:\n{}",
+        learner.process.log_text()
+    );
+}
