@@ -8,6 +8,7 @@ pub mod affordance;
 pub mod bench_transport;
 pub mod checkpoint;
 pub mod config;
+pub mod history;
 pub mod http;
 pub mod metrics;
 pub mod service;

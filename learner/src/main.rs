@@ -179,6 +179,7 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
     // iceoryx2 ports are not Send: the training thread opens its own and
     // reports whether that worked before the endpoint is announced.
     let loop_shared = shared.clone();
+    let history_dir = run_dir.clone();
     let (opened_tx, opened_rx) = std::sync::mpsc::channel();
     let training = std::thread::Builder::new()
         .name("training".into())
@@ -191,7 +192,16 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
                 }
             };
             let _ = opened_tx.send(Ok(()));
-            let result = Learner::new(loop_shared.clone(), ports, trainers, checkpoint_dir).run();
+            let result = learner::history::History::open(&history_dir).and_then(|history| {
+                Learner::new(
+                    loop_shared.clone(),
+                    ports,
+                    trainers,
+                    checkpoint_dir,
+                    history,
+                )
+                .run()
+            });
             loop_shared.shutdown.store(true, Ordering::Relaxed);
             result
         })?;

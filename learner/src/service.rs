@@ -14,6 +14,7 @@ use transport::{Delivery, LearnerPorts};
 use crate::affordance::AffordanceLearner;
 use crate::checkpoint;
 use crate::config::LearnerConfig;
+use crate::history::History;
 use crate::status::LearnerStatus;
 use crate::train::PolicyTrainer;
 
@@ -99,6 +100,7 @@ pub struct Learner {
     ports: LearnerPorts,
     trainers: Trainers,
     checkpoint_dir: PathBuf,
+    history: History,
     warned: HashSet<(MessageKind, &'static str)>,
     last_checkpoint: Instant,
     updates_at_checkpoint: u64,
@@ -111,6 +113,7 @@ impl Learner {
         ports: LearnerPorts,
         mut trainers: Trainers,
         checkpoint_dir: PathBuf,
+        history: History,
     ) -> Self {
         trainers
             .policy
@@ -121,6 +124,7 @@ impl Learner {
             ports,
             trainers,
             checkpoint_dir,
+            history,
             warned: HashSet::new(),
             last_checkpoint: Instant::now(),
             updates_at_checkpoint,
@@ -218,12 +222,21 @@ impl Learner {
                     .add_chunk(&chunk, header.policy_version)
                 {
                     Ok(Some(stats)) => {
-                        {
+                        let env_steps = {
                             let mut status = self.shared.status();
                             status.updates += 1;
                             status.last_update = Some(stats);
                             status.policy_version = self.trainers.policy.version();
-                        }
+                            status.env_steps
+                        };
+                        self.history.record(
+                            "ppo",
+                            env_steps,
+                            serde_json::json!({
+                                "policy_version": self.trainers.policy.version(),
+                                "stats": stats,
+                            }),
+                        )?;
                         self.publish_weights()?;
                     }
                     Ok(None) => {}
@@ -235,7 +248,28 @@ impl Learner {
                     }
                 }
             }
-            Message::Stats(stats) => self.shared.status().add_episode(&stats),
+            Message::Stats(stats) => {
+                let env_steps = {
+                    let mut status = self.shared.status();
+                    status.add_episode(&stats);
+                    status.env_steps
+                };
+                let fields: serde_json::Map<String, serde_json::Value> = stats
+                    .present()
+                    .map(|(f, v)| (f.as_str().to_string(), serde_json::json!(v)))
+                    .collect();
+                self.history.record(
+                    "episode",
+                    env_steps,
+                    serde_json::json!({
+                        "actor": header.actor_id,
+                        "episode": stats.episode_id,
+                        "steps": stats.steps,
+                        "scene": stats.scene_index,
+                        "stats": fields,
+                    }),
+                )?;
+            }
             Message::Frames(frames) => {
                 let Some(affordance) = self.trainers.affordance.as_mut() else {
                     return Ok(());
@@ -253,14 +287,20 @@ impl Learner {
                 }
                 if let Some(round) = affordance.train_round() {
                     let replaced = round.replaced;
-                    {
+                    let (env_steps, unet_version) = {
                         let mut status = self.shared.status();
                         status.unet_rounds += 1;
                         status.last_unet = Some(round);
                         if replaced {
                             status.unet_version += 1;
                         }
-                    }
+                        (status.env_steps, status.unet_version)
+                    };
+                    self.history.record(
+                        "unet",
+                        env_steps,
+                        serde_json::json!({ "unet_version": unet_version, "round": round }),
+                    )?;
                     if replaced {
                         self.publish_weights()?;
                     }
