@@ -11,6 +11,7 @@ pub mod config;
 pub mod history;
 pub mod http;
 pub mod metrics;
+pub mod plot;
 pub mod service;
 pub mod status;
 pub mod train;

@@ -28,6 +28,18 @@ enum Command {
     PrintConfig,
     /// Remove shared-memory resources left by crashed learner or actor processes.
     Clean,
+    /// Draw the paper's six training curves from a run's history.jsonl into an SVG.
+    Plot {
+        /// The run directory (holds history.jsonl).
+        #[arg(long)]
+        run_dir: PathBuf,
+        /// SVG file to write (default RUN_DIR/training_curves.svg).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Episodes in the moving average.
+        #[arg(long, default_value_t = 20)]
+        window: usize,
+    },
     /// Measure the message path over iceoryx2 and over loopback TCP, side by side.
     BenchTransport {
         /// Scale of the run (1 = 100 x 1 MiB, 10 x 16 MiB, 10 broadcasts per transport).
@@ -78,6 +90,16 @@ fn main() -> anyhow::Result<()> {
         Command::BenchTransport { repeats } => {
             let measurements = learner::bench_transport::run(repeats.max(1))?;
             print!("{}", learner::bench_transport::table(&measurements));
+            Ok(())
+        }
+        Command::Plot {
+            run_dir,
+            out,
+            window,
+        } => {
+            let out = out.unwrap_or_else(|| run_dir.join("training_curves.svg"));
+            let episodes = learner::plot::plot(&run_dir, &out, window)?;
+            println!("plotted {episodes} episodes into {}", out.display());
             Ok(())
         }
         Command::Clean => {

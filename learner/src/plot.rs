@@ -1,0 +1,159 @@
+//! `learner plot`: the paper's six training curves (Fig. 3) from a run's
+//! `history.jsonl`, as one SVG: per-episode values over environment steps
+//! (dots) and their moving average (line).
+
+use std::path::Path;
+
+use anyhow::Context;
+use plotters::prelude::*;
+
+use crate::history::HISTORY_FILE;
+
+/// The six per-episode metrics of the paper's training figure, in panel order.
+pub const CURVES: [(&str, &str); 6] = [
+    ("interaction_success_rate", "interaction success rate"),
+    ("interacted_object_rate", "interacted object rate"),
+    (
+        "interactable_annotation_rate",
+        "interactable annotation rate",
+    ),
+    (
+        "non_interactable_annotation_rate",
+        "non-interactable annotation rate",
+    ),
+    ("affordance_iou", "affordance IoU (U-Net vs ground truth)"),
+    ("object_accuracy", "object-level accuracy"),
+];
+
+/// One curve: (environment steps, value) per episode, in file order.
+pub type Series = Vec<(f64, f64)>;
+
+/// Reads every episode record of a history file into one series per curve.
+pub fn read_curves(run_dir: &Path) -> anyhow::Result<Vec<Series>> {
+    let path = run_dir.join(HISTORY_FILE);
+    let text = std::fs::read_to_string(&path).with_context(|| {
+        format!(
+            "reading {} (is this a run directory of the learner?)",
+            path.display()
+        )
+    })?;
+    let mut curves = vec![Series::new(); CURVES.len()];
+    for (number, line) in text.lines().enumerate() {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let record: serde_json::Value = serde_json::from_str(line)
+            .with_context(|| format!("{} line {}: not JSON", path.display(), number + 1))?;
+        if record["kind"] != "episode" {
+            continue;
+        }
+        let steps = record["env_steps"].as_f64().unwrap_or(0.0);
+        for ((key, _), series) in CURVES.iter().zip(&mut curves) {
+            if let Some(v) = record["stats"][key].as_f64() {
+                series.push((steps, v));
+            }
+        }
+    }
+    Ok(curves)
+}
+
+/// Trailing moving average over `window` points.
+pub fn moving_average(series: &Series, window: usize) -> Series {
+    let window = window.max(1);
+    series
+        .iter()
+        .enumerate()
+        .map(|(i, &(x, _))| {
+            let from = (i + 1).saturating_sub(window);
+            let part = &series[from..=i];
+            (x, part.iter().map(|p| p.1).sum::<f64>() / part.len() as f64)
+        })
+        .collect()
+}
+
+/// Draws the six curves of `run_dir` into `out` (an SVG file).
+pub fn plot(run_dir: &Path, out: &Path, window: usize) -> anyhow::Result<usize> {
+    let curves = read_curves(run_dir)?;
+    let episodes = curves.iter().map(Vec::len).max().unwrap_or(0);
+    anyhow::ensure!(
+        episodes > 0,
+        "{} has no episode records yet: let the run report a few episodes first",
+        run_dir.join(HISTORY_FILE).display()
+    );
+    let max_steps = curves.iter().flatten().map(|p| p.0).fold(1.0f64, f64::max);
+    let root = SVGBackend::new(out, (1500, 860)).into_drawing_area();
+    let draw =
+        |e: Box<dyn std::error::Error + '_>| anyhow::anyhow!("drawing {}: {e}", out.display());
+    root.fill(&WHITE).map_err(|e| draw(Box::new(e)))?;
+    for (panel, ((_, title), series)) in root
+        .split_evenly((2, 3))
+        .iter()
+        .zip(CURVES.iter().zip(&curves))
+    {
+        let top = series.iter().map(|p| p.1).fold(0.0f64, f64::max);
+        let y_max = if top <= 1.0 { 1.0 } else { top * 1.05 };
+        let mut chart = ChartBuilder::on(panel)
+            .caption(*title, ("sans-serif", 18))
+            .margin(12)
+            .x_label_area_size(36)
+            .y_label_area_size(48)
+            .build_cartesian_2d(0.0..max_steps, 0.0..y_max)
+            .map_err(|e| draw(Box::new(e)))?;
+        chart
+            .configure_mesh()
+            .x_desc("environment steps")
+            .x_labels(5)
+            .y_labels(6)
+            .draw()
+            .map_err(|e| draw(Box::new(e)))?;
+        chart
+            .draw_series(
+                series
+                    .iter()
+                    .map(|&p| Circle::new(p, 2, BLUE.mix(0.3).filled())),
+            )
+            .map_err(|e| draw(Box::new(e)))?;
+        chart
+            .draw_series(LineSeries::new(
+                moving_average(series, window),
+                RED.stroke_width(2),
+            ))
+            .map_err(|e| draw(Box::new(e)))?;
+    }
+    root.present().map_err(|e| draw(Box::new(e)))?;
+    Ok(episodes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn moving_average_trails_and_history_records_become_curves() {
+        let s: Series = vec![(1.0, 0.0), (2.0, 1.0), (3.0, 2.0), (4.0, 3.0)];
+        assert_eq!(
+            moving_average(&s, 2),
+            vec![(1.0, 0.0), (2.0, 0.5), (3.0, 1.5), (4.0, 2.5)]
+        );
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join(HISTORY_FILE),
+            "{\"kind\":\"episode\",\"env_steps\":100,\"stats\":{\"affordance_iou\":0.25}}\n\
+             {\"kind\":\"ppo\",\"env_steps\":120}\n\
+             {\"kind\":\"episode\",\"env_steps\":200,\"stats\":{\"affordance_iou\":0.5,\"object_accuracy\":0.75}}\n",
+        )
+        .unwrap();
+        let curves = read_curves(dir.path()).unwrap();
+        assert_eq!(curves[4], vec![(100.0, 0.25), (200.0, 0.5)]);
+        assert_eq!(curves[5], vec![(200.0, 0.75)]);
+        let svg = dir.path().join("curves.svg");
+        assert_eq!(plot(dir.path(), &svg, 5).unwrap(), 2);
+        let text = std::fs::read_to_string(&svg).unwrap();
+        assert!(text.contains("<svg") && text.contains("affordance IoU"));
+        std::fs::write(dir.path().join(HISTORY_FILE), "").unwrap();
+        assert!(plot(dir.path(), &svg, 5)
+            .unwrap_err()
+            .to_string()
+            .contains("no episode records"));
+    }
+}
