@@ -85,6 +85,21 @@ pub fn labelled_frames(view: &FrameBatchView<'_>) -> Vec<LabelledFrame> {
         .collect()
 }
 
+/// An episode's frames converted, after checking they have the task's
+/// `affordances` planes.
+pub fn checked_frames(
+    view: &FrameBatchView<'_>,
+    affordances: usize,
+) -> Result<Vec<LabelledFrame>, FramesError> {
+    if view.n_affordances as usize != affordances {
+        return Err(FramesError::Affordances {
+            got: view.n_affordances,
+            expected: affordances,
+        });
+    }
+    Ok(labelled_frames(view))
+}
+
 impl AffordanceLearner {
     /// A fresh U-Net for `affordances` planes, trained on `device`.
     pub fn new(affordances: usize, settings: &UnetConfig, seed: u64, device: &Device) -> Self {
@@ -112,23 +127,9 @@ impl AffordanceLearner {
         }
     }
 
-    /// Adds an episode's frames (keyed by `episode`, unique over actors);
-    /// returns how many joined.
-    pub fn add_episode(
-        &mut self,
-        episode: u64,
-        view: &FrameBatchView<'_>,
-    ) -> Result<usize, FramesError> {
-        if view.n_affordances as usize != self.affordances {
-            return Err(FramesError::Affordances {
-                got: view.n_affordances,
-                expected: self.affordances,
-            });
-        }
-        let frames = labelled_frames(view);
-        let n = frames.len();
+    /// Adds an episode's frames (keyed by `episode`, unique over actors).
+    pub fn add_episode(&mut self, episode: u64, frames: Vec<LabelledFrame>) {
         self.dataset.add_episode(episode, frames, &mut self.rng);
-        Ok(n)
     }
 
     /// Trains `steps_per_episode` steps on the training split, then gates

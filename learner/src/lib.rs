@@ -15,3 +15,4 @@ pub mod plot;
 pub mod service;
 pub mod status;
 pub mod train;
+pub mod unet_worker;

@@ -88,6 +88,12 @@ pub fn render(s: &StatusSnapshot) -> String {
     );
     counter(
         &mut r,
+        "frames_skipped",
+        "Labelled frames skipped because the U-Net trainer was behind",
+        s.frames_skipped,
+    );
+    counter(
+        &mut r,
         "unet_rounds",
         "Rounds of U-Net training (a few steps each, after every episode's frames)",
         s.unet_rounds,

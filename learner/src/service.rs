@@ -11,12 +11,13 @@ use proto::{decode, Limits, Message, MessageKind};
 use serde::{Deserialize, Serialize};
 use transport::{Delivery, LearnerPorts};
 
-use crate::affordance::AffordanceLearner;
+use crate::affordance::{checked_frames, AffordanceLearner};
 use crate::checkpoint;
 use crate::config::LearnerConfig;
 use crate::history::History;
 use crate::status::LearnerStatus;
 use crate::train::PolicyTrainer;
+use crate::unet_worker::UnetWorker;
 
 /// State shared between the training loop and the HTTP edge.
 pub struct Shared {
@@ -78,20 +79,6 @@ impl Trainers {
             affordance,
         }
     }
-
-    /// Both networks in one safetensors blob, names prefixed `policy.` and `unet.`.
-    pub fn weights_blob(&self) -> anyhow::Result<Vec<u8>> {
-        let policy = self.policy.weights().context("serialising the policy")?;
-        let unet = match &self.affordance {
-            Some(a) => Some(a.deployed_weights().context("serialising the U-Net")?),
-            None => None,
-        };
-        let mut parts: Vec<(&str, &[u8])> = vec![(proto::WEIGHTS_POLICY_PREFIX, &policy)];
-        if let Some(unet) = &unet {
-            parts.push((proto::WEIGHTS_UNET_PREFIX, unet));
-        }
-        nets::weights::bundle(&parts).context("bundling the weights")
-    }
 }
 
 /// The training loop and what it owns.
@@ -100,7 +87,12 @@ pub struct Learner {
     ports: LearnerPorts,
     trainers: Trainers,
     checkpoint_dir: PathBuf,
-    history: History,
+    history: Arc<Mutex<History>>,
+    /// The U-Net thread (tasks with a U-Net), started by `run`.
+    unet_worker: Option<UnetWorker>,
+    /// The deployed U-Net's weights, broadcast and checkpointed.
+    unet_weights: Option<Vec<u8>>,
+    affordances: usize,
     warned: HashSet<(MessageKind, &'static str)>,
     last_checkpoint: Instant,
     updates_at_checkpoint: u64,
@@ -119,12 +111,16 @@ impl Learner {
             .policy
             .set_version(shared.status().policy_version.max(1));
         let updates_at_checkpoint = shared.status().updates;
+        let affordances = shared.config.task.affordances.len();
         Self {
             shared,
             ports,
             trainers,
             checkpoint_dir,
-            history,
+            history: Arc::new(Mutex::new(history)),
+            unet_worker: None,
+            unet_weights: None,
+            affordances,
             warned: HashSet::new(),
             last_checkpoint: Instant::now(),
             updates_at_checkpoint,
@@ -137,6 +133,25 @@ impl Learner {
             let mut status = self.shared.status();
             status.policy_version = status.policy_version.max(1);
         }
+        if let Some(affordance) = self.trainers.affordance.take() {
+            self.unet_weights = Some(
+                affordance
+                    .deployed_weights()
+                    .context("serialising the U-Net")?,
+            );
+            self.unet_worker = Some(UnetWorker::start(
+                affordance,
+                self.shared.clone(),
+                self.history.clone(),
+            )?);
+        }
+        let result = self.serve();
+        let stopped = self.unet_worker.take().map_or(Ok(()), UnetWorker::stop);
+        result.and(stopped)
+    }
+
+    /// The loop proper.
+    fn serve(&mut self) -> anyhow::Result<()> {
         self.publish_weights()?;
         let mut last_maintenance = Instant::now();
         while !self.shared.shutdown.load(Ordering::Relaxed) {
@@ -155,6 +170,14 @@ impl Learner {
                     };
                     self.handle(kind, message.bytes())?;
                 }
+            }
+            if let Some(weights) = self
+                .unet_worker
+                .as_ref()
+                .and_then(UnetWorker::take_deployed)
+            {
+                self.unet_weights = Some(weights);
+                self.publish_weights()?;
             }
             if last_maintenance.elapsed() > Duration::from_millis(250) {
                 self.ports.maintain();
@@ -229,14 +252,17 @@ impl Learner {
                             status.policy_version = self.trainers.policy.version();
                             status.env_steps
                         };
-                        self.history.record(
-                            "ppo",
-                            env_steps,
-                            serde_json::json!({
-                                "policy_version": self.trainers.policy.version(),
-                                "stats": stats,
-                            }),
-                        )?;
+                        self.history
+                            .lock()
+                            .unwrap_or_else(|p| p.into_inner())
+                            .record(
+                                "ppo",
+                                env_steps,
+                                serde_json::json!({
+                                    "policy_version": self.trainers.policy.version(),
+                                    "stats": stats,
+                                }),
+                            )?;
                         self.publish_weights()?;
                     }
                     Ok(None) => {}
@@ -258,51 +284,43 @@ impl Learner {
                     .present()
                     .map(|(f, v)| (f.as_str().to_string(), serde_json::json!(v)))
                     .collect();
-                self.history.record(
-                    "episode",
-                    env_steps,
-                    serde_json::json!({
-                        "actor": header.actor_id,
-                        "episode": stats.episode_id,
-                        "steps": stats.steps,
-                        "scene": stats.scene_index,
-                        "stats": fields,
-                    }),
-                )?;
+                self.history
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .record(
+                        "episode",
+                        env_steps,
+                        serde_json::json!({
+                            "actor": header.actor_id,
+                            "episode": stats.episode_id,
+                            "steps": stats.steps,
+                            "scene": stats.scene_index,
+                            "stats": fields,
+                        }),
+                    )?;
             }
             Message::Frames(frames) => {
-                let Some(affordance) = self.trainers.affordance.as_mut() else {
+                let Some(worker) = self.unet_worker.as_ref() else {
                     return Ok(());
                 };
                 let episode = (u64::from(header.actor_id) << 40) | frames.episode_id;
-                match affordance.add_episode(episode, &frames) {
-                    Ok(n) => self.shared.status().frames_received += n as u64,
+                match checked_frames(&frames, self.affordances) {
+                    Ok(batch) => {
+                        let n = batch.len() as u64;
+                        if worker.offer(episode, batch) {
+                            self.shared.status().frames_received += n;
+                        } else {
+                            self.shared.status().frames_skipped += n;
+                            if self.warned.insert((kind, "unet busy")) {
+                                tracing::warn!("the U-Net trainer is behind: skipping episodes' frames until it catches up (further skips are only counted in frames_skipped)");
+                            }
+                        }
+                    }
                     Err(error) => {
                         self.shared.status().untrainable_chunks += 1;
                         if self.warned.insert((kind, "untrainable")) {
                             tracing::warn!("actor {}: {error}", header.actor_id);
                         }
-                        return Ok(());
-                    }
-                }
-                if let Some(round) = affordance.train_round() {
-                    let replaced = round.replaced;
-                    let (env_steps, unet_version) = {
-                        let mut status = self.shared.status();
-                        status.unet_rounds += 1;
-                        status.last_unet = Some(round);
-                        if replaced {
-                            status.unet_version += 1;
-                        }
-                        (status.env_steps, status.unet_version)
-                    };
-                    self.history.record(
-                        "unet",
-                        env_steps,
-                        serde_json::json!({ "unet_version": unet_version, "round": round }),
-                    )?;
-                    if replaced {
-                        self.publish_weights()?;
                     }
                 }
             }
@@ -316,7 +334,7 @@ impl Learner {
             let status = self.shared.status();
             (status.policy_version, status.unet_version)
         };
-        let blob = self.trainers.weights_blob()?;
+        let blob = self.weights_blob()?;
         match self
             .ports
             .publish_weights(policy_version, unet_version, &blob)?
@@ -328,6 +346,20 @@ impl Learner {
             ),
         }
         Ok(())
+    }
+
+    /// Both networks in one safetensors blob, names prefixed `policy.` and `unet.`.
+    fn weights_blob(&self) -> anyhow::Result<Vec<u8>> {
+        let policy = self
+            .trainers
+            .policy
+            .weights()
+            .context("serialising the policy")?;
+        let mut parts: Vec<(&str, &[u8])> = vec![(proto::WEIGHTS_POLICY_PREFIX, &policy)];
+        if let Some(unet) = &self.unet_weights {
+            parts.push((proto::WEIGHTS_UNET_PREFIX, unet));
+        }
+        nets::weights::bundle(&parts).context("bundling the weights")
     }
 
     fn checkpoint_due(&self) -> bool {
@@ -355,7 +387,7 @@ impl Learner {
                 unet_version: status.unet_version,
             }
         };
-        let weights = self.trainers.weights_blob()?;
+        let weights = self.weights_blob()?;
         let counters_json = serde_json::to_vec_pretty(&counters)?;
         let dir = checkpoint::write(
             &self.checkpoint_dir,

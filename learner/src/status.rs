@@ -59,8 +59,10 @@ pub struct LearnerStatus {
     pub untrainable_chunks: u64,
     /// Latest update's statistics.
     pub last_update: Option<PpoStats>,
-    /// Labelled frames received.
+    /// Labelled frames received and queued for the U-Net.
     pub frames_received: u64,
+    /// Labelled frames skipped because the U-Net trainer was behind.
+    pub frames_skipped: u64,
     /// Rounds of U-Net training.
     pub unet_rounds: u64,
     /// Latest U-Net round.
@@ -106,8 +108,10 @@ pub struct StatusSnapshot {
     pub untrainable_chunks: u64,
     /// Latest update's statistics.
     pub last_update: Option<PpoStats>,
-    /// Labelled frames received.
+    /// Labelled frames received and queued for the U-Net.
     pub frames_received: u64,
+    /// Labelled frames skipped because the U-Net trainer was behind.
+    pub frames_skipped: u64,
     /// Rounds of U-Net training.
     pub unet_rounds: u64,
     /// Latest U-Net round.
@@ -169,6 +173,7 @@ impl LearnerStatus {
             untrainable_chunks: 0,
             last_update: None,
             frames_received: 0,
+            frames_skipped: 0,
             unet_rounds: 0,
             last_unet: None,
             last_episode: BTreeMap::new(),
@@ -292,6 +297,7 @@ impl LearnerStatus {
             untrainable_chunks: self.untrainable_chunks,
             last_update: self.last_update,
             frames_received: self.frames_received,
+            frames_skipped: self.frames_skipped,
             unet_rounds: self.unet_rounds,
             last_unet: self.last_unet,
             last_episode: self

@@ -1,0 +1,108 @@
+//! U-Net training on its own thread, so the policy loop keeps taking
+//! rollouts while the U-Net trains: episodes' frames go in through a bounded
+//! queue (when it is full the episode is skipped and counted, never queued
+//! without bound), and each network that passes the validation gate comes
+//! back as safetensors bytes for the next weights broadcast.
+
+use std::sync::mpsc::{self, Receiver, SyncSender, TrySendError};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+
+use anyhow::Context;
+use training::affordance::LabelledFrame;
+
+use crate::affordance::AffordanceLearner;
+use crate::history::History;
+use crate::service::Shared;
+
+/// Episodes waiting for the U-Net thread at most.
+const QUEUE_EPISODES: usize = 4;
+
+/// One episode's frames, keyed uniquely over actors.
+type Episode = (u64, Vec<LabelledFrame>);
+
+/// The running U-Net thread.
+pub struct UnetWorker {
+    frames: Option<SyncSender<Episode>>,
+    deployed: Receiver<Vec<u8>>,
+    thread: Option<JoinHandle<anyhow::Result<()>>>,
+}
+
+impl UnetWorker {
+    /// Starts training `learner` on a thread of its own.
+    pub fn start(
+        mut learner: AffordanceLearner,
+        shared: Arc<Shared>,
+        history: Arc<Mutex<History>>,
+    ) -> anyhow::Result<Self> {
+        let (frames, inbox) = mpsc::sync_channel::<Episode>(QUEUE_EPISODES);
+        let (outbox, deployed) = mpsc::channel();
+        let thread = std::thread::Builder::new()
+            .name("unet-training".into())
+            .spawn(move || -> anyhow::Result<()> {
+                // Ends when the loop drops its sender.
+                while let Ok((episode, batch)) = inbox.recv() {
+                    learner.add_episode(episode, batch);
+                    while let Ok((episode, batch)) = inbox.try_recv() {
+                        learner.add_episode(episode, batch);
+                    }
+                    let Some(round) = learner.train_round() else {
+                        continue;
+                    };
+                    let (env_steps, unet_version) = {
+                        let mut status = shared.status();
+                        status.unet_rounds += 1;
+                        status.last_unet = Some(round);
+                        if round.replaced {
+                            status.unet_version += 1;
+                        }
+                        (status.env_steps, status.unet_version)
+                    };
+                    history.lock().unwrap_or_else(|p| p.into_inner()).record(
+                        "unet",
+                        env_steps,
+                        serde_json::json!({ "unet_version": unet_version, "round": round }),
+                    )?;
+                    if round.replaced {
+                        let weights = learner
+                            .deployed_weights()
+                            .context("serialising the U-Net")?;
+                        if outbox.send(weights).is_err() {
+                            break;
+                        }
+                    }
+                }
+                Ok(())
+            })
+            .context("starting the U-Net training thread")?;
+        Ok(Self {
+            frames: Some(frames),
+            deployed,
+            thread: Some(thread),
+        })
+    }
+
+    /// Hands an episode's frames to the thread; false (and nothing queued)
+    /// when the thread is still busy with earlier episodes.
+    pub fn offer(&self, episode: u64, frames: Vec<LabelledFrame>) -> bool {
+        match self.frames.as_ref().map(|s| s.try_send((episode, frames))) {
+            Some(Ok(())) => true,
+            Some(Err(TrySendError::Full(_) | TrySendError::Disconnected(_))) | None => false,
+        }
+    }
+
+    /// The newest network that passed the gate since the last call, if any.
+    pub fn take_deployed(&self) -> Option<Vec<u8>> {
+        self.deployed.try_iter().last()
+    }
+
+    /// Stops the thread after its current round; its error, if it failed.
+    pub fn stop(mut self) -> anyhow::Result<()> {
+        self.frames = None;
+        match self.thread.take().map(JoinHandle::join) {
+            Some(Ok(result)) => result,
+            Some(Err(_)) => anyhow::bail!("the U-Net training thread panicked"),
+            None => Ok(()),
+        }
+    }
+}
