@@ -16,8 +16,16 @@ Options:
   --actors N        number of actor processes (required)
   --run-dir DIR     run directory (config, checkpoints, logs); default runs/run-<time>
   --resume          resume the run in --run-dir from its newest valid checkpoint
-  --env ENV         actor environment (default bandit-fixture: a wiring test
-                    fixture until the simulator lands; see `actor --help`)
+  --method M        ours (default), nomap-seg, nomap-noseg or intexp; only
+                    `ours` runs so far (the GRU methods need recurrent rollouts)
+  --env ENV         sim (default: simulator, map, U-Net, labeler) or
+                    bandit-fixture (a wiring test fixture)
+  --image-size N    camera and map side in pixels, a multiple of 16 (default 128,
+                    the paper's; 64 runs about 4x faster on a small CPU)
+  --episode-steps N steps per episode (default 600, the paper's)
+  --data DIR        shared data (iTHOR rooms, object catalogue); default ../shared/data
+  --scenes S        ithor (the 20 training rooms, default) or generated
+  --renderer R      gpu (wgpu: a GPU or Mesa lavapipe, default) or cpu
   --port PORT       HTTP port of the learner's metrics endpoint (default 9464)
   --debug           use debug builds (faster to build, slower to run)
   -h, --help        this help
@@ -25,14 +33,21 @@ Everything after `--` is passed to `learner serve`.
 USAGE
 }
 
-ACTORS="" RUN_DIR="" RESUME=0 ENV_KIND="bandit-fixture" PORT=9464 PROFILE=release
+ACTORS="" RUN_DIR="" RESUME=0 PORT=9464 PROFILE=release
+TASK_ARGS=() ACTOR_ARGS=() METHOD=ours ENV_KIND=sim
 EXTRA=()
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --actors) ACTORS="${2:?--actors needs a number}"; shift 2 ;;
     --run-dir) RUN_DIR="${2:?--run-dir needs a directory}"; shift 2 ;;
     --resume) RESUME=1; shift ;;
-    --env) ENV_KIND="${2:?--env needs a value}"; shift 2 ;;
+    --method) METHOD="${2:?--method needs a value}"; TASK_ARGS+=(--method "$METHOD"); shift 2 ;;
+    --env) ENV_KIND="${2:?--env needs a value}"; TASK_ARGS+=(--env "$ENV_KIND"); shift 2 ;;
+    --image-size) TASK_ARGS+=(--image-size "${2:?--image-size needs a number}"); shift 2 ;;
+    --episode-steps) TASK_ARGS+=(--episode-steps "${2:?--episode-steps needs a number}"); shift 2 ;;
+    --data) ACTOR_ARGS+=(--data "$(cd "${2:?--data needs a directory}" && pwd)"); shift 2 ;;
+    --scenes) ACTOR_ARGS+=(--scenes "${2:?--scenes needs a value}"); shift 2 ;;
+    --renderer) ACTOR_ARGS+=(--renderer "${2:?--renderer needs a value}"); shift 2 ;;
     --port) PORT="${2:?--port needs a number}"; shift 2 ;;
     --debug) PROFILE=debug; shift ;;
     -h|--help) usage; exit 0 ;;
@@ -81,7 +96,12 @@ STOP_FILE="$LOGS/.stopping"
 rm -f "$STOP_FILE" "$RUN_DIR/http.addr"
 
 LEARNER_ARGS=(serve --service-prefix "$PREFIX" --max-actors "$ACTORS" --http-addr "127.0.0.1:$PORT")
-if [[ $RESUME -eq 1 ]]; then LEARNER_ARGS+=(--resume "$RUN_DIR"); else LEARNER_ARGS+=(--run-dir "$RUN_DIR"); fi
+if [[ $RESUME -eq 1 ]]; then
+  [[ ${#TASK_ARGS[@]} -eq 0 ]] || echo "local.sh: resuming: the run's saved task is used; ignoring ${TASK_ARGS[*]}" >&2
+  LEARNER_ARGS+=(--resume "$RUN_DIR")
+else
+  LEARNER_ARGS+=(--run-dir "$RUN_DIR" "${TASK_ARGS[@]}")
+fi
 echo "starting the learner (log: $LOGS/learner.log)"
 "$BIN/learner" "${LEARNER_ARGS[@]}" "${EXTRA[@]}" >>"$LOGS/learner.log" 2>&1 &
 LEARNER_PID=$!
@@ -99,7 +119,7 @@ curl -fsS --retry 20 --retry-delay 0 --retry-connrefused "http://$ADDR/healthz" 
 supervise_actor() {
   local id=$1 restarts=0 backoff=1 code
   while :; do
-    "$BIN/actor" --actor-id "$id" --learner "$PREFIX" --config "$RUN_DIR/config.toml" --env "$ENV_KIND" \
+    "$BIN/actor" --actor-id "$id" --learner "$PREFIX" --config "$RUN_DIR/config.toml" --seed "$id" "${ACTOR_ARGS[@]}" \
       >>"$LOGS/actor-$id.log" 2>&1 &
     echo $! >"$LOGS/actor-$id.pid"
     code=0; wait $! || code=$?
@@ -138,7 +158,8 @@ trap shutdown INT TERM
 echo "run:      $RUN_DIR"
 echo "metrics:  http://$ADDR/metrics"
 echo "status:   http://$ADDR/api/status   (curl -s http://$ADDR/api/status)"
-echo "actors:   $ACTORS x $ENV_KIND, logs in $LOGS; Ctrl-C to stop"
+echo "actors:   $ACTORS x $ENV_KIND ($METHOD), logs in $LOGS; Ctrl-C to stop"
+echo "curves:   $BIN/learner plot --run-dir $RUN_DIR"
 
 code=0; wait "$LEARNER_PID" || code=$?
 if [[ ! -e "$STOP_FILE" ]]; then

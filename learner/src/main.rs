@@ -71,6 +71,24 @@ struct ServeArgs {
     /// Where the networks train: cpu, or gpu in a build with `--features nets/gpu` (overrides the config).
     #[arg(long)]
     device: Option<String>,
+    /// Method: ours, nomap-seg, nomap-noseg or intexp (overrides [task] method; only `ours` runs so far).
+    #[arg(long, conflicts_with = "resume")]
+    method: Option<String>,
+    /// Actors' environment: sim, or bandit-fixture (a wiring test) (overrides [task] env).
+    #[arg(long, conflicts_with = "resume")]
+    env: Option<String>,
+    /// Side of the camera images and maps in pixels, a multiple of 16 (overrides [task] image_size).
+    #[arg(long, conflicts_with = "resume")]
+    image_size: Option<usize>,
+    /// Steps per episode (overrides [task] episode_steps).
+    #[arg(long, conflicts_with = "resume")]
+    episode_steps: Option<usize>,
+}
+
+/// Parses a kebab-case enum value the way the config file spells it.
+fn parse_value<T: serde::de::DeserializeOwned>(flag: &str, value: &str) -> anyhow::Result<T> {
+    T::deserialize(serde::de::value::StrDeserializer::<serde::de::value::Error>::new(value))
+        .map_err(|e| anyhow::anyhow!("{flag} {value:?}: {e}"))
 }
 
 fn main() -> anyhow::Result<()> {
@@ -136,6 +154,18 @@ fn load_config(args: &ServeArgs, run_dir: &Path) -> anyhow::Result<LearnerConfig
     }
     if let Some(device) = &args.device {
         config.device = device.clone();
+    }
+    if let Some(method) = &args.method {
+        config.task.method = parse_value("--method", method)?;
+    }
+    if let Some(env) = &args.env {
+        config.task.env = parse_value("--env", env)?;
+    }
+    if let Some(size) = args.image_size {
+        config.task.image_size = size;
+    }
+    if let Some(steps) = args.episode_steps {
+        config.task.episode_steps = steps;
     }
     config.validate()?;
     Ok(config)
