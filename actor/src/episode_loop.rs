@@ -12,7 +12,7 @@ use nets::sample;
 use nets::weights::{load_safetensors, unbundle};
 use proto::{
     EpisodeStats, FrameBatch, Limits, Message, ObsDtype, RolloutChunk, StatField,
-    WEIGHTS_POLICY_PREFIX, WEIGHTS_UNET_PREFIX,
+    WEIGHTS_META_ENV_STEPS, WEIGHTS_META_TEMPERATURE, WEIGHTS_POLICY_PREFIX, WEIGHTS_UNET_PREFIX,
 };
 use rand::rngs::SmallRng;
 use rand::{Rng, SeedableRng};
@@ -88,6 +88,11 @@ fn load_weights(
     load_safetensors(&mut net, policy_bytes).context(
         "the learner's policy does not fit this actor's task (start the actor with the learner's config.toml: --config RUN_DIR/config.toml)",
     )?;
+    let metadata = nets::weights::metadata(weights.bytes()).unwrap_or_default();
+    let number = |key: &str| metadata.get(key).and_then(|v| v.parse::<f64>().ok());
+    if let Some(steps) = number(WEIGHTS_META_ENV_STEPS) {
+        env.set_global_steps(steps as u64);
+    }
     let has_unet = weights
         .tensors()
         .names()
@@ -95,8 +100,12 @@ fn load_weights(
         .any(|n| n.starts_with(WEIGHTS_UNET_PREFIX));
     let unet_changed = current.is_none_or(|p| p.unet_version != header.unet_version);
     if has_unet && unet_changed {
-        env.load_unet(unbundle(weights.bytes(), WEIGHTS_UNET_PREFIX)?)?;
-        eprintln!("actor: loaded U-Net version {}", header.unet_version);
+        let temperature = number(WEIGHTS_META_TEMPERATURE).unwrap_or(1.0) as f32;
+        env.load_unet(unbundle(weights.bytes(), WEIGHTS_UNET_PREFIX)?, temperature)?;
+        eprintln!(
+            "actor: loaded U-Net version {} (temperature {temperature:.3})",
+            header.unet_version
+        );
     }
     Ok(Policy {
         net,

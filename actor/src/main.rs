@@ -170,6 +170,7 @@ fn sim_environment(
     let config = SimEnvConfig {
         episode_steps: task.episode_steps,
         balanced_frames: task.balanced_frames,
+        confidence_after_steps: Some(task.confidence_after_steps),
         ..SimEnvConfig::paper(&task.affordances)
     };
     let model = AffordanceModel::new(task.affordances.len(), device);

@@ -5,6 +5,7 @@ use actor::env::actions::random_allowed_action;
 use actor::env::affordance_model::AffordanceModel;
 use actor::env::sim_env::{SimEnv, SimEnvConfig, SimObservation};
 use mapper::Affordance;
+use proto::{StatField, LABEL_UNKNOWN};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use sim::ithor::SceneSet;
@@ -79,8 +80,22 @@ fn an_episode_runs_labels_and_repeats_exactly() {
     assert!(interactions > 0);
     let timings = env.last_timings();
     println!("last step: {timings:?}");
-    let batch = env.finish_episode(9).unwrap();
+    let summary = env.finish_episode(9).unwrap();
+    let batch = summary.frames;
     assert_eq!(batch.n_affordances, 2);
+    let stats: std::collections::HashMap<_, _> = summary.stats.into_iter().collect();
+    println!("episode metrics: {stats:?}");
+    for field in [
+        StatField::InteractionSuccessRate,
+        StatField::InteractedObjectRate,
+        StatField::InteractableAnnotationRate,
+        StatField::NonInteractableAnnotationRate,
+        StatField::AffordanceIou,
+        StatField::ObjectAccuracy,
+    ] {
+        let v = stats[&field];
+        assert!((0.0..=1.0).contains(&v), "{field:?} = {v}");
+    }
     assert!(batch.n_frames() <= steps + 1);
     println!("labelled frames: {}", batch.n_frames());
 
@@ -91,4 +106,28 @@ fn an_episode_runs_labels_and_repeats_exactly() {
         env.step(99).is_err(),
         "an action outside the space is an error"
     );
+}
+
+/// Labelled pixels of a batch.
+fn labelled(batch: &proto::FrameBatch) -> usize {
+    batch.labels.iter().filter(|&&l| l != LABEL_UNKNOWN).count()
+}
+
+#[test]
+fn annotation_by_confidence_starts_at_the_configured_global_step() {
+    let steps = 12;
+    let mut env = environment(steps);
+    // A near-zero temperature makes every probability 0 or 1: the U-Net is
+    // "sure" about every object, so every untouched object gets a label.
+    env.model_mut().temperature = 1e-3;
+    run(&mut env, 5, steps);
+    env.set_global_steps(399_999);
+    assert!(!env.annotates_by_confidence());
+    let before = labelled(&env.finish_episode(1).unwrap().frames);
+    run(&mut env, 5, steps);
+    env.set_global_steps(400_000);
+    assert!(env.annotates_by_confidence());
+    let after = labelled(&env.finish_episode(2).unwrap().frames);
+    println!("labelled pixels: {before} by interaction only, {after} with confidence");
+    assert!(after > before, "{after} <= {before}");
 }

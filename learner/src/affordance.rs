@@ -10,8 +10,11 @@ use proto::{FrameBatchView, LABEL_UNKNOWN};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use serde::Serialize;
-use training::affordance::{Evaluation, LabelledFrame, UnetTrainer, UnetTrainingConfig, UNKNOWN};
-use training::dataset::{validation_gate, AffordanceDataset, DatasetConfig};
+use training::affordance::{
+    predict_logits, Evaluation, LabelledFrame, UnetTrainer, UnetTrainingConfig, UNKNOWN,
+};
+use training::dataset::{validation_gate, AffordanceDataset, DatasetConfig, Split};
+use training::temperature::fit_temperature;
 
 use crate::config::UnetConfig;
 
@@ -43,6 +46,8 @@ pub struct UnetRound {
     pub deployed_iou: f32,
     /// Whether the trained network now replaces the deployed one.
     pub replaced: bool,
+    /// Temperature of the deployed network, fitted on validation when it was replaced.
+    pub temperature: f32,
     /// Frames in the dataset: train, validation, test.
     pub frames: (usize, usize, usize),
 }
@@ -56,6 +61,7 @@ pub struct AffordanceLearner {
     affordances: usize,
     device: Device,
     rng: StdRng,
+    temperature: f32,
 }
 
 /// An episode's frames in the U-Net's layout: planar RGB in 0..1 and depth.
@@ -117,6 +123,7 @@ impl AffordanceLearner {
             affordances,
             device: device.clone(),
             rng: StdRng::seed_from_u64(seed ^ 0x5eed_a11),
+            temperature: 1.0,
         }
     }
 
@@ -158,6 +165,7 @@ impl AffordanceLearner {
             &self.device,
         );
         if gate.replace {
+            self.temperature = self.fit_temperature(&candidate);
             self.deployed = candidate;
         }
         let Evaluation { loss, iou, .. } = gate.candidate;
@@ -168,8 +176,35 @@ impl AffordanceLearner {
             deployed_loss: gate.deployed.loss,
             deployed_iou: gate.deployed.iou,
             replaced: gate.replace,
+            temperature: self.temperature,
             frames: self.dataset.sizes(),
         })
+    }
+
+    /// Temperature scaling of `net` on the newest validation frames'
+    /// labelled pixels, so that the actors' confidence labels rest on
+    /// calibrated probabilities.
+    fn fit_temperature(&self, net: &AffordanceUnet) -> f32 {
+        let frames = self.dataset.frames(Split::Validation);
+        let newest = &frames[frames
+            .len()
+            .saturating_sub(self.settings.max_validation_frames)..];
+        let (mut logits, mut labels) = (Vec::new(), Vec::new());
+        for frame in newest {
+            let predicted = predict_logits(net, frame, &self.device);
+            for (&l, &label) in predicted.iter().zip(&frame.labels) {
+                if label != UNKNOWN {
+                    logits.push(l);
+                    labels.push(label == 1);
+                }
+            }
+        }
+        fit_temperature(&logits, &labels)
+    }
+
+    /// The deployed network's calibration temperature.
+    pub fn temperature(&self) -> f32 {
+        self.temperature
     }
 
     /// The deployed network's weights (what the actors should use).
@@ -177,8 +212,10 @@ impl AffordanceLearner {
         to_safetensors(&self.deployed)
     }
 
-    /// Continues from saved deployed weights (training restarts from them).
-    pub fn restore(&mut self, bytes: Vec<u8>) -> Result<(), WeightsError> {
+    /// Continues from saved deployed weights and temperature (training
+    /// restarts from them).
+    pub fn restore(&mut self, bytes: Vec<u8>, temperature: f32) -> Result<(), WeightsError> {
+        self.temperature = temperature;
         let mut net = AffordanceUnet::new(4, self.affordances, &self.device);
         load_safetensors(&mut net, bytes)?;
         self.trainer = UnetTrainer::new(net.clone(), Self::training(&self.settings), &self.device);

@@ -90,8 +90,8 @@ pub struct Learner {
     history: Arc<Mutex<History>>,
     /// The U-Net thread (tasks with a U-Net), started by `run`.
     unet_worker: Option<UnetWorker>,
-    /// The deployed U-Net's weights, broadcast and checkpointed.
-    unet_weights: Option<Vec<u8>>,
+    /// The deployed U-Net's weights and temperature, broadcast and checkpointed.
+    unet_weights: Option<(Vec<u8>, f32)>,
     affordances: usize,
     warned: HashSet<(MessageKind, &'static str)>,
     last_checkpoint: Instant,
@@ -134,11 +134,12 @@ impl Learner {
             status.policy_version = status.policy_version.max(1);
         }
         if let Some(affordance) = self.trainers.affordance.take() {
-            self.unet_weights = Some(
+            self.unet_weights = Some((
                 affordance
                     .deployed_weights()
                     .context("serialising the U-Net")?,
-            );
+                affordance.temperature(),
+            ));
             self.unet_worker = Some(UnetWorker::start(
                 affordance,
                 self.shared.clone(),
@@ -356,10 +357,18 @@ impl Learner {
             .weights()
             .context("serialising the policy")?;
         let mut parts: Vec<(&str, &[u8])> = vec![(proto::WEIGHTS_POLICY_PREFIX, &policy)];
-        if let Some(unet) = &self.unet_weights {
+        let mut metadata = std::collections::HashMap::from([(
+            proto::WEIGHTS_META_ENV_STEPS.to_string(),
+            self.shared.status().env_steps.to_string(),
+        )]);
+        if let Some((unet, temperature)) = &self.unet_weights {
             parts.push((proto::WEIGHTS_UNET_PREFIX, unet));
+            metadata.insert(
+                proto::WEIGHTS_META_TEMPERATURE.to_string(),
+                temperature.to_string(),
+            );
         }
-        nets::weights::bundle(&parts).context("bundling the weights")
+        nets::weights::bundle(&parts, metadata).context("bundling the weights")
     }
 
     fn checkpoint_due(&self) -> bool {
@@ -457,8 +466,12 @@ pub fn resume(
             )
         })?;
     if let Some(affordance) = trainers.affordance.as_mut() {
+        let temperature = nets::weights::metadata(weights)
+            .ok()
+            .and_then(|m| m.get(proto::WEIGHTS_META_TEMPERATURE)?.parse().ok())
+            .unwrap_or(1.0);
         affordance
-            .restore(restore(proto::WEIGHTS_UNET_PREFIX)?)
+            .restore(restore(proto::WEIGHTS_UNET_PREFIX)?, temperature)
             .with_context(|| format!("loading the U-Net from {}", loaded.dir.display()))?;
     }
     status.env_steps = counters.env_steps;

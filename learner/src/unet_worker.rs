@@ -24,7 +24,7 @@ type Episode = (u64, Vec<LabelledFrame>);
 /// The running U-Net thread.
 pub struct UnetWorker {
     frames: Option<SyncSender<Episode>>,
-    deployed: Receiver<Vec<u8>>,
+    deployed: Receiver<(Vec<u8>, f32)>,
     thread: Option<JoinHandle<anyhow::Result<()>>>,
 }
 
@@ -67,7 +67,7 @@ impl UnetWorker {
                         let weights = learner
                             .deployed_weights()
                             .context("serialising the U-Net")?;
-                        if outbox.send(weights).is_err() {
+                        if outbox.send((weights, learner.temperature())).is_err() {
                             break;
                         }
                     }
@@ -91,8 +91,9 @@ impl UnetWorker {
         }
     }
 
-    /// The newest network that passed the gate since the last call, if any.
-    pub fn take_deployed(&self) -> Option<Vec<u8>> {
+    /// The newest network that passed the gate since the last call, if any,
+    /// with its calibration temperature.
+    pub fn take_deployed(&self) -> Option<(Vec<u8>, f32)> {
         self.deployed.try_iter().last()
     }
 

@@ -96,6 +96,9 @@ pub struct TaskSpec {
     /// Send only frames with both positive and negative labels (the paper's
     /// rule); off, every frame with any label is sent.
     pub balanced_frames: bool,
+    /// Environment steps of the whole run (all actors) after which annotation
+    /// by confidence starts (the paper's 400 000).
+    pub confidence_after_steps: u64,
 }
 
 impl Default for TaskSpec {
@@ -107,6 +110,7 @@ impl Default for TaskSpec {
             image_size: 128,
             episode_steps: 600,
             balanced_frames: true,
+            confidence_after_steps: 400_000,
         }
     }
 }

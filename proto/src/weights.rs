@@ -14,6 +14,10 @@ use crate::{MessageKind, ProtoError};
 pub const WEIGHTS_POLICY_PREFIX: &str = "policy.";
 /// Name prefix of U-Net tensors.
 pub const WEIGHTS_UNET_PREFIX: &str = "unet.";
+/// Header metadata key: environment steps the learner had received when it sent the blob.
+pub const WEIGHTS_META_ENV_STEPS: &str = "env_steps";
+/// Header metadata key: temperature calibrating the U-Net's logits (`sigmoid(logit / T)`).
+pub const WEIGHTS_META_TEMPERATURE: &str = "unet_temperature";
 
 /// A validated safetensors blob.
 pub struct WeightsView<'a> {

@@ -37,7 +37,7 @@ fn frames_train_the_unet_and_new_weights_reach_both_actors() {
     std::fs::write(
         &config,
         format!(
-            "[task]\nenv = \"sim\"\nmethod = \"ours\"\naffordances = [\"pick_up\", \"push\"]\nimage_size = 64\nepisode_steps = 16\nbalanced_frames = false\n\
+            "[task]\nenv = \"sim\"\nmethod = \"ours\"\naffordances = [\"pick_up\", \"push\"]\nimage_size = 64\nepisode_steps = 16\nbalanced_frames = false\nconfidence_after_steps = 0\n\
              [policy]\nbatch_steps = 16\nepochs = 2\n\
              [unet]\nsteps_per_episode = 3\nbatch_frames = 4\nvalidation_fraction = 0.5\ntest_fraction = 0.0\n\
              [transport]\nservice_prefix = \"{prefix}\"\nmax_actors = 2\n"

@@ -97,9 +97,10 @@ impl Environment for BanditFixture {
             )],
         })
     }
-    fn load_unet(&mut self, _weights: Vec<u8>) -> anyhow::Result<()> {
+    fn load_unet(&mut self, _weights: Vec<u8>, _temperature: f32) -> anyhow::Result<()> {
         Ok(())
     }
+    fn set_global_steps(&mut self, _steps: u64) {}
 }
 
 #[cfg(test)]

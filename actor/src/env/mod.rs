@@ -57,6 +57,9 @@ pub trait Environment {
     fn step(&mut self, action: u32) -> anyhow::Result<Transition>;
     /// Ends the episode: labelled frames and metrics.
     fn finish_episode(&mut self, episode_id: u64) -> anyhow::Result<EpisodeEnd>;
-    /// Takes new U-Net weights (safetensors bytes) from the learner.
-    fn load_unet(&mut self, weights: Vec<u8>) -> anyhow::Result<()>;
+    /// Takes new U-Net weights (safetensors bytes) and their calibration
+    /// temperature from the learner.
+    fn load_unet(&mut self, weights: Vec<u8>, temperature: f32) -> anyhow::Result<()>;
+    /// The run's environment steps over all actors, as the learner last reported them.
+    fn set_global_steps(&mut self, steps: u64);
 }

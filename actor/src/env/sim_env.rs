@@ -26,7 +26,10 @@ use crate::env::actions::{cell_targets, ActionSpace, CellTargets, PolicyAction, 
 use crate::env::affordance_model::AffordanceModel;
 use crate::env::reward::{RewardTracker, RewardWeights, StepEvent};
 use crate::env::state::{build_state, ActionHistory, State, StateConfig, StateInputs};
-use crate::labeler::{frame_batch, map_labels, EpisodeFrame};
+use crate::labeler::{
+    apply_confidence_labels, confidence_labels, frame_batch, map_labels, ConfidenceRule,
+    EpisodeFrame,
+};
 use crate::mapping::{intrinsics, map_frame};
 use crate::metrics::{annotation_rates, score_frame};
 
@@ -45,6 +48,11 @@ pub struct SimEnvConfig {
     pub map: MapConfig,
     /// Send only frames with both label classes.
     pub balanced_frames: bool,
+    /// Annotate by confidence once the run has taken this many steps (all
+    /// actors); `None`: never.
+    pub confidence_after_steps: Option<u64>,
+    /// The thresholds of annotation by confidence.
+    pub confidence: ConfidenceRule,
 }
 
 impl SimEnvConfig {
@@ -57,6 +65,8 @@ impl SimEnvConfig {
             selection: SelectionRule::default(),
             map: MapConfig::default(),
             balanced_frames: true,
+            confidence_after_steps: Some(400_000),
+            confidence: ConfidenceRule::default(),
         }
     }
 }
@@ -111,6 +121,7 @@ pub struct SimEnv {
     state_config: StateConfig,
     episode: Option<Episode>,
     timings: StepTimings,
+    global_steps: u64,
 }
 
 /// One episode's working state.
@@ -132,6 +143,9 @@ struct Episode {
     truth: Vec<Vec<bool>>,
     /// The simulator's instance ids of every frame (object index + 1).
     truth_ids: Vec<Vec<u32>>,
+    /// The U-Net's calibrated probabilities of every frame, one byte per
+    /// pixel and affordance (planes in order), for annotation by confidence.
+    probabilities: Vec<Vec<u8>>,
     /// Per affordance: sums and counts of the U-Net's frame IoU and object accuracy.
     scores: Vec<ScoreSums>,
     /// Interactions tried and those that succeeded.
@@ -186,7 +200,21 @@ impl SimEnv {
             state_config,
             episode: None,
             timings: StepTimings::default(),
+            global_steps: 0,
         }
+    }
+
+    /// The run's steps over all actors (from the learner): annotation by
+    /// confidence starts when they reach the configured number.
+    pub fn set_global_steps(&mut self, steps: u64) {
+        self.global_steps = steps;
+    }
+
+    /// Whether episodes now end with annotation by confidence.
+    pub fn annotates_by_confidence(&self) -> bool {
+        self.config
+            .confidence_after_steps
+            .is_some_and(|after| self.global_steps >= after)
     }
 
     /// The action space.
@@ -245,6 +273,7 @@ impl SimEnv {
         self.episode = Some(Episode {
             truth,
             truth_ids: Vec::new(),
+            probabilities: Vec::new(),
             scores: vec![ScoreSums::default(); self.config.affordances.len()],
             attempts: 0,
             successes: 0,
@@ -450,6 +479,13 @@ impl SimEnv {
         );
         let mask = self.space.mask(holding, &episode.targets);
         episode.truth_ids.push(frame.ids);
+        episode.probabilities.push(
+            probabilities
+                .iter()
+                .flatten()
+                .map(|&p| (p.clamp(0.0, 1.0) * 255.0).round() as u8)
+                .collect(),
+        );
         episode.frames.push(EpisodeFrame {
             rgb: frame.rgb,
             depth_m: frame.depth_m,
@@ -470,7 +506,32 @@ impl SimEnv {
     /// labels through the map, remembered for objects the map dropped) and
     /// its metrics against the simulator's ground truth.
     pub fn finish_episode(&mut self, episode_id: u64) -> anyhow::Result<EpisodeSummary> {
-        let episode = self.episode.take().context("finish before reset")?;
+        let confidence = self.annotates_by_confidence();
+        let mut episode = self.episode.take().context("finish before reset")?;
+        if confidence {
+            let pixels = self.profile.image_size * self.profile.image_size;
+            for (plane, &affordance) in self.config.affordances.iter().enumerate() {
+                let planes: Vec<Vec<f32>> = episode
+                    .probabilities
+                    .iter()
+                    .map(|p| {
+                        p[plane * pixels..(plane + 1) * pixels]
+                            .iter()
+                            .map(|&b| f32::from(b) / 255.0)
+                            .collect()
+                    })
+                    .collect();
+                let decided = confidence_labels(
+                    &episode.map,
+                    &episode.frames,
+                    &planes,
+                    affordance,
+                    &self.config.confidence,
+                );
+                apply_confidence_labels(&mut episode.map, affordance, &decided)
+                    .context("storing confidence labels on the map")?;
+            }
+        }
         let labels = map_labels(
             &episode.map,
             &episode.remembered,

@@ -102,10 +102,16 @@ impl Environment for SimEnvironment {
         })
     }
 
-    fn load_unet(&mut self, weights: Vec<u8>) -> anyhow::Result<()> {
-        self.env
-            .model_mut()
+    fn load_unet(&mut self, weights: Vec<u8>, temperature: f32) -> anyhow::Result<()> {
+        let model = self.env.model_mut();
+        model
             .load_weights(weights)
-            .context("loading the learner's U-Net")
+            .context("loading the learner's U-Net")?;
+        model.temperature = temperature;
+        Ok(())
+    }
+
+    fn set_global_steps(&mut self, steps: u64) {
+        self.env.set_global_steps(steps);
     }
 }

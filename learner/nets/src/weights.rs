@@ -21,9 +21,13 @@ pub enum WeightsError {
 }
 
 /// Puts several networks' safetensors bytes into one file, each tensor name
-/// prefixed with its network's prefix (`policy.`, `unet.`): the weights
-/// message and the checkpoint carry both networks in one blob.
-pub fn bundle(parts: &[(&str, &[u8])]) -> Result<Vec<u8>, WeightsError> {
+/// prefixed with its network's prefix (`policy.`, `unet.`), with `metadata`
+/// in the file's header: the weights message and the checkpoint carry both
+/// networks and the learner's side information in one blob.
+pub fn bundle(
+    parts: &[(&str, &[u8])],
+    metadata: std::collections::HashMap<String, String>,
+) -> Result<Vec<u8>, WeightsError> {
     let parsed = parts
         .iter()
         .map(|(prefix, bytes)| {
@@ -38,7 +42,15 @@ pub fn bundle(parts: &[(&str, &[u8])]) -> Result<Vec<u8>, WeightsError> {
             views.push((format!("{prefix}{name}"), view));
         }
     }
-    safetensors::serialize(views, None).map_err(|e| WeightsError::Format(e.to_string()))
+    let metadata = (!metadata.is_empty()).then_some(metadata);
+    safetensors::serialize(views, metadata).map_err(|e| WeightsError::Format(e.to_string()))
+}
+
+/// The header metadata of a safetensors file (empty if it has none).
+pub fn metadata(bytes: &[u8]) -> Result<std::collections::HashMap<String, String>, WeightsError> {
+    let (_, header) =
+        SafeTensors::read_metadata(bytes).map_err(|e| WeightsError::Format(e.to_string()))?;
+    Ok(header.metadata().clone().unwrap_or_default())
 }
 
 /// The tensors of `bytes` whose names start with `prefix`, prefix removed, as
@@ -148,7 +160,9 @@ mod tests {
         let a = PolicyNet::new(&config(5), &device);
         let b = crate::unet::AffordanceUnet::new(4, 2, &device);
         let (pa, pb) = (to_safetensors(&a).unwrap(), to_safetensors(&b).unwrap());
-        let both = bundle(&[("policy.", &pa), ("unet.", &pb)]).unwrap();
+        let info = std::collections::HashMap::from([("env_steps".to_string(), "42".to_string())]);
+        let both = bundle(&[("policy.", &pa), ("unet.", &pb)], info.clone()).unwrap();
+        assert_eq!(metadata(&both).unwrap(), info);
         let names: Vec<String> = SafeTensors::deserialize(&both)
             .unwrap()
             .names()
