@@ -10,4 +10,5 @@ pub mod episode_loop;
 pub mod labeler;
 pub mod mapping;
 pub mod metrics;
+pub mod recording;
 pub mod sim_view;

@@ -110,6 +110,11 @@ struct RunArgs {
     /// Where the networks infer: cpu, or gpu in a build with `--features nets/gpu`.
     #[arg(long, default_value = "cpu")]
     device: String,
+    /// Record every episode to an MCAP file in this directory (created):
+    /// RGB, depth, instance ids, map ids, labels, camera poses, actions and
+    /// rewards, in schemas Foxglove opens.
+    #[arg(long, value_name = "DIR")]
+    record: Option<PathBuf>,
 }
 
 fn main() -> anyhow::Result<()> {
@@ -174,7 +179,13 @@ fn sim_environment(
         ..SimEnvConfig::paper(&task.affordances)
     };
     let model = AffordanceModel::new(task.affordances.len(), device);
-    SimEnvironment::new(SimEnv::new(config, source, profile, renderer, model), task)
+    let mut env = SimEnv::new(config, source, profile, renderer, model);
+    if let Some(dir) = &cli.record {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("creating the --record directory {}", dir.display()))?;
+        env.record_to(dir.clone(), format!("actor{}_", cli.actor_id.unwrap_or(0)));
+    }
+    SimEnvironment::new(env, task)
 }
 
 fn run_actor(cli: RunArgs) -> anyhow::Result<()> {

@@ -131,3 +131,39 @@ fn annotation_by_confidence_starts_at_the_configured_global_step() {
     println!("labelled pixels: {before} by interaction only, {after} with confidence");
     assert!(after > before, "{after} <= {before}");
 }
+
+#[test]
+fn a_recorded_episode_holds_every_frame_label_and_step() {
+    let steps = 6;
+    let mut env = environment(steps);
+    let dir = std::env::temp_dir().join(format!("afx-record-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    env.record_to(dir.clone(), "test_".into());
+    run(&mut env, 3, steps);
+    env.finish_episode(7).unwrap();
+    let bytes = std::fs::read(dir.join("test_episode000007.mcap")).unwrap();
+    let mut counts = std::collections::BTreeMap::<String, usize>::new();
+    for message in mcap::MessageStream::new(&bytes).unwrap() {
+        let message = message.unwrap();
+        let value: serde_json::Value = serde_json::from_slice(&message.data).unwrap();
+        if message.channel.topic == "/camera/depth" {
+            assert_eq!(value["encoding"], "32FC1");
+            assert_eq!(value["width"], 128);
+        }
+        *counts.entry(message.channel.topic.clone()).or_default() += 1;
+    }
+    let frames = steps + 1;
+    for topic in [
+        "/camera/rgb",
+        "/camera/depth",
+        "/camera/instance_ids",
+        "/map/object_ids",
+        "/labels/pick_up",
+        "/labels/push",
+        "/camera/pose",
+    ] {
+        assert_eq!(counts.get(topic), Some(&frames), "{topic}: {counts:?}");
+    }
+    assert_eq!(counts.get("/policy/step"), Some(&steps));
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -32,6 +32,7 @@ use crate::labeler::{
 };
 use crate::mapping::{intrinsics, map_frame};
 use crate::metrics::{annotation_rates, score_frame};
+use crate::recording::{write_episode, FrameRecord, StepRecord};
 
 /// Settings of the environment.
 #[derive(Debug, Clone)]
@@ -122,6 +123,8 @@ pub struct SimEnv {
     episode: Option<Episode>,
     timings: StepTimings,
     global_steps: u64,
+    /// Where episodes are recorded, and the file-name prefix.
+    recording: Option<(std::path::PathBuf, String)>,
 }
 
 /// One episode's working state.
@@ -143,6 +146,10 @@ struct Episode {
     truth: Vec<Vec<bool>>,
     /// The simulator's instance ids of every frame (object index + 1).
     truth_ids: Vec<Vec<u32>>,
+    /// Wall-clock time of every frame, nanoseconds since the Unix epoch.
+    stamps: Vec<u64>,
+    /// What every step did, for recordings.
+    step_log: Vec<StepRecord>,
     /// The U-Net's calibrated probabilities of every frame, one byte per
     /// pixel and affordance (planes in order), for annotation by confidence.
     probabilities: Vec<Vec<u8>>,
@@ -201,7 +208,13 @@ impl SimEnv {
             episode: None,
             timings: StepTimings::default(),
             global_steps: 0,
+            recording: None,
         }
+    }
+
+    /// Records every episode from now on to `dir/{prefix}episode{id:06}.mcap`.
+    pub fn record_to(&mut self, dir: std::path::PathBuf, prefix: String) {
+        self.recording = Some((dir, prefix));
     }
 
     /// The run's steps over all actors (from the learner): annotation by
@@ -274,6 +287,8 @@ impl SimEnv {
             truth,
             truth_ids: Vec::new(),
             probabilities: Vec::new(),
+            stamps: Vec::new(),
+            step_log: Vec::new(),
             scores: vec![ScoreSums::default(); self.config.affordances.len()],
             attempts: 0,
             successes: 0,
@@ -400,6 +415,20 @@ impl SimEnv {
             interaction: interacted_instance,
         });
         episode.episode_return += reward;
+        if self.recording.is_some() {
+            episode.step_log.push(StepRecord {
+                action: index,
+                action_name: format!("{action:?}"),
+                reward,
+                success: outcome.success,
+                failure: outcome
+                    .failure
+                    .as_ref()
+                    .map(|f| format!("{f:?}"))
+                    .unwrap_or_default(),
+                agent: (agent.x, agent.y, agent.yaw_deg),
+            });
+        }
         episode.visited.push(Point2::new(agent.x, agent.y));
         episode
             .history
@@ -479,6 +508,11 @@ impl SimEnv {
         );
         let mask = self.space.mask(holding, &episode.targets);
         episode.truth_ids.push(frame.ids);
+        episode.stamps.push(
+            std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_nanos() as u64),
+        );
         episode.probabilities.push(
             probabilities
                 .iter()
@@ -541,6 +575,33 @@ impl SimEnv {
         let camera = episode.sim.camera();
         let k = intrinsics(&camera);
         let planes = self.config.affordances.len();
+        if let Some((dir, prefix)) = &self.recording {
+            let records: Vec<FrameRecord<'_>> = episode
+                .frames
+                .iter()
+                .zip(&labels)
+                .zip(&episode.truth_ids)
+                .zip(&episode.stamps)
+                .map(|(((frame, labels), ids), &stamp_ns)| FrameRecord {
+                    stamp_ns,
+                    rgb: &frame.rgb,
+                    depth_m: &frame.depth_m,
+                    instance_ids: ids,
+                    map_ids: &frame.map_ids,
+                    labels,
+                    t_world_camera: &frame.t_world_camera,
+                })
+                .collect();
+            let path = dir.join(format!("{prefix}episode{episode_id:06}.mcap"));
+            write_episode(
+                &path,
+                (k.width, k.height),
+                &self.config.affordances,
+                &records,
+                &episode.step_log,
+            )
+            .with_context(|| format!("recording the episode (--record {})", dir.display()))?;
+        }
         let pixels = k.pixels();
         // Annotation rates of the labels over every frame of the episode.
         let (mut positive, mut negative) = (0.0f64, 0.0f64);
