@@ -122,7 +122,7 @@ impl AffordanceLearner {
             settings: settings.clone(),
             affordances,
             device: device.clone(),
-            rng: StdRng::seed_from_u64(seed ^ 0x5eed_a11),
+            rng: StdRng::seed_from_u64(seed ^ 0x05ee_da11),
             temperature: 1.0,
         }
     }

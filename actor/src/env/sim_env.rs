@@ -393,7 +393,7 @@ impl SimEnv {
             let instance = episode
                 .truth_ids
                 .last()
-                .and_then(|ids| ids.get(v as usize * width + u as usize).copied())
+                .and_then(|ids| ids.get(v * width + u).copied())
                 .unwrap_or(0);
             if instance > 0 {
                 episode.interacted.insert(instance as usize - 1);
