@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
 use burn::prelude::*;
-use nets::policy::{PolicyConfig, PolicyInput, PolicyNet};
+use nets::policy::{PolicyInput, PolicyLayout, PolicyNet};
 use nets::sample;
 use nets::weights::{load_safetensors, unbundle};
 use proto::{
@@ -55,7 +55,7 @@ pub struct LoopSummary {
 /// The broadcast policy the actor acts with.
 struct Policy {
     net: PolicyNet,
-    config: PolicyConfig,
+    layout: PolicyLayout,
     policy_version: u64,
     unet_version: u64,
 }
@@ -81,8 +81,8 @@ fn load_weights(
             message.kind()
         );
     };
-    let config = PolicyConfig::from_layout(env.layout(), None);
-    let mut net = PolicyNet::new(&config, device);
+    let layout = env.layout().clone();
+    let mut net = PolicyNet::new(&layout, device);
     let policy_bytes = unbundle(weights.bytes(), WEIGHTS_POLICY_PREFIX)
         .context("the learner's weights hold no policy")?;
     load_safetensors(&mut net, policy_bytes).context(
@@ -109,29 +109,40 @@ fn load_weights(
     }
     Ok(Policy {
         net,
-        config,
+        layout,
         policy_version: header.policy_version,
         unet_version: header.unet_version,
     })
 }
 
-/// One action sampled from the policy: index, its log-probability, and the
-/// critic's value of the observation.
+/// What the policy did at one step.
+struct Acted {
+    action: u32,
+    log_prob: f32,
+    /// The critic's value of the observation.
+    value: f32,
+    /// The GRU state after this step (policies with memory).
+    hidden: Option<Tensor<2>>,
+}
+
+/// One action sampled from the policy, given its recurrent state before
+/// this step (`None` at an episode's start, or without a GRU).
 fn act(
     policy: &Policy,
     observation: &Observation,
+    hidden: Option<Tensor<2>>,
     uniform: f32,
     device: &Device,
-) -> Option<(u32, f32, f32)> {
+) -> Option<Acted> {
     let out = policy.net.forward(
         &PolicyInput::from_flat(
-            &policy.config,
+            &policy.layout,
             &observation.features,
             &observation.action_mask,
             1,
             device,
         ),
-        None,
+        hidden,
     );
     let mut log_probs: Vec<f32> = out.log_probs.into_data().try_to_vec().ok()?;
     for (lp, &allowed) in log_probs.iter_mut().zip(&observation.action_mask) {
@@ -140,15 +151,41 @@ fn act(
         }
     }
     let value = out.values.into_scalar::<f32>();
-    sample(&log_probs, uniform).map(|(a, lp)| (a, lp, value))
+    sample(&log_probs, uniform).map(|(action, log_prob)| Acted {
+        action,
+        log_prob,
+        value,
+        hidden: out.hidden,
+    })
 }
 
-fn value_of(policy: &Policy, observation: &Observation, device: &Device) -> f32 {
-    act(policy, observation, 0.0, device).map_or(0.0, |(_, _, v)| v)
+/// The critic's value of `observation` (the recurrent state is not advanced).
+fn value_of(
+    policy: &Policy,
+    observation: &Observation,
+    hidden: Option<Tensor<2>>,
+    device: &Device,
+) -> f32 {
+    act(policy, observation, hidden, 0.0, device).map_or(0.0, |a| a.value)
 }
 
-/// An empty chunk for `env`'s layout.
-fn new_chunk(episode_id: u64, first_step: u32, env: &dyn Environment) -> RolloutChunk {
+/// The recurrent state as the chunk carries it: zeros before an episode's
+/// first step, nothing for a policy without memory.
+fn hidden_values(layout: &PolicyLayout, hidden: Option<&Tensor<2>>) -> Vec<f32> {
+    match (layout.gru_hidden, hidden) {
+        (None, _) => Vec::new(),
+        (Some(size), None) => vec![0.0; size],
+        (Some(_), Some(h)) => h.clone().into_data().try_to_vec().unwrap_or_default(),
+    }
+}
+
+/// An empty chunk for `env`'s layout, starting from recurrent state `start_hidden`.
+fn new_chunk(
+    episode_id: u64,
+    first_step: u32,
+    env: &dyn Environment,
+    start_hidden: Vec<f32>,
+) -> RolloutChunk {
     let layout = env.layout();
     RolloutChunk {
         episode_id,
@@ -164,6 +201,7 @@ fn new_chunk(episode_id: u64, first_step: u32, env: &dyn Environment) -> Rollout
         rewards: Vec::new(),
         dones: Vec::new(),
         bootstrap_value: 0.0,
+        start_hidden,
     }
 }
 
@@ -253,16 +291,29 @@ pub fn run(
                 .wrapping_add(u64::from(settings.actor_id)),
         )?;
         let (mut step, mut episode_return) = (0u32, 0.0f32);
-        let mut chunk = new_chunk(episode_id, 0, env);
+        // The GRU state before the next step; `None` = zeros (episode start).
+        let mut hidden: Option<Tensor<2>> = None;
+        let mut chunk = new_chunk(episode_id, 0, env, hidden_values(env.layout(), None));
         loop {
             if let Some(message) = ports.take_latest_weights()? {
                 policy = load_weights(&message, transport, env, device, Some(&policy))?;
             }
-            let Some((action, log_prob, value)) =
-                act(&policy, &observation, rng.random::<f32>(), device)
+            let Some(Acted {
+                action,
+                log_prob,
+                value,
+                hidden: next_hidden,
+            }) = act(
+                &policy,
+                &observation,
+                hidden.take(),
+                rng.random::<f32>(),
+                device,
+            )
             else {
                 bail!("the environment allowed no action at step {step}");
             };
+            hidden = next_hidden;
             let transition = env.step(action)?;
             step += 1;
             episode_return += transition.reward;
@@ -279,11 +330,16 @@ pub fn run(
                 chunk.bootstrap_value = if transition.done {
                     0.0
                 } else {
-                    value_of(&policy, &observation, device)
+                    value_of(&policy, &observation, hidden.clone(), device)
                 };
                 let delivery = ports.publish(&chunk, policy.policy_version, policy.unet_version)?;
                 count(delivery, &mut summary);
-                chunk = new_chunk(episode_id, step, env);
+                chunk = new_chunk(
+                    episode_id,
+                    step,
+                    env,
+                    hidden_values(env.layout(), hidden.as_ref()),
+                );
             }
             if transition.done || stopping {
                 break;

@@ -45,6 +45,7 @@ fn chunk_of(bytes: usize) -> RolloutChunk {
         rewards: vec![0.0; t],
         dones: vec![0; t],
         bootstrap_value: 0.0,
+        start_hidden: Vec::new(),
     }
 }
 

@@ -5,13 +5,13 @@
 //! a chunk acted with a slightly older policy is corrected by the ratio.
 
 use burn::prelude::*;
-use nets::policy::{PolicyConfig as NetConfig, PolicyInput, PolicyNet};
+use nets::policy::{PolicyInput, PolicyNet};
 use nets::weights::{load_safetensors, to_safetensors, WeightsError};
 use proto::{ObsDtype, PolicyLayout, RolloutView, TaskSpec};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use training::gae::gae;
-use training::ppo::{Ppo, PpoBatch, PpoConfig, PpoStats};
+use training::ppo::{Ppo, PpoBatch, PpoConfig, PpoStats, Sequences};
 
 use crate::config::PolicyConfig;
 
@@ -34,6 +34,14 @@ pub enum TrainError {
         /// The task's action count.
         expected_actions: usize,
     },
+    /// The chunk's recurrent state does not fit the policy's GRU.
+    #[error("rollout carries a recurrent state of {got} values; this run's policy has {expected} (0 = no GRU; is the actor using the learner's config.toml?)")]
+    Hidden {
+        /// Values in the chunk.
+        got: usize,
+        /// The policy's GRU size (0 without one).
+        expected: usize,
+    },
 }
 
 /// Steps gathered for the next update.
@@ -47,12 +55,14 @@ struct Gathered {
     advantages: Vec<f32>,
     returns: Vec<f32>,
     versions: Vec<u64>,
+    /// Steps of each chunk, and its recurrent start state (GRU policies).
+    lengths: Vec<usize>,
+    start_hidden: Vec<f32>,
 }
 
 /// The policy network, its optimiser, and the batch being gathered.
 pub struct PolicyTrainer {
     layout: PolicyLayout,
-    net_config: NetConfig,
     settings: PolicyConfig,
     ppo: Ppo,
     device: Device,
@@ -64,8 +74,7 @@ impl PolicyTrainer {
     /// A freshly initialised policy for `task`, trained on `device`.
     pub fn new(task: &TaskSpec, settings: &PolicyConfig, device: &Device) -> Self {
         let layout = task.layout();
-        let net_config = NetConfig::from_layout(&layout, None);
-        let net = PolicyNet::new(&net_config, device);
+        let net = PolicyNet::new(&layout, device);
         let ppo_config = PpoConfig {
             learning_rate: settings.learning_rate,
             adam_epsilon: settings.adam_eps,
@@ -82,7 +91,6 @@ impl PolicyTrainer {
         };
         Self {
             layout,
-            net_config,
             settings: settings.clone(),
             ppo: Ppo::new(net, ppo_config, device),
             device: device.clone(),
@@ -122,8 +130,17 @@ impl PolicyTrainer {
                 expected_actions: self.layout.n_actions,
             });
         }
+        let hidden = self.layout.gru_hidden.unwrap_or(0);
+        if chunk.start_hidden.len() != hidden {
+            return Err(TrainError::Hidden {
+                got: chunk.start_hidden.len(),
+                expected: hidden,
+            });
+        }
         let steps = chunk.n_steps();
         let g = &mut self.gathered;
+        g.lengths.push(steps);
+        g.start_hidden.extend(chunk.start_hidden.iter());
         for i in 0..steps {
             let bytes = chunk.obs(i).unwrap_or_default();
             match chunk.obs_dtype {
@@ -158,15 +175,22 @@ impl PolicyTrainer {
         }
         let g = std::mem::take(&mut self.gathered);
         let rows = g.actions.len();
+        // Chunks never span episodes: each replays from its start state.
+        let sequences = self.layout.gru_hidden.map(|hidden| Sequences {
+            lengths: g.lengths,
+            start_hidden: g.start_hidden,
+            hidden,
+            episode_starts: vec![0.0; rows],
+        });
         let batch = PpoBatch {
-            input: PolicyInput::from_flat(&self.net_config, &g.obs, &g.masks, rows, &self.device),
+            input: PolicyInput::from_flat(&self.layout, &g.obs, &g.masks, rows, &self.device),
             actions: g.actions,
             behaviour_log_probs: g.log_probs,
             values: g.values,
             advantages: g.advantages,
             returns: g.returns,
             policy_versions: g.versions,
-            sequences: None,
+            sequences,
         };
         Ok(Some(self.ppo.update(&batch, &mut self.rng)))
     }
@@ -178,7 +202,7 @@ impl PolicyTrainer {
 
     /// Continues from saved weights and version (the optimiser starts afresh).
     pub fn restore(&mut self, bytes: Vec<u8>, version: u64) -> Result<(), WeightsError> {
-        let mut net = PolicyNet::new(&self.net_config, &self.device);
+        let mut net = PolicyNet::new(&self.layout, &self.device);
         load_safetensors(&mut net, bytes)?;
         self.ppo = Ppo::new(net, *self.ppo.config(), &self.device);
         self.ppo.set_version(version);

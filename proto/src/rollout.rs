@@ -11,6 +11,8 @@
 //! | 4 | obs_dtype u32 ([`ObsDtype`]) |
 //! | 4 | n_actions u32 |
 //! | 4 | bootstrap_value f32 (critic value of the state after the last step) |
+//! | 4 | hidden_len u32 (recurrent state size; 0 for a policy without memory) |
+//! | 4·hidden_len | start_hidden f32 (the policy's recurrent state before the first step) |
 //! | 4·T | actions u32 |
 //! | 4·T | log_probs f32 (behaviour policy) |
 //! | 4·T | values f32 |
@@ -25,13 +27,15 @@ use crate::arrays::{
 use crate::message::{check_layout, check_range, checked_total, Payload};
 use crate::{MessageKind, ProtoError};
 
-const SUB_HEADER_LEN: usize = 32;
+const SUB_HEADER_LEN: usize = 36;
 /// Most steps one chunk may hold.
 pub const MAX_STEPS: u32 = 4096;
 /// Most actions an action space may have.
 pub const MAX_ACTIONS: u32 = 256;
 /// Most observation elements per step (16 channels of 1024 × 1024).
 pub const MAX_OBS_ELEMS: u32 = 1 << 24;
+/// Largest recurrent state a chunk may carry.
+pub const MAX_HIDDEN: u32 = 1 << 16;
 
 /// Element type of the observation array.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -93,6 +97,10 @@ pub struct RolloutChunk {
     pub dones: Vec<u8>,
     /// Critic value of the state after the last step (0 if it ended the episode).
     pub bootstrap_value: f32,
+    /// The policy's recurrent state before the first step (zeros at an
+    /// episode's start; empty for a policy without memory), so the learner
+    /// can replay the chunk as a sequence.
+    pub start_hidden: Vec<f32>,
 }
 
 impl RolloutChunk {
@@ -112,7 +120,7 @@ impl Payload for RolloutChunk {
 
     fn payload_len(&self) -> usize {
         let t = self.n_steps();
-        SUB_HEADER_LEN + 16 * t + self.obs.len() + self.masks.len() + t
+        SUB_HEADER_LEN + 4 * self.start_hidden.len() + 16 * t + self.obs.len() + self.masks.len() + t
     }
 
     fn write_payload(&self, out: &mut [u8]) {
@@ -126,6 +134,8 @@ impl Payload for RolloutChunk {
         head[20..24].copy_from_slice(&(self.obs_dtype as u32).to_le_bytes());
         head[24..28].copy_from_slice(&self.n_actions.to_le_bytes());
         head[28..32].copy_from_slice(&self.bootstrap_value.to_le_bytes());
+        head[32..36].copy_from_slice(&(self.start_hidden.len() as u32).to_le_bytes());
+        put_f32s(w.take(4 * self.start_hidden.len()), &self.start_hidden);
         put_u32s(w.take(4 * t), &self.actions);
         put_f32s(w.take(4 * t), &self.log_probs);
         put_f32s(w.take(4 * t), &self.values);
@@ -151,6 +161,8 @@ pub struct RolloutView<'a> {
     pub obs_elems: u32,
     /// Critic value after the last step.
     pub bootstrap_value: f32,
+    /// Recurrent state before the first step (finite; empty without memory).
+    pub start_hidden: F32Array<'a>,
     /// Actions, one per step, each `< n_actions` and allowed by its mask.
     pub actions: U32Array<'a>,
     /// Behaviour log-probabilities (finite, ≤ 0).
@@ -199,6 +211,7 @@ impl<'a> RolloutView<'a> {
             rewards: self.rewards.to_vec(),
             dones: self.dones.to_vec(),
             bootstrap_value: self.bootstrap_value,
+            start_hidden: self.start_hidden.to_vec(),
         }
     }
 
@@ -217,6 +230,14 @@ impl<'a> RolloutView<'a> {
         let obs_dtype = ObsDtype::from_wire(read_u32(payload, 20))?;
         let n_actions = read_u32(payload, 24);
         let bootstrap_value = f32::from_bits(read_u32(payload, 28));
+        let hidden_len = read_u32(payload, 32);
+        check_range(
+            "hidden_len",
+            hidden_len.into(),
+            0,
+            MAX_HIDDEN.into(),
+            "0..=65536",
+        )?;
         check_range("n_steps", n_steps.into(), 1, MAX_STEPS.into(), "1..=4096")?;
         check_range(
             "n_actions",
@@ -242,6 +263,7 @@ impl<'a> RolloutView<'a> {
             "rollout",
             &[
                 (SUB_HEADER_LEN as u64, 1),
+                (hidden_len.into(), 4),
                 (t, 16),
                 (obs_len, 1),
                 (t, n_actions.into()),
@@ -258,6 +280,7 @@ impl<'a> RolloutView<'a> {
             needed: expected as usize,
             got: payload.len(),
         };
+        let start_hidden = F32Array::new(r.take(4 * hidden_len as usize).ok_or_else(truncated)?);
         let actions = U32Array::new(r.take(4 * t).ok_or_else(truncated)?);
         let log_probs = F32Array::new(r.take(4 * t).ok_or_else(truncated)?);
         let values = F32Array::new(r.take(4 * t).ok_or_else(truncated)?);
@@ -276,6 +299,7 @@ impl<'a> RolloutView<'a> {
         }
         check_floats("log_probs", log_probs, Some((f32::MIN, 0.0)), ", <= 0")?;
         check_floats("values", values, None, "")?;
+        check_floats("start_hidden", start_hidden, None, "")?;
         check_floats("rewards", rewards, None, "")?;
         if obs_dtype == ObsDtype::F32 {
             check_floats("obs", F32Array::new(obs), None, "")?;
@@ -314,6 +338,7 @@ impl<'a> RolloutView<'a> {
             obs_dtype,
             obs_elems,
             bootstrap_value,
+            start_hidden,
             actions,
             log_probs,
             values,

@@ -78,6 +78,8 @@ pub const NAV_ACTIONS: usize = 5;
 pub const GRID_CELLS: usize = 9;
 /// Moves of a held object (± 0.1 m along three axes).
 pub const HAND_MOVES: usize = 6;
+/// GRU hidden size of the methods without a map (IntExp: one layer of 512).
+pub const DEFAULT_MEMORY_SIZE: usize = 512;
 
 /// The run's task.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -97,8 +99,10 @@ pub struct TaskSpec {
     /// rule); off, every frame with any label is sent.
     pub balanced_frames: bool,
     /// Environment steps of the whole run (all actors) after which annotation
-    /// by confidence starts (the paper's 400 000).
+    /// by confidence starts (the paper's 400 000; method `ours` only).
     pub confidence_after_steps: u64,
+    /// GRU hidden size of the methods without a map (512 as in IntExp).
+    pub memory_size: usize,
 }
 
 impl Default for TaskSpec {
@@ -111,6 +115,7 @@ impl Default for TaskSpec {
             episode_steps: 600,
             balanced_frames: true,
             confidence_after_steps: 400_000,
+            memory_size: DEFAULT_MEMORY_SIZE,
         }
     }
 }
@@ -129,6 +134,8 @@ pub struct PolicyLayout {
     pub n_actions: usize,
     /// Element type on the wire: images in 0..1 travel as bytes.
     pub obs_dtype: ObsDtype,
+    /// Hidden size of a GRU over the fused features (methods without a map), or `None`.
+    pub gru_hidden: Option<usize>,
 }
 
 impl PolicyLayout {
@@ -151,9 +158,9 @@ pub enum TaskError {
     /// No steps.
     #[error("task.episode_steps must be at least 1")]
     EpisodeSteps,
-    /// A method not built yet.
-    #[error("method {0:?} is not available yet: only `ours` runs (the GRU methods need recurrent rollouts)")]
-    MethodUnavailable(&'static str),
+    /// A GRU without units.
+    #[error("task.memory_size must be at least 1 (the GRU of the methods without a map)")]
+    MemorySize,
 }
 
 impl TaskSpec {
@@ -174,30 +181,52 @@ impl TaskSpec {
         if self.episode_steps == 0 {
             return Err(TaskError::EpisodeSteps);
         }
-        if self.method != Method::Ours {
-            return Err(TaskError::MethodUnavailable(self.method.as_str()));
+        if self.memory_size == 0 {
+            return Err(TaskError::MemorySize);
         }
         Ok(())
     }
 
-    /// Actions of the simulator's head: navigation, a grid per affordance,
-    /// and drop plus hand moves when picking up is configured.
+    /// Object-selection actions per affordance: a 3 × 3 grid, or for
+    /// `intexp` one action on the most-centred object.
+    pub fn selection_slots(&self) -> usize {
+        match self.method {
+            Method::Intexp => 1,
+            _ => GRID_CELLS,
+        }
+    }
+
+    /// Actions of the simulator's head: navigation, the selection slots per
+    /// affordance, and drop plus hand moves when picking up is configured.
     pub fn n_actions(&self) -> usize {
         match self.env {
             EnvKind::BanditFixture => BANDIT_ACTIONS,
             EnvKind::Sim => {
                 let pick = self.affordances.contains(&Affordance::PickUp);
                 NAV_ACTIONS
-                    + GRID_CELLS * self.affordances.len()
+                    + self.selection_slots() * self.affordances.len()
                     + usize::from(pick) * (1 + HAND_MOVES)
             }
         }
     }
 
-    /// Channels of the camera input: RGB, distance, and per affordance the
-    /// U-Net's probability and the interacted (success, failure) masks.
+    /// Whether the method keeps an object-level map (only `ours`); the
+    /// others remember through a GRU.
+    pub fn uses_map(&self) -> bool {
+        self.method == Method::Ours
+    }
+
+    /// Channels of the camera input. `ours`: RGB, distance, and per
+    /// affordance the U-Net's probability and the interacted (success,
+    /// failure) masks from the map; without a map: RGB, distance and the
+    /// probabilities; `intexp`: RGB and the probabilities.
     pub fn camera_channels(&self) -> usize {
-        4 + 3 * self.affordances.len()
+        let a = self.affordances.len();
+        match self.method {
+            Method::Ours => 4 + 3 * a,
+            Method::NomapSeg | Method::NomapNoseg => 4 + a,
+            Method::Intexp => 3 + a,
+        }
     }
 
     /// Channels of each 2-D map: visited, occupancy, and per affordance
@@ -221,20 +250,35 @@ impl TaskSpec {
                 vector_dims: vec![BANDIT_OBS_DIM],
                 n_actions: BANDIT_ACTIONS,
                 obs_dtype: ObsDtype::F32,
+                gru_hidden: None,
             },
-            EnvKind::Sim => PolicyLayout {
-                // Camera, global map (10 m), local map (2 m).
-                image_channels: vec![
-                    self.camera_channels(),
-                    self.map_channels(),
-                    self.map_channels(),
-                ],
-                image_size: self.image_size,
-                // History and inventory.
-                vector_dims: vec![self.history_len(), 1],
-                n_actions: self.n_actions(),
-                obs_dtype: ObsDtype::U8,
-            },
+            EnvKind::Sim => {
+                let (image_channels, vector_dims) = match self.method {
+                    // Camera, global map (10 m), local map (2 m); history and inventory.
+                    Method::Ours => (
+                        vec![
+                            self.camera_channels(),
+                            self.map_channels(),
+                            self.map_channels(),
+                        ],
+                        vec![self.history_len(), 1],
+                    ),
+                    Method::NomapSeg | Method::NomapNoseg => {
+                        (vec![self.camera_channels()], vec![self.history_len(), 1])
+                    }
+                    // IntExp sees the image and the affordances; the
+                    // inventory tells it what the hand holds.
+                    Method::Intexp => (vec![self.camera_channels()], vec![1]),
+                };
+                PolicyLayout {
+                    image_channels,
+                    image_size: self.image_size,
+                    vector_dims,
+                    n_actions: self.n_actions(),
+                    obs_dtype: ObsDtype::U8,
+                    gru_hidden: (!self.uses_map()).then_some(self.memory_size),
+                }
+            }
         }
     }
 }
@@ -284,13 +328,37 @@ mod tests {
             .to_string()
             .contains("task.image_size"));
         let gru = TaskSpec {
-            method: Method::NomapSeg,
+            memory_size: 0,
             ..ok
         };
         assert!(gru
             .validate()
             .unwrap_err()
             .to_string()
-            .contains("nomap-seg"));
+            .contains("task.memory_size"));
+    }
+
+    #[test]
+    fn methods_without_a_map_see_less_and_remember_through_a_gru() {
+        let task = |method| TaskSpec {
+            method,
+            affordances: vec![Affordance::PickUp],
+            ..TaskSpec::default()
+        };
+        let ours = task(Method::Ours).layout();
+        assert_eq!(ours.gru_hidden, None);
+        let seg = task(Method::NomapSeg).layout();
+        assert_eq!(seg.image_channels, vec![5]);
+        assert_eq!(seg.vector_dims, vec![5 * 23, 1]);
+        assert_eq!(seg.gru_hidden, Some(512));
+        assert_eq!(task(Method::NomapNoseg).layout(), seg);
+        let intexp = task(Method::Intexp).layout();
+        assert_eq!(intexp.image_channels, vec![4]);
+        assert_eq!(intexp.vector_dims, vec![1]);
+        // 5 navigation, 1 centred pick up, drop, 6 hand moves.
+        assert_eq!(intexp.n_actions, 13);
+        for method in [Method::NomapSeg, Method::NomapNoseg, Method::Intexp] {
+            assert_eq!(task(method).validate(), Ok(()));
+        }
     }
 }

@@ -73,6 +73,11 @@ fn rollout_strategy() -> impl Strategy<Value = RolloutChunk> {
                             rewards: vr[t..].to_vec(),
                             dones,
                             bootstrap_value: 0.5,
+                            start_hidden: if first_step % 2 == 0 {
+                                Vec::new()
+                            } else {
+                                vr[..t].to_vec()
+                            },
                         }
                     },
                 )
@@ -249,6 +254,7 @@ fn small_chunk() -> RolloutChunk {
         rewards: vec![1.0, 0.0],
         dones: vec![0, 1],
         bootstrap_value: 0.0,
+        start_hidden: vec![0.5, -0.5],
     }
 }
 
@@ -263,6 +269,20 @@ fn non_finite_values_are_rejected_even_with_a_valid_checksum() {
             ProtoError::BadFloat {
                 field: "rewards",
                 index: 1,
+                ..
+            }
+        ),
+        "{err}"
+    );
+
+    let mut chunk = small_chunk();
+    chunk.start_hidden[1] = f32::NAN;
+    let err = decode(&encode(&chunk, header(0, 0)), &LIMITS).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            ProtoError::BadFloat {
+                field: "start_hidden",
                 ..
             }
         ),
@@ -286,7 +306,8 @@ fn masked_and_out_of_range_actions_are_rejected() {
     assert_eq!(err, ProtoError::MaskedAction { step: 0, action: 1 });
 
     let bytes = reencode_with_fixed_checksum(encode(&small_chunk(), header(0, 0)), |p| {
-        p[32..36].copy_from_slice(&7u32.to_le_bytes());
+        // After the 36-byte sub-header and the two-value start state.
+        p[44..48].copy_from_slice(&7u32.to_le_bytes());
     });
     assert!(matches!(
         decode(&bytes, &LIMITS),

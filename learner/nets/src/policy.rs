@@ -8,50 +8,17 @@ use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::{relu, tanh};
 use burn::tensor::Bool;
-
-/// Shape of the policy's inputs and outputs.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct PolicyConfig {
-    /// Channels of each image-like input (one conv encoder each), all `image_size` square.
-    pub image_channels: Vec<usize>,
-    /// Side of the image-like inputs, pixels (128 in the paper).
-    pub image_size: usize,
-    /// Length of each 1-D input (one MLP each): e.g. action history, inventory.
-    pub vector_dims: Vec<usize>,
-    /// Number of discrete actions.
-    pub n_actions: usize,
-    /// Hidden size of a GRU over the fused features (the no-map ablations), or `None`.
-    pub gru_hidden: Option<usize>,
-}
-
-impl PolicyConfig {
-    /// The network for a task's input layout (`gru_hidden` for the GRU methods).
-    pub fn from_layout(layout: &proto::PolicyLayout, gru_hidden: Option<usize>) -> Self {
-        Self {
-            image_channels: layout.image_channels.clone(),
-            image_size: layout.image_size,
-            vector_dims: layout.vector_dims.clone(),
-            n_actions: layout.n_actions,
-            gru_hidden,
-        }
-    }
-
-    /// Elements of one flat observation: images, then vectors.
-    pub fn obs_len(&self) -> usize {
-        self.image_channels.iter().sum::<usize>() * self.image_size * self.image_size
-            + self.vector_dims.iter().sum::<usize>()
-    }
-}
+pub use proto::{ObsDtype, PolicyLayout};
 
 impl PolicyInput {
     /// Splits `rows` flat observations (`rows · obs_len` values, each row
-    /// images then vectors, as [`PolicyConfig::obs_len`] counts them) and
+    /// images then vectors, as [`PolicyLayout::obs_len`] counts them) and
     /// their masks (`rows · n_actions` bytes, nonzero = allowed) into tensors.
     ///
     /// # Panics
     /// If the lengths do not match `config`: callers validate first.
     pub fn from_flat(
-        config: &PolicyConfig,
+        config: &PolicyLayout,
         obs: &[f32],
         masks: &[u8],
         rows: usize,
@@ -238,7 +205,7 @@ pub const MASKED_LOGIT: f32 = -1e9;
 
 impl PolicyNet {
     /// A freshly initialised network.
-    pub fn new(config: &PolicyConfig, device: &Device) -> Self {
+    pub fn new(config: &PolicyLayout, device: &Device) -> Self {
         let fused = ENCODER_FEATURES * (config.image_channels.len() + config.vector_dims.len());
         let gru = config
             .gru_hidden
@@ -354,12 +321,13 @@ impl PolicyNet {
 mod tests {
     use super::*;
 
-    fn config(gru: Option<usize>) -> PolicyConfig {
-        PolicyConfig {
+    fn config(gru: Option<usize>) -> PolicyLayout {
+        PolicyLayout {
             image_channels: vec![4, 2],
             image_size: 128,
             vector_dims: vec![15],
             n_actions: 6,
+            obs_dtype: ObsDtype::F32,
             gru_hidden: gru,
         }
     }
@@ -414,11 +382,12 @@ mod tests {
     #[test]
     fn flat_observations_split_into_the_inputs_in_order() {
         let device = Device::flex();
-        let config = PolicyConfig {
+        let config = PolicyLayout {
             image_channels: vec![2],
             image_size: 2,
             vector_dims: vec![3, 1],
             n_actions: 2,
+            obs_dtype: ObsDtype::F32,
             gru_hidden: None,
         };
         assert_eq!(config.obs_len(), 12);

@@ -103,15 +103,16 @@ pub fn load_safetensors<M: Module + ModuleSnapshot>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::policy::{PolicyConfig, PolicyNet};
+    use crate::policy::{ObsDtype, PolicyLayout, PolicyNet};
     use burn::prelude::*;
 
-    fn config(n_actions: usize) -> PolicyConfig {
-        PolicyConfig {
+    fn config(n_actions: usize) -> PolicyLayout {
+        PolicyLayout {
             image_channels: vec![3],
             image_size: 64,
             vector_dims: vec![7],
             n_actions,
+            obs_dtype: ObsDtype::F32,
             gru_hidden: Some(16),
         }
     }

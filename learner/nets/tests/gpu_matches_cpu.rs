@@ -5,7 +5,7 @@
 
 use burn::prelude::*;
 use nets::device::{open_device, DeviceChoice};
-use nets::policy::{PolicyConfig, PolicyInput, PolicyNet};
+use nets::policy::{ObsDtype, PolicyLayout, PolicyInput, PolicyNet};
 use nets::unet::AffordanceUnet;
 use nets::weights::{load_safetensors, to_safetensors};
 
@@ -38,11 +38,12 @@ fn cpu_and_gpu_agree_on_the_same_weights() {
     let b: Vec<f32> = unet_gpu.forward(on(&gpu)).into_data().try_to_vec().unwrap();
     let unet_diff = max_abs_diff(a, b);
 
-    let config = PolicyConfig {
+    let config = PolicyLayout {
         image_channels: vec![4],
         image_size: 128,
         vector_dims: vec![15],
         n_actions: 8,
+        obs_dtype: ObsDtype::F32,
         gru_hidden: Some(64),
     };
     let policy_cpu = PolicyNet::new(&config, &cpu);

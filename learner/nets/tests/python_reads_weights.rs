@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use std::process::Command;
 
 use burn::prelude::*;
-use nets::policy::{PolicyConfig, PolicyNet};
+use nets::policy::{ObsDtype, PolicyLayout, PolicyNet};
 use nets::unet::AffordanceUnet;
 use nets::weights::to_safetensors;
 
@@ -71,11 +71,12 @@ fn parse(json: &str) -> Seen {
 fn python_safetensors_reads_policy_and_unet_weights() {
     let device = Device::flex();
     let policy = PolicyNet::new(
-        &PolicyConfig {
+        &PolicyLayout {
             image_channels: vec![4],
             image_size: 128,
             vector_dims: vec![15],
             n_actions: 8,
+            obs_dtype: ObsDtype::F32,
             gru_hidden: None,
         },
         &device,

@@ -13,7 +13,7 @@
 use std::time::Instant;
 
 use burn::prelude::*;
-use nets::policy::{PolicyConfig, PolicyInput, PolicyNet};
+use nets::policy::{ObsDtype, PolicyLayout, PolicyInput, PolicyNet};
 use nets::unet::AffordanceUnet;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -23,12 +23,13 @@ use training::ppo::{Ppo, PpoBatch, PpoConfig};
 /// The policy of the benchmark: three image-like inputs (RGB-D, a 4-channel
 /// map projection, 2 affordance maps), an action history of 5 × (8 + 2) and an
 /// inventory flag; 8 actions.
-fn policy_config() -> PolicyConfig {
-    PolicyConfig {
+fn policy_config() -> PolicyLayout {
+    PolicyLayout {
         image_channels: vec![4, 4, 2],
         image_size: 128,
         vector_dims: vec![50, 1],
         n_actions: 8,
+        obs_dtype: ObsDtype::F32,
         gru_hidden: None,
     }
 }

@@ -10,6 +10,7 @@ use burn::tensor::{Bool, Int};
 use nets::policy::{PolicyInput, PolicyNet};
 use rand::seq::SliceRandom;
 use rand::Rng;
+use std::ops::Range;
 
 use crate::grad_norm::clip_global_norm;
 
@@ -61,18 +62,76 @@ impl Default for PpoConfig {
     }
 }
 
-/// Recurrent layout of a batch (GRU variant): rows are `n` sequences of
-/// `steps` steps each, sequence-major; minibatches take whole sequences.
+/// Recurrent layout of a batch (GRU variant): rows are `n` sequences, one
+/// after the other, of any lengths; minibatches take whole sequences.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Sequences {
-    /// Steps per sequence.
-    pub steps: usize,
+    /// Rows of each sequence, in row order (they sum to the batch's rows).
+    pub lengths: Vec<usize>,
     /// `[n, hidden]` GRU state before each sequence's first step, row-major.
     pub start_hidden: Vec<f32>,
     /// Hidden size.
     pub hidden: usize,
     /// Per row: 1 where an episode starts at that step (the state is reset).
     pub episode_starts: Vec<f32>,
+}
+
+impl Sequences {
+    /// The rows of each sequence.
+    pub fn ranges(&self) -> Vec<Range<usize>> {
+        let mut at = 0;
+        self.lengths
+            .iter()
+            .map(|&len| {
+                let range = at..at + len;
+                at += len;
+                range
+            })
+            .collect()
+    }
+}
+
+/// Replays sequences `which` (indices into `sequences`, in this order)
+/// through the GRU from their start states. Shorter sequences are padded to
+/// the longest by repeating their last row; padding comes after a
+/// sequence's real steps, so it cannot change them, and its outputs are
+/// dropped. Returns log-probabilities `[rows, actions]` and values `[rows]`
+/// for the real rows of the chosen sequences, in order.
+pub fn replay_sequences(
+    net: &PolicyNet,
+    input: &PolicyInput,
+    sequences: &Sequences,
+    which: &[usize],
+    device: &Device,
+) -> (Tensor<2>, Tensor<1>) {
+    let ranges = sequences.ranges();
+    let steps = which.iter().map(|&u| ranges[u].len()).max().unwrap_or(0);
+    let mut padded = Vec::with_capacity(which.len() * steps);
+    let mut real = Vec::new();
+    for (k, &u) in which.iter().enumerate() {
+        let r = &ranges[u];
+        for t in 0..steps {
+            padded.push((r.start + t.min(r.len().saturating_sub(1))) as i64);
+            if t < r.len() {
+                real.push((k * steps + t) as i64);
+            }
+        }
+    }
+    let padded = Tensor::<1, Int>::from_ints(padded.as_slice(), device);
+    let real = Tensor::<1, Int>::from_ints(real.as_slice(), device);
+    let h = sequences.hidden;
+    let start: Vec<f32> = which
+        .iter()
+        .flat_map(|&u| sequences.start_hidden[u * h..(u + 1) * h].iter().copied())
+        .collect();
+    let start = Tensor::<1>::from_floats(start.as_slice(), device).reshape([which.len(), h]);
+    let starts = Tensor::<1>::from_floats(sequences.episode_starts.as_slice(), device)
+        .select(0, padded.clone());
+    let out = net.forward_sequences(&select_rows(input, &padded), start, starts, steps);
+    (
+        out.log_probs.select(0, real.clone()),
+        out.values.select(0, real),
+    )
 }
 
 /// A batch of experience, one row per step.
@@ -324,45 +383,28 @@ impl Ppo {
         );
         let advantages = floats(&batch.advantages);
         // Units of minibatching: rows, or whole sequences for the GRU variant.
-        let (units, rows_per_unit) = match &batch.sequences {
-            Some(s) => (n / s.steps, s.steps),
-            None => (n, 1),
+        let units: Vec<Range<usize>> = match &batch.sequences {
+            Some(s) => s.ranges(),
+            None => (0..n).map(|r| r..r + 1).collect(),
         };
-        let per_minibatch = units.div_ceil(c.minibatches.max(1));
-        let mut order: Vec<usize> = (0..units).collect();
+        let per_minibatch = units.len().div_ceil(c.minibatches.max(1));
+        let mut order: Vec<usize> = (0..units.len()).collect();
         let mut sums = PpoStats::default();
         let mut count = 0usize;
         for _ in 0..c.epochs {
             order.shuffle(rng);
             for chunk in order.chunks(per_minibatch) {
-                let mut units_sorted = chunk.to_vec();
-                if batch.sequences.is_some() {
-                    units_sorted.sort_unstable();
-                }
-                let rows: Vec<i64> = units_sorted
+                let rows: Vec<i64> = chunk
                     .iter()
-                    .flat_map(|&u| (u * rows_per_unit..(u + 1) * rows_per_unit).map(|r| r as i64))
+                    .flat_map(|&u| units[u].clone().map(|r| r as i64))
                     .collect();
                 let index = Tensor::<1, Int>::from_ints(rows.as_slice(), &device);
-                let mb_input = select_rows(&input, &index);
-                let out = match &batch.sequences {
-                    Some(s) => {
-                        let hidden: Vec<f32> = units_sorted
-                            .iter()
-                            .flat_map(|&u| {
-                                s.start_hidden[u * s.hidden..(u + 1) * s.hidden]
-                                    .iter()
-                                    .copied()
-                            })
-                            .collect();
-                        let start = Tensor::<1>::from_floats(hidden.as_slice(), &device)
-                            .reshape([units_sorted.len(), s.hidden]);
-                        let starts = Tensor::<1>::from_floats(s.episode_starts.as_slice(), &device)
-                            .select(0, index.clone());
-                        self.net
-                            .forward_sequences(&mb_input, start, starts, s.steps)
+                let (log_probs, values) = match &batch.sequences {
+                    Some(s) => replay_sequences(&self.net, &input, s, chunk, &device),
+                    None => {
+                        let out = self.net.forward(&select_rows(&input, &index), None);
+                        (out.log_probs, out.values)
                     }
-                    None => self.net.forward(&mb_input, None),
                 };
                 let mut mb_adv = advantages.clone().select(0, index.clone());
                 if c.normalize_advantages && rows.len() > 1 {
@@ -371,8 +413,8 @@ impl Ppo {
                     mb_adv = (mb_adv - mean) / (std + 1e-8);
                 }
                 let (loss, terms) = ppo_loss(
-                    out.log_probs,
-                    out.values,
+                    log_probs,
+                    values,
                     actions.clone().select(0, index.clone()),
                     old_lp.clone().select(0, index.clone()),
                     old_v.clone().select(0, index.clone()),

@@ -4,7 +4,7 @@
 
 use burn::prelude::*;
 use burn::tensor::{Bool, Int};
-use nets::policy::{PolicyConfig, PolicyInput, PolicyNet};
+use nets::policy::{ObsDtype, PolicyLayout, PolicyInput, PolicyNet};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use training::gae::gae;
@@ -167,11 +167,12 @@ impl Bandit {
 
 fn bandit_net(device: &Device) -> PolicyNet {
     PolicyNet::new(
-        &PolicyConfig {
+        &PolicyLayout {
             image_channels: vec![],
             image_size: 0,
             vector_dims: vec![4],
             n_actions: 4,
+            obs_dtype: ObsDtype::F32,
             gru_hidden: None,
         },
         device,
@@ -291,11 +292,12 @@ fn recall_observation(step: usize, cue: usize) -> Vec<f32> {
 
 fn recall_net(device: &Device, gru: Option<usize>) -> PolicyNet {
     PolicyNet::new(
-        &PolicyConfig {
+        &PolicyLayout {
             image_channels: vec![],
             image_size: 0,
             vector_dims: vec![3],
             n_actions: 2,
+            obs_dtype: ObsDtype::F32,
             gru_hidden: gru,
         },
         device,
@@ -394,7 +396,7 @@ fn train_recall(
             returns,
             policy_versions: vec![ppo.version(); episodes * RECALL_STEPS],
             sequences: Some(Sequences {
-                steps: RECALL_STEPS,
+                lengths: vec![RECALL_STEPS; episodes],
                 start_hidden: vec![0.0; episodes * 16],
                 hidden: 16,
                 episode_starts,
@@ -430,4 +432,62 @@ fn ppo_with_a_gru_solves_cue_recall_and_random_and_memoryless_policies_do_not() 
     );
     assert!(memoryless.is_none(), "the task must need memory");
     assert!(random < threshold - 0.3);
+}
+
+#[test]
+fn sequences_of_unequal_length_replay_exactly_as_they_were_stepped() {
+    let device = cpu();
+    let net = recall_net(&device, Some(16));
+    let mut rng = StdRng::seed_from_u64(11);
+    // Two sequences, 3 and 5 steps, the second from a nonzero state.
+    let lengths = [3usize, 5];
+    let rows: Vec<Vec<f32>> = (0..8)
+        .map(|_| (0..3).map(|_| rng.random_range(0.0..1.0)).collect())
+        .collect();
+    let start_hidden: Vec<f32> = (0..32)
+        .map(|i| if i < 16 { 0.0 } else { rng.random_range(-0.5..0.5) })
+        .collect();
+    let mut stepped = Vec::new();
+    let mut at = 0;
+    for (s, &len) in lengths.iter().enumerate() {
+        let mut h = Tensor::<1>::from_floats(&start_hidden[s * 16..(s + 1) * 16], &device)
+            .reshape([1, 16]);
+        for row in &rows[at..at + len] {
+            let input = PolicyInput {
+                images: vec![],
+                vectors: vec![vectors(std::slice::from_ref(row), &device)],
+                mask: Tensor::<2, Bool>::full([1, 2], true, &device),
+            };
+            let out = net.forward(&input, Some(h));
+            h = out.hidden.unwrap();
+            let lp: Vec<f32> = out.log_probs.into_data().try_to_vec().unwrap();
+            stepped.push((lp, out.values.into_scalar::<f32>()));
+        }
+        at += len;
+    }
+    let sequences = Sequences {
+        lengths: lengths.to_vec(),
+        start_hidden,
+        hidden: 16,
+        episode_starts: vec![0.0; 8],
+    };
+    let input = PolicyInput {
+        images: vec![],
+        vectors: vec![vectors(&rows, &device)],
+        mask: Tensor::<2, Bool>::full([8, 2], true, &device),
+    };
+    // Replayed in the other order: outputs follow the order asked for.
+    let (log_probs, values) =
+        training::ppo::replay_sequences(&net, &input, &sequences, &[1, 0], &device);
+    let log_probs: Vec<f32> = log_probs.into_data().try_to_vec().unwrap();
+    let values: Vec<f32> = values.into_data().try_to_vec().unwrap();
+    assert_eq!(values.len(), 8);
+    let order: Vec<usize> = (3..8).chain(0..3).collect();
+    for (k, &row) in order.iter().enumerate() {
+        let (lp, v) = &stepped[row];
+        assert!((values[k] - v).abs() < 1e-5, "row {row}: {} vs {v}", values[k]);
+        for j in 0..2 {
+            assert!((log_probs[2 * k + j] - lp[j]).abs() < 1e-5, "row {row}");
+        }
+    }
 }
