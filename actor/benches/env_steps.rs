@@ -13,6 +13,7 @@ use actor::env::actions::random_allowed_action;
 use actor::env::affordance_model::AffordanceModel;
 use actor::env::sim_env::{SimEnv, SimEnvConfig, StepTimings};
 use mapper::Affordance;
+use proto::Method;
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use sim::ithor::SceneSet;
@@ -55,7 +56,7 @@ fn main() {
         .expect("scenes");
         let config = SimEnvConfig {
             episode_steps: STEPS,
-            ..SimEnvConfig::paper(&AFFORDANCES)
+            ..SimEnvConfig::paper(Method::Ours, &AFFORDANCES)
         };
         let mut env = SimEnv::new(
             config,

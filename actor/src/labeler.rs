@@ -13,6 +13,9 @@
 //!   a 3-D point that moves with its object; pixels within 0.2 m of a point
 //!   get its outcome in every frame where the point is in view; a positive
 //!   wins over a negative.
+//! - **Segments under points** (`nomap-seg`): the same points, but in each
+//!   frame where a point is in view the whole segment under it gets the
+//!   outcome: segmentation without a map's re-identification.
 //!
 //! Only frames with both positive and negative pixels (in some affordance)
 //! are kept when the balanced filter is on.
@@ -207,6 +210,70 @@ pub fn sphere_labels(
     object_pose: &dyn Fn(usize, usize) -> Pose,
     rule: &SphereRule,
 ) -> Vec<Vec<u8>> {
+    point_labels(frames, intrinsics, points, n_affordances, object_pose, rule, &|frame, p_camera, _, plane, label| {
+        for (px, out) in plane.iter_mut().enumerate() {
+            let z = frame.depth_m[px];
+            if z.is_nan() || z <= 0.0 {
+                continue;
+            }
+            let (u, v) = (
+                (px % intrinsics.width) as f32,
+                (px / intrinsics.width) as f32,
+            );
+            if (intrinsics.back_project(u, v, z) - p_camera).norm() <= rule.radius_m {
+                mark(out, label);
+            }
+        }
+    })
+}
+
+/// Per frame, `n_affordances` label planes from interaction points: in each
+/// frame where a point is in view, every pixel of the segment under it
+/// (`frame.map_ids` holds the frame's segmentation) gets its outcome.
+pub fn segment_labels(
+    frames: &[EpisodeFrame],
+    intrinsics: &Intrinsics,
+    points: &[InteractionPoint],
+    n_affordances: usize,
+    object_pose: &dyn Fn(usize, usize) -> Pose,
+    rule: &SphereRule,
+) -> Vec<Vec<u8>> {
+    point_labels(frames, intrinsics, points, n_affordances, object_pose, rule, &|frame, _, pixel, plane, label| {
+        let segment = frame.map_ids[pixel];
+        if segment == 0 {
+            return;
+        }
+        for (out, &id) in plane.iter_mut().zip(&frame.map_ids) {
+            if id == segment {
+                mark(out, label);
+            }
+        }
+    })
+}
+
+/// Writes `label` unless the pixel is already positive (positive wins).
+fn mark(out: &mut u8, label: u8) {
+    if *out != LABEL_POSITIVE {
+        *out = label;
+    }
+}
+
+/// What a point in view labels: given the frame, the point in the camera
+/// frame, the pixel it projects to, the affordance's plane and the label.
+type LabelPoint<'f> = dyn Fn(&EpisodeFrame, Point3<f32>, usize, &mut [u8], u8) + 'f;
+
+/// The frame loop shared by the point labelers: each point, moved with its
+/// object, is projected into every frame; where it is in view, `label`
+/// writes its outcome.
+fn point_labels(
+    frames: &[EpisodeFrame],
+    intrinsics: &Intrinsics,
+    points: &[InteractionPoint],
+    n_affordances: usize,
+    object_pose: &dyn Fn(usize, usize) -> Pose,
+    rule: &SphereRule,
+    label: &LabelPoint<'_>,
+) -> Vec<Vec<u8>> {
     let pixels = intrinsics.pixels();
     frames
         .iter()
@@ -216,45 +283,38 @@ pub fn sphere_labels(
             let t_camera_world = frame.t_world_camera.inverse();
             for point in points {
                 let p_camera = t_camera_world * (object_pose(f, point.object) * point.p_object);
-                if !in_view(frame, intrinsics, &p_camera, rule) {
+                let Some(pixel) = in_view(frame, intrinsics, &p_camera, rule) else {
                     continue;
-                }
+                };
+                let outcome = if point.success {
+                    LABEL_POSITIVE
+                } else {
+                    LABEL_NEGATIVE
+                };
                 let plane = &mut planes[point.affordance * pixels..][..pixels];
-                for (px, label) in plane.iter_mut().enumerate() {
-                    let z = frame.depth_m[px];
-                    if *label == LABEL_POSITIVE || z.is_nan() || z <= 0.0 {
-                        continue;
-                    }
-                    let (u, v) = (
-                        (px % intrinsics.width) as f32,
-                        (px / intrinsics.width) as f32,
-                    );
-                    if (intrinsics.back_project(u, v, z) - p_camera).norm() <= rule.radius_m {
-                        *label = if point.success {
-                            LABEL_POSITIVE
-                        } else {
-                            LABEL_NEGATIVE
-                        };
-                    }
-                }
+                label(frame, p_camera, pixel, plane, outcome);
             }
             planes
         })
         .collect()
 }
 
-/// True if a camera-frame point projects into the image and is not hidden
-/// behind what the frame saw there.
-fn in_view(frame: &EpisodeFrame, k: &Intrinsics, p: &Point3<f32>, rule: &SphereRule) -> bool {
-    let Some((u, v, z)) = k.project(p) else {
-        return false;
-    };
+/// The pixel a camera-frame point projects to, if it lies in the image and
+/// is not hidden behind what the frame saw there.
+fn in_view(
+    frame: &EpisodeFrame,
+    k: &Intrinsics,
+    p: &Point3<f32>,
+    rule: &SphereRule,
+) -> Option<usize> {
+    let (u, v, z) = k.project(p)?;
     let (u, v) = (u.round(), v.round());
     if u < 0.0 || v < 0.0 || u >= k.width as f32 || v >= k.height as f32 {
-        return false;
+        return None;
     }
-    let seen = frame.depth_m[v as usize * k.width + u as usize];
-    !(seen > 0.0 && seen < z - rule.occlusion_tolerance_m)
+    let pixel = v as usize * k.width + u as usize;
+    let seen = frame.depth_m[pixel];
+    (!(seen > 0.0 && seen < z - rule.occlusion_tolerance_m)).then_some(pixel)
 }
 
 /// True if some affordance plane of the frame has both positive and negative pixels.

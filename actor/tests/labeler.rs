@@ -2,7 +2,8 @@
 //! labels) and on crafted inputs for the confidence and sphere rules.
 
 use actor::labeler::{
-    confidence_labels, frame_batch, map_labels, sphere_labels, ConfidenceRule, EpisodeFrame,
+    confidence_labels, frame_batch, map_labels, segment_labels, sphere_labels, ConfidenceRule,
+    EpisodeFrame,
     InteractionPoint, SphereRule,
 };
 use actor::mapping::{intrinsics, map_frame};
@@ -305,5 +306,75 @@ fn sphere_labels_reach_only_0_2_m_around_the_point_and_positive_wins() {
     let gone =
         |_: usize, _: usize| Pose::from_parts(Translation3::new(0.0, 0.0, 5.0), Default::default());
     let labels = sphere_labels(&[frame], &k, &points, 2, &gone, &SphereRule::default());
+    assert!(labels[0].iter().all(|&l| l == LABEL_UNKNOWN));
+}
+
+#[test]
+fn segment_labels_cover_the_whole_segment_under_a_point_in_view_and_positive_wins() {
+    // A flat wall 2 m ahead, split into two segments at y = 0.
+    let k = mapper::Intrinsics::from_fov(64, 48, 90.0);
+    let camera = sim::raycast::agent_camera_pose(0.0, 0.0, 0.0, 1.5, 0.0, 0.0);
+    let segment_of = |p: usize| {
+        let world = camera * k.back_project((p % k.width) as f32, (p / k.width) as f32, 2.0);
+        if world.y > 0.0 {
+            1
+        } else {
+            2
+        }
+    };
+    let frame = EpisodeFrame {
+        rgb: vec![0; 3 * k.pixels()],
+        depth_m: vec![2.0; k.pixels()],
+        map_ids: (0..k.pixels()).map(segment_of).collect(),
+        t_world_camera: camera,
+    };
+    let point = |success, y| InteractionPoint {
+        object: 0,
+        affordance: 0,
+        success,
+        p_object: Point3::new(2.0, y, 1.5),
+    };
+    let still = |_: usize, _: usize| Pose::identity();
+    let rule = SphereRule::default();
+    // A failure on segment 1: all of segment 1 negative, segment 2 unknown.
+    let labels = segment_labels(
+        std::slice::from_ref(&frame),
+        &k,
+        &[point(false, 0.6)],
+        1,
+        &still,
+        &rule,
+    );
+    for (p, &label) in labels[0].iter().enumerate() {
+        let expected = if segment_of(p) == 1 {
+            LABEL_NEGATIVE
+        } else {
+            LABEL_UNKNOWN
+        };
+        assert_eq!(label, expected, "pixel {p}");
+    }
+    // A success on the same segment wins; a failure on segment 2 labels it.
+    let labels = segment_labels(
+        std::slice::from_ref(&frame),
+        &k,
+        &[point(true, 0.3), point(false, 0.6), point(false, -0.5)],
+        1,
+        &still,
+        &rule,
+    );
+    for (p, &label) in labels[0].iter().enumerate() {
+        let expected = if segment_of(p) == 1 {
+            LABEL_POSITIVE
+        } else {
+            LABEL_NEGATIVE
+        };
+        assert_eq!(label, expected, "pixel {p}");
+    }
+    // Hidden behind something 1 m nearer than the wall: no label.
+    let blocked = EpisodeFrame {
+        depth_m: vec![1.0; k.pixels()],
+        ..frame
+    };
+    let labels = segment_labels(&[blocked], &k, &[point(true, 0.3)], 1, &still, &rule);
     assert!(labels[0].iter().all(|&l| l == LABEL_UNKNOWN));
 }

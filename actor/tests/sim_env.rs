@@ -5,7 +5,7 @@ use actor::env::actions::random_allowed_action;
 use actor::env::affordance_model::AffordanceModel;
 use actor::env::sim_env::{SimEnv, SimEnvConfig, SimObservation};
 use mapper::Affordance;
-use proto::{StatField, LABEL_UNKNOWN};
+use proto::{Method, StatField, LABEL_UNKNOWN};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use sim::ithor::SceneSet;
@@ -16,6 +16,10 @@ use sim::scenes::SceneSource;
 const AFFORDANCES: [Affordance; 2] = [Affordance::PickUp, Affordance::Push];
 
 fn environment(steps: usize) -> SimEnv {
+    environment_for(Method::Ours, steps)
+}
+
+fn environment_for(method: Method, steps: usize) -> SimEnv {
     let data = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
     let profile = RobotProfile::load("default").unwrap();
     let source = SceneSource::open(
@@ -29,7 +33,7 @@ fn environment(steps: usize) -> SimEnv {
     let config = SimEnvConfig {
         episode_steps: steps,
         balanced_frames: false,
-        ..SimEnvConfig::paper(&AFFORDANCES)
+        ..SimEnvConfig::paper(method, &AFFORDANCES)
     };
     SimEnv::new(
         config,
@@ -166,4 +170,54 @@ fn a_recorded_episode_holds_every_frame_label_and_step() {
     }
     assert_eq!(counts.get("/policy/step"), Some(&steps));
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn methods_without_a_map_fit_their_layout_and_label_from_interaction_points() {
+    let steps = 40;
+    for method in [Method::NomapSeg, Method::NomapNoseg, Method::Intexp] {
+        let env = environment_for(method, steps);
+        let task = proto::TaskSpec {
+            method,
+            affordances: AFFORDANCES.to_vec(),
+            ..proto::TaskSpec::default()
+        };
+        let layout = task.layout();
+        assert_eq!(env.action_space().len(), layout.n_actions);
+        // The wrapper checks the state against the task's layout.
+        let mut env = actor::env::SimEnvironment::new(env, &task).unwrap();
+        let mut rng = StdRng::seed_from_u64(3);
+        let mut observation = actor::env::Environment::reset(&mut env, 3).unwrap();
+        let mut interactions = 0;
+        for _ in 0..steps {
+            assert_eq!(observation.features.len(), layout.obs_len(), "{method:?}");
+            let space = env.inner().action_space();
+            let action = random_allowed_action(space, &observation.action_mask, 0.5, &mut rng);
+            let is_interaction = matches!(
+                space.get(action),
+                Some(actor::env::actions::PolicyAction::Select { .. })
+            );
+            interactions += usize::from(is_interaction);
+            observation = actor::env::Environment::step(&mut env, action as u32)
+                .unwrap()
+                .observation;
+        }
+        let end = actor::env::Environment::finish_episode(&mut env, 1).unwrap();
+        let frames = end.frames.unwrap();
+        println!(
+            "{method:?}: {interactions} interactions, {} labelled frames, {} labelled pixels",
+            frames.n_frames(),
+            labelled(&frames)
+        );
+        let stats: std::collections::HashMap<_, _> = end.stats.into_iter().collect();
+        for v in stats.values() {
+            assert!(v.is_finite());
+        }
+        if method != Method::Intexp {
+            assert!(interactions > 0, "{method:?}");
+        }
+        if interactions > 0 {
+            assert!(labelled(&frames) > 0, "{method:?}: interactions leave labels");
+        }
+    }
 }

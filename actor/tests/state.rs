@@ -2,11 +2,12 @@
 //! ranges, the interacted-objects mask, the history, and egocentric maps
 //! that turn with the agent.
 
-use actor::env::actions::ActionSpace;
+use actor::env::actions::{ActionSpace, Selection};
 use actor::env::state::{build_state, ActionHistory, State, StateConfig, StateInputs};
 use actor::mapping::{intrinsics, map_frame};
 use mapper::{Affordance, Map, MapConfig, ObjectId, Outcome};
 use nalgebra::Point2;
+use proto::Method;
 use sim::agent::{AgentState, NavAction, Simulator};
 use sim::ithor::load_scene;
 use sim::profile::RobotProfile;
@@ -53,7 +54,7 @@ fn observe(
         reach_m: sim.profile().reach_m,
         visited: &[Point2::new(a.x, a.y)],
         probabilities: &probabilities,
-        map,
+        map: Some(map),
         history,
         holding: false,
     };
@@ -73,8 +74,8 @@ fn centroid(plane: &[f32], side: usize) -> (f32, f32) {
 
 #[test]
 fn state_shapes_ranges_masks_and_egocentric_maps() {
-    let space = ActionSpace::new(&AFFORDANCES);
-    let config = StateConfig::paper(&AFFORDANCES, space.len());
+    let space = ActionSpace::new(&AFFORDANCES, Selection::Grid);
+    let config = StateConfig::paper(Method::Ours, &AFFORDANCES, space.len());
     let mut sim = simulator();
     let mut map = Map::new(MapConfig::default());
     let mut history = ActionHistory::default();

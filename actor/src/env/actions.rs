@@ -7,6 +7,9 @@
 //! Each visible map object goes to the grid cell whose centre is nearest
 //! its pixel centroid; a cell with no object, or only objects the current
 //! U-Net is not confident about, is masked.
+//!
+//! IntExp instead has one selection action per affordance: the object most
+//! centred in the image ([`centred_target`]).
 
 use mapper::Affordance;
 use sim::agent::{Action, HandMove, NavAction};
@@ -40,6 +43,33 @@ pub enum PolicyAction {
     MoveHeld(HandMove),
 }
 
+/// How the policy picks the object to interact with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Selection {
+    /// One action per cell of the 3 × 3 grid (the paper's).
+    Grid,
+    /// One action: the most-centred object (IntExp's).
+    Centred,
+}
+
+impl Selection {
+    /// The selection of `method`.
+    pub fn of(method: proto::Method) -> Self {
+        match method {
+            proto::Method::Intexp => Selection::Centred,
+            _ => Selection::Grid,
+        }
+    }
+
+    /// Selection actions per affordance.
+    pub fn slots(self) -> usize {
+        match self {
+            Selection::Grid => GRID * GRID,
+            Selection::Centred => 1,
+        }
+    }
+}
+
 /// The action space for a set of affordances.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ActionSpace {
@@ -47,11 +77,14 @@ pub struct ActionSpace {
 }
 
 impl ActionSpace {
-    /// The actions for `affordances` (each listed once, in the given order).
-    pub fn new(affordances: &[Affordance]) -> Self {
+    /// The actions for `affordances` (each listed once, in the given order),
+    /// with `selection`'s slots per affordance.
+    pub fn new(affordances: &[Affordance], selection: Selection) -> Self {
         let mut actions: Vec<PolicyAction> = NAV.iter().map(|&a| PolicyAction::Nav(a)).collect();
         for &affordance in affordances {
-            actions.extend((0..GRID * GRID).map(|cell| PolicyAction::Select { affordance, cell }));
+            actions.extend(
+                (0..selection.slots()).map(|cell| PolicyAction::Select { affordance, cell }),
+            );
         }
         if affordances.contains(&Affordance::PickUp) {
             actions.push(PolicyAction::Drop);
@@ -307,6 +340,49 @@ pub fn cell_targets(
     CellTargets { cells }
 }
 
+/// IntExp's target for a frame: the object under the pixel nearest the
+/// image's centre, looked for within the grid's middle cell, for every
+/// affordance in selection slot 0 (no confidence filter: IntExp has none).
+/// `ids` is the frame's object-id image, `width` wide.
+pub fn centred_target(
+    ids: &[u32],
+    width: usize,
+    affordances: &[Affordance],
+    rule: &SelectionRule,
+) -> CellTargets {
+    let height = ids.len() / width.max(1);
+    let (cu, cv) = ((width as f32 - 1.0) / 2.0, (height as f32 - 1.0) / 2.0);
+    let (half_w, half_h) = (
+        rule.centre_fraction * width as f32 / (2 * GRID) as f32,
+        rule.centre_fraction * height as f32 / (2 * GRID) as f32,
+    );
+    let nearest = ids
+        .iter()
+        .enumerate()
+        .filter(|&(p, &id)| {
+            let (du, dv) = ((p % width) as f32 - cu, (p / width) as f32 - cv);
+            id != 0 && du.abs() <= half_w && dv.abs() <= half_h
+        })
+        .min_by(|&(a, _), &(b, _)| {
+            let d = |p: usize| ((p % width) as f32 - cu).powi(2) + ((p / width) as f32 - cv).powi(2);
+            d(a).total_cmp(&d(b))
+        });
+    let target = nearest.and_then(|(p, &id)| {
+        let pixels = ids.iter().filter(|&&m| m == id).count();
+        (pixels >= rule.min_pixels).then_some(Target {
+            object: id,
+            u: p % width,
+            v: p / width,
+            pixels,
+        })
+    });
+    let mut slots = [None; GRID * GRID];
+    slots[0] = target;
+    CellTargets {
+        cells: affordances.iter().map(|&a| (a, slots)).collect(),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -326,17 +402,51 @@ mod tests {
 
     #[test]
     fn the_action_count_follows_the_affordances() {
-        assert_eq!(ActionSpace::new(&[Affordance::PickUp]).len(), 21);
-        assert_eq!(ActionSpace::new(&[Affordance::Push]).len(), 14);
-        assert_eq!(
-            ActionSpace::new(&[Affordance::PickUp, Affordance::Push]).len(),
-            30
-        );
+        let grid = |a: &[Affordance]| ActionSpace::new(a, Selection::Grid).len();
+        assert_eq!(grid(&[Affordance::PickUp]), 21);
+        assert_eq!(grid(&[Affordance::Push]), 14);
+        assert_eq!(grid(&[Affordance::PickUp, Affordance::Push]), 30);
+        let centred = ActionSpace::new(&[Affordance::PickUp, Affordance::Push], Selection::Centred);
+        assert_eq!(centred.len(), 5 + 2 + 7);
+        // The task and the space agree for every method.
+        for method in [
+            proto::Method::Ours,
+            proto::Method::NomapSeg,
+            proto::Method::NomapNoseg,
+            proto::Method::Intexp,
+        ] {
+            let task = proto::TaskSpec {
+                method,
+                ..proto::TaskSpec::default()
+            };
+            let space = ActionSpace::new(&task.affordances, Selection::of(method));
+            assert_eq!(space.len(), task.n_actions(), "{method:?}");
+        }
+    }
+
+    #[test]
+    fn intexp_selects_the_object_at_the_centre_or_nothing() {
+        let rule = SelectionRule::default();
+        // A big object off-centre (2) and a small one over the centre (3).
+        let ids = image(&[(2, 0, 0, 12, 30), (3, 14, 13, 18, 17)]);
+        let t = centred_target(&ids, 30, &[Affordance::PickUp, Affordance::Push], &rule);
+        for a in [Affordance::PickUp, Affordance::Push] {
+            let target = t.target(a, 0).unwrap();
+            assert_eq!(target.object, 3);
+            assert_eq!((target.u, target.v), (14, 14), "the pixel nearest (14.5, 14.5)");
+            assert!(t.target(a, 1).is_none());
+        }
+        let space = ActionSpace::new(&[Affordance::PickUp], Selection::Centred);
+        assert_eq!(space.mask(false, &t)[5], 1);
+        // Only the off-centre object: nothing to select, the action is masked.
+        let t = centred_target(&image(&[(2, 0, 0, 8, 30)]), 30, &[Affordance::PickUp], &rule);
+        assert!(t.target(Affordance::PickUp, 0).is_none());
+        assert_eq!(space.mask(false, &t)[5], 0);
     }
 
     #[test]
     fn the_mask_follows_the_hand_and_the_cells() {
-        let space = ActionSpace::new(&[Affordance::PickUp, Affordance::Push]);
+        let space = ActionSpace::new(&[Affordance::PickUp, Affordance::Push], Selection::Grid);
         // One object in the middle cell.
         let targets = cell_targets(
             &image(&[(7, 12, 12, 18, 18)]),

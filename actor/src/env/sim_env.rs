@@ -1,8 +1,14 @@
-//! The simulator environment of method `ours`: each step goes simulator →
-//! map integration → U-Net inference → state → (policy, outside) → action;
-//! at the end of an episode the labeler turns the map's interaction records
-//! into labelled frames for the learner. A picked-up object is held in the
-//! map (kept, unseen) and released where the simulator put it down.
+//! The simulator environment of the four methods. For `ours` each step goes
+//! simulator → map integration → U-Net inference → state → (policy,
+//! outside) → action; at the end of an episode the labeler turns the map's
+//! interaction records into labelled frames for the learner. A picked-up
+//! object is held in the map (kept, unseen) and released where the
+//! simulator put it down.
+//!
+//! The methods without a map skip the map: objects are the simulator's
+//! segmentation, each interaction leaves a 3-D point on its object, and the
+//! labels come from those points (the whole segment under the point for
+//! `nomap-seg`, a 0.2 m sphere for `nomap-noseg` and `intexp`).
 
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
@@ -10,7 +16,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use mapper::{Affordance, Map, MapConfig, ObjectId, ObjectLabels, Outcome as MapOutcome, Pose};
 use nalgebra::Point2;
-use proto::{FrameBatch, StatField};
+use proto::{FrameBatch, Method, StatField};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use sim::affordances::{can_pick_up, can_push};
@@ -22,13 +28,16 @@ use sim::renderer::Renderer;
 use sim::scene::OrientedBox;
 use sim::scenes::SceneSource;
 
-use crate::env::actions::{cell_targets, ActionSpace, CellTargets, PolicyAction, SelectionRule};
+use crate::env::actions::{
+    cell_targets, centred_target, ActionSpace, CellTargets, PolicyAction, Selection, SelectionRule,
+    Target,
+};
 use crate::env::affordance_model::AffordanceModel;
 use crate::env::reward::{RewardTracker, RewardWeights, StepEvent};
 use crate::env::state::{build_state, ActionHistory, State, StateConfig, StateInputs};
 use crate::labeler::{
-    apply_confidence_labels, confidence_labels, frame_batch, map_labels, ConfidenceRule,
-    EpisodeFrame,
+    apply_confidence_labels, confidence_labels, frame_batch, map_labels, segment_labels,
+    sphere_labels, ConfidenceRule, EpisodeFrame, InteractionPoint, SphereRule,
 };
 use crate::mapping::{intrinsics, map_frame};
 use crate::metrics::{annotation_rates, score_frame};
@@ -37,6 +46,8 @@ use crate::recording::{write_episode, FrameRecord, StepRecord};
 /// Settings of the environment.
 #[derive(Debug, Clone)]
 pub struct SimEnvConfig {
+    /// What the state holds and how labels are made.
+    pub method: Method,
     /// Affordances tried and labelled, in plane order.
     pub affordances: Vec<Affordance>,
     /// Steps per episode (600 in the paper).
@@ -54,12 +65,15 @@ pub struct SimEnvConfig {
     pub confidence_after_steps: Option<u64>,
     /// The thresholds of annotation by confidence.
     pub confidence: ConfidenceRule,
+    /// The point labels of the methods without a map.
+    pub sphere: SphereRule,
 }
 
 impl SimEnvConfig {
-    /// The paper's settings for `affordances`.
-    pub fn paper(affordances: &[Affordance]) -> Self {
+    /// The paper's settings of `method` for `affordances`.
+    pub fn paper(method: Method, affordances: &[Affordance]) -> Self {
         Self {
+            method,
             affordances: affordances.to_vec(),
             episode_steps: 600,
             reward: RewardWeights::default(),
@@ -68,7 +82,13 @@ impl SimEnvConfig {
             balanced_frames: true,
             confidence_after_steps: Some(400_000),
             confidence: ConfidenceRule::default(),
+            sphere: SphereRule::default(),
         }
+    }
+
+    /// Whether the method keeps the object-level map.
+    fn uses_map(&self) -> bool {
+        self.method == Method::Ours
     }
 }
 
@@ -138,6 +158,10 @@ struct Episode {
     targets: CellTargets,
     /// Interaction records, kept here too: the map forgets objects it stops seeing.
     remembered: BTreeMap<u32, ObjectLabels>,
+    /// Methods without a map: every interaction as a point on its object.
+    points: Vec<InteractionPoint>,
+    /// Methods without a map: every scene object's pose in every frame.
+    object_poses: Vec<Vec<Pose>>,
     steps: usize,
     scene_index: u64,
     /// The object in the hand: its map id and its box when it was picked up.
@@ -161,6 +185,32 @@ struct Episode {
     /// Interactable scene objects an interaction succeeded on.
     interacted: std::collections::BTreeSet<usize>,
     episode_return: f32,
+}
+
+/// The point an interaction leaves on its target (methods without a map):
+/// the aimed pixel back-projected with the last frame's depth, in the
+/// object's frame as it was in that frame. `None` where the pixel saw nothing.
+fn interaction_point(
+    episode: &Episode,
+    affordances: &[Affordance],
+    affordance: Affordance,
+    target: &Target,
+    k: &mapper::Intrinsics,
+) -> Option<InteractionPoint> {
+    let frame = episode.frames.last()?;
+    let object = (target.object as usize).checked_sub(1)?;
+    let pose = episode.object_poses.last()?.get(object)?;
+    let z = *frame.depth_m.get(target.v * k.width + target.u)?;
+    if !(z.is_finite() && z > 0.0) {
+        return None;
+    }
+    let p_world = frame.t_world_camera * k.back_project(target.u as f32, target.v as f32, z);
+    Some(InteractionPoint {
+        object,
+        affordance: affordances.iter().position(|&a| a == affordance)?,
+        success: false,
+        p_object: pose.inverse() * p_world,
+    })
 }
 
 /// Running sums of per-frame scores.
@@ -191,11 +241,11 @@ impl SimEnv {
         renderer: Renderer,
         model: AffordanceModel,
     ) -> Self {
-        let space = ActionSpace::new(&config.affordances);
+        let space = ActionSpace::new(&config.affordances, Selection::of(config.method));
         let state_config = StateConfig {
             image_size: profile.image_size,
             map_cells: profile.image_size,
-            ..StateConfig::paper(&config.affordances, space.len())
+            ..StateConfig::paper(config.method, &config.affordances, space.len())
         };
         Self {
             config,
@@ -223,11 +273,13 @@ impl SimEnv {
         self.global_steps = steps;
     }
 
-    /// Whether episodes now end with annotation by confidence.
+    /// Whether episodes now end with annotation by confidence (`ours` only).
     pub fn annotates_by_confidence(&self) -> bool {
-        self.config
-            .confidence_after_steps
-            .is_some_and(|after| self.global_steps >= after)
+        self.config.uses_map()
+            && self
+                .config
+                .confidence_after_steps
+                .is_some_and(|after| self.global_steps >= after)
     }
 
     /// The action space.
@@ -302,6 +354,8 @@ impl SimEnv {
             frames: Vec::new(),
             targets: CellTargets::default(),
             remembered: BTreeMap::new(),
+            points: Vec::new(),
+            object_poses: Vec::new(),
             steps: 0,
             scene_index,
             in_hand: None,
@@ -325,7 +379,16 @@ impl SimEnv {
             PolicyAction::Select { affordance, cell } => episode
                 .targets
                 .target(affordance, cell)
-                .map(|t| (affordance, t.object)),
+                .map(|t| (affordance, t)),
+            _ => None,
+        };
+        // Without a map, the interaction leaves a point on the target object,
+        // taken where the object is before the action moves it.
+        let point = match interaction {
+            Some((affordance, target)) if !self.config.uses_map() => {
+                let k = intrinsics(&episode.sim.camera());
+                interaction_point(episode, &self.config.affordances, affordance, &target, &k)
+            }
             _ => None,
         };
         let boxes_before: Vec<OrientedBox> = match action {
@@ -348,9 +411,21 @@ impl SimEnv {
                 failure: Some(Failure::NothingThere),
             },
         };
-        // The interaction's outcome goes onto the map object that was selected.
+        // The interaction's outcome goes onto the map object that was
+        // selected (or, without a map, onto its point).
         let mut interacted_instance = None;
-        if let Some((affordance, object)) = interaction {
+        if let Some(mut point) = point {
+            point.success = outcome.success;
+            episode.points.push(point);
+        }
+        if let Some((affordance, Target { object, .. })) = interaction {
+            interacted_instance = Some((affordance, object as usize));
+            episode.attempts += 1;
+            episode.successes += u32::from(outcome.success);
+        }
+        if let Some((affordance, Target { object, .. })) =
+            interaction.filter(|_| self.config.uses_map())
+        {
             let id = ObjectId(object);
             let result = if outcome.success {
                 MapOutcome::Success
@@ -380,9 +455,6 @@ impl SimEnv {
                     }
                 }
             }
-            interacted_instance = Some((affordance, object as usize));
-            episode.attempts += 1;
-            episode.successes += u32::from(outcome.success);
         }
         if let (
             Some(sim::agent::Action::PickUp { u, v } | sim::agent::Action::Push { u, v }),
@@ -454,10 +526,24 @@ impl SimEnv {
         let frame: Frame = episode.sim.render(&mut self.renderer)?;
         let camera = episode.sim.camera();
         let t1 = Instant::now();
-        let map_ids = episode
-            .map
-            .integrate(&map_frame(&camera, &frame))
-            .context("integrating the frame into the map")?;
+        // The frame's objects: map ids, or the segmentation without a map.
+        let map_ids = if self.config.uses_map() {
+            episode
+                .map
+                .integrate(&map_frame(&camera, &frame))
+                .context("integrating the frame into the map")?
+        } else {
+            episode.object_poses.push(
+                episode
+                    .sim
+                    .scene()
+                    .objects
+                    .iter()
+                    .map(|o| Pose::from_parts(o.bounds.center.coords.into(), o.bounds.rotation))
+                    .collect(),
+            );
+            frame.ids.clone()
+        };
         let t2 = Instant::now();
         let probabilities =
             self.model
@@ -481,13 +567,21 @@ impl SimEnv {
         let k = intrinsics(&camera);
         let agent = episode.sim.agent();
         let holding = episode.sim.held().is_some();
-        episode.targets = cell_targets(
-            &map_ids,
-            frame.width,
-            &self.config.affordances,
-            Some(&probabilities),
-            &self.config.selection,
-        );
+        episode.targets = match Selection::of(self.config.method) {
+            Selection::Grid => cell_targets(
+                &map_ids,
+                frame.width,
+                &self.config.affordances,
+                Some(&probabilities),
+                &self.config.selection,
+            ),
+            Selection::Centred => centred_target(
+                &map_ids,
+                frame.width,
+                &self.config.affordances,
+                &self.config.selection,
+            ),
+        };
         let state = build_state(
             &self.state_config,
             &StateInputs {
@@ -501,7 +595,7 @@ impl SimEnv {
                 reach_m: self.profile.reach_m,
                 visited: &episode.visited,
                 probabilities: &probabilities,
-                map: &episode.map,
+                map: self.config.uses_map().then_some(&episode.map),
                 history: &episode.history,
                 holding,
             },
@@ -566,15 +660,35 @@ impl SimEnv {
                     .context("storing confidence labels on the map")?;
             }
         }
-        let labels = map_labels(
-            &episode.map,
-            &episode.remembered,
-            &episode.frames,
-            &self.config.affordances,
-        );
         let camera = episode.sim.camera();
         let k = intrinsics(&camera);
         let planes = self.config.affordances.len();
+        let poses = &episode.object_poses;
+        let pose_of = |frame: usize, object: usize| poses[frame][object];
+        let labels = match self.config.method {
+            Method::Ours => map_labels(
+                &episode.map,
+                &episode.remembered,
+                &episode.frames,
+                &self.config.affordances,
+            ),
+            Method::NomapSeg => segment_labels(
+                &episode.frames,
+                &k,
+                &episode.points,
+                planes,
+                &pose_of,
+                &self.config.sphere,
+            ),
+            Method::NomapNoseg | Method::Intexp => sphere_labels(
+                &episode.frames,
+                &k,
+                &episode.points,
+                planes,
+                &pose_of,
+                &self.config.sphere,
+            ),
+        };
         if let Some((dir, prefix)) = &self.recording {
             let records: Vec<FrameRecord<'_>> = episode
                 .frames

@@ -1,6 +1,7 @@
 //! The simulator environment behind the episode loop's [`Environment`]
-//! interface: the state's five inputs flattened in the task's layout order
-//! (camera, global map, local map, history, inventory) and quantised to
+//! interface: the state's inputs flattened in the task's layout order
+//! (camera, global map, local map, history, inventory; those the method
+//! does not have are empty) and quantised to
 //! bytes, which is exactly what the policy acts on and what the learner
 //! trains on.
 
@@ -26,15 +27,11 @@ impl SimEnvironment {
     pub fn new(env: SimEnv, task: &TaskSpec) -> anyhow::Result<Self> {
         let layout = task.layout();
         let config = env.state_config();
+        let (image_channels, vector_dims) = config.input_shapes();
         ensure!(
             env.action_space().len() == layout.n_actions
-                && layout.image_channels
-                    == [
-                        config.camera_channels(),
-                        config.map_channels(),
-                        config.map_channels(),
-                    ]
-                && layout.vector_dims == [config.history_len(), 1]
+                && layout.image_channels == image_channels
+                && layout.vector_dims == vector_dims
                 && config.image_size == layout.image_size
                 && config.map_cells == layout.image_size,
             "the environment's state ({} actions, {} px) does not match the task's layout ({} actions, {} px)",

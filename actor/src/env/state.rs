@@ -1,4 +1,4 @@
-//! The policy's state for method `ours`, as the paper lists it, in three
+//! The policy's state. For method `ours`, as the paper lists it, three
 //! image-like inputs (one conv encoder each) and two vectors:
 //!
 //! - **camera** `[3 + 1 + 3A, S, S]`: RGB in 0..1; the distance image (each
@@ -15,16 +15,24 @@
 //!   newest first, zeros before the episode's start. Every input lies in
 //!   0..1, so the state travels to the learner as bytes.
 //! - **inventory** `[1]`: 1 while holding an object.
+//!
+//! The methods without a map keep only what needs no map: `nomap-seg` and
+//! `nomap-noseg` the camera's RGB, distance and probabilities, the history
+//! and the inventory; `intexp` the RGB and probabilities and the inventory.
+//! Their map inputs (and `intexp`'s history) are empty.
 
 use std::collections::VecDeque;
 
 use mapper::projection::visited;
 use mapper::{Affordance, GridSpec, Map, ObjectId, Pose, ProjectionKind};
 use nalgebra::Point2;
+use proto::{Method, TaskSpec};
 
 /// Sizes and extents of the state.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StateConfig {
+    /// What the state holds.
+    pub method: Method,
     /// The configured affordances, in plane order.
     pub affordances: Vec<Affordance>,
     /// Number of actions (for the history's one-hot).
@@ -44,9 +52,10 @@ pub struct StateConfig {
 }
 
 impl StateConfig {
-    /// The paper's state for `affordances` and an action space of `n_actions`.
-    pub fn paper(affordances: &[Affordance], n_actions: usize) -> Self {
+    /// The paper's state of `method` for `affordances` and an action space of `n_actions`.
+    pub fn paper(method: Method, affordances: &[Affordance], n_actions: usize) -> Self {
         Self {
+            method,
             affordances: affordances.to_vec(),
             n_actions,
             image_size: 128,
@@ -58,19 +67,51 @@ impl StateConfig {
         }
     }
 
+    /// The task's view of this state (channel counts live there, once).
+    fn task(&self) -> TaskSpec {
+        TaskSpec {
+            method: self.method,
+            affordances: self.affordances.clone(),
+            ..TaskSpec::default()
+        }
+    }
+
     /// Channels of the camera input.
     pub fn camera_channels(&self) -> usize {
-        4 + 3 * self.affordances.len()
+        self.task().camera_channels()
     }
 
-    /// Channels of each map input.
+    /// Channels of each map input (0 without a map).
     pub fn map_channels(&self) -> usize {
-        2 + 3 * self.affordances.len()
+        if self.method == Method::Ours {
+            self.task().map_channels()
+        } else {
+            0
+        }
     }
 
-    /// Length of the history vector.
+    /// Length of the history vector (0 for `intexp`).
     pub fn history_len(&self) -> usize {
-        self.history * (self.n_actions + 2)
+        if self.method == Method::Intexp {
+            0
+        } else {
+            self.history * (self.n_actions + 2)
+        }
+    }
+
+    /// Image-like inputs' channels and vector inputs' lengths, in the
+    /// policy's input order (empty inputs left out).
+    pub fn input_shapes(&self) -> (Vec<usize>, Vec<usize>) {
+        let images = [
+            self.camera_channels(),
+            self.map_channels(),
+            self.map_channels(),
+        ];
+        let vectors = [self.history_len(), 1];
+        (
+            images.into_iter().filter(|&c| c > 0).collect(),
+            vectors.into_iter().filter(|&d| d > 0).collect(),
+        )
     }
 }
 
@@ -95,7 +136,7 @@ pub struct StateInputs<'a> {
     pub rgb: &'a [u8],
     /// Z-depth of the frame, metres.
     pub depth_m: &'a [f32],
-    /// Map object id per pixel for this frame.
+    /// Object id per pixel for this frame (map ids for `ours`).
     pub map_ids: &'a [u32],
     /// Where the camera is.
     pub t_world_camera: &'a Pose,
@@ -111,8 +152,8 @@ pub struct StateInputs<'a> {
     pub visited: &'a [Point2<f32>],
     /// The U-Net's calibrated probability planes, one per affordance.
     pub probabilities: &'a [Vec<f32>],
-    /// The map.
-    pub map: &'a Map,
+    /// The map (method `ours`; `None` for the methods without one).
+    pub map: Option<&'a Map>,
     /// Recent actions.
     pub history: &'a ActionHistory,
     /// Whether the hand holds an object.
@@ -134,18 +175,24 @@ pub struct State {
     pub inventory: Vec<f32>,
 }
 
-/// Builds the state.
+/// Builds the state of `config.method`: inputs the method does not have
+/// (and every map input when `input.map` is `None`) stay empty.
 pub fn build_state(config: &StateConfig, input: &StateInputs<'_>) -> State {
+    let map = input.map.filter(|_| config.map_channels() > 0);
     State {
-        camera: camera_planes(config, input),
-        global_map: map_planes(config, input, config.global_extent_m),
-        local_map: map_planes(config, input, config.local_extent_m),
+        camera: camera_planes(config, input, map),
+        global_map: map.map_or_else(Vec::new, |m| {
+            map_planes(config, input, m, config.global_extent_m)
+        }),
+        local_map: map.map_or_else(Vec::new, |m| {
+            map_planes(config, input, m, config.local_extent_m)
+        }),
         history: history_vector(config, input.history),
         inventory: vec![f32::from(u8::from(input.holding))],
     }
 }
 
-fn camera_planes(config: &StateConfig, input: &StateInputs<'_>) -> Vec<f32> {
+fn camera_planes(config: &StateConfig, input: &StateInputs<'_>, map: Option<&Map>) -> Vec<f32> {
     let n = input.depth_m.len();
     let mut out = Vec::with_capacity(config.camera_channels() * n);
     for c in 0..3 {
@@ -160,7 +207,8 @@ fn camera_planes(config: &StateConfig, input: &StateInputs<'_>) -> Vec<f32> {
     }
     let k = input.intrinsics;
     let (ax, ay, _) = input.agent;
-    out.extend(input.depth_m.iter().enumerate().map(|(p, &z)| {
+    let distance = config.method != Method::Intexp;
+    out.extend(input.depth_m.iter().enumerate().filter(|_| distance).map(|(p, &z)| {
         if !(z.is_finite() && z > 0.0) {
             return 1.0;
         }
@@ -172,11 +220,13 @@ fn camera_planes(config: &StateConfig, input: &StateInputs<'_>) -> Vec<f32> {
     for plane in input.probabilities.iter().take(config.affordances.len()) {
         out.extend(plane.iter().map(|p| p.clamp(0.0, 1.0)));
     }
+    let Some(map) = map else {
+        return out;
+    };
     for &affordance in &config.affordances {
         for wanted in [true, false] {
             out.extend(input.map_ids.iter().map(|&id| {
-                let label = input
-                    .map
+                let label = map
                     .object(ObjectId(id))
                     .filter(|o| o.labels.interacted(affordance))
                     .and_then(|o| o.labels.label(affordance));
@@ -187,7 +237,7 @@ fn camera_planes(config: &StateConfig, input: &StateInputs<'_>) -> Vec<f32> {
     out
 }
 
-fn map_planes(config: &StateConfig, input: &StateInputs<'_>, extent_m: f32) -> Vec<f32> {
+fn map_planes(config: &StateConfig, input: &StateInputs<'_>, map: &Map, extent_m: f32) -> Vec<f32> {
     let (x, y, heading) = input.agent;
     let grid = GridSpec {
         center: Point2::new(x, y),
@@ -197,7 +247,7 @@ fn map_planes(config: &StateConfig, input: &StateInputs<'_>, extent_m: f32) -> V
     };
     let (lo, hi) = config.occupancy_heights_m;
     let mut out = visited(input.visited, &grid);
-    out.extend(input.map.project(
+    out.extend(map.project(
         ProjectionKind::Occupancy {
             min_height_m: input.floor_z + lo,
             max_height_m: input.floor_z + hi,
@@ -210,7 +260,7 @@ fn map_planes(config: &StateConfig, input: &StateInputs<'_>, extent_m: f32) -> V
             ProjectionKind::InteractedFailure(a),
             ProjectionKind::NotInteracted(a),
         ] {
-            out.extend(input.map.project(kind, &grid));
+            out.extend(map.project(kind, &grid));
         }
     }
     out
@@ -224,6 +274,9 @@ pub fn encode_reward(reward: f32) -> f32 {
 
 fn history_vector(config: &StateConfig, history: &ActionHistory) -> Vec<f32> {
     let width = config.n_actions + 2;
+    if config.history_len() == 0 {
+        return Vec::new();
+    }
     let mut out = vec![0.0; config.history_len()];
     for (slot, &(action, success, reward)) in
         history.entries.iter().take(config.history).enumerate()
