@@ -16,8 +16,8 @@ Options:
   --actors N        number of actor processes (required)
   --run-dir DIR     run directory (config, checkpoints, logs); default runs/run-<time>
   --resume          resume the run in --run-dir from its newest valid checkpoint
-  --method M        ours (default), nomap-seg, nomap-noseg or intexp; only
-                    `ours` runs so far (the GRU methods need recurrent rollouts)
+  --method M        ours (default: object-level map), nomap-seg, nomap-noseg
+                    or intexp (no map: GRU memory, point labels; see README)
   --env ENV         sim (default: simulator, map, U-Net, labeler) or
                     bandit-fixture (a wiring test fixture)
   --image-size N    camera and map side in pixels, a multiple of 16 (default 128,

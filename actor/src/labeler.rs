@@ -210,21 +210,29 @@ pub fn sphere_labels(
     object_pose: &dyn Fn(usize, usize) -> Pose,
     rule: &SphereRule,
 ) -> Vec<Vec<u8>> {
-    point_labels(frames, intrinsics, points, n_affordances, object_pose, rule, &|frame, p_camera, _, plane, label| {
-        for (px, out) in plane.iter_mut().enumerate() {
-            let z = frame.depth_m[px];
-            if z.is_nan() || z <= 0.0 {
-                continue;
+    point_labels(
+        frames,
+        intrinsics,
+        points,
+        n_affordances,
+        object_pose,
+        rule,
+        &|frame, p_camera, _, plane, label| {
+            for (px, out) in plane.iter_mut().enumerate() {
+                let z = frame.depth_m[px];
+                if z.is_nan() || z <= 0.0 {
+                    continue;
+                }
+                let (u, v) = (
+                    (px % intrinsics.width) as f32,
+                    (px / intrinsics.width) as f32,
+                );
+                if (intrinsics.back_project(u, v, z) - p_camera).norm() <= rule.radius_m {
+                    mark(out, label);
+                }
             }
-            let (u, v) = (
-                (px % intrinsics.width) as f32,
-                (px / intrinsics.width) as f32,
-            );
-            if (intrinsics.back_project(u, v, z) - p_camera).norm() <= rule.radius_m {
-                mark(out, label);
-            }
-        }
-    })
+        },
+    )
 }
 
 /// Per frame, `n_affordances` label planes from interaction points: in each
@@ -238,17 +246,25 @@ pub fn segment_labels(
     object_pose: &dyn Fn(usize, usize) -> Pose,
     rule: &SphereRule,
 ) -> Vec<Vec<u8>> {
-    point_labels(frames, intrinsics, points, n_affordances, object_pose, rule, &|frame, _, pixel, plane, label| {
-        let segment = frame.map_ids[pixel];
-        if segment == 0 {
-            return;
-        }
-        for (out, &id) in plane.iter_mut().zip(&frame.map_ids) {
-            if id == segment {
-                mark(out, label);
+    point_labels(
+        frames,
+        intrinsics,
+        points,
+        n_affordances,
+        object_pose,
+        rule,
+        &|frame, _, pixel, plane, label| {
+            let segment = frame.map_ids[pixel];
+            if segment == 0 {
+                return;
             }
-        }
-    })
+            for (out, &id) in plane.iter_mut().zip(&frame.map_ids) {
+                if id == segment {
+                    mark(out, label);
+                }
+            }
+        },
+    )
 }
 
 /// Writes `label` unless the pixel is already positive (positive wins).

@@ -3,8 +3,7 @@
 
 use actor::labeler::{
     confidence_labels, frame_batch, map_labels, segment_labels, sphere_labels, ConfidenceRule,
-    EpisodeFrame,
-    InteractionPoint, SphereRule,
+    EpisodeFrame, InteractionPoint, SphereRule,
 };
 use actor::mapping::{intrinsics, map_frame};
 use mapper::{Affordance, Map, MapConfig, ObjectId, Outcome, Pose};

@@ -217,7 +217,10 @@ fn methods_without_a_map_fit_their_layout_and_label_from_interaction_points() {
             assert!(interactions > 0, "{method:?}");
         }
         if interactions > 0 {
-            assert!(labelled(&frames) > 0, "{method:?}: interactions leave labels");
+            assert!(
+                labelled(&frames) > 0,
+                "{method:?}: interactions leave labels"
+            );
         }
     }
 }

@@ -209,11 +209,13 @@ mod tests {
         assert_eq!(partial.policy.batch_steps, 6);
         assert_eq!(partial.policy.epochs, 4);
         assert_eq!(partial.task.env, proto::EnvKind::BanditFixture);
-        let bad: LearnerConfig = toml::from_str("[task]\nmethod = \"nomap-seg\"").unwrap();
+        let gru: LearnerConfig = toml::from_str("[task]\nmethod = \"nomap-seg\"").unwrap();
+        assert!(gru.validate().is_ok());
+        let bad: LearnerConfig = toml::from_str("[task]\nmemory_size = 0").unwrap();
         assert!(bad
             .validate()
             .unwrap_err()
             .to_string()
-            .contains("nomap-seg"));
+            .contains("task.memory_size"));
     }
 }

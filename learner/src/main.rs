@@ -71,7 +71,7 @@ struct ServeArgs {
     /// Where the networks train: cpu, or gpu in a build with `--features nets/gpu` (overrides the config).
     #[arg(long)]
     device: Option<String>,
-    /// Method: ours, nomap-seg, nomap-noseg or intexp (overrides [task] method; only `ours` runs so far).
+    /// Method: ours, nomap-seg, nomap-noseg or intexp (overrides [task] method).
     #[arg(long, conflicts_with = "resume")]
     method: Option<String>,
     /// Actors' environment: sim, or bandit-fixture (a wiring test) (overrides [task] env).

@@ -120,7 +120,12 @@ impl Payload for RolloutChunk {
 
     fn payload_len(&self) -> usize {
         let t = self.n_steps();
-        SUB_HEADER_LEN + 4 * self.start_hidden.len() + 16 * t + self.obs.len() + self.masks.len() + t
+        SUB_HEADER_LEN
+            + 4 * self.start_hidden.len()
+            + 16 * t
+            + self.obs.len()
+            + self.masks.len()
+            + t
     }
 
     fn write_payload(&self, out: &mut [u8]) {

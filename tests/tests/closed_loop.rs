@@ -1,7 +1,8 @@
-//! The closed loop, CI-sized: a learner and two simulator actors (method
-//! `ours`, 64 × 64 images, short episodes). Labelled frames reach the
-//! learner, the U-Net trains on them and passes its validation gate, the
-//! policy updates, and both networks' new weights reach the actors.
+//! The closed loop, CI-sized: a learner and two simulator actors (64 × 64
+//! images, short episodes), for method `ours` and then for `nomap-seg`
+//! (GRU policy: recurrent rollouts). Labelled frames reach the learner, the
+//! U-Net trains on them and passes its validation gate, the policy updates,
+//! and both networks' new weights reach the actors.
 
 use std::time::Duration;
 
@@ -30,14 +31,22 @@ fn newest_version(actor: &Process, marker: &str) -> Option<u64> {
 
 #[test]
 fn frames_train_the_unet_and_new_weights_reach_both_actors() {
-    let dir = scratch_dir("closed-loop");
-    let prefix = format!("it-loop-{}", std::process::id());
+    // One method after the other: two loops at once would crowd 2 cores.
+    for method in ["ours", "nomap-seg"] {
+        closed_loop(method);
+    }
+}
+
+fn closed_loop(method: &str) {
+    eprintln!("closed loop, method {method}");
+    let dir = scratch_dir(&format!("closed-loop-{method}"));
+    let prefix = format!("it-loop-{method}-{}", std::process::id());
     let run_dir = dir.join("run");
     let config = dir.join("loop.toml");
     std::fs::write(
         &config,
         format!(
-            "[task]\nenv = \"sim\"\nmethod = \"ours\"\naffordances = [\"pick_up\", \"push\"]\nimage_size = 64\nepisode_steps = 16\nbalanced_frames = false\nconfidence_after_steps = 0\n\
+            "[task]\nenv = \"sim\"\nmethod = \"{method}\"\naffordances = [\"pick_up\", \"push\"]\nimage_size = 64\nepisode_steps = 16\nbalanced_frames = false\nconfidence_after_steps = 0\nmemory_size = 32\n\
              [policy]\nbatch_steps = 16\nepochs = 2\n\
              [unet]\nsteps_per_episode = 3\nbatch_frames = 4\nvalidation_fraction = 0.5\ntest_fraction = 0.0\n\
              [transport]\nservice_prefix = \"{prefix}\"\nmax_actors = 2\n"

@@ -364,7 +364,8 @@ pub fn centred_target(
             id != 0 && du.abs() <= half_w && dv.abs() <= half_h
         })
         .min_by(|&(a, _), &(b, _)| {
-            let d = |p: usize| ((p % width) as f32 - cu).powi(2) + ((p / width) as f32 - cv).powi(2);
+            let d =
+                |p: usize| ((p % width) as f32 - cu).powi(2) + ((p / width) as f32 - cv).powi(2);
             d(a).total_cmp(&d(b))
         });
     let target = nearest.and_then(|(p, &id)| {
@@ -433,13 +434,22 @@ mod tests {
         for a in [Affordance::PickUp, Affordance::Push] {
             let target = t.target(a, 0).unwrap();
             assert_eq!(target.object, 3);
-            assert_eq!((target.u, target.v), (14, 14), "the pixel nearest (14.5, 14.5)");
+            assert_eq!(
+                (target.u, target.v),
+                (14, 14),
+                "the pixel nearest (14.5, 14.5)"
+            );
             assert!(t.target(a, 1).is_none());
         }
         let space = ActionSpace::new(&[Affordance::PickUp], Selection::Centred);
         assert_eq!(space.mask(false, &t)[5], 1);
         // Only the off-centre object: nothing to select, the action is masked.
-        let t = centred_target(&image(&[(2, 0, 0, 8, 30)]), 30, &[Affordance::PickUp], &rule);
+        let t = centred_target(
+            &image(&[(2, 0, 0, 8, 30)]),
+            30,
+            &[Affordance::PickUp],
+            &rule,
+        );
         assert!(t.target(Affordance::PickUp, 0).is_none());
         assert_eq!(space.mask(false, &t)[5], 0);
     }

@@ -208,15 +208,22 @@ fn camera_planes(config: &StateConfig, input: &StateInputs<'_>, map: Option<&Map
     let k = input.intrinsics;
     let (ax, ay, _) = input.agent;
     let distance = config.method != Method::Intexp;
-    out.extend(input.depth_m.iter().enumerate().filter(|_| distance).map(|(p, &z)| {
-        if !(z.is_finite() && z > 0.0) {
-            return 1.0;
-        }
-        let world =
-            input.t_world_camera * k.back_project((p % k.width) as f32, (p / k.width) as f32, z);
-        let horizontal = ((world.x - ax).powi(2) + (world.y - ay).powi(2)).sqrt();
-        (horizontal / (2.0 * input.reach_m)).min(1.0)
-    }));
+    out.extend(
+        input
+            .depth_m
+            .iter()
+            .enumerate()
+            .filter(|_| distance)
+            .map(|(p, &z)| {
+                if !(z.is_finite() && z > 0.0) {
+                    return 1.0;
+                }
+                let world = input.t_world_camera
+                    * k.back_project((p % k.width) as f32, (p / k.width) as f32, z);
+                let horizontal = ((world.x - ax).powi(2) + (world.y - ay).powi(2)).sqrt();
+                (horizontal / (2.0 * input.reach_m)).min(1.0)
+            }),
+    );
     for plane in input.probabilities.iter().take(config.affordances.len()) {
         out.extend(plane.iter().map(|p| p.clamp(0.0, 1.0)));
     }

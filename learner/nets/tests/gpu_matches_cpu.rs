@@ -5,7 +5,7 @@
 
 use burn::prelude::*;
 use nets::device::{open_device, DeviceChoice};
-use nets::policy::{ObsDtype, PolicyLayout, PolicyInput, PolicyNet};
+use nets::policy::{ObsDtype, PolicyInput, PolicyLayout, PolicyNet};
 use nets::unet::AffordanceUnet;
 use nets::weights::{load_safetensors, to_safetensors};
 

@@ -13,7 +13,7 @@
 use std::time::Instant;
 
 use burn::prelude::*;
-use nets::policy::{ObsDtype, PolicyLayout, PolicyInput, PolicyNet};
+use nets::policy::{ObsDtype, PolicyInput, PolicyLayout, PolicyNet};
 use nets::unet::AffordanceUnet;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};

@@ -4,7 +4,7 @@
 
 use burn::prelude::*;
 use burn::tensor::{Bool, Int};
-use nets::policy::{ObsDtype, PolicyLayout, PolicyInput, PolicyNet};
+use nets::policy::{ObsDtype, PolicyInput, PolicyLayout, PolicyNet};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use training::gae::gae;
@@ -445,13 +445,19 @@ fn sequences_of_unequal_length_replay_exactly_as_they_were_stepped() {
         .map(|_| (0..3).map(|_| rng.random_range(0.0..1.0)).collect())
         .collect();
     let start_hidden: Vec<f32> = (0..32)
-        .map(|i| if i < 16 { 0.0 } else { rng.random_range(-0.5..0.5) })
+        .map(|i| {
+            if i < 16 {
+                0.0
+            } else {
+                rng.random_range(-0.5..0.5)
+            }
+        })
         .collect();
     let mut stepped = Vec::new();
     let mut at = 0;
     for (s, &len) in lengths.iter().enumerate() {
-        let mut h = Tensor::<1>::from_floats(&start_hidden[s * 16..(s + 1) * 16], &device)
-            .reshape([1, 16]);
+        let mut h =
+            Tensor::<1>::from_floats(&start_hidden[s * 16..(s + 1) * 16], &device).reshape([1, 16]);
         for row in &rows[at..at + len] {
             let input = PolicyInput {
                 images: vec![],
@@ -485,7 +491,11 @@ fn sequences_of_unequal_length_replay_exactly_as_they_were_stepped() {
     let order: Vec<usize> = (3..8).chain(0..3).collect();
     for (k, &row) in order.iter().enumerate() {
         let (lp, v) = &stepped[row];
-        assert!((values[k] - v).abs() < 1e-5, "row {row}: {} vs {v}", values[k]);
+        assert!(
+            (values[k] - v).abs() < 1e-5,
+            "row {row}: {} vs {v}",
+            values[k]
+        );
         for j in 0..2 {
             assert!((log_probs[2 * k + j] - lp[j]).abs() < 1e-5, "row {row}");
         }
