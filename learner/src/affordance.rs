@@ -118,6 +118,7 @@ impl AffordanceLearner {
                 max_frames: settings.max_frames,
                 validation_fraction: settings.validation_fraction,
                 test_fraction: settings.test_fraction,
+                max_held_out: settings.max_held_out_frames,
             }),
             settings: settings.clone(),
             affordances,

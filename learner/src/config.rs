@@ -85,6 +85,10 @@ pub struct UnetConfig {
     pub test_fraction: f64,
     /// Newest validation frames the gate compares the networks on.
     pub max_validation_frames: usize,
+    /// Frames the validation and the test split each keep; older ones move
+    /// to training (without a cap, held-out frames pile up while training
+    /// frames leave after their uses).
+    pub max_held_out_frames: usize,
 }
 
 impl Default for LearnerConfig {
@@ -135,6 +139,7 @@ impl Default for UnetConfig {
             validation_fraction: 0.15,
             test_fraction: 0.15,
             max_validation_frames: 64,
+            max_held_out_frames: 256,
         }
     }
 }

@@ -1,6 +1,8 @@
 //! The global affordance dataset: labelled frames of every episode, split into
 //! train / validation / test, used for training until each frame's 35th use,
-//! with a bound on memory.
+//! with a bound on memory. Each held-out split keeps only its newest frames:
+//! older ones move to training, so held-out data stays recent and bounded
+//! while training frames, which leave after their uses, keep coming.
 
 use std::collections::VecDeque;
 use std::sync::Arc;
@@ -22,6 +24,8 @@ pub struct DatasetConfig {
     pub validation_fraction: f64,
     /// Probability that a new frame goes to test.
     pub test_fraction: f64,
+    /// Frames each held-out split keeps; beyond it the oldest move to training.
+    pub max_held_out: usize,
 }
 
 impl Default for DatasetConfig {
@@ -31,6 +35,7 @@ impl Default for DatasetConfig {
             max_frames: 20_000,
             validation_fraction: 0.15,
             test_fraction: 0.15,
+            max_held_out: 512,
         }
     }
 }
@@ -63,6 +68,8 @@ pub struct DatasetCounters {
     pub evicted_after_uses: u64,
     /// Frames dropped (oldest first) to stay under `max_frames`.
     pub evicted_by_cap: u64,
+    /// Held-out frames moved to training when their split was full.
+    pub moved_to_train: u64,
 }
 
 /// The global dataset.
@@ -127,6 +134,15 @@ impl AffordanceDataset {
             }
             self.counters.added += 1;
             splits.push(split);
+        }
+        for held_out in [&mut self.validation, &mut self.test] {
+            while held_out.len() > self.config.max_held_out {
+                let Some(oldest) = held_out.pop_front() else {
+                    break;
+                };
+                self.train.push_back(oldest);
+                self.counters.moved_to_train += 1;
+            }
         }
         self.enforce_cap();
         splits

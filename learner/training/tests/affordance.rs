@@ -158,6 +158,7 @@ fn the_dataset_splits_evicts_after_35_uses_and_respects_its_cap() {
     let mut rng = StdRng::seed_from_u64(2);
     let mut data = AffordanceDataset::new(DatasetConfig {
         max_frames: 1_000_000,
+        max_held_out: 1_000_000,
         ..DatasetConfig::default()
     });
     let mut counts = [0usize; 3];
@@ -209,6 +210,36 @@ fn the_dataset_splits_evicts_after_35_uses_and_respects_its_cap() {
         !capped.training_episodes().contains(&0),
         "the oldest episode must go first"
     );
+}
+
+#[test]
+fn held_out_splits_keep_their_newest_frames_and_pass_the_rest_to_training() {
+    let mut rng = StdRng::seed_from_u64(5);
+    let mut data = AffordanceDataset::new(DatasetConfig {
+        max_held_out: 30,
+        ..DatasetConfig::default()
+    });
+    let mut drawn_held_out = 0;
+    for episode in 0..100 {
+        let splits = data.add_episode(
+            episode,
+            (0..10).map(|_| tiny_frame(episode as f32)).collect(),
+            &mut rng,
+        );
+        drawn_held_out += splits.iter().filter(|&&s| s != Split::Train).count();
+    }
+    let (train, validation, test) = data.sizes();
+    assert_eq!((validation, test), (30, 30));
+    assert_eq!(train, 1000 - 60, "no frame is lost");
+    assert_eq!(data.counters().moved_to_train, (drawn_held_out - 60) as u64);
+    // The validation split holds the newest episodes' frames (about 1.5 a
+    // episode go there, so 30 span the last 20 or so).
+    let oldest_kept = data
+        .frames(Split::Validation)
+        .iter()
+        .map(|f| f.rgbd[0])
+        .fold(f32::INFINITY, f32::min);
+    assert!(oldest_kept >= 60.0, "{oldest_kept}");
 }
 
 #[test]
