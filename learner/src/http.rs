@@ -1,10 +1,10 @@
-//! The HTTP edge: `/metrics`, `/api/status`, `/healthz`. Handlers only render
-//! the shared status.
+//! The HTTP edge: `/metrics`, `/api/status`, `/api/history`, `/healthz`.
+//! Handlers only render the shared status or read the run's history file.
 
 use std::sync::Arc;
 
-use axum::extract::State;
-use axum::http::header;
+use axum::extract::{Query, State};
+use axum::http::{header, StatusCode};
 use axum::response::IntoResponse;
 use axum::routing::get;
 use axum::{Json, Router};
@@ -16,6 +16,7 @@ pub fn router(shared: Arc<Shared>) -> Router {
     Router::new()
         .route("/metrics", get(metrics))
         .route("/api/status", get(status))
+        .route("/api/history", get(history))
         .route("/healthz", get(|| async { "ok\n" }))
         .with_state(shared)
 }
@@ -33,4 +34,36 @@ async fn metrics(State(shared): State<Arc<Shared>>) -> impl IntoResponse {
 
 async fn status(State(shared): State<Arc<Shared>>) -> impl IntoResponse {
     Json(shared.status().snapshot(shared.config.actor_timeout_s))
+}
+
+/// `/api/history?kind=episode&last=500`.
+#[derive(Debug, serde::Deserialize)]
+struct HistoryQuery {
+    /// `episode`, `ppo` or `unet`; all kinds when absent.
+    kind: Option<String>,
+    /// The newest this many records (default 1000).
+    last: Option<usize>,
+}
+
+/// The run's history records as JSON: `{"total": n, "records": [...]}`,
+/// the newest `last` of them (of one `kind` if asked).
+async fn history(
+    State(shared): State<Arc<Shared>>,
+    Query(query): Query<HistoryQuery>,
+) -> impl IntoResponse {
+    let run_dir = shared.run_dir.clone();
+    let read = tokio::task::spawn_blocking(move || {
+        crate::history::read_records(&run_dir, query.kind.as_deref()).map(|mut records| {
+            let total = records.len();
+            let keep = query.last.unwrap_or(1000);
+            records.drain(..total.saturating_sub(keep));
+            serde_json::json!({"total": total, "records": records})
+        })
+    })
+    .await;
+    match read {
+        Ok(Ok(body)) => Ok(Json(body)),
+        Ok(Err(e)) => Err((StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}\n"))),
+        Err(e) => Err((StatusCode::INTERNAL_SERVER_ERROR, format!("{e}\n"))),
+    }
 }

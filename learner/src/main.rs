@@ -211,6 +211,7 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         status: Mutex::new(status),
         shutdown: Default::default(),
         config: config.clone(),
+        run_dir: run_dir.clone(),
     });
 
     let runtime = tokio::runtime::Builder::new_multi_thread()

@@ -7,7 +7,7 @@ use std::path::Path;
 use anyhow::Context;
 use plotters::prelude::*;
 
-use crate::history::HISTORY_FILE;
+use crate::history::{read_records, HISTORY_FILE};
 
 /// The six per-episode metrics of the paper's training figure, in panel order.
 pub const CURVES: [(&str, &str); 6] = [
@@ -30,23 +30,8 @@ pub type Series = Vec<(f64, f64)>;
 
 /// Reads every episode record of a history file into one series per curve.
 pub fn read_curves(run_dir: &Path) -> anyhow::Result<Vec<Series>> {
-    let path = run_dir.join(HISTORY_FILE);
-    let text = std::fs::read_to_string(&path).with_context(|| {
-        format!(
-            "reading {} (is this a run directory of the learner?)",
-            path.display()
-        )
-    })?;
     let mut curves = vec![Series::new(); CURVES.len()];
-    for (number, line) in text.lines().enumerate() {
-        if line.trim().is_empty() {
-            continue;
-        }
-        let record: serde_json::Value = serde_json::from_str(line)
-            .with_context(|| format!("{} line {}: not JSON", path.display(), number + 1))?;
-        if record["kind"] != "episode" {
-            continue;
-        }
+    for record in read_records(run_dir, Some("episode"))? {
         let steps = record["env_steps"].as_f64().unwrap_or(0.0);
         for ((key, _), series) in CURVES.iter().zip(&mut curves) {
             if let Some(v) = record["stats"][key].as_f64() {

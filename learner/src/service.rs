@@ -27,6 +27,8 @@ pub struct Shared {
     pub shutdown: AtomicBool,
     /// The resolved configuration.
     pub config: LearnerConfig,
+    /// The run directory (its `history.jsonl` backs `/api/history`).
+    pub run_dir: std::path::PathBuf,
 }
 
 impl Shared {

@@ -143,6 +143,21 @@ fn closed_loop(method: &str) {
         );
     }
 
+    // The history endpoint serves the episodes the status counted.
+    let (code, body) = system_tests::http_get(&learner.addr, "/api/history?kind=episode&last=2")
+        .expect("/api/history answers");
+    assert_eq!(code, 200, "{body}");
+    let history: serde_json::Value = serde_json::from_str(&body).expect("JSON history");
+    assert!(history["total"].as_u64() >= Some(1), "{history}");
+    let records = history["records"].as_array().expect("records");
+    assert!(!records.is_empty() && records.len() <= 2, "{history}");
+    assert!(
+        records
+            .iter()
+            .all(|r| r["kind"] == "episode" && r["stats"]["episode_return"].is_number()),
+        "{history}"
+    );
+
     // New weights of both networks reach both actors.
     wait_for(
         Duration::from_secs(120),
