@@ -208,11 +208,9 @@ fn new_chunk(
 /// Appends an observation in the chunk's element type.
 fn push_obs(chunk: &mut RolloutChunk, features: &[f32]) {
     match chunk.obs_dtype {
-        ObsDtype::U8 => chunk.obs.extend(
-            features
-                .iter()
-                .map(|&v| (v.clamp(0.0, 1.0) * 255.0).round() as u8),
-        ),
+        ObsDtype::U8 => chunk
+            .obs
+            .extend(features.iter().map(|&v| proto::unit_to_byte(v))),
         ObsDtype::F32 => chunk
             .obs
             .extend(features.iter().flat_map(|v| v.to_le_bytes())),

@@ -4,7 +4,6 @@
 
 use std::path::Path;
 
-use anyhow::Context;
 use plotters::prelude::*;
 
 use crate::history::{read_records, HISTORY_FILE};

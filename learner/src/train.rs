@@ -144,7 +144,7 @@ impl PolicyTrainer {
         for i in 0..steps {
             let bytes = chunk.obs(i).unwrap_or_default();
             match chunk.obs_dtype {
-                ObsDtype::U8 => g.obs.extend(bytes.iter().map(|&b| f32::from(b) / 255.0)),
+                ObsDtype::U8 => g.obs.extend(bytes.iter().map(|&b| proto::byte_to_unit(b))),
                 ObsDtype::F32 => g.obs.extend(
                     bytes
                         .chunks_exact(4)

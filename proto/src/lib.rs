@@ -26,7 +26,8 @@ pub use frames::{FrameBatch, FrameBatchView, LABEL_NEGATIVE, LABEL_POSITIVE, LAB
 pub use header::{MessageHeader, MessageKind, HEADER_LEN, LEARNER_ID, MAGIC, SCHEMA_VERSION};
 pub use message::{decode, encode, encode_into, encoded_len, Limits, Message, Payload};
 pub use rollout::{
-    obs_bytes_from_f32, ObsDtype, RolloutChunk, RolloutView, MAX_ACTIONS, MAX_STEPS,
+    byte_to_unit, obs_bytes_from_f32, unit_to_byte, ObsDtype, RolloutChunk, RolloutView,
+    MAX_ACTIONS, MAX_STEPS,
 };
 pub use stats::{EpisodeStats, StatField};
 pub use task::{Affordance, EnvKind, Method, PolicyLayout, TaskError, TaskSpec};

@@ -110,6 +110,17 @@ impl RolloutChunk {
     }
 }
 
+/// A value in 0..1 as a byte observation carries it: clamped, then the
+/// nearest of 256 levels.
+pub fn unit_to_byte(v: f32) -> u8 {
+    (v.clamp(0.0, 1.0) * 255.0).round() as u8
+}
+
+/// A byte observation's value in 0..1.
+pub fn byte_to_unit(b: u8) -> f32 {
+    f32::from(b) / 255.0
+}
+
 /// Converts `f32` observations to the wire's raw bytes.
 pub fn obs_bytes_from_f32(values: &[f32]) -> Vec<u8> {
     values.iter().flat_map(|v| v.to_le_bytes()).collect()
@@ -352,5 +363,20 @@ impl<'a> RolloutView<'a> {
             masks,
             dones,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bytes_and_unit_values_round_trip_and_out_of_range_values_clamp() {
+        for b in 0..=255u8 {
+            assert_eq!(unit_to_byte(byte_to_unit(b)), b);
+        }
+        assert_eq!(unit_to_byte(-0.5), 0);
+        assert_eq!(unit_to_byte(1.5), 255);
+        assert_eq!(unit_to_byte(0.5), 128);
     }
 }

@@ -611,7 +611,7 @@ impl SimEnv {
             probabilities
                 .iter()
                 .flatten()
-                .map(|&p| (p.clamp(0.0, 1.0) * 255.0).round() as u8)
+                .map(|&p| proto::unit_to_byte(p))
                 .collect(),
         );
         episode.frames.push(EpisodeFrame {
@@ -645,7 +645,7 @@ impl SimEnv {
                     .map(|p| {
                         p[plane * pixels..(plane + 1) * pixels]
                             .iter()
-                            .map(|&b| f32::from(b) / 255.0)
+                            .map(|&b| proto::byte_to_unit(b))
                             .collect()
                     })
                     .collect();

@@ -19,7 +19,7 @@ pub struct SimEnvironment {
 
 /// Rounds a value in 0..1 to the nearest of the 256 byte levels.
 fn quantise(v: f32) -> f32 {
-    (v.clamp(0.0, 1.0) * 255.0).round() / 255.0
+    proto::byte_to_unit(proto::unit_to_byte(v))
 }
 
 impl SimEnvironment {
