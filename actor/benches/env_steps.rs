@@ -1,7 +1,9 @@
-//! End-to-end environment steps/s of method `ours` on one actor, state
-//! building included, and where the time goes (simulator, render, map,
-//! U-Net, state). A 120-step episode in FloorPlan227 with random allowed
-//! actions (half of them interactions when any is allowed), per renderer.
+//! End-to-end environment steps/s on one actor, state building included,
+//! and where the time goes (simulator, render, map, U-Net, state), per
+//! method, image size and renderer; the episode's reset (room randomised,
+//! ground truth decided with push physics) is timed apart. A 120-step
+//! episode in FloorPlan227 with random allowed actions (half of them
+//! interactions when any is allowed).
 //! The policy's forward pass is not part of the environment; its time is
 //! measured by `cargo bench -p training` (policy inference, one step).
 //!
@@ -29,16 +31,40 @@ fn median(mut xs: Vec<Duration>) -> Duration {
     xs[xs.len() / 2]
 }
 
+/// One configuration of the table.
+struct Case {
+    method: Method,
+    image_size: usize,
+    renderer: RendererChoice,
+}
+
 fn main() {
     if std::env::var_os("LP_NUM_THREADS").is_none() {
         std::env::set_var("LP_NUM_THREADS", "1");
     }
     let data = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
-    let profile = RobotProfile::load("default").expect("profile");
     let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).expect("cpu");
-    println!("| renderer | steps/s | sim | render | map | U-Net | state |");
-    println!("|---|---|---|---|---|---|---|");
-    for choice in [RendererChoice::Gpu, RendererChoice::Cpu] {
+    let case = |method, image_size, renderer| Case {
+        method,
+        image_size,
+        renderer,
+    };
+    let cases = [
+        case(Method::Ours, 128, RendererChoice::Gpu),
+        case(Method::Ours, 128, RendererChoice::Cpu),
+        case(Method::Ours, 64, RendererChoice::Cpu),
+        case(Method::NomapSeg, 128, RendererChoice::Cpu),
+        case(Method::NomapSeg, 64, RendererChoice::Cpu),
+        case(Method::Intexp, 64, RendererChoice::Cpu),
+    ];
+    println!("| method | px | renderer | steps/s | reset | sim | render | map | U-Net | state |");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
+    for Case {
+        method,
+        image_size,
+        renderer: choice,
+    } in cases
+    {
         let renderer = match Renderer::open(choice) {
             Ok(r) => r,
             Err(e) => {
@@ -47,6 +73,8 @@ fn main() {
             }
         };
         let name = renderer.describe();
+        let mut profile = RobotProfile::load("default").expect("profile");
+        profile.image_size = image_size;
         let source = SceneSource::open(
             Some(&data.join("ithor-livingrooms")),
             SceneSet::Test,
@@ -56,17 +84,19 @@ fn main() {
         .expect("scenes");
         let config = SimEnvConfig {
             episode_steps: STEPS,
-            ..SimEnvConfig::paper(Method::Ours, &AFFORDANCES)
+            ..SimEnvConfig::paper(method, &AFFORDANCES)
         };
         let mut env = SimEnv::new(
             config,
             source,
-            profile.clone(),
+            profile,
             renderer,
             AffordanceModel::new(AFFORDANCES.len(), &device),
         );
         let mut rng = StdRng::seed_from_u64(1);
+        let reset_started = Instant::now();
         let mut observation = env.reset(1).expect("reset");
+        let reset = reset_started.elapsed();
         let mut stages: Vec<StepTimings> = Vec::with_capacity(STEPS);
         let start = Instant::now();
         for _ in 0..STEPS {
@@ -80,8 +110,10 @@ fn main() {
             median(stages.iter().map(f).collect()).as_secs_f64() * 1e3
         };
         println!(
-            "| {name} | {:.1} | {:.2} ms | {:.2} ms | {:.2} ms | {:.1} ms | {:.2} ms |",
+            "| {} | {image_size} | {name} | {:.1} | {:.0} ms | {:.2} ms | {:.2} ms | {:.2} ms | {:.1} ms | {:.2} ms |",
+            method.as_str(),
             STEPS as f64 / elapsed.as_secs_f64(),
+            reset.as_secs_f64() * 1e3,
             ms(|t| t.sim),
             ms(|t| t.render),
             ms(|t| t.map),
