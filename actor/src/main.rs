@@ -176,6 +176,7 @@ fn sim_environment(
         episode_steps: task.episode_steps,
         balanced_frames: task.balanced_frames,
         confidence_after_steps: Some(task.confidence_after_steps),
+        reward: task.reward,
         ..SimEnvConfig::paper(task.method, &task.affordances)
     };
     let model = AffordanceModel::new(task.affordances.len(), device);

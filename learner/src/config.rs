@@ -214,6 +214,10 @@ mod tests {
         assert_eq!(partial.policy.batch_steps, 6);
         assert_eq!(partial.policy.epochs, 4);
         assert_eq!(partial.task.env, proto::EnvKind::BanditFixture);
+        let weighted: LearnerConfig = toml::from_str("[task.reward]\nfailure = 0.25").unwrap();
+        assert_eq!(weighted.task.reward.failure, 0.25);
+        assert_eq!(weighted.task.reward.navigation, 1.0);
+        assert!(toml::from_str::<LearnerConfig>("[task.reward]\nfail = 1.0").is_err());
         let gru: LearnerConfig = toml::from_str("[task]\nmethod = \"nomap-seg\"").unwrap();
         assert!(gru.validate().is_ok());
         let bad: LearnerConfig = toml::from_str("[task]\nmemory_size = 0").unwrap();

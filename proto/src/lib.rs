@@ -30,7 +30,7 @@ pub use rollout::{
     MAX_ACTIONS, MAX_STEPS,
 };
 pub use stats::{EpisodeStats, StatField};
-pub use task::{Affordance, EnvKind, Method, PolicyLayout, TaskError, TaskSpec};
+pub use task::{Affordance, EnvKind, Method, PolicyLayout, RewardWeights, TaskError, TaskSpec};
 pub use weights::{
     WeightsBlob, WeightsView, WEIGHTS_META_ENV_STEPS, WEIGHTS_META_TEMPERATURE,
     WEIGHTS_POLICY_PREFIX, WEIGHTS_UNET_PREFIX,

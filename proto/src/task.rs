@@ -81,8 +81,31 @@ pub const HAND_MOVES: usize = 6;
 /// GRU hidden size of the methods without a map (IntExp: one layer of 512).
 pub const DEFAULT_MEMORY_SIZE: usize = 512;
 
+/// The α weights of the reward R = α1·R_nav + α2·R_int + α3·R_fail (the
+/// paper leaves them as settings; 1, 1, 1 by default).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RewardWeights {
+    /// α1, navigation novelty.
+    pub navigation: f32,
+    /// α2, new successful interactions.
+    pub interaction: f32,
+    /// α3, failed actions (R_fail is −1, so a positive α3 penalises).
+    pub failure: f32,
+}
+
+impl Default for RewardWeights {
+    fn default() -> Self {
+        Self {
+            navigation: 1.0,
+            interaction: 1.0,
+            failure: 1.0,
+        }
+    }
+}
+
 /// The run's task.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct TaskSpec {
     /// Environment of the actors.
@@ -103,6 +126,8 @@ pub struct TaskSpec {
     pub confidence_after_steps: u64,
     /// GRU hidden size of the methods without a map (512 as in IntExp).
     pub memory_size: usize,
+    /// The reward's α weights (`[task.reward]`).
+    pub reward: RewardWeights,
 }
 
 impl Default for TaskSpec {
@@ -116,6 +141,7 @@ impl Default for TaskSpec {
             balanced_frames: true,
             confidence_after_steps: 400_000,
             memory_size: DEFAULT_MEMORY_SIZE,
+            reward: RewardWeights::default(),
         }
     }
 }
@@ -158,6 +184,9 @@ pub enum TaskError {
     /// No steps.
     #[error("task.episode_steps must be at least 1")]
     EpisodeSteps,
+    /// A reward weight that is not a finite number.
+    #[error("task.reward weights must be finite numbers")]
+    RewardWeights,
     /// A GRU without units.
     #[error("task.memory_size must be at least 1 (the GRU of the methods without a map)")]
     MemorySize,
@@ -180,6 +209,13 @@ impl TaskSpec {
         }
         if self.episode_steps == 0 {
             return Err(TaskError::EpisodeSteps);
+        }
+        let r = self.reward;
+        if ![r.navigation, r.interaction, r.failure]
+            .iter()
+            .all(|w| w.is_finite())
+        {
+            return Err(TaskError::RewardWeights);
         }
         if self.memory_size == 0 {
             return Err(TaskError::MemorySize);

@@ -9,26 +9,7 @@ use std::collections::HashSet;
 use mapper::Affordance;
 use sim::agent::{AgentState, STEP_M};
 
-/// The α weights.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct RewardWeights {
-    /// α1, navigation novelty.
-    pub navigation: f32,
-    /// α2, new successful interactions.
-    pub interaction: f32,
-    /// α3, failed actions (R_fail is −1, so a positive α3 penalises).
-    pub failure: f32,
-}
-
-impl Default for RewardWeights {
-    fn default() -> Self {
-        Self {
-            navigation: 1.0,
-            interaction: 1.0,
-            failure: 1.0,
-        }
-    }
-}
+pub use proto::RewardWeights;
 
 /// Reward for a new position.
 const NEW_POSITION: f32 = 1.0;
