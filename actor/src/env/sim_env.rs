@@ -631,41 +631,69 @@ impl SimEnv {
     }
 
     /// Ends the episode: its labelled frames for the learner (interaction
-    /// labels through the map, remembered for objects the map dropped) and
-    /// its metrics against the simulator's ground truth.
+    /// labels through the map, remembered for objects the map dropped, or
+    /// point labels without a map) and its metrics against the simulator's
+    /// ground truth; recorded too, if asked.
     pub fn finish_episode(&mut self, episode_id: u64) -> anyhow::Result<EpisodeSummary> {
         let confidence = self.annotates_by_confidence();
         let mut episode = self.episode.take().context("finish before reset")?;
         if confidence {
-            let pixels = self.profile.image_size * self.profile.image_size;
-            for (plane, &affordance) in self.config.affordances.iter().enumerate() {
-                let planes: Vec<Vec<f32>> = episode
-                    .probabilities
-                    .iter()
-                    .map(|p| {
-                        p[plane * pixels..(plane + 1) * pixels]
-                            .iter()
-                            .map(|&b| proto::byte_to_unit(b))
-                            .collect()
-                    })
-                    .collect();
-                let decided = confidence_labels(
-                    &episode.map,
-                    &episode.frames,
-                    &planes,
-                    affordance,
-                    &self.config.confidence,
-                );
-                apply_confidence_labels(&mut episode.map, affordance, &decided)
-                    .context("storing confidence labels on the map")?;
-            }
+            self.annotate_by_confidence(&mut episode)?;
         }
-        let camera = episode.sim.camera();
-        let k = intrinsics(&camera);
+        let k = intrinsics(&episode.sim.camera());
+        let labels = self.labels(&episode, &k);
+        if let Some((dir, prefix)) = &self.recording {
+            let path = dir.join(format!("{prefix}episode{episode_id:06}.mcap"));
+            self.record(&episode, &labels, &k, &path)
+                .with_context(|| format!("recording the episode (--record {})", dir.display()))?;
+        }
+        Ok(EpisodeSummary {
+            stats: episode_stats(&episode, &labels, k.pixels()),
+            frames: frame_batch(
+                episode_id,
+                &k,
+                &episode.frames,
+                &labels,
+                self.config.affordances.len(),
+                self.config.balanced_frames,
+            ),
+        })
+    }
+
+    /// Stores on the map a confidence label for every untouched object the
+    /// calibrated U-Net is sure about over the episode's frames.
+    fn annotate_by_confidence(&self, episode: &mut Episode) -> anyhow::Result<()> {
+        let pixels = self.profile.image_size * self.profile.image_size;
+        for (plane, &affordance) in self.config.affordances.iter().enumerate() {
+            let planes: Vec<Vec<f32>> = episode
+                .probabilities
+                .iter()
+                .map(|p| {
+                    p[plane * pixels..(plane + 1) * pixels]
+                        .iter()
+                        .map(|&b| proto::byte_to_unit(b))
+                        .collect()
+                })
+                .collect();
+            let decided = confidence_labels(
+                &episode.map,
+                &episode.frames,
+                &planes,
+                affordance,
+                &self.config.confidence,
+            );
+            apply_confidence_labels(&mut episode.map, affordance, &decided)
+                .context("storing confidence labels on the map")?;
+        }
+        Ok(())
+    }
+
+    /// Every frame's label planes, made the method's way.
+    fn labels(&self, episode: &Episode, k: &mapper::Intrinsics) -> Vec<Vec<u8>> {
         let planes = self.config.affordances.len();
         let poses = &episode.object_poses;
         let pose_of = |frame: usize, object: usize| poses[frame][object];
-        let labels = match self.config.method {
+        match self.config.method {
             Method::Ours => map_labels(
                 &episode.map,
                 &episode.remembered,
@@ -674,7 +702,7 @@ impl SimEnv {
             ),
             Method::NomapSeg => segment_labels(
                 &episode.frames,
-                &k,
+                k,
                 &episode.points,
                 planes,
                 &pose_of,
@@ -682,106 +710,110 @@ impl SimEnv {
             ),
             Method::NomapNoseg | Method::Intexp => sphere_labels(
                 &episode.frames,
-                &k,
+                k,
                 &episode.points,
                 planes,
                 &pose_of,
                 &self.config.sphere,
             ),
-        };
-        if let Some((dir, prefix)) = &self.recording {
-            let records: Vec<FrameRecord<'_>> = episode
-                .frames
-                .iter()
-                .zip(&labels)
-                .zip(&episode.truth_ids)
-                .zip(&episode.stamps)
-                .map(|(((frame, labels), ids), &stamp_ns)| FrameRecord {
-                    stamp_ns,
-                    rgb: &frame.rgb,
-                    depth_m: &frame.depth_m,
-                    instance_ids: ids,
-                    map_ids: &frame.map_ids,
-                    labels,
-                    t_world_camera: &frame.t_world_camera,
-                })
-                .collect();
-            let path = dir.join(format!("{prefix}episode{episode_id:06}.mcap"));
-            write_episode(
-                &path,
-                (k.width, k.height),
-                &self.config.affordances,
-                &records,
-                &episode.step_log,
-            )
-            .with_context(|| format!("recording the episode (--record {})", dir.display()))?;
         }
-        let pixels = k.pixels();
-        // Annotation rates of the labels over every frame of the episode.
-        let (mut positive, mut negative) = (0.0f64, 0.0f64);
-        for (frame_labels, ids) in labels.iter().zip(&episode.truth_ids) {
-            for (plane, plane_labels) in frame_labels.chunks(pixels).enumerate() {
-                let truth = &episode.truth;
-                let affords = |id: u32| truth.get(id as usize - 1).is_some_and(|t| t[plane]);
-                let (p, n) = annotation_rates(plane_labels, ids, &affords);
-                positive += f64::from(p);
-                negative += f64::from(n);
-            }
-        }
-        let rated = (episode.truth_ids.len() * planes).max(1) as f64;
-        let interactable = episode
-            .truth
-            .iter()
-            .filter(|t| t.iter().any(|&x| x))
-            .count();
-        let interacted = episode
-            .interacted
-            .iter()
-            .filter(|&&i| episode.truth.get(i).is_some_and(|t| t.iter().any(|&x| x)))
-            .count();
-        let mean = |f: fn(&ScoreSums) -> (f64, u32)| -> Option<f32> {
-            let (sum, n) = episode
-                .scores
-                .iter()
-                .map(f)
-                .fold((0.0, 0), |(s, c), (x, k)| (s + x, c + k));
-            (n > 0).then(|| (sum / f64::from(n)) as f32)
-        };
-        let mut stats = vec![
-            (StatField::EpisodeReturn, episode.episode_return),
-            (
-                StatField::InteractionSuccessRate,
-                episode.successes as f32 / episode.attempts.max(1) as f32,
-            ),
-            (
-                StatField::InteractedObjectRate,
-                interacted as f32 / interactable.max(1) as f32,
-            ),
-            (
-                StatField::InteractableAnnotationRate,
-                (positive / rated) as f32,
-            ),
-            (
-                StatField::NonInteractableAnnotationRate,
-                (negative / rated) as f32,
-            ),
-        ];
-        if let Some(iou) = mean(|s| (s.iou, s.iou_frames)) {
-            stats.push((StatField::AffordanceIou, iou));
-        }
-        if let Some(accuracy) = mean(|s| (s.accuracy, s.accuracy_frames)) {
-            stats.push((StatField::ObjectAccuracy, accuracy));
-        }
-        Ok(EpisodeSummary {
-            frames: frame_batch(
-                episode_id,
-                &k,
-                &episode.frames,
-                &labels,
-                planes,
-                self.config.balanced_frames,
-            ),
-            stats,
-        })
     }
+
+    /// Writes the episode to an MCAP file at `path`.
+    fn record(
+        &self,
+        episode: &Episode,
+        labels: &[Vec<u8>],
+        k: &mapper::Intrinsics,
+        path: &std::path::Path,
+    ) -> anyhow::Result<()> {
+        let records: Vec<FrameRecord<'_>> = episode
+            .frames
+            .iter()
+            .zip(labels)
+            .zip(&episode.truth_ids)
+            .zip(&episode.stamps)
+            .map(|(((frame, labels), ids), &stamp_ns)| FrameRecord {
+                stamp_ns,
+                rgb: &frame.rgb,
+                depth_m: &frame.depth_m,
+                instance_ids: ids,
+                map_ids: &frame.map_ids,
+                labels,
+                t_world_camera: &frame.t_world_camera,
+            })
+            .collect();
+        write_episode(
+            path,
+            (k.width, k.height),
+            &self.config.affordances,
+            &records,
+            &episode.step_log,
+        )?;
+        Ok(())
+    }
+}
+
+/// The paper's per-episode metrics against the simulator's ground truth:
+/// return, interaction success rate, interacted object rate, both
+/// annotation rates of `labels`, and the U-Net's mean IoU and object
+/// accuracy over the episode's frames (means over affordances).
+fn episode_stats(episode: &Episode, labels: &[Vec<u8>], pixels: usize) -> Vec<(StatField, f32)> {
+    let planes = episode.scores.len();
+    // Annotation rates of the labels over every frame of the episode.
+    let (mut positive, mut negative) = (0.0f64, 0.0f64);
+    for (frame_labels, ids) in labels.iter().zip(&episode.truth_ids) {
+        for (plane, plane_labels) in frame_labels.chunks(pixels).enumerate() {
+            let truth = &episode.truth;
+            let affords = |id: u32| truth.get(id as usize - 1).is_some_and(|t| t[plane]);
+            let (p, n) = annotation_rates(plane_labels, ids, &affords);
+            positive += f64::from(p);
+            negative += f64::from(n);
+        }
+    }
+    let rated = (episode.truth_ids.len() * planes).max(1) as f64;
+    let interactable = episode
+        .truth
+        .iter()
+        .filter(|t| t.iter().any(|&x| x))
+        .count();
+    let interacted = episode
+        .interacted
+        .iter()
+        .filter(|&&i| episode.truth.get(i).is_some_and(|t| t.iter().any(|&x| x)))
+        .count();
+    let mean = |f: fn(&ScoreSums) -> (f64, u32)| -> Option<f32> {
+        let (sum, n) = episode
+            .scores
+            .iter()
+            .map(f)
+            .fold((0.0, 0), |(s, c), (x, k)| (s + x, c + k));
+        (n > 0).then(|| (sum / f64::from(n)) as f32)
+    };
+    let mut stats = vec![
+        (StatField::EpisodeReturn, episode.episode_return),
+        (
+            StatField::InteractionSuccessRate,
+            episode.successes as f32 / episode.attempts.max(1) as f32,
+        ),
+        (
+            StatField::InteractedObjectRate,
+            interacted as f32 / interactable.max(1) as f32,
+        ),
+        (
+            StatField::InteractableAnnotationRate,
+            (positive / rated) as f32,
+        ),
+        (
+            StatField::NonInteractableAnnotationRate,
+            (negative / rated) as f32,
+        ),
+    ];
+    if let Some(iou) = mean(|s| (s.iou, s.iou_frames)) {
+        stats.push((StatField::AffordanceIou, iou));
+    }
+    if let Some(accuracy) = mean(|s| (s.accuracy, s.accuracy_frames)) {
+        stats.push((StatField::ObjectAccuracy, accuracy));
+    }
+    stats
 }
