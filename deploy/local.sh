@@ -29,7 +29,10 @@ Options:
   --port PORT       HTTP port of the learner's metrics endpoint (default 9464)
   --debug           use debug builds (faster to build, slower to run)
   -h, --help        this help
-Everything after `--` is passed to `learner serve`.
+Everything after `--` is passed to `learner serve`, e.g. `-- --config my.toml`
+for a learner config (reward weights: [task.reward]; see README).
+Stop with Ctrl-C, or with SIGTERM (a script started in the background with `&`
+ignores SIGINT).
 USAGE
 }
 
