@@ -75,6 +75,50 @@ impl Default for Block {
     }
 }
 
+/// Reads one layer's voxels, remembering the last block it looked up:
+/// successive samples along a ray or within a trilinear stencil mostly fall
+/// in the same block, so most reads skip the hash lookup.
+#[derive(Debug, Clone)]
+pub struct CachedReader<'a> {
+    layer: &'a Layer,
+    last: Option<(BlockIndex, Option<&'a Block>)>,
+}
+
+impl<'a> CachedReader<'a> {
+    /// A reader of `layer` with an empty cache.
+    pub fn new(layer: &'a Layer) -> Self {
+        Self { layer, last: None }
+    }
+
+    /// The layer read.
+    pub fn layer(&self) -> &'a Layer {
+        self.layer
+    }
+
+    /// The block at `b`, if allocated.
+    #[inline]
+    pub fn block(&mut self, b: BlockIndex) -> Option<&'a Block> {
+        match self.last {
+            Some((cached, block)) if cached == b => block,
+            _ => {
+                let block = self.layer.block(b);
+                self.last = Some((b, block));
+                block
+            }
+        }
+    }
+
+    /// SDF of voxel `v` if it was ever observed.
+    #[inline]
+    pub fn observed_sdf(&mut self, v: VoxelIndex) -> Option<f32> {
+        let (b, o) = v.split();
+        self.block(b)
+            .map(|block| block.voxels[o])
+            .filter(|voxel| voxel.weight > 0.0)
+            .map(|voxel| voxel.sdf)
+    }
+}
+
 /// A sparse voxel volume in one coordinate frame.
 #[derive(Debug, Clone)]
 pub struct Layer {

@@ -4,7 +4,7 @@
 use nalgebra::{Point3, Vector3};
 
 use crate::camera::Intrinsics;
-use crate::layer::Layer;
+use crate::layer::{CachedReader, Layer, VoxelIndex, BLOCK_EDGE};
 use crate::Pose;
 
 /// Per-pixel nearest surface: depth (z, metres; +∞ = nothing) and owner id (0 = none).
@@ -29,26 +29,49 @@ impl RenderTarget {
 /// Known SDF at `p`: trilinear between the eight surrounding voxel centres
 /// when all are observed (sub-voxel silhouettes), else the nearest voxel's;
 /// `None` if unobserved.
-pub(crate) fn sdf_at(layer: &Layer, p: &Point3<f32>) -> Option<f32> {
-    let nearest = layer
-        .voxel(layer.voxel_of(p))
-        .filter(|v| v.weight > 0.0)?
-        .sdf;
+pub(crate) fn sdf_at(reader: &mut CachedReader<'_>, p: &Point3<f32>) -> Option<f32> {
+    let layer = reader.layer();
+    let nearest = reader.observed_sdf(layer.voxel_of(p))?;
     let s = layer.voxel_size_m;
     let g = [p.x / s - 0.5, p.y / s - 0.5, p.z / s - 0.5];
-    let base = g.map(|c| crate::layer::floor_to_i32(c) as f32);
-    let f = [g[0] - base[0], g[1] - base[1], g[2] - base[2]];
+    let base = g.map(crate::layer::floor_to_i32);
+    let f = [0, 1, 2].map(|a| g[a] - base[a] as f32);
+    let weight = |corner: usize| -> f32 {
+        (0..3)
+            .map(|a| {
+                if (corner >> a) & 1 == 1 {
+                    f[a]
+                } else {
+                    1.0 - f[a]
+                }
+            })
+            .product()
+    };
+    let (block_index, first) = VoxelIndex(base).split();
+    let edge = BLOCK_EDGE as usize;
+    let interior = base
+        .iter()
+        .all(|&i| i.rem_euclid(BLOCK_EDGE) < BLOCK_EDGE - 1);
     let mut sum = 0.0;
-    for corner in 0..8 {
-        let offset = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
-        let index = crate::layer::VoxelIndex([0, 1, 2].map(|a| base[a] as i32 + offset[a]));
-        let Some(v) = layer.voxel(index).filter(|v| v.weight > 0.0) else {
-            return Some(nearest);
-        };
-        let w: f32 = (0..3)
-            .map(|a| if offset[a] == 1 { f[a] } else { 1.0 - f[a] })
-            .product();
-        sum += w * v.sdf;
+    if interior {
+        // The whole stencil lies in one block: index it directly.
+        let block = reader.block(block_index)?;
+        for corner in 0..8 {
+            let o = first + (corner & 1) + edge * ((corner >> 1) & 1) + edge * edge * (corner >> 2);
+            let v = block.voxels[o];
+            if v.weight <= 0.0 {
+                return Some(nearest);
+            }
+            sum += weight(corner) * v.sdf;
+        }
+    } else {
+        for corner in 0..8 {
+            let index = VoxelIndex([0, 1, 2].map(|a| base[a] + ((corner >> a) & 1) as i32));
+            let Some(sdf) = reader.observed_sdf(index) else {
+                return Some(nearest);
+            };
+            sum += weight(corner) * sdf;
+        }
     }
     Some(sum)
 }
@@ -159,6 +182,7 @@ pub fn raycast_layer(
     let t_layer_camera = t_camera_layer.inverse();
     let origin = t_layer_camera * Point3::origin();
     let voxel = layer.voxel_size_m;
+    let mut reader = CachedReader::new(layer);
     let mut won = 0;
     for v in v0..=v1 {
         for u in u0..=u1 {
@@ -172,7 +196,7 @@ pub fn raycast_layer(
             let mut z = z0.max(min_depth_m);
             let mut previous: Option<(f32, f32)> = None;
             while z <= z_end {
-                let sample = sdf_at(layer, &(origin + dir * z));
+                let sample = sdf_at(&mut reader, &(origin + dir * z));
                 match (previous, sample) {
                     (Some((zp, sp)), Some(s)) if sp > 0.0 && s <= 0.0 => {
                         let hit = zp + (z - zp) * sp / (sp - s);
@@ -195,7 +219,7 @@ pub fn raycast_layer(
                     None => {
                         let p = origin + dir * z;
                         let next = z + voxel / metres_per_z;
-                        if layer.block(layer.block_of(&p)).is_some() {
+                        if reader.block(layer.block_of(&p)).is_some() {
                             next
                         } else {
                             block_exit(layer, &p, &origin, &dir).max(next)
@@ -206,4 +230,76 @@ pub fn raycast_layer(
         }
     }
     won
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Trilinear interpolation written the plain way: eight lookups through the hash map.
+    fn reference_sdf(layer: &Layer, p: &Point3<f32>) -> Option<f32> {
+        let observed = |v: VoxelIndex| layer.voxel(v).filter(|x| x.weight > 0.0).map(|x| x.sdf);
+        let nearest = observed(layer.voxel_of(p))?;
+        let s = layer.voxel_size_m;
+        let g = [p.x / s - 0.5, p.y / s - 0.5, p.z / s - 0.5];
+        let base = g.map(|c| c.floor());
+        let mut sum = 0.0;
+        for corner in 0..8usize {
+            let offset = [0, 1, 2].map(|a| (corner >> a) & 1);
+            let index = VoxelIndex([0, 1, 2].map(|a| base[a] as i32 + offset[a] as i32));
+            let Some(sdf) = observed(index) else {
+                return Some(nearest);
+            };
+            let w: f32 = (0..3)
+                .map(|a| {
+                    let f = g[a] - base[a];
+                    if offset[a] == 1 {
+                        f
+                    } else {
+                        1.0 - f
+                    }
+                })
+                .product();
+            sum += w * sdf;
+        }
+        Some(sum)
+    }
+
+    #[test]
+    fn cached_trilinear_lookup_matches_plain_lookup_across_block_borders() {
+        // Two neighbouring blocks plus one half-observed block, SDF of a plane.
+        let mut layer = Layer::new(0.04);
+        for b in [[0, 0, 0], [1, 0, 0], [0, -1, 0]] {
+            let block_index = crate::layer::BlockIndex(b);
+            let block = layer.block_mut_or_insert(block_index);
+            for (o, voxel) in block.voxels.iter_mut().enumerate() {
+                let v = VoxelIndex::join(block_index, o);
+                if b == [0, -1, 0] && o % 3 == 0 {
+                    continue; // unobserved voxels force the nearest-voxel fallback
+                }
+                voxel.weight = 1.0;
+                voxel.sdf = 0.3 * v.0[0] as f32 - 0.2 * v.0[1] as f32 + 0.1 * v.0[2] as f32;
+            }
+        }
+        let mut reader = CachedReader::new(&layer);
+        let mut checked = 0;
+        for i in 0..4000 {
+            let t = i as f32 * 0.618_034;
+            let p = Point3::new(
+                (t * 1.7).fract() * 0.64 - 0.02,
+                (t * 2.3).fract() * 0.64 - 0.33,
+                (t * 3.1).fract() * 0.34 - 0.01,
+            );
+            let fast = sdf_at(&mut reader, &p);
+            let plain = reference_sdf(&layer, &p);
+            match (fast, plain) {
+                (Some(a), Some(b)) => {
+                    assert!((a - b).abs() < 1e-5, "{p:?}: {a} vs {b}");
+                    checked += 1;
+                }
+                (a, b) => assert_eq!(a, b, "{p:?}"),
+            }
+        }
+        assert!(checked > 2000, "only {checked} observed samples");
+    }
 }

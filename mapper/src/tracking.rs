@@ -14,7 +14,7 @@
 use nalgebra::{Matrix6, Point3, UnitQuaternion, Vector3, Vector6};
 
 use crate::camera::Intrinsics;
-use crate::layer::Layer;
+use crate::layer::{CachedReader, Layer};
 use crate::render::sdf_at;
 use crate::Pose;
 
@@ -438,12 +438,15 @@ pub fn refine_against_sdf(
         .iter()
         .fold(Vector3::zeros(), |sum, p| sum + p.coords)
         / points.len().max(1) as f32;
+    let mut reader = CachedReader::new(layer);
     for _ in 0..params.max_iterations {
         let t_object_camera = t.inverse();
         let mut equations = NormalEquations::new(Point3::from(centre_camera));
         for q in &points {
             let x = t_object_camera * q;
-            let Some(r) = sdf_at(layer, &x) else { continue };
+            let Some(r) = sdf_at(&mut reader, &x) else {
+                continue;
+            };
             if r.abs() > params.inlier_distance_m.min(0.9 * truncation_m) {
                 continue;
             }
@@ -452,7 +455,7 @@ pub fn refine_against_sdf(
             for a in 0..3 {
                 let mut e = Vector3::zeros();
                 e[a] = h;
-                match (sdf_at(layer, &(x + e)), sdf_at(layer, &(x - e))) {
+                match (sdf_at(&mut reader, &(x + e)), sdf_at(&mut reader, &(x - e))) {
                     (Some(hi), Some(lo)) => g[a] = (hi - lo) / (2.0 * h),
                     _ => known = false,
                 }
