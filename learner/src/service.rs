@@ -18,6 +18,7 @@ use crate::history::History;
 use crate::status::LearnerStatus;
 use crate::train::PolicyTrainer;
 use crate::unet_worker::UnetWorker;
+use training::optimizer_state::OptimizerState;
 
 /// State shared between the training loop and the HTTP edge.
 pub struct Shared {
@@ -400,12 +401,20 @@ impl Learner {
         };
         let weights = self.weights_blob()?;
         let counters_json = serde_json::to_vec_pretty(&counters)?;
+        let adam = self
+            .trainers
+            .policy
+            .optimizer_state()
+            .context("saving the policy optimiser's state")?;
+        let adam_parameters = adam.parameter_list_json();
         let dir = checkpoint::write(
             &self.checkpoint_dir,
             counters.env_steps,
             &[
                 ("weights.safetensors", &weights),
                 ("counters.json", &counters_json),
+                (POLICY_OPTIMIZER_RECORD, &adam.record),
+                (POLICY_OPTIMIZER_PARAMETERS, &adam_parameters),
             ],
             self.shared.config.keep_checkpoints,
         )
@@ -419,6 +428,11 @@ impl Learner {
         Ok(())
     }
 }
+
+/// Checkpoint file with the policy optimiser's record (burnpack).
+const POLICY_OPTIMIZER_RECORD: &str = "policy_optimizer.bpk";
+/// Checkpoint file naming the parameters that record refers to (JSON).
+const POLICY_OPTIMIZER_PARAMETERS: &str = "policy_optimizer_parameters.json";
 
 /// Restores trainer and counters from the newest checkpoint that verifies.
 pub fn resume(
@@ -455,11 +469,33 @@ pub fn resume(
             )
         })
     };
+    let optimizer = match (
+        loaded.files.get(POLICY_OPTIMIZER_RECORD),
+        loaded.files.get(POLICY_OPTIMIZER_PARAMETERS),
+    ) {
+        (Some(record), Some(parameters)) => Some(
+            OptimizerState::from_parts(record.clone(), parameters).with_context(|| {
+                format!(
+                    "reading {POLICY_OPTIMIZER_PARAMETERS} of {}",
+                    loaded.dir.display()
+                )
+            })?,
+        ),
+        _ => {
+            tracing::warn!(
+                "checkpoint {} holds no optimiser state (written by an older learner); \
+                 the policy's Adam starts afresh",
+                loaded.dir.display()
+            );
+            None
+        }
+    };
     trainers
         .policy
         .restore(
             restore(proto::WEIGHTS_POLICY_PREFIX)?,
             counters.policy_version,
+            optimizer.as_ref(),
         )
         .with_context(|| {
             format!(
@@ -483,11 +519,12 @@ pub fn resume(
     status.unet_version = counters.unet_version;
     status.last_checkpoint_step = Some(loaded.step);
     tracing::info!(
-        "resumed from checkpoint {} (env steps {}, updates {}, policy version {})",
+        "resumed from checkpoint {} (env steps {}, updates {}, policy version {}, policy optimiser {})",
         loaded.dir.display(),
         counters.env_steps,
         counters.updates,
-        counters.policy_version
+        counters.policy_version,
+        if optimizer.is_some() { "state restored" } else { "afresh" }
     );
     Ok(())
 }

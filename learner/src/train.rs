@@ -11,6 +11,7 @@ use proto::{ObsDtype, PolicyLayout, RolloutView, TaskSpec};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use training::gae::gae;
+use training::optimizer_state::{OptimizerState, OptimizerStateError};
 use training::ppo::{Ppo, PpoBatch, PpoConfig, PpoStats, Sequences};
 
 use crate::config::PolicyConfig;
@@ -200,12 +201,27 @@ impl PolicyTrainer {
         to_safetensors(&self.ppo.inference_net(&self.device))
     }
 
-    /// Continues from saved weights and version (the optimiser starts afresh).
-    pub fn restore(&mut self, bytes: Vec<u8>, version: u64) -> Result<(), WeightsError> {
+    /// Adam's state, for a checkpoint.
+    pub fn optimizer_state(&self) -> Result<OptimizerState, OptimizerStateError> {
+        self.ppo.optimizer_state()
+    }
+
+    /// Continues from saved weights and version; the optimiser continues
+    /// from `optimizer` when given, else starts afresh.
+    pub fn restore(
+        &mut self,
+        bytes: Vec<u8>,
+        version: u64,
+        optimizer: Option<&OptimizerState>,
+    ) -> anyhow::Result<()> {
         let mut net = PolicyNet::new(&self.layout, &self.device);
         load_safetensors(&mut net, bytes)?;
-        self.ppo = Ppo::new(net, *self.ppo.config(), &self.device);
-        self.ppo.set_version(version);
+        let mut ppo = Ppo::new(net, *self.ppo.config(), &self.device);
+        if let Some(state) = optimizer {
+            ppo.restore_optimizer(state)?;
+        }
+        ppo.set_version(version);
+        self.ppo = ppo;
         Ok(())
     }
 

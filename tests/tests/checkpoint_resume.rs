@@ -1,6 +1,7 @@
 //! Checkpoints under real crashes: SIGKILL the learner, `--resume` continues
-//! counters and versions from the newest checkpoint; a checkpoint with one
-//! flipped byte is refused by checksum and the previous one is used.
+//! counters, versions and the policy optimiser's state from the newest
+//! checkpoint; a checkpoint with one flipped byte is refused by checksum and
+//! the previous one is used.
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -43,6 +44,11 @@ fn assert_resumed_from(learner: &Learner, checkpoint: &Path) {
     assert!(
         log.contains(&format!("resumed from checkpoint {}", checkpoint.display())),
         "log does not say which checkpoint:\n{log}"
+    );
+    assert!(
+        checkpoint.join("policy_optimizer.bpk").exists()
+            && log.contains("policy optimiser state restored"),
+        "Adam's state was not saved and restored:\n{log}"
     );
 }
 

@@ -7,5 +7,6 @@ pub mod affordance;
 pub mod dataset;
 pub mod gae;
 pub mod grad_norm;
+pub mod optimizer_state;
 pub mod ppo;
 pub mod temperature;

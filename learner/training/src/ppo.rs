@@ -13,6 +13,7 @@ use rand::Rng;
 use std::ops::Range;
 
 use crate::grad_norm::clip_global_norm;
+use crate::optimizer_state::{OptimizerState, OptimizerStateError};
 
 /// PPO settings; defaults are the paper's (IntExp's) values.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -258,6 +259,11 @@ pub fn ppo_loss(
     (loss, terms)
 }
 
+/// A fresh Adam optimiser with the run's settings.
+fn adam(config: &PpoConfig) -> ModuleOptimizer {
+    AdamConfig::new().with_epsilon(config.adam_epsilon).init()
+}
+
 /// The learner side of PPO: the network being trained and its optimiser.
 pub struct Ppo {
     /// The policy (on an autodiff device).
@@ -333,7 +339,7 @@ impl Ppo {
         let device = device.clone().autodiff();
         Self {
             net: net.fork(&device).train(),
-            optimizer: AdamConfig::new().with_epsilon(config.adam_epsilon).init(),
+            optimizer: adam(&config),
             config,
             device,
             version: 0,
@@ -353,6 +359,20 @@ impl Ppo {
     /// The settings.
     pub fn config(&self) -> &PpoConfig {
         &self.config
+    }
+
+    /// Adam's state, for a checkpoint.
+    pub fn optimizer_state(&self) -> Result<OptimizerState, OptimizerStateError> {
+        OptimizerState::capture(&self.optimizer, &self.net)
+    }
+
+    /// Continues from a saved Adam state (after the weights were restored).
+    /// On error nothing changes.
+    pub fn restore_optimizer(&mut self, state: &OptimizerState) -> Result<(), OptimizerStateError> {
+        let (net, optimizer) = state.restore(self.net.clone(), adam(&self.config))?;
+        self.net = net;
+        self.optimizer = optimizer;
+        Ok(())
     }
 
     /// The network without autodiff, for inference on `device`.

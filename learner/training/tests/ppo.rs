@@ -5,9 +5,11 @@
 use burn::prelude::*;
 use burn::tensor::{Bool, Int};
 use nets::policy::{ObsDtype, PolicyInput, PolicyLayout, PolicyNet};
+use nets::weights::{load_safetensors, to_safetensors};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use training::gae::gae;
+use training::optimizer_state::OptimizerState;
 use training::ppo::{mask_tensor, ppo_loss, Ppo, PpoBatch, PpoConfig, Sequences};
 
 fn cpu() -> Device {
@@ -215,6 +217,38 @@ fn bandit_score(net: Option<&PolicyNet>, n: usize, rng: &mut StdRng) -> f32 {
         / n as f32
 }
 
+/// One batch of 128 bandit steps played by `net` (policy version `version`).
+fn bandit_batch(net: &PolicyNet, version: u64, rng: &mut StdRng) -> PpoBatch {
+    let device = cpu();
+    let envs: Vec<Bandit> = (0..128).map(|_| Bandit::draw(rng)).collect();
+    let obs: Vec<Vec<f32>> = envs.iter().map(Bandit::observation).collect();
+    let allowed: Vec<bool> = envs.iter().flat_map(Bandit::allowed).collect();
+    let input = PolicyInput {
+        images: vec![],
+        vectors: vec![vectors(&obs, &device)],
+        mask: mask_tensor(&allowed, 4, &device),
+    };
+    let out = net.forward(&input, None);
+    let (actions, log_probs) = sample_rows(&out.log_probs, rng);
+    let values: Vec<f32> = out.values.into_data().try_to_vec().unwrap();
+    let rewards: Vec<f32> = envs
+        .iter()
+        .zip(&actions)
+        .map(|(e, &a)| f32::from(u8::from(a as usize == e.context)))
+        .collect();
+    let (advantages, returns) = gae(&rewards, &values, &[true; 128], 0.0, 0.99, 0.95);
+    PpoBatch {
+        input,
+        actions,
+        behaviour_log_probs: log_probs,
+        values,
+        advantages,
+        returns,
+        policy_versions: vec![version; 128],
+        sequences: None,
+    }
+}
+
 #[test]
 fn ppo_solves_a_masked_contextual_bandit_and_random_does_not() {
     let device = cpu();
@@ -227,34 +261,7 @@ fn ppo_solves_a_masked_contextual_bandit_and_random_does_not() {
     let threshold = 0.9;
     let mut solved_after = None;
     for update in 0..40 {
-        let net = ppo.inference_net(&device);
-        let envs: Vec<Bandit> = (0..128).map(|_| Bandit::draw(&mut rng)).collect();
-        let obs: Vec<Vec<f32>> = envs.iter().map(Bandit::observation).collect();
-        let allowed: Vec<bool> = envs.iter().flat_map(Bandit::allowed).collect();
-        let input = PolicyInput {
-            images: vec![],
-            vectors: vec![vectors(&obs, &device)],
-            mask: mask_tensor(&allowed, 4, &device),
-        };
-        let out = net.forward(&input, None);
-        let (actions, log_probs) = sample_rows(&out.log_probs, &mut rng);
-        let values: Vec<f32> = out.values.into_data().try_to_vec().unwrap();
-        let rewards: Vec<f32> = envs
-            .iter()
-            .zip(&actions)
-            .map(|(e, &a)| f32::from(u8::from(a as usize == e.context)))
-            .collect();
-        let (advantages, returns) = gae(&rewards, &values, &[true; 128], 0.0, 0.99, 0.95);
-        let batch = PpoBatch {
-            input,
-            actions,
-            behaviour_log_probs: log_probs,
-            values,
-            advantages,
-            returns,
-            policy_versions: vec![ppo.version(); 128],
-            sequences: None,
-        };
+        let batch = bandit_batch(&ppo.inference_net(&device), ppo.version(), &mut rng);
         let stats = ppo.update(&batch, &mut rng);
         assert!(stats.approx_kl.is_finite() && stats.entropy > 0.0);
         let score = bandit_score(Some(&ppo.inference_net(&device)), 512, &mut rng);
@@ -272,6 +279,100 @@ fn ppo_solves_a_masked_contextual_bandit_and_random_does_not() {
         "PPO did not reach {threshold} in 40 updates"
     );
     assert!(random < threshold - 0.4, "random policy scored {random}");
+}
+
+/// Log-probabilities and values of `net` on fixed bandit inputs, flattened.
+fn bandit_outputs(net: &PolicyNet) -> Vec<f32> {
+    let device = cpu();
+    let envs: Vec<Bandit> = (0..16)
+        .map(|i| Bandit {
+            context: i % 4,
+            masked: (i % 4 + 1 + i / 4 % 3) % 4,
+        })
+        .collect();
+    let input = PolicyInput {
+        images: vec![],
+        vectors: vec![vectors(
+            &envs.iter().map(Bandit::observation).collect::<Vec<_>>(),
+            &device,
+        )],
+        mask: mask_tensor(
+            &envs.iter().flat_map(Bandit::allowed).collect::<Vec<_>>(),
+            4,
+            &device,
+        ),
+    };
+    let out = net.forward(&input, None);
+    let mut all: Vec<f32> = out.log_probs.into_data().try_to_vec().unwrap();
+    all.extend(out.values.into_data().try_to_vec::<f32>().unwrap());
+    all.retain(|x| x.is_finite()); // masked actions' log-probabilities are -inf
+    all
+}
+
+#[test]
+fn a_run_resumed_with_the_saved_adam_state_continues_the_same_optimisation() {
+    let device = cpu();
+    let mut rng = StdRng::seed_from_u64(5);
+    let config = PpoConfig {
+        learning_rate: 3e-3,
+        ..PpoConfig::default()
+    };
+    let mut original = Ppo::new(bandit_net(&device), config, &device);
+    for _ in 0..3 {
+        let batch = bandit_batch(
+            &original.inference_net(&device),
+            original.version(),
+            &mut rng,
+        );
+        original.update(&batch, &mut rng);
+    }
+    // What a checkpoint holds, through bytes: weights, Adam's record and the parameter list.
+    let weights = to_safetensors(&original.inference_net(&device)).unwrap();
+    let saved = original.optimizer_state().unwrap();
+    let saved =
+        OptimizerState::from_parts(saved.record.clone(), &saved.parameter_list_json()).unwrap();
+    let rebuilt = || {
+        let mut net = bandit_net(&device);
+        load_safetensors(&mut net, weights.clone()).unwrap();
+        Ppo::new(net, config, &device)
+    };
+    let mut resumed = rebuilt();
+    resumed.restore_optimizer(&saved).unwrap();
+    let mut restarted = rebuilt();
+
+    let batch = bandit_batch(
+        &original.inference_net(&device),
+        original.version(),
+        &mut rng,
+    );
+    for ppo in [&mut original, &mut resumed, &mut restarted] {
+        ppo.update(&batch, &mut StdRng::seed_from_u64(9));
+    }
+    let reference = bandit_outputs(&original.inference_net(&device));
+    let largest_difference = |ppo: &Ppo| {
+        let outputs = bandit_outputs(&ppo.inference_net(&device));
+        assert_eq!(outputs.len(), reference.len());
+        outputs
+            .iter()
+            .zip(&reference)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max)
+    };
+    let (with_state, without) = (largest_difference(&resumed), largest_difference(&restarted));
+    eprintln!("after one more update: resumed with Adam's state {with_state:e}, with a fresh Adam {without:e}");
+    assert!(with_state < 1e-5, "resumed run drifted by {with_state}");
+    assert!(
+        without > 100.0 * with_state.max(1e-7),
+        "a fresh Adam should have changed the outcome ({without})"
+    );
+
+    // A state saved for another network is refused and changes nothing.
+    let mut other = Ppo::new(recall_net(&device, None), config, &device);
+    let err = other.restore_optimizer(&saved).unwrap_err();
+    assert!(
+        err.to_string().contains("does not fit this network"),
+        "{err}"
+    );
 }
 
 /// Cue recall: step 0 shows a cue (one of two), step 1 shows nothing, step 2
