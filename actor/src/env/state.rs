@@ -23,7 +23,7 @@
 
 use std::collections::VecDeque;
 
-use mapper::projection::visited;
+use mapper::projection::{visited, SurfacePoints};
 use mapper::{Affordance, GridSpec, Map, ObjectId, Pose, ProjectionKind};
 use nalgebra::Point2;
 use proto::{Method, TaskSpec};
@@ -179,14 +179,17 @@ pub struct State {
 /// (and every map input when `input.map` is `None`) stay empty.
 pub fn build_state(config: &StateConfig, input: &StateInputs<'_>) -> State {
     let map = input.map.filter(|_| config.map_channels() > 0);
+    // Gathered once: both extents and every plane rasterise the same points.
+    let surface = map.map(Map::surface_points);
+    let planes = |extent_m: f32| {
+        surface
+            .as_ref()
+            .map_or_else(Vec::new, |s| map_planes(config, input, s, extent_m))
+    };
     State {
         camera: camera_planes(config, input, map),
-        global_map: map.map_or_else(Vec::new, |m| {
-            map_planes(config, input, m, config.global_extent_m)
-        }),
-        local_map: map.map_or_else(Vec::new, |m| {
-            map_planes(config, input, m, config.local_extent_m)
-        }),
+        global_map: planes(config.global_extent_m),
+        local_map: planes(config.local_extent_m),
         history: history_vector(config, input.history),
         inventory: vec![f32::from(u8::from(input.holding))],
     }
@@ -244,7 +247,12 @@ fn camera_planes(config: &StateConfig, input: &StateInputs<'_>, map: Option<&Map
     out
 }
 
-fn map_planes(config: &StateConfig, input: &StateInputs<'_>, map: &Map, extent_m: f32) -> Vec<f32> {
+fn map_planes(
+    config: &StateConfig,
+    input: &StateInputs<'_>,
+    surface: &SurfacePoints<'_>,
+    extent_m: f32,
+) -> Vec<f32> {
     let (x, y, heading) = input.agent;
     let grid = GridSpec {
         center: Point2::new(x, y),
@@ -254,7 +262,7 @@ fn map_planes(config: &StateConfig, input: &StateInputs<'_>, map: &Map, extent_m
     };
     let (lo, hi) = config.occupancy_heights_m;
     let mut out = visited(input.visited, &grid);
-    out.extend(map.project(
+    out.extend(surface.project(
         ProjectionKind::Occupancy {
             min_height_m: input.floor_z + lo,
             max_height_m: input.floor_z + hi,
@@ -267,7 +275,7 @@ fn map_planes(config: &StateConfig, input: &StateInputs<'_>, map: &Map, extent_m
             ProjectionKind::InteractedFailure(a),
             ProjectionKind::NotInteracted(a),
         ] {
-            out.extend(map.project(kind, &grid));
+            out.extend(surface.project(kind, &grid));
         }
     }
     out
