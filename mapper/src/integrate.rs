@@ -206,6 +206,36 @@ fn blocks_in_view(layer: &Layer, t_camera_layer: &Pose, k: &Intrinsics) -> Vec<B
         .collect()
 }
 
+/// Marks a voxel whose centre falls outside the image (or behind the camera).
+const OFF_IMAGE: u32 = u32::MAX;
+
+/// Where the `BLOCK_EDGE` voxels of one block row land: pixel index
+/// ([`OFF_IMAGE`] if none), continuous pixel coordinates and z-depth. A
+/// separate pass without early exits, so the projections of a row overlap in
+/// the CPU (and can be vectorised); same arithmetic as
+/// [`Intrinsics::project`] and [`Intrinsics::pixel_index`].
+#[inline]
+fn project_row(
+    row: &Vector3<f32>,
+    step: &Vector3<f32>,
+    k: &Intrinsics,
+) -> [(u32, f32, f32, f32); BLOCK_EDGE as usize] {
+    let (width, height) = (k.width as f32, k.height as f32);
+    std::array::from_fn(|xi| {
+        let p = row + step * xi as f32;
+        let inv_z = 1.0 / p.z;
+        let (u, v) = (k.fx * p.x * inv_z + k.cx, k.fy * p.y * inv_z + k.cy);
+        let (ui, vi) = (u + 0.5, v + 0.5);
+        let inside = p.z > 1e-6 && ui >= 0.0 && vi >= 0.0 && ui < width && vi < height;
+        let px = if inside {
+            vi as u32 * k.width as u32 + ui as u32
+        } else {
+            OFF_IMAGE
+        };
+        (px, u, v, p.z)
+    })
+}
+
 /// One depth image as seen from a layer's frame.
 #[derive(Debug, Clone, Copy)]
 pub struct DepthView<'a> {
@@ -282,17 +312,12 @@ pub fn integrate(
         for zi in 0..edge {
             for yi in 0..edge {
                 let row = origin.coords + steps[1] * yi as f32 + steps[2] * zi as f32;
-                for xi in 0..edge {
-                    let p = row + steps[0] * xi as f32;
-                    let z = p.z;
-                    if z <= 1e-6 {
+                let landing = project_row(&row, &steps[0], k);
+                for (xi, &(px, u, v, z)) in landing.iter().enumerate() {
+                    if px == OFF_IMAGE {
                         continue;
                     }
-                    let inv_z = 1.0 / z;
-                    let (u, v) = (k.fx * p.x * inv_z + k.cx, k.fy * p.y * inv_z + k.cy);
-                    let Some(px) = k.pixel_index(u, v) else {
-                        continue;
-                    };
+                    let px = px as usize;
                     let nearest = depth_m[px];
                     if !params.valid_depth(nearest) {
                         continue;
