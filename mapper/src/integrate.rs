@@ -35,7 +35,8 @@ impl IntegrationParams {
 }
 
 /// Per pixel, `|cos|` of the angle between the viewing ray and the surface
-/// normal estimated from neighbouring depths (1 where it cannot be estimated).
+/// normal estimated from neighbouring depths: central differences inside a
+/// surface, one-sided at its edges (1 only for isolated pixels).
 ///
 /// Projective TSDF measures distance along the ray, which overestimates the
 /// distance to the surface by `1 / cos θ` off the normal; multiplying by this
@@ -51,19 +52,31 @@ pub fn normal_cosines(k: &Intrinsics, depth_m: &[f32], params: &IntegrationParam
     };
     let mut out = vec![1.0; w * h];
     let max_jump = 4.0 * params.truncation_m;
-    for v in 1..h.saturating_sub(1) {
-        for u in 1..w.saturating_sub(1) {
+    for v in 0..h {
+        for u in 0..w {
             let Some(c) = point(u, v) else { continue };
             let near = |p: Option<Point3<f32>>| p.filter(|p| (p.z - c.z).abs() < max_jump);
-            let (Some(l), Some(r), Some(t), Some(b)) = (
-                near(point(u - 1, v)),
-                near(point(u + 1, v)),
-                near(point(u, v - 1)),
-                near(point(u, v + 1)),
+            let neighbour = |du: isize, dv: isize| {
+                let (x, y) = (u.checked_add_signed(du)?, v.checked_add_signed(dv)?);
+                (x < w && y < h).then(|| near(point(x, y))).flatten()
+            };
+            // Central differences where both neighbours lie on this surface,
+            // one-sided at its edges: silhouettes are where views graze the
+            // surface, so "unknown" must not mean "head-on" there.
+            let tangent =
+                |before: Option<Point3<f32>>, after: Option<Point3<f32>>| match (before, after) {
+                    (Some(a), Some(b)) => Some(b - a),
+                    (None, Some(b)) => Some(b - c),
+                    (Some(a), None) => Some(c - a),
+                    (None, None) => None,
+                };
+            let (Some(along_u), Some(along_v)) = (
+                tangent(neighbour(-1, 0), neighbour(1, 0)),
+                tangent(neighbour(0, -1), neighbour(0, 1)),
             ) else {
                 continue;
             };
-            let n = (r - l).cross(&(b - t));
+            let n = along_u.cross(&along_v);
             let norm = n.norm();
             if norm < 1e-12 {
                 continue;
@@ -342,13 +355,15 @@ pub fn integrate(
                         }
                         let cos = cosines[px];
                         let sdf = projective * cos;
-                        // Full weight in front of the surface, dropping linearly
-                        // behind it; grazing views count less.
+                        // Full weight in front of the surface, dropping
+                        // quadratically behind it (behind a surface, the ray's
+                        // distance says least about the voxel's: corners and
+                        // edges); grazing views count less.
                         let w = cos
                             * if sdf >= 0.0 {
                                 1.0
                             } else {
-                                (1.0 + sdf / trunc).max(0.05)
+                                (1.0 + sdf / trunc).powi(2).max(0.05)
                             };
                         updates.push((o, sdf.min(trunc), w, false));
                     } else if carve && exists && nearest - z > trunc && may_carve[px] {
