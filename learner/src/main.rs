@@ -28,12 +28,14 @@ enum Command {
     PrintConfig,
     /// Remove shared-memory resources left by crashed learner or actor processes.
     Clean,
-    /// Draw the paper's six training curves from a run's history.jsonl into an SVG.
+    /// Draw the paper's six training curves from a run's history.jsonl into an
+    /// SVG; with several --run-dir, one line per run to compare them.
     Plot {
-        /// The run directory (holds history.jsonl).
-        #[arg(long)]
-        run_dir: PathBuf,
-        /// SVG file to write (default RUN_DIR/training_curves.svg).
+        /// A run directory (holds history.jsonl); repeat to compare runs.
+        #[arg(long, required = true)]
+        run_dir: Vec<PathBuf>,
+        /// SVG file to write (default RUN_DIR/training_curves.svg for one run;
+        /// required for several).
         #[arg(long)]
         out: Option<PathBuf>,
         /// Episodes in the moving average.
@@ -115,8 +117,15 @@ fn main() -> anyhow::Result<()> {
             out,
             window,
         } => {
-            let out = out.unwrap_or_else(|| run_dir.join("training_curves.svg"));
-            let episodes = learner::plot::plot(&run_dir, &out, window)?;
+            let out = match (out, run_dir.as_slice()) {
+                (Some(out), _) => out,
+                (None, [one]) => one.join("training_curves.svg"),
+                (None, _) => anyhow::bail!(
+                    "several --run-dir given: say where the comparison goes with --out FILE.svg"
+                ),
+            };
+            let runs: Vec<&std::path::Path> = run_dir.iter().map(PathBuf::as_path).collect();
+            let episodes = learner::plot::plot(&runs, &out, window)?;
             println!("plotted {episodes} episodes into {}", out.display());
             Ok(())
         }
