@@ -141,6 +141,19 @@ for ((i = 0; i < ACTORS; i++)); do
   SUPERVISORS+=($!)
 done
 
+# Waits until the given processes are gone (at most 60 s). Polling instead of
+# `wait`: bash's `wait` on a child that was killed while a trap ran (e.g.
+# `pkill -f deploy/local.sh`, which also hits the supervisor subshells) never returns.
+wait_gone() {
+  local pid
+  for _ in $(seq 1 600); do
+    for pid in "$@"; do kill -0 "$pid" 2>/dev/null && break; pid=""; done
+    [[ -z "$pid" ]] && return 0
+    sleep 0.1
+  done
+  echo "local.sh: processes $* still running after 60 s; going on" >&2
+}
+
 shutdown() {
   trap - INT TERM
   echo; echo "stopping: actors first, then the learner (final checkpoint)..."
@@ -148,7 +161,7 @@ shutdown() {
   for ((i = 0; i < ACTORS; i++)); do
     [[ -s "$LOGS/actor-$i.pid" ]] && kill -INT "$(cat "$LOGS/actor-$i.pid")" 2>/dev/null || true
   done
-  wait "${SUPERVISORS[@]}" 2>/dev/null || true
+  wait_gone "${SUPERVISORS[@]}"
   kill -INT "$LEARNER_PID" 2>/dev/null || true
   local code=0; wait "$LEARNER_PID" || code=$?
   "$BIN/learner" clean >/dev/null 2>&1 || true
@@ -171,7 +184,7 @@ if [[ ! -e "$STOP_FILE" ]]; then
   for ((i = 0; i < ACTORS; i++)); do
     [[ -s "$LOGS/actor-$i.pid" ]] && kill -INT "$(cat "$LOGS/actor-$i.pid")" 2>/dev/null || true
   done
-  wait "${SUPERVISORS[@]}" 2>/dev/null || true
+  wait_gone "${SUPERVISORS[@]}"
   "$BIN/learner" clean >/dev/null 2>&1 || true
   exit 1
 fi
