@@ -28,6 +28,7 @@ Options:
   --renderer R      gpu (wgpu: a GPU or Mesa lavapipe, default) or cpu
   --port PORT       HTTP port of the learner's metrics endpoint (default 9464)
   --debug           use debug builds (faster to build, slower to run)
+  --bin-dir DIR     use the learner and actor binaries in DIR; build nothing
   -h, --help        this help
 Everything after `--` is passed to `learner serve`, e.g. `-- --config my.toml`
 for a learner config (reward weights: [task.reward]; see README).
@@ -36,7 +37,7 @@ ignores SIGINT).
 USAGE
 }
 
-ACTORS="" RUN_DIR="" RESUME=0 PORT=9464 PROFILE=release
+ACTORS="" RUN_DIR="" RESUME=0 PORT=9464 PROFILE=release BIN=""
 TASK_ARGS=() ACTOR_ARGS=() METHOD=ours ENV_KIND=sim
 EXTRA=()
 while [[ $# -gt 0 ]]; do
@@ -53,6 +54,7 @@ while [[ $# -gt 0 ]]; do
     --renderer) ACTOR_ARGS+=(--renderer "${2:?--renderer needs a value}"); shift 2 ;;
     --port) PORT="${2:?--port needs a number}"; shift 2 ;;
     --debug) PROFILE=debug; shift ;;
+    --bin-dir) BIN="$(cd "${2:?--bin-dir needs a directory}" && pwd)"; shift 2 ;;
     -h|--help) usage; exit 0 ;;
     --) shift; EXTRA=("$@"); break ;;
     *) echo "local.sh: unknown argument '$1'" >&2; usage >&2; exit 2 ;;
@@ -79,16 +81,21 @@ if [[ ${#missing[@]} -gt 0 ]]; then
     echo "local.sh: missing packages: ${missing[*]} (install them: sudo apt-get install ${missing[*]})" >&2; exit 1
   fi
 fi
-command -v cargo >/dev/null || { echo "local.sh: cargo not found: install Rust from https://rustup.rs" >&2; exit 1; }
-
-echo "building $PROFILE binaries..."
-if [[ $PROFILE == release ]]; then
-  cargo build --release -p learner -p actor
+if [[ -n "$BIN" ]]; then
+  for b in learner actor; do
+    [[ -x "$BIN/$b" ]] || { echo "local.sh: --bin-dir $BIN has no executable $b" >&2; exit 2; }
+  done
 else
-  cargo build -p learner -p actor
+  command -v cargo >/dev/null || { echo "local.sh: cargo not found: install Rust from https://rustup.rs" >&2; exit 1; }
+  echo "building $PROFILE binaries..."
+  if [[ $PROFILE == release ]]; then
+    cargo build --release -p learner -p actor
+  else
+    cargo build -p learner -p actor
+  fi
+  TARGET_DIR=$(cargo metadata --format-version 1 --no-deps | python3 -c 'import json,sys; print(json.load(sys.stdin)["target_directory"])' 2>/dev/null || echo "$REPO/target")
+  BIN="$TARGET_DIR/$PROFILE"
 fi
-TARGET_DIR=$(cargo metadata --format-version 1 --no-deps | python3 -c 'import json,sys; print(json.load(sys.stdin)["target_directory"])' 2>/dev/null || echo "$REPO/target")
-BIN="$TARGET_DIR/$PROFILE"
 
 [[ -n "$RUN_DIR" ]] || RUN_DIR="runs/run-$(date -u +%Y%m%dT%H%M%SZ)"
 mkdir -p "$RUN_DIR/logs"

@@ -1,0 +1,175 @@
+//! `deploy/local.sh` as a user runs it, with the bandit fixture and the
+//! already built binaries (`--bin-dir`): it brings up the learner and two
+//! actors, and a stop, whichever processes it reaches, ends every process
+//! of the run with a final checkpoint and exit status 0.
+
+use std::fs::File;
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use system_tests::{bin, http_get, scratch_dir, wait_for};
+
+/// A running `deploy/local.sh`, killed with its process group on drop.
+struct Launch {
+    script: Child,
+    log: PathBuf,
+    run_dir: PathBuf,
+    prefix: String,
+}
+
+impl Drop for Launch {
+    fn drop(&mut self) {
+        // SAFETY: kill(2) on the process group we created has no memory-safety preconditions.
+        unsafe {
+            libc::kill(-(self.script.id() as i32), libc::SIGKILL);
+        }
+        let _ = self.script.wait();
+    }
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("a free port")
+        .port()
+}
+
+/// Starts the script and waits until both actors feed the learner.
+fn launch(dir: &Path, case: &str) -> Launch {
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let bin_dir = bin("learner").parent().expect("binary dir").to_path_buf();
+    let name = format!("ls-{case}-{}", std::process::id());
+    let run_dir = dir.join(&name);
+    let port = free_port();
+    let log = dir.join(format!("{name}.log"));
+    let out = File::create(&log).expect("log file");
+    let script = Command::new(repo.join("deploy/local.sh"))
+        .args(["--actors", "2", "--env", "bandit-fixture", "--bin-dir"])
+        .arg(&bin_dir)
+        .arg("--run-dir")
+        .arg(&run_dir)
+        .args(["--port", &port.to_string()])
+        .stdout(Stdio::from(out.try_clone().expect("log handle")))
+        .stderr(Stdio::from(out))
+        .process_group(0)
+        .spawn()
+        .expect("starting deploy/local.sh");
+    let launch = Launch {
+        script,
+        log,
+        run_dir,
+        prefix: format!("afx-{name}"),
+    };
+    let addr = format!("127.0.0.1:{port}");
+    wait_for(
+        Duration::from_secs(90),
+        "both actors sending to the learner",
+        || {
+            let (_, body) = http_get(&addr, "/api/status")?;
+            let status: serde_json::Value = serde_json::from_str(&body).ok()?;
+            (status["actors_alive"].as_u64()? >= 2 && status["env_steps"].as_u64()? > 0)
+                .then_some(())
+        },
+    );
+    launch
+}
+
+/// Parent pid of `pid`, from /proc.
+fn parent_of(pid: u32) -> Option<u32> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // The command name is in parentheses and may hold spaces: parse after it.
+    stat.rsplit_once(')')?
+        .1
+        .split_whitespace()
+        .nth(1)?
+        .parse()
+        .ok()
+}
+
+fn cmdline(pid: u32) -> String {
+    std::fs::read(format!("/proc/{pid}/cmdline"))
+        .map(|b| String::from_utf8_lossy(&b).replace('\0', " "))
+        .unwrap_or_default()
+}
+
+fn all_pids() -> Vec<u32> {
+    std::fs::read_dir("/proc")
+        .map(|rd| {
+            rd.filter_map(|e| e.ok()?.file_name().to_str()?.parse().ok())
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// Processes of this run still alive (learner and actors name its prefix).
+fn survivors(prefix: &str) -> Vec<String> {
+    all_pids()
+        .into_iter()
+        .map(cmdline)
+        .filter(|c| c.contains(prefix) && !c.contains("local.sh"))
+        .collect()
+}
+
+/// Waits for the script's exit and checks that the run ended cleanly.
+fn assert_stopped_cleanly(mut launch: Launch) {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let status = loop {
+        if let Some(status) = launch.script.try_wait().expect("waiting for the script") {
+            break status;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "deploy/local.sh did not stop within 60 s:\n{}",
+            std::fs::read_to_string(&launch.log).unwrap_or_default()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let log = std::fs::read_to_string(&launch.log).unwrap_or_default();
+    assert!(
+        status.success() && log.contains("stopped (learner exit status 0)"),
+        "{status}:\n{log}"
+    );
+    let learner_log =
+        std::fs::read_to_string(launch.run_dir.join("logs/learner.log")).unwrap_or_default();
+    assert!(
+        learner_log.contains("shutting down: writing a final checkpoint"),
+        "no final checkpoint:\n{learner_log}"
+    );
+    wait_for(Duration::from_secs(5), "no process of the run left", || {
+        survivors(&launch.prefix).is_empty().then_some(())
+    });
+}
+
+#[test]
+fn sigterm_to_the_script_stops_actors_then_the_learner() {
+    let dir = scratch_dir("local-sh-term");
+    let launch = launch(&dir, "term");
+    // SAFETY: kill(2) on our own child's pid has no memory-safety preconditions.
+    unsafe {
+        libc::kill(launch.script.id() as i32, libc::SIGTERM);
+    }
+    assert_stopped_cleanly(launch);
+}
+
+#[test]
+fn sigterm_that_also_kills_the_actor_supervisors_still_stops_the_learner() {
+    // What `pkill -f deploy/local.sh` does: the script's supervisor
+    // subshells share its command line and die with it.
+    let dir = scratch_dir("local-sh-pkill");
+    let launch = launch(&dir, "pkill");
+    let script = launch.script.id();
+    let supervisors: Vec<u32> = all_pids()
+        .into_iter()
+        .filter(|&p| parent_of(p) == Some(script) && cmdline(p).contains("local.sh"))
+        .collect();
+    assert_eq!(supervisors.len(), 2, "one supervisor per actor");
+    for pid in supervisors.into_iter().chain([script]) {
+        // SAFETY: kill(2) has no memory-safety preconditions.
+        unsafe {
+            libc::kill(pid as i32, libc::SIGTERM);
+        }
+    }
+    assert_stopped_cleanly(launch);
+}
