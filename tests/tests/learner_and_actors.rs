@@ -84,21 +84,28 @@ fn learner_serves_three_actors_and_survives_a_killed_one() {
         .collect();
 
     // Every actor streams chunks made with weights version >= 1.
-    wait_for(
-        Duration::from_secs(30),
-        "chunks from all three actors",
-        || {
-            let s = learner.status();
-            let ok = (0..3).all(|id| {
-                s["actors"].as_array().unwrap().iter().any(|a| {
-                    a["id"] == id
-                        && a["received"]["rollout"].as_u64() > Some(0)
-                        && a["policy_version"].as_u64() >= Some(1)
-                })
-            });
-            ok.then_some(())
-        },
-    );
+    let all_served = |s: &serde_json::Value| {
+        (0..3).all(|id| {
+            s["actors"].as_array().unwrap().iter().any(|a| {
+                a["id"] == id
+                    && a["received"]["rollout"].as_u64() > Some(0)
+                    && a["policy_version"].as_u64() >= Some(1)
+            })
+        })
+    };
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    loop {
+        let s = learner.status();
+        if all_served(&s) {
+            break;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "timed out after 30 s waiting for chunks from all three actors; the learner's view:\n{:#}",
+            s["actors"]
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
     for actor in &actors {
         let log = actor.log_text();
         assert!(
