@@ -60,6 +60,33 @@ struct Policy {
     unet_version: u64,
 }
 
+/// Back-off after rollouts the learner had no room for: its queue for this
+/// actor was full, so it is not keeping up. Producing more would only be
+/// discarded, and it would keep this actor's queue full, where the learner
+/// (which serves its senders in a fixed order) might never reach the others.
+/// Sleeps 1 ms after the first drop in a row, doubling to at most 64 ms; a
+/// delivered chunk resets it. Simulator actors are far slower than the
+/// learner and rarely see it; a fast fixture is paced to the learner.
+#[derive(Debug, Default)]
+struct Backoff {
+    sleep: Option<Duration>,
+}
+
+impl Backoff {
+    fn after(&mut self, delivery: Delivery) {
+        self.sleep = match delivery {
+            Delivery::Delivered(_) => None,
+            Delivery::Dropped => {
+                let sleep = self.sleep.map_or(Duration::from_millis(1), |s| {
+                    (s * 2).min(Duration::from_millis(64))
+                });
+                std::thread::sleep(sleep);
+                Some(sleep)
+            }
+        };
+    }
+}
+
 /// Loads a weights message: the policy always, the U-Net when the message
 /// carries one of another version than `current`'s.
 fn load_weights(
@@ -273,6 +300,7 @@ pub fn run(
 
     let mut rng = SmallRng::seed_from_u64(settings.seed ^ (u64::from(settings.actor_id) << 32));
     let mut summary = LoopSummary::default();
+    let mut backoff = Backoff::default();
     let count = |d: Delivery, s: &mut LoopSummary| match d {
         Delivery::Delivered(_) => s.delivered += 1,
         Delivery::Dropped => s.dropped += 1,
@@ -332,6 +360,7 @@ pub fn run(
                 };
                 let delivery = ports.publish(&chunk, policy.policy_version, policy.unet_version)?;
                 count(delivery, &mut summary);
+                backoff.after(delivery);
                 chunk = new_chunk(
                     episode_id,
                     step,
