@@ -167,6 +167,18 @@ impl Bandit {
     }
 }
 
+/// The policy's input for a batch of bandit draws.
+fn bandit_input(envs: &[Bandit]) -> PolicyInput {
+    let device = cpu();
+    let obs: Vec<Vec<f32>> = envs.iter().map(Bandit::observation).collect();
+    let allowed: Vec<bool> = envs.iter().flat_map(Bandit::allowed).collect();
+    PolicyInput {
+        images: vec![],
+        vectors: vec![vectors(&obs, &device)],
+        mask: mask_tensor(&allowed, 4, &device),
+    }
+}
+
 fn bandit_net(device: &Device) -> PolicyNet {
     PolicyNet::new(
         &PolicyLayout {
@@ -184,22 +196,10 @@ fn bandit_net(device: &Device) -> PolicyNet {
 /// Mean reward of `net` over `n` fresh bandit draws (`None`: uniformly random
 /// allowed actions).
 fn bandit_score(net: Option<&PolicyNet>, n: usize, rng: &mut StdRng) -> f32 {
-    let device = cpu();
     let envs: Vec<Bandit> = (0..n).map(|_| Bandit::draw(rng)).collect();
     let actions: Vec<u32> = match net {
         Some(net) => {
-            let input = PolicyInput {
-                images: vec![],
-                vectors: vec![vectors(
-                    &envs.iter().map(Bandit::observation).collect::<Vec<_>>(),
-                    &device,
-                )],
-                mask: mask_tensor(
-                    &envs.iter().flat_map(Bandit::allowed).collect::<Vec<_>>(),
-                    4,
-                    &device,
-                ),
-            };
+            let input = bandit_input(&envs);
             sample_rows(&net.forward(&input, None).log_probs, rng).0
         }
         None => envs
@@ -219,15 +219,8 @@ fn bandit_score(net: Option<&PolicyNet>, n: usize, rng: &mut StdRng) -> f32 {
 
 /// One batch of 128 bandit steps played by `net` (policy version `version`).
 fn bandit_batch(net: &PolicyNet, version: u64, rng: &mut StdRng) -> PpoBatch {
-    let device = cpu();
     let envs: Vec<Bandit> = (0..128).map(|_| Bandit::draw(rng)).collect();
-    let obs: Vec<Vec<f32>> = envs.iter().map(Bandit::observation).collect();
-    let allowed: Vec<bool> = envs.iter().flat_map(Bandit::allowed).collect();
-    let input = PolicyInput {
-        images: vec![],
-        vectors: vec![vectors(&obs, &device)],
-        mask: mask_tensor(&allowed, 4, &device),
-    };
+    let input = bandit_input(&envs);
     let out = net.forward(&input, None);
     let (actions, log_probs) = sample_rows(&out.log_probs, rng);
     let values: Vec<f32> = out.values.into_data().try_to_vec().unwrap();
@@ -283,25 +276,13 @@ fn ppo_solves_a_masked_contextual_bandit_and_random_does_not() {
 
 /// Log-probabilities and values of `net` on fixed bandit inputs, flattened.
 fn bandit_outputs(net: &PolicyNet) -> Vec<f32> {
-    let device = cpu();
     let envs: Vec<Bandit> = (0..16)
         .map(|i| Bandit {
             context: i % 4,
             masked: (i % 4 + 1 + i / 4 % 3) % 4,
         })
         .collect();
-    let input = PolicyInput {
-        images: vec![],
-        vectors: vec![vectors(
-            &envs.iter().map(Bandit::observation).collect::<Vec<_>>(),
-            &device,
-        )],
-        mask: mask_tensor(
-            &envs.iter().flat_map(Bandit::allowed).collect::<Vec<_>>(),
-            4,
-            &device,
-        ),
-    };
+    let input = bandit_input(&envs);
     let out = net.forward(&input, None);
     let mut all: Vec<f32> = out.log_probs.into_data().try_to_vec().unwrap();
     all.extend(out.values.into_data().try_to_vec::<f32>().unwrap());
