@@ -160,19 +160,28 @@ impl Learner {
         let mut last_maintenance = Instant::now();
         while !self.shared.shutdown.load(Ordering::Relaxed) {
             self.ports.wait(Duration::from_millis(100))?;
-            // At most one buffer's worth per kind per pass, so that a fast
-            // stream of rollouts cannot starve stats, frames or checkpoints.
-            let per_pass = self.shared.config.transport.learner_buffer.max(1);
+            // Per kind, first take what is queued (at most one buffer's worth
+            // per sender, so a fast stream cannot starve stats, frames or
+            // checkpoints), then handle it. Taking before handling matters:
+            // the subscriber serves its senders in a fixed order, and while a
+            // message was handled a fast actor refilled its queue, so the
+            // others' queues were never reached.
+            let t = &self.shared.config.transport;
+            let per_pass = t.learner_buffer.max(1) * (t.max_actors + t.spare_ports).max(1) as usize;
             for kind in [
                 MessageKind::Stats,
                 MessageKind::Frames,
                 MessageKind::Rollout,
             ] {
-                for _ in 0..per_pass {
+                let mut taken = Vec::new();
+                while taken.len() < per_pass {
                     let Some(message) = self.ports.receive(kind)? else {
                         break;
                     };
-                    self.handle(kind, message.bytes())?;
+                    taken.push(message.bytes().to_vec());
+                }
+                for bytes in taken {
+                    self.handle(kind, &bytes)?;
                 }
             }
             if let Some(weights) = self
