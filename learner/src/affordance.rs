@@ -14,6 +14,7 @@ use training::affordance::{
     predict_logits, Evaluation, LabelledFrame, UnetTrainer, UnetTrainingConfig, UNKNOWN,
 };
 use training::dataset::{validation_gate, AffordanceDataset, DatasetConfig, Split};
+use training::optimizer_state::{OptimizerState, OptimizerStateError};
 use training::temperature::fit_temperature;
 
 use crate::config::UnetConfig;
@@ -29,6 +30,29 @@ pub enum FramesError {
         /// Planes of the task.
         expected: usize,
     },
+}
+
+/// Why the U-Net's training state could not be saved or restored.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainingStateError {
+    /// The network in training could not be written or read.
+    #[error("U-Net weights: {0}")]
+    Weights(#[from] WeightsError),
+    /// Adam's state could not be captured or does not fit the network.
+    #[error("U-Net optimiser: {0}")]
+    Optimizer(#[from] OptimizerStateError),
+}
+
+/// The U-Net in training and its Adam state: with these in a checkpoint,
+/// a resumed run continues U-Net training where it stopped instead of
+/// restarting it from the deployed network with a fresh Adam.
+#[derive(Debug, Clone)]
+pub struct UnetTrainingState {
+    /// The network in training (safetensors), which may differ from the
+    /// deployed one: it has not passed the validation gate (yet).
+    pub candidate: Vec<u8>,
+    /// Its optimiser's state.
+    pub optimizer: OptimizerState,
 }
 
 /// What one round of U-Net training did.
@@ -213,8 +237,32 @@ impl AffordanceLearner {
         to_safetensors(&self.deployed)
     }
 
+    /// The network in training and its optimiser's state, for a checkpoint.
+    pub fn training_state(&self) -> Result<UnetTrainingState, TrainingStateError> {
+        Ok(UnetTrainingState {
+            candidate: to_safetensors(&self.trainer.inference_net(&self.device))?,
+            optimizer: self.trainer.optimizer_state()?,
+        })
+    }
+
+    /// Continues training from a saved network in training and its
+    /// optimiser's state (after [`AffordanceLearner::restore`]). On error
+    /// nothing changes.
+    pub fn restore_training(
+        &mut self,
+        state: &UnetTrainingState,
+    ) -> Result<(), TrainingStateError> {
+        let mut net = AffordanceUnet::new(4, self.affordances, &self.device);
+        load_safetensors(&mut net, state.candidate.clone())?;
+        let mut trainer = UnetTrainer::new(net, Self::training(&self.settings), &self.device);
+        trainer.restore_optimizer(&state.optimizer)?;
+        self.trainer = trainer;
+        Ok(())
+    }
+
     /// Continues from saved deployed weights and temperature (training
-    /// restarts from them).
+    /// restarts from them, with a fresh optimiser, unless
+    /// [`AffordanceLearner::restore_training`] follows).
     pub fn restore(&mut self, bytes: Vec<u8>, temperature: f32) -> Result<(), WeightsError> {
         self.temperature = temperature;
         let mut net = AffordanceUnet::new(4, self.affordances, &self.device);

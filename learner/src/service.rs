@@ -11,7 +11,7 @@ use proto::{decode, Limits, Message, MessageKind};
 use serde::{Deserialize, Serialize};
 use transport::{Delivery, LearnerPorts};
 
-use crate::affordance::{checked_frames, AffordanceLearner};
+use crate::affordance::{checked_frames, AffordanceLearner, UnetTrainingState};
 use crate::checkpoint;
 use crate::config::LearnerConfig;
 use crate::history::History;
@@ -95,6 +95,8 @@ pub struct Learner {
     unet_worker: Option<UnetWorker>,
     /// The deployed U-Net's weights and temperature, broadcast and checkpointed.
     unet_weights: Option<(Vec<u8>, f32)>,
+    /// The U-Net thread's training state as of the last checkpoint.
+    unet_training: Option<UnetTrainingState>,
     affordances: usize,
     warned: HashSet<(MessageKind, &'static str)>,
     last_checkpoint: Instant,
@@ -123,6 +125,7 @@ impl Learner {
             history: Arc::new(Mutex::new(history)),
             unet_worker: None,
             unet_weights: None,
+            unet_training: None,
             affordances,
             warned: HashSet::new(),
             last_checkpoint: Instant::now(),
@@ -150,8 +153,21 @@ impl Learner {
             )?);
         }
         let result = self.serve();
-        let stopped = self.unet_worker.take().map_or(Ok(()), UnetWorker::stop);
-        result.and(stopped)
+        // The U-Net thread stops first (after its current round), so the
+        // final checkpoint holds its last state.
+        if let Some(worker) = self.unet_worker.take() {
+            let stopped = worker.stop();
+            result?;
+            let stopped = stopped?;
+            if let Some(weights) = stopped.deployed {
+                self.unet_weights = Some(weights);
+            }
+            self.unet_training = stopped.training;
+        } else {
+            result?;
+        }
+        tracing::info!("shutting down: writing a final checkpoint");
+        self.write_checkpoint()
     }
 
     /// The loop proper.
@@ -197,11 +213,13 @@ impl Learner {
                 last_maintenance = Instant::now();
             }
             if self.checkpoint_due() {
+                if let Some(worker) = &self.unet_worker {
+                    self.unet_training = worker.training_state();
+                }
                 self.write_checkpoint()?;
             }
         }
-        tracing::info!("shutting down: writing a final checkpoint");
-        self.write_checkpoint()
+        Ok(())
     }
 
     fn limits(&self, kind: MessageKind) -> Limits {
@@ -416,15 +434,25 @@ impl Learner {
             .optimizer_state()
             .context("saving the policy optimiser's state")?;
         let adam_parameters = adam.parameter_list_json();
+        let mut files: Vec<(&str, &[u8])> = vec![
+            ("weights.safetensors", &weights),
+            ("counters.json", &counters_json),
+            (POLICY_OPTIMIZER_RECORD, &adam.record),
+            (POLICY_OPTIMIZER_PARAMETERS, &adam_parameters),
+        ];
+        let unet_parameters;
+        if let Some(unet) = &self.unet_training {
+            unet_parameters = unet.optimizer.parameter_list_json();
+            files.extend([
+                (UNET_CANDIDATE, &unet.candidate[..]),
+                (UNET_OPTIMIZER_RECORD, &unet.optimizer.record[..]),
+                (UNET_OPTIMIZER_PARAMETERS, &unet_parameters[..]),
+            ]);
+        }
         let dir = checkpoint::write(
             &self.checkpoint_dir,
             counters.env_steps,
-            &[
-                ("weights.safetensors", &weights),
-                ("counters.json", &counters_json),
-                (POLICY_OPTIMIZER_RECORD, &adam.record),
-                (POLICY_OPTIMIZER_PARAMETERS, &adam_parameters),
-            ],
+            &files,
             self.shared.config.keep_checkpoints,
         )
         .context("writing a checkpoint (is the disk full?)")?;
@@ -442,6 +470,12 @@ impl Learner {
 const POLICY_OPTIMIZER_RECORD: &str = "policy_optimizer.bpk";
 /// Checkpoint file naming the parameters that record refers to (JSON).
 const POLICY_OPTIMIZER_PARAMETERS: &str = "policy_optimizer_parameters.json";
+/// Checkpoint file: the U-Net in training (not yet through the validation gate).
+const UNET_CANDIDATE: &str = "unet_candidate.safetensors";
+/// Checkpoint file: the U-Net's Adam state (burn's record).
+const UNET_OPTIMIZER_RECORD: &str = "unet_optimizer.bpk";
+/// Checkpoint file: module path → id and shape of the U-Net's parameters.
+const UNET_OPTIMIZER_PARAMETERS: &str = "unet_optimizer_parameters.json";
 
 /// Restores trainer and counters from the newest checkpoint that verifies.
 pub fn resume(
@@ -478,19 +512,18 @@ pub fn resume(
             )
         })
     };
-    let optimizer = match (
-        loaded.files.get(POLICY_OPTIMIZER_RECORD),
-        loaded.files.get(POLICY_OPTIMIZER_PARAMETERS),
-    ) {
-        (Some(record), Some(parameters)) => Some(
-            OptimizerState::from_parts(record.clone(), parameters).with_context(|| {
-                format!(
-                    "reading {POLICY_OPTIMIZER_PARAMETERS} of {}",
-                    loaded.dir.display()
-                )
-            })?,
-        ),
-        _ => {
+    let optimizer_state = |record: &str, parameters: &str| -> anyhow::Result<_> {
+        match (loaded.files.get(record), loaded.files.get(parameters)) {
+            (Some(r), Some(p)) => Ok(Some(
+                OptimizerState::from_parts(r.clone(), p)
+                    .with_context(|| format!("reading {parameters} of {}", loaded.dir.display()))?,
+            )),
+            _ => Ok(None),
+        }
+    };
+    let optimizer = match optimizer_state(POLICY_OPTIMIZER_RECORD, POLICY_OPTIMIZER_PARAMETERS)? {
+        Some(state) => Some(state),
+        None => {
             tracing::warn!(
                 "checkpoint {} holds no optimiser state (written by an older learner); \
                  the policy's Adam starts afresh",
@@ -512,6 +545,7 @@ pub fn resume(
                 loaded.dir.display()
             )
         })?;
+    let mut unet_training = "none (no U-Net in this task)";
     if let Some(affordance) = trainers.affordance.as_mut() {
         let temperature = nets::weights::metadata(weights)
             .ok()
@@ -520,6 +554,30 @@ pub fn resume(
         affordance
             .restore(restore(proto::WEIGHTS_UNET_PREFIX)?, temperature)
             .with_context(|| format!("loading the U-Net from {}", loaded.dir.display()))?;
+        let optimizer = optimizer_state(UNET_OPTIMIZER_RECORD, UNET_OPTIMIZER_PARAMETERS)?;
+        match (loaded.files.get(UNET_CANDIDATE), optimizer) {
+            (Some(candidate), Some(optimizer)) => {
+                let state = UnetTrainingState {
+                    candidate: candidate.clone(),
+                    optimizer,
+                };
+                affordance.restore_training(&state).with_context(|| {
+                    format!(
+                        "loading the U-Net in training from {} (does the [task] config match the run's?)",
+                        loaded.dir.display()
+                    )
+                })?;
+                unet_training = "state restored";
+            }
+            _ => {
+                tracing::warn!(
+                    "checkpoint {} holds no U-Net training state (written by an older learner); \
+                     U-Net training restarts from the deployed network with a fresh Adam",
+                    loaded.dir.display()
+                );
+                unet_training = "afresh from the deployed network";
+            }
+        }
     }
     status.env_steps = counters.env_steps;
     status.updates = counters.updates;
@@ -528,12 +586,13 @@ pub fn resume(
     status.unet_version = counters.unet_version;
     status.last_checkpoint_step = Some(loaded.step);
     tracing::info!(
-        "resumed from checkpoint {} (env steps {}, updates {}, policy version {}, policy optimiser {})",
+        "resumed from checkpoint {} (env steps {}, updates {}, policy version {}, policy optimiser {}, U-Net training {})",
         loaded.dir.display(),
         counters.env_steps,
         counters.updates,
         counters.policy_version,
-        if optimizer.is_some() { "state restored" } else { "afresh" }
+        if optimizer.is_some() { "state restored" } else { "afresh" },
+        unet_training
     );
     Ok(())
 }

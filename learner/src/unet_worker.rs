@@ -2,7 +2,9 @@
 //! rollouts while the U-Net trains: episodes' frames go in through a bounded
 //! queue (when it is full the episode is skipped and counted, never queued
 //! without bound), and each network that passes the validation gate comes
-//! back as safetensors bytes for the next weights broadcast.
+//! back as safetensors bytes for the next weights broadcast. After every
+//! round the thread also leaves its training state (the network in training
+//! and Adam's moments) where checkpoints can take it without waiting.
 
 use std::sync::mpsc::{self, Receiver, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
@@ -11,7 +13,7 @@ use std::thread::JoinHandle;
 use anyhow::Context;
 use training::affordance::LabelledFrame;
 
-use crate::affordance::AffordanceLearner;
+use crate::affordance::{AffordanceLearner, UnetTrainingState};
 use crate::history::History;
 use crate::service::Shared;
 
@@ -25,7 +27,25 @@ type Episode = (u64, Vec<LabelledFrame>);
 pub struct UnetWorker {
     frames: Option<SyncSender<Episode>>,
     deployed: Receiver<(Vec<u8>, f32)>,
+    training: Arc<Mutex<Option<UnetTrainingState>>>,
     thread: Option<JoinHandle<anyhow::Result<()>>>,
+}
+
+/// What a stopped U-Net thread leaves.
+pub struct StoppedUnet {
+    /// A network that passed the gate after the last [`UnetWorker::take_deployed`].
+    pub deployed: Option<(Vec<u8>, f32)>,
+    /// The training state after the last round.
+    pub training: Option<UnetTrainingState>,
+}
+
+/// Stores `learner`'s training state in `slot`; on failure (logged) the
+/// slot keeps the previous state, which is still consistent in itself.
+fn capture(learner: &AffordanceLearner, slot: &Mutex<Option<UnetTrainingState>>) {
+    match learner.training_state() {
+        Ok(state) => *slot.lock().unwrap_or_else(|p| p.into_inner()) = Some(state),
+        Err(e) => tracing::warn!("cannot capture the U-Net's training state for checkpoints: {e}"),
+    }
 }
 
 impl UnetWorker {
@@ -37,6 +57,9 @@ impl UnetWorker {
     ) -> anyhow::Result<Self> {
         let (frames, inbox) = mpsc::sync_channel::<Episode>(QUEUE_EPISODES);
         let (outbox, deployed) = mpsc::channel();
+        let training = Arc::new(Mutex::new(None));
+        capture(&learner, &training);
+        let slot = training.clone();
         let thread = std::thread::Builder::new()
             .name("unet-training".into())
             .spawn(move || -> anyhow::Result<()> {
@@ -49,6 +72,7 @@ impl UnetWorker {
                     let Some(round) = learner.train_round() else {
                         continue;
                     };
+                    capture(&learner, &slot);
                     let (env_steps, unet_version) = {
                         let mut status = shared.status();
                         status.unet_rounds += 1;
@@ -78,6 +102,7 @@ impl UnetWorker {
         Ok(Self {
             frames: Some(frames),
             deployed,
+            training,
             thread: Some(thread),
         })
     }
@@ -97,13 +122,26 @@ impl UnetWorker {
         self.deployed.try_iter().last()
     }
 
-    /// Stops the thread after its current round; its error, if it failed.
-    pub fn stop(mut self) -> anyhow::Result<()> {
+    /// The training state after the newest round (for a checkpoint).
+    pub fn training_state(&self) -> Option<UnetTrainingState> {
+        self.training
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
+    }
+
+    /// Stops the thread after its current round and returns what it left;
+    /// its error, if it failed.
+    pub fn stop(mut self) -> anyhow::Result<StoppedUnet> {
         self.frames = None;
         match self.thread.take().map(JoinHandle::join) {
-            Some(Ok(result)) => result,
+            Some(Ok(result)) => result?,
             Some(Err(_)) => anyhow::bail!("the U-Net training thread panicked"),
-            None => Ok(()),
+            None => {}
         }
+        Ok(StoppedUnet {
+            deployed: self.take_deployed(),
+            training: self.training_state(),
+        })
     }
 }

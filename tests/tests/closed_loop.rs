@@ -201,4 +201,62 @@ fn closed_loop(method: &str) {
         "learner exit {exit}:\n{}",
         learner.process.log_text()
     );
+    drop(learner);
+    if method == "ours" {
+        resume_continues_unet_training(&config, &run_dir, &dir);
+    }
+}
+
+/// The final checkpoint holds the U-Net in training and its Adam state, and
+/// `--resume` continues U-Net training from them.
+fn resume_continues_unet_training(
+    config: &std::path::Path,
+    run_dir: &std::path::Path,
+    dir: &std::path::Path,
+) {
+    let newest = std::fs::read_dir(run_dir.join("checkpoints"))
+        .expect("a checkpoint directory")
+        .filter_map(|e| e.ok())
+        .filter_map(|e| {
+            e.file_name()
+                .to_str()?
+                .parse::<u64>()
+                .ok()
+                .map(|s| (s, e.path()))
+        })
+        .max()
+        .expect("a final checkpoint")
+        .1;
+    for file in [
+        "unet_candidate.safetensors",
+        "unet_optimizer.bpk",
+        "unet_optimizer_parameters.json",
+    ] {
+        assert!(
+            newest.join(file).exists(),
+            "{} lacks {file}",
+            newest.display()
+        );
+    }
+    let mut learner = Learner::start(
+        run_dir,
+        &[
+            "--config".into(),
+            config.display().to_string(),
+            "--resume".into(),
+            run_dir.display().to_string(),
+        ],
+        dir.join("learner-resumed.log"),
+    );
+    let log = learner.process.log_text();
+    assert!(
+        log.contains("U-Net training state restored"),
+        "the U-Net's training state was not restored:\n{log}"
+    );
+    learner.process.signal(libc::SIGINT);
+    let exit = learner
+        .process
+        .wait_exit(Duration::from_secs(60))
+        .expect("resumed learner exits on SIGINT");
+    assert!(exit.success(), "resumed learner exit {exit}:\n{log}");
 }

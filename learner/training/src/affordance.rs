@@ -5,6 +5,8 @@ use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use nets::unet::{masked_bce_dice, AffordanceUnet};
 
+use crate::optimizer_state::{OptimizerState, OptimizerStateError};
+
 /// Label value of a pixel no interaction or annotation says anything about.
 pub const UNKNOWN: u8 = 255;
 
@@ -82,12 +84,24 @@ impl UnetTrainer {
         let device = device.clone().autodiff();
         Self {
             net: net.fork(&device).train(),
-            optimizer: AdamConfig::new()
-                .with_weight_decay(Some(WeightDecayConfig::new(config.weight_decay)))
-                .init(),
+            optimizer: adam(&config),
             config,
             device,
         }
+    }
+
+    /// Adam's state, for a checkpoint (with [`UnetTrainer::inference_net`]'s weights).
+    pub fn optimizer_state(&self) -> Result<OptimizerState, OptimizerStateError> {
+        OptimizerState::capture(&self.optimizer, &self.net)
+    }
+
+    /// Continues from a saved Adam state (after the weights were restored).
+    /// On error nothing changes.
+    pub fn restore_optimizer(&mut self, state: &OptimizerState) -> Result<(), OptimizerStateError> {
+        let (net, optimizer) = state.restore(self.net.clone(), adam(&self.config))?;
+        self.net = net;
+        self.optimizer = optimizer;
+        Ok(())
     }
 
     /// One gradient step on `frames`; returns the loss before the step.
@@ -106,6 +120,13 @@ impl UnetTrainer {
     pub fn inference_net(&self, device: &Device) -> AffordanceUnet {
         self.net.valid().to_device(device)
     }
+}
+
+/// A fresh Adam with `config`'s weight decay.
+fn adam(config: &UnetTrainingConfig) -> ModuleOptimizer {
+    AdamConfig::new()
+        .with_weight_decay(Some(WeightDecayConfig::new(config.weight_decay)))
+        .init()
 }
 
 /// Logits `[affordances, h, w]` of one frame, row-major.

@@ -288,3 +288,65 @@ fn a_candidate_replaces_the_deployed_network_only_if_better_on_validation() {
         "a tie keeps the deployed network"
     );
 }
+
+#[test]
+fn unet_training_resumed_with_the_saved_adam_state_continues_the_same_optimisation() {
+    use nets::weights::{load_safetensors, to_safetensors};
+    use training::affordance::predict_logits;
+    use training::optimizer_state::OptimizerState;
+
+    let device = Device::flex();
+    let mut rng = StdRng::seed_from_u64(3);
+    let frames: Vec<LabelledFrame> = (0..8).map(|_| synthetic_frame(&mut rng)).collect();
+    let refs: Vec<&LabelledFrame> = frames.iter().collect();
+    let config = UnetTrainingConfig {
+        learning_rate: 3e-3,
+        weight_decay: 1e-5,
+    };
+    let mut original = UnetTrainer::new(AffordanceUnet::new(4, 1, &device), config, &device);
+    for step in 0..3 {
+        original.step(&refs[step * 2..step * 2 + 4]);
+    }
+    // What a checkpoint holds, through bytes: weights, Adam's record and the parameter list.
+    let weights = to_safetensors(&original.inference_net(&device)).unwrap();
+    let saved = original.optimizer_state().unwrap();
+    let saved =
+        OptimizerState::from_parts(saved.record.clone(), &saved.parameter_list_json()).unwrap();
+    let rebuilt = || {
+        let mut net = AffordanceUnet::new(4, 1, &device);
+        load_safetensors(&mut net, weights.clone()).unwrap();
+        UnetTrainer::new(net, config, &device)
+    };
+    let mut resumed = rebuilt();
+    resumed.restore_optimizer(&saved).unwrap();
+    let mut restarted = rebuilt();
+    for trainer in [&mut original, &mut resumed, &mut restarted] {
+        trainer.step(&refs[4..8]);
+    }
+    let reference = predict_logits(&original.inference_net(&device), &frames[0], &device);
+    let largest_difference = |trainer: &UnetTrainer| {
+        predict_logits(&trainer.inference_net(&device), &frames[0], &device)
+            .iter()
+            .zip(&reference)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max)
+    };
+    let (with_state, without) = (largest_difference(&resumed), largest_difference(&restarted));
+    eprintln!("after one more step: resumed with Adam's state {with_state:e}, with a fresh Adam {without:e}");
+    assert!(
+        with_state < 1e-4,
+        "resumed training drifted by {with_state}"
+    );
+    assert!(
+        without > 100.0 * with_state.max(1e-6),
+        "a fresh Adam should have changed the outcome ({without})"
+    );
+
+    // A state saved for a U-Net with another number of affordances is refused.
+    let mut other = UnetTrainer::new(AffordanceUnet::new(4, 2, &device), config, &device);
+    let err = other.restore_optimizer(&saved).unwrap_err();
+    assert!(
+        err.to_string().contains("does not fit this network"),
+        "{err}"
+    );
+}
