@@ -17,7 +17,7 @@ use crate::integrate::{
 use crate::labels::{Affordance, ObjectLabels, Outcome};
 use crate::layer::Layer;
 use crate::mesh::{mesh_layer, Mesh};
-use crate::render::{raycast_layer, RenderTarget};
+use crate::render::{raycast_layer, render_layers, Pixels, PlacedLayer, RenderTarget};
 use crate::segmentation::{segment_geometric, Segmentation};
 use crate::tracking::{TrackingParams, TrackingReport};
 use crate::Pose;
@@ -411,9 +411,10 @@ impl Map {
         self.objects.retain(|_, o| o.misses <= max_misses);
     }
 
-    /// Renders every object into a camera: nearest object depth and id per pixel.
+    /// Renders every object into a camera: nearest object depth and id per
+    /// pixel ([`render_layers`]: exact at silhouettes and depth edges,
+    /// interpolated within a surface).
     fn render_objects(&self, t_world_camera: &Pose, k: &Intrinsics) -> RenderTarget {
-        let mut target = RenderTarget::new(k);
         let t_camera_world = t_world_camera.inverse();
         // Front to back, so the z-buffer cuts the rays of occluded objects short.
         let mut order: Vec<(f32, &MapObject)> = self
@@ -423,18 +424,20 @@ impl Map {
             .map(|o| ((t_camera_world * o.t_world_object).translation.vector.z, o))
             .collect();
         order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.id.cmp(&b.1.id)));
-        for (_, object) in order {
-            let t_camera_object = t_camera_world * object.t_world_object;
-            raycast_layer(
-                &object.volume,
-                &t_camera_object,
-                k,
-                object.id.0,
-                self.config.integration.min_depth_m,
-                &mut target,
-            );
-        }
-        target
+        let layers: Vec<PlacedLayer<'_>> = order
+            .into_iter()
+            .map(|(_, object)| PlacedLayer {
+                layer: &object.volume,
+                t_camera_layer: t_camera_world * object.t_world_object,
+                id: object.id.0,
+            })
+            .collect();
+        render_layers(
+            &layers,
+            k,
+            self.config.integration.min_depth_m,
+            self.config.voxel_size_m,
+        )
     }
 
     /// Renders the map's object ids and depth into any camera (label
@@ -451,6 +454,7 @@ impl Map {
             0,
             self.config.integration.min_depth_m,
             &mut background,
+            Pixels::All,
         );
         for ((d, id), bd) in target
             .depth_m

@@ -2,6 +2,7 @@
 //! shared between layers: per pixel, the nearest surface's depth and id.
 
 use nalgebra::{Point3, Vector3};
+use rustc_hash::FxHashMap;
 
 use crate::camera::Intrinsics;
 use crate::layer::{CachedReader, Layer, VoxelIndex, BLOCK_EDGE};
@@ -162,9 +163,20 @@ fn block_exit(layer: &Layer, p: &Point3<f32>, o: &Point3<f32>, d: &Vector3<f32>)
         + 1e-4
 }
 
-/// Ray-marches `layer` (placed by `t_camera_layer`) into `target`, writing
-/// `id` where its zero crossing is nearer than what is there. Returns the
-/// number of pixels it won.
+/// Which pixels of a layer's projected rectangle [`raycast_layer`] marches.
+#[derive(Debug, Clone, Copy)]
+pub enum Pixels<'a> {
+    /// Every pixel.
+    All,
+    /// Pixels in even rows and even columns: a quarter of the rays.
+    EvenGrid,
+    /// These pixels only.
+    Listed(&'a [usize]),
+}
+
+/// Ray-marches `layer` (placed by `t_camera_layer`) into `target` at
+/// `pixels`, writing `id` where its zero crossing is nearer than what is
+/// there. Returns the number of pixels it won.
 pub fn raycast_layer(
     layer: &Layer,
     t_camera_layer: &Pose,
@@ -172,6 +184,7 @@ pub fn raycast_layer(
     id: u32,
     min_depth_m: f32,
     target: &mut RenderTarget,
+    pixels: Pixels<'_>,
 ) -> usize {
     let Some((lo, hi)) = layer.block_bounds() else {
         return 0;
@@ -180,56 +193,199 @@ pub fn raycast_layer(
         return 0;
     };
     let t_layer_camera = t_camera_layer.inverse();
-    let origin = t_layer_camera * Point3::origin();
-    let voxel = layer.voxel_size_m;
+    let ray = Ray {
+        layer,
+        origin: t_layer_camera * Point3::origin(),
+        lo,
+        hi,
+        min_depth_m,
+    };
     let mut reader = CachedReader::new(layer);
     let mut won = 0;
-    for v in v0..=v1 {
-        for u in u0..=u1 {
-            let px = v * k.width + u;
-            let dir = t_layer_camera.rotation * k.ray(u as f32, v as f32);
-            let Some((z0, z1)) = slab(&origin, &dir, &lo, &hi) else {
-                continue;
-            };
-            let z_end = z1.min(target.depth_m[px]);
-            let metres_per_z = dir.norm();
-            let mut z = z0.max(min_depth_m);
-            let mut previous: Option<(f32, f32)> = None;
-            while z <= z_end {
-                let sample = sdf_at(&mut reader, &(origin + dir * z));
-                match (previous, sample) {
-                    (Some((zp, sp)), Some(s)) if sp > 0.0 && s <= 0.0 => {
-                        let hit = zp + (z - zp) * sp / (sp - s);
-                        if hit < target.depth_m[px] {
-                            target.depth_m[px] = hit;
-                            target.ids[px] = id;
-                            won += 1;
-                        }
-                        break;
-                    }
-                    _ => {}
+    let mut shade = |u: usize, v: usize| {
+        let px = v * k.width + u;
+        let dir = t_layer_camera.rotation * k.ray(u as f32, v as f32);
+        if let Some(hit) = ray.march(&mut reader, &dir, target.depth_m[px]) {
+            target.depth_m[px] = hit;
+            target.ids[px] = id;
+            won += 1;
+        }
+    };
+    match pixels {
+        Pixels::All => (v0..=v1).for_each(|v| (u0..=u1).for_each(|u| shade(u, v))),
+        Pixels::EvenGrid => (v0.next_multiple_of(2)..=v1).step_by(2).for_each(|v| {
+            (u0.next_multiple_of(2)..=u1)
+                .step_by(2)
+                .for_each(|u| shade(u, v))
+        }),
+        Pixels::Listed(list) => list
+            .iter()
+            .map(|&px| (px % k.width, px / k.width))
+            .filter(|&(u, v)| (u0..=u1).contains(&u) && (v0..=v1).contains(&v))
+            .for_each(|(u, v)| shade(u, v)),
+    }
+    won
+}
+
+/// What every ray into one layer shares.
+struct Ray<'a> {
+    layer: &'a Layer,
+    /// Camera centre in the layer's frame.
+    origin: Point3<f32>,
+    /// The layer's allocated bounds.
+    lo: Point3<f32>,
+    hi: Point3<f32>,
+    min_depth_m: f32,
+}
+
+impl Ray<'_> {
+    /// Z-depth of the first zero crossing along direction `dir` (layer
+    /// frame, unit z in the camera) nearer than `z_limit`, if any.
+    fn march(
+        &self,
+        reader: &mut CachedReader<'_>,
+        dir: &Vector3<f32>,
+        z_limit: f32,
+    ) -> Option<f32> {
+        let (origin, layer) = (self.origin, self.layer);
+        let voxel = layer.voxel_size_m;
+        let (z0, z1) = slab(&origin, dir, &self.lo, &self.hi)?;
+        let z_end = z1.min(z_limit);
+        let metres_per_z = dir.norm();
+        let mut z = z0.max(self.min_depth_m);
+        let mut previous: Option<(f32, f32)> = None;
+        while z <= z_end {
+            let sample = sdf_at(reader, &(origin + dir * z));
+            if let (Some((zp, sp)), Some(s)) = (previous, sample) {
+                if sp > 0.0 && s <= 0.0 {
+                    let hit = zp + (z - zp) * sp / (sp - s);
+                    return (hit < z_limit).then_some(hit);
                 }
-                // Sphere-trace through known free space; half voxels near the
-                // surface; unobserved space holds no crossing, so leap it: to
-                // the exit of an unallocated block, else a whole voxel.
-                previous = sample.map(|s| (z, s));
-                z = match sample {
-                    Some(s) if s > voxel => z + 0.8 * s / metres_per_z,
-                    Some(_) => z + 0.5 * voxel / metres_per_z,
-                    None => {
-                        let p = origin + dir * z;
-                        let next = z + voxel / metres_per_z;
-                        if reader.block(layer.block_of(&p)).is_some() {
-                            next
-                        } else {
-                            block_exit(layer, &p, &origin, &dir).max(next)
-                        }
+            }
+            // Sphere-trace through known free space; half voxels near the
+            // surface; unobserved space holds no crossing, so leap it: to
+            // the exit of an unallocated block, else a whole voxel.
+            previous = sample.map(|s| (z, s));
+            z = match sample {
+                Some(s) if s > voxel => z + 0.8 * s / metres_per_z,
+                Some(_) => z + 0.5 * voxel / metres_per_z,
+                None => {
+                    let p = origin + dir * z;
+                    let next = z + voxel / metres_per_z;
+                    if reader.block(layer.block_of(&p)).is_some() {
+                        next
+                    } else {
+                        block_exit(layer, &p, &origin, dir).max(next)
                     }
-                };
+                }
+            };
+        }
+        None
+    }
+}
+
+/// One layer placed in a camera, for [`render_layers`].
+#[derive(Debug, Clone, Copy)]
+pub struct PlacedLayer<'a> {
+    /// The volume.
+    pub layer: &'a Layer,
+    /// Its pose in the camera.
+    pub t_camera_layer: Pose,
+    /// The id its pixels get.
+    pub id: u32,
+}
+
+/// Renders `layers` (best front to back: the z-buffer then cuts the rays of
+/// occluded layers short) at about a third of the cost of a full render.
+///
+/// Rays go through every other pixel of every other row first. A pixel in
+/// between whose sampled neighbours all show nothing, or all show the same
+/// layer at depths within `max_spread_m`, is filled from them (their mean
+/// depth: inside a surface, depth is smooth at this scale). The others
+/// (silhouettes, depth edges) get rays of their own, into the layers their
+/// neighbours show only, so ids and depths there are exact; pixels of the
+/// last row and column, which lack neighbours on one side, get rays into
+/// every layer. What this can miss: a layer narrower than two pixels, which
+/// association ignores anyway.
+pub fn render_layers(
+    layers: &[PlacedLayer<'_>],
+    k: &Intrinsics,
+    min_depth_m: f32,
+    max_spread_m: f32,
+) -> RenderTarget {
+    let mut target = RenderTarget::new(k);
+    for placed in layers {
+        raycast_layer(
+            placed.layer,
+            &placed.t_camera_layer,
+            k,
+            placed.id,
+            min_depth_m,
+            &mut target,
+            Pixels::EvenGrid,
+        );
+    }
+    // Pixels needing their own ray, per layer id a neighbour showed; and
+    // pixels needing rays into every layer.
+    let mut own_rays: FxHashMap<u32, Vec<usize>> = FxHashMap::default();
+    let mut border = Vec::new();
+    for v in 0..k.height {
+        for u in 0..k.width {
+            if u % 2 == 0 && v % 2 == 0 {
+                continue;
+            }
+            let px = v * k.width + u;
+            let us = if u % 2 == 0 { [u, u] } else { [u - 1, u + 1] };
+            let vs = if v % 2 == 0 { [v, v] } else { [v - 1, v + 1] };
+            if us[1] >= k.width || vs[1] >= k.height {
+                border.push(px);
+                continue;
+            }
+            let neighbours = [
+                vs[0] * k.width + us[0],
+                vs[0] * k.width + us[1],
+                vs[1] * k.width + us[0],
+                vs[1] * k.width + us[1],
+            ];
+            let ids = neighbours.map(|n| target.ids[n]);
+            let depths = neighbours.map(|n| target.depth_m[n]);
+            let (lo, hi) = depths
+                .iter()
+                .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &d| {
+                    (lo.min(d), hi.max(d))
+                });
+            let one_layer = ids.iter().all(|&i| i == ids[0]);
+            if one_layer && (ids[0] == 0 || hi - lo <= max_spread_m) {
+                if ids[0] != 0 {
+                    target.depth_m[px] = depths.iter().sum::<f32>() / 4.0;
+                    target.ids[px] = ids[0];
+                }
+                continue;
+            }
+            for (i, &id) in ids.iter().enumerate() {
+                if id != 0 && !ids[..i].contains(&id) {
+                    own_rays.entry(id).or_default().push(px);
+                }
             }
         }
     }
-    won
+    for placed in layers {
+        for pixels in [
+            own_rays.get(&placed.id).map_or(&[][..], |p| &p[..]),
+            &border,
+        ] {
+            raycast_layer(
+                placed.layer,
+                &placed.t_camera_layer,
+                k,
+                placed.id,
+                min_depth_m,
+                &mut target,
+                Pixels::Listed(pixels),
+            );
+        }
+    }
+    target
 }
 
 #[cfg(test)]

@@ -8,7 +8,7 @@ use nalgebra::{Point3, Translation3, Vector3};
 use super::{Map, ObjectId};
 use crate::association::Segment;
 use crate::camera::{Frame, Intrinsics};
-use crate::render::{raycast_layer, RenderTarget};
+use crate::render::{raycast_layer, Pixels, RenderTarget};
 use crate::tracking::{
     align, evaluate, measured_normals, motion_size, refine_against_sdf, SegmentView,
     TrackingFailure, TrackingOutcome, TrackingReport, TrackingTrigger,
@@ -168,6 +168,7 @@ impl Map {
             id.0,
             self.config.integration.min_depth_m,
             &mut silhouette,
+            Pixels::All,
         );
         let rendered_px: Vec<usize> = (0..k.pixels())
             .filter(|&px| silhouette.ids[px] != 0)
