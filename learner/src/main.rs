@@ -126,7 +126,15 @@ fn main() -> anyhow::Result<()> {
             };
             let runs: Vec<&std::path::Path> = run_dir.iter().map(PathBuf::as_path).collect();
             let episodes = learner::plot::plot(&runs, &out, window)?;
-            println!("plotted {episodes} episodes into {}", out.display());
+            if runs.len() == 1 {
+                println!("plotted {episodes} episodes into {}", out.display());
+            } else {
+                println!(
+                    "plotted {} runs (the longest has {episodes} episodes) into {}",
+                    runs.len(),
+                    out.display()
+                );
+            }
             Ok(())
         }
         Command::Clean => {
