@@ -193,7 +193,7 @@ pub fn raycast_layer(
         return 0;
     };
     let t_layer_camera = t_camera_layer.inverse();
-    let ray = Ray {
+    let marcher = Marcher {
         layer,
         origin: t_layer_camera * Point3::origin(),
         lo,
@@ -205,7 +205,7 @@ pub fn raycast_layer(
     let mut shade = |u: usize, v: usize| {
         let px = v * k.width + u;
         let dir = t_layer_camera.rotation * k.ray(u as f32, v as f32);
-        if let Some(hit) = ray.march(&mut reader, &dir, target.depth_m[px]) {
+        if let Some(hit) = marcher.march(&mut reader, &dir, target.depth_m[px]) {
             target.depth_m[px] = hit;
             target.ids[px] = id;
             won += 1;
@@ -227,8 +227,8 @@ pub fn raycast_layer(
     won
 }
 
-/// What every ray into one layer shares.
-struct Ray<'a> {
+/// Ray marching into one layer: what all its rays share.
+struct Marcher<'a> {
     layer: &'a Layer,
     /// Camera centre in the layer's frame.
     origin: Point3<f32>,
@@ -238,7 +238,7 @@ struct Ray<'a> {
     min_depth_m: f32,
 }
 
-impl Ray<'_> {
+impl Marcher<'_> {
     /// Z-depth of the first zero crossing along direction `dir` (layer
     /// frame, unit z in the camera) nearer than `z_limit`, if any.
     fn march(
