@@ -1,5 +1,12 @@
 //! Rendering layers into a camera by ray marching their TSDF, with a z-buffer
 //! shared between layers: per pixel, the nearest surface's depth and id.
+//!
+//! The map renders every frame for association, so [`render_layers`] casts
+//! about a quarter of the rays: it marches a sparse grid, fills pixels
+//! inside one surface from their neighbours, and marches the rest
+//! (silhouettes, depth edges) exactly. mapper.md allows ray marching or
+//! projection; this keeps marching's exact silhouettes, which splatting
+//! voxels would dilate, at half its cost (measured in `cargo bench -p mapper`).
 
 use nalgebra::{Point3, Vector3};
 use rustc_hash::FxHashMap;
