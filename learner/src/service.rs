@@ -156,6 +156,7 @@ impl Learner {
         // The U-Net thread stops first (after its current round), so the
         // final checkpoint holds its last state.
         if let Some(worker) = self.unet_worker.take() {
+            tracing::info!("stopping the U-Net thread after its current round");
             let stopped = worker.stop();
             result?;
             let stopped = stopped?;
