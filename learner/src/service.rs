@@ -154,21 +154,27 @@ impl Learner {
         }
         let result = self.serve();
         // The U-Net thread stops first (after its current round), so the
-        // final checkpoint holds its last state.
+        // final checkpoint holds its last state. Should the thread have
+        // failed, the checkpoint is still written, with the state it left
+        // after its last good round, and the failure reported after.
+        let mut unet_failure = None;
         if let Some(worker) = self.unet_worker.take() {
             tracing::info!("stopping the U-Net thread after its current round");
-            let stopped = worker.stop();
-            result?;
-            let stopped = stopped?;
-            if let Some(weights) = stopped.deployed {
-                self.unet_weights = Some(weights);
+            self.unet_training = worker.training_state();
+            match worker.stop() {
+                Ok(stopped) => {
+                    if let Some(weights) = stopped.deployed {
+                        self.unet_weights = Some(weights);
+                    }
+                    self.unet_training = stopped.training;
+                }
+                Err(e) => unet_failure = Some(e),
             }
-            self.unet_training = stopped.training;
-        } else {
-            result?;
         }
+        result?;
         tracing::info!("shutting down: writing a final checkpoint");
-        self.write_checkpoint()
+        self.write_checkpoint()?;
+        unet_failure.map_or(Ok(()), Err)
     }
 
     /// The loop proper.
