@@ -30,6 +30,17 @@ pub enum FramesError {
         /// Planes of the task.
         expected: usize,
     },
+    /// Images of another size than the run's task: the U-Net trains on
+    /// batches of one size.
+    #[error("frames are {height} × {width} pixels; this run's task has {expected} × {expected} (is the actor using the learner's config.toml?)")]
+    Size {
+        /// Height in the message.
+        height: u32,
+        /// Width in the message.
+        width: u32,
+        /// Side of the task's images.
+        expected: usize,
+    },
 }
 
 /// Why the U-Net's training state could not be saved or restored.
@@ -116,15 +127,23 @@ pub fn labelled_frames(view: &FrameBatchView<'_>) -> Vec<LabelledFrame> {
 }
 
 /// An episode's frames converted, after checking they have the task's
-/// `affordances` planes.
+/// `affordances` planes and `image_size` square images.
 pub fn checked_frames(
     view: &FrameBatchView<'_>,
     affordances: usize,
+    image_size: usize,
 ) -> Result<Vec<LabelledFrame>, FramesError> {
     if view.n_affordances as usize != affordances {
         return Err(FramesError::Affordances {
             got: view.n_affordances,
             expected: affordances,
+        });
+    }
+    if view.height as usize != image_size || view.width as usize != image_size {
+        return Err(FramesError::Size {
+            height: view.height,
+            width: view.width,
+            expected: image_size,
         });
     }
     Ok(labelled_frames(view))
@@ -270,5 +289,52 @@ impl AffordanceLearner {
         self.trainer = UnetTrainer::new(net.clone(), Self::training(&self.settings), &self.device);
         self.deployed = net;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proto::{decode, encode, FrameBatch, Limits, Message, MessageHeader};
+
+    fn frames_of(size: u32, affordances: u32) -> Vec<u8> {
+        let pixels = (size * size) as usize;
+        let batch = FrameBatch {
+            episode_id: 7,
+            height: size,
+            width: size,
+            n_affordances: affordances,
+            depth_m: vec![1.5; pixels],
+            rgb: vec![128; 3 * pixels],
+            labels: vec![LABEL_UNKNOWN; affordances as usize * pixels],
+        };
+        encode(&batch, MessageHeader::default())
+    }
+
+    fn check(bytes: &[u8]) -> Result<Vec<LabelledFrame>, FramesError> {
+        let limits = Limits {
+            max_actors: 4,
+            max_payload_len: 1 << 24,
+        };
+        match decode(bytes, &limits).expect("a valid message") {
+            (_, Message::Frames(view)) => checked_frames(&view, 2, 64),
+            (_, other) => panic!("not frames: {other:?}"),
+        }
+    }
+
+    #[test]
+    fn frames_of_the_task_are_taken_and_others_refused_with_the_reason() {
+        let taken = check(&frames_of(64, 2)).expect("the task's frames");
+        assert_eq!(taken.len(), 1);
+        assert_eq!(taken[0].size, [64, 64]);
+        assert!(taken[0].labels.iter().all(|&l| l == UNKNOWN));
+
+        let err = check(&frames_of(128, 2)).unwrap_err();
+        assert!(
+            err.to_string().contains("128 × 128 pixels") && err.to_string().contains("64 × 64"),
+            "{err}"
+        );
+        let err = check(&frames_of(64, 1)).unwrap_err();
+        assert!(err.to_string().contains("1 affordance planes"), "{err}");
     }
 }

@@ -170,6 +170,11 @@ impl Learner {
                 }
                 Err(e) => unet_failure = Some(e),
             }
+            if result.is_ok() && !self.shared.shutdown.load(Ordering::Relaxed) {
+                unet_failure.get_or_insert_with(|| {
+                    anyhow::anyhow!("the U-Net training thread ended unexpectedly")
+                });
+            }
         }
         result?;
         tracing::info!("shutting down: writing a final checkpoint");
@@ -218,6 +223,10 @@ impl Learner {
             if last_maintenance.elapsed() > Duration::from_millis(250) {
                 self.ports.maintain();
                 last_maintenance = Instant::now();
+            }
+            if self.unet_worker.as_ref().is_some_and(UnetWorker::finished) {
+                tracing::error!("the U-Net training thread stopped; shutting down");
+                break;
             }
             if self.checkpoint_due() {
                 if let Some(worker) = &self.unet_worker {
@@ -342,7 +351,11 @@ impl Learner {
                     return Ok(());
                 };
                 let episode = (u64::from(header.actor_id) << 40) | frames.episode_id;
-                match checked_frames(&frames, self.affordances) {
+                match checked_frames(
+                    &frames,
+                    self.affordances,
+                    self.shared.config.task.image_size,
+                ) {
                     Ok(batch) => {
                         let n = batch.len() as u64;
                         if worker.offer(episode, batch) {

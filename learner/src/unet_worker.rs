@@ -122,6 +122,12 @@ impl UnetWorker {
         self.deployed.try_iter().last()
     }
 
+    /// True once the thread has ended, which before [`UnetWorker::stop`]
+    /// means it failed.
+    pub fn finished(&self) -> bool {
+        self.thread.as_ref().is_none_or(JoinHandle::is_finished)
+    }
+
     /// The training state after the newest round (for a checkpoint).
     pub fn training_state(&self) -> Option<UnetTrainingState> {
         self.training
@@ -143,5 +149,63 @@ impl UnetWorker {
             deployed: self.take_deployed(),
             training: self.training_state(),
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::atomic::AtomicBool;
+    use std::time::{Duration, Instant};
+
+    use training::affordance::LabelledFrame;
+
+    use super::*;
+    use crate::config::{LearnerConfig, UnetConfig};
+    use crate::status::LearnerStatus;
+
+    #[test]
+    fn a_failed_thread_is_seen_and_stop_returns_its_error() {
+        // A history that cannot be written: every record fails as on a full disk.
+        let dir = tempfile::tempdir().unwrap();
+        std::os::unix::fs::symlink("/dev/full", dir.path().join("history.jsonl")).unwrap();
+        let history = History::open(dir.path()).unwrap();
+        let settings = UnetConfig {
+            steps_per_episode: 1,
+            batch_frames: 1,
+            validation_fraction: 0.0,
+            test_fraction: 0.0,
+            ..UnetConfig::default()
+        };
+        let device = burn::prelude::Device::flex();
+        let shared = Arc::new(Shared {
+            status: Mutex::new(LearnerStatus::new("test".into())),
+            shutdown: AtomicBool::new(false),
+            config: LearnerConfig::default(),
+            run_dir: dir.path().into(),
+        });
+        let worker = UnetWorker::start(
+            AffordanceLearner::new(1, &settings, 1, &device),
+            shared,
+            Arc::new(Mutex::new(history)),
+        )
+        .unwrap();
+        assert!(!worker.finished());
+        assert!(
+            worker.training_state().is_some(),
+            "the state is there before any round"
+        );
+        let frame = LabelledFrame {
+            size: [16, 16],
+            rgbd: vec![0.5; 4 * 256],
+            labels: vec![1; 256],
+        };
+        assert!(worker.offer(1, vec![frame.clone(), frame]));
+        let deadline = Instant::now() + Duration::from_secs(60);
+        while !worker.finished() {
+            assert!(Instant::now() < deadline, "the round never ended");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let err = worker.stop().err().expect("the thread's error");
+        assert!(format!("{err:#}").contains("is the disk full?"), "{err:#}");
     }
 }
