@@ -169,41 +169,20 @@ fn bench(c: &mut Criterion) {
 /// the rays, the rest filled or marched at silhouettes) against a ray
 /// through every pixel, at the paper's 128 px and at 64 px, side by side.
 fn compare_renderers(map: &Map, frames: &[OwnedFrame]) {
-    use mapper::render::{raycast_layer, render_layers, Pixels, PlacedLayer, RenderTarget};
+    use mapper::render::{render_layers, Pixels, RenderTarget};
     for size in [128, 64] {
         let k = mapper::Intrinsics::from_fov(size, size, 90.0);
         let (mut quarter, mut every) = (Vec::new(), Vec::new());
         for _ in 0..5 {
             for f in frames {
-                let t_camera_world = f.pose.inverse();
-                let mut layers: Vec<PlacedLayer<'_>> = map
-                    .objects()
-                    .values()
-                    .map(|o| PlacedLayer {
-                        layer: &o.volume,
-                        t_camera_layer: t_camera_world * o.t_world_object,
-                        id: o.id.0,
-                    })
-                    .collect();
-                layers.sort_by(|a, b| {
-                    let z = |l: &PlacedLayer<'_>| l.t_camera_layer.translation.vector.z;
-                    z(a).total_cmp(&z(b))
-                });
+                let layers = map.objects_in_camera(&f.pose);
                 let started = std::time::Instant::now();
                 std::hint::black_box(render_layers(&layers, &k, 0.1, 0.04));
                 quarter.push(started.elapsed().as_secs_f64());
                 let started = std::time::Instant::now();
                 let mut target = RenderTarget::new(&k);
                 for l in &layers {
-                    raycast_layer(
-                        l.layer,
-                        &l.t_camera_layer,
-                        &k,
-                        l.id,
-                        0.1,
-                        &mut target,
-                        Pixels::All,
-                    );
+                    l.raycast(&k, 0.1, &mut target, Pixels::All);
                 }
                 std::hint::black_box(target);
                 every.push(started.elapsed().as_secs_f64());

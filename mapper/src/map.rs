@@ -411,29 +411,34 @@ impl Map {
         self.objects.retain(|_, o| o.misses <= max_misses);
     }
 
+    /// The objects not held, placed in a camera, front to back (rendered in
+    /// this order, the z-buffer cuts the rays of occluded objects short).
+    pub fn objects_in_camera(&self, t_world_camera: &Pose) -> Vec<PlacedLayer<'_>> {
+        let t_camera_world = t_world_camera.inverse();
+        let mut layers: Vec<(ObjectId, PlacedLayer<'_>)> = self
+            .objects
+            .values()
+            .filter(|o| !o.held)
+            .map(|o| {
+                let placed = PlacedLayer {
+                    layer: &o.volume,
+                    t_camera_layer: t_camera_world * o.t_world_object,
+                    id: o.id.0,
+                };
+                (o.id, placed)
+            })
+            .collect();
+        let z = |p: &PlacedLayer<'_>| p.t_camera_layer.translation.vector.z;
+        layers.sort_by(|a, b| z(&a.1).total_cmp(&z(&b.1)).then(a.0.cmp(&b.0)));
+        layers.into_iter().map(|(_, placed)| placed).collect()
+    }
+
     /// Renders every object into a camera: nearest object depth and id per
     /// pixel ([`render_layers`]: exact at silhouettes and depth edges,
     /// interpolated within a surface).
     fn render_objects(&self, t_world_camera: &Pose, k: &Intrinsics) -> RenderTarget {
-        let t_camera_world = t_world_camera.inverse();
-        // Front to back, so the z-buffer cuts the rays of occluded objects short.
-        let mut order: Vec<(f32, &MapObject)> = self
-            .objects
-            .values()
-            .filter(|o| !o.held)
-            .map(|o| ((t_camera_world * o.t_world_object).translation.vector.z, o))
-            .collect();
-        order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.id.cmp(&b.1.id)));
-        let layers: Vec<PlacedLayer<'_>> = order
-            .into_iter()
-            .map(|(_, object)| PlacedLayer {
-                layer: &object.volume,
-                t_camera_layer: t_camera_world * object.t_world_object,
-                id: object.id.0,
-            })
-            .collect();
         render_layers(
-            &layers,
+            &self.objects_in_camera(t_world_camera),
             k,
             self.config.integration.min_depth_m,
             self.config.voxel_size_m,

@@ -302,6 +302,27 @@ pub struct PlacedLayer<'a> {
     pub id: u32,
 }
 
+impl PlacedLayer<'_> {
+    /// [`raycast_layer`] of this layer at `pixels`; the number of pixels it won.
+    pub fn raycast(
+        &self,
+        k: &Intrinsics,
+        min_depth_m: f32,
+        target: &mut RenderTarget,
+        pixels: Pixels<'_>,
+    ) -> usize {
+        raycast_layer(
+            self.layer,
+            &self.t_camera_layer,
+            k,
+            self.id,
+            min_depth_m,
+            target,
+            pixels,
+        )
+    }
+}
+
 /// Renders `layers` (best front to back: the z-buffer then cuts the rays of
 /// occluded layers short) at about a third of the cost of a full render.
 ///
@@ -322,15 +343,7 @@ pub fn render_layers(
 ) -> RenderTarget {
     let mut target = RenderTarget::new(k);
     for placed in layers {
-        raycast_layer(
-            placed.layer,
-            &placed.t_camera_layer,
-            k,
-            placed.id,
-            min_depth_m,
-            &mut target,
-            Pixels::EvenGrid,
-        );
+        placed.raycast(k, min_depth_m, &mut target, Pixels::EvenGrid);
     }
     // Pixels needing their own ray, per layer id a neighbour showed; and
     // pixels needing rays into every layer.
@@ -377,19 +390,9 @@ pub fn render_layers(
         }
     }
     for placed in layers {
-        for pixels in [
-            own_rays.get(&placed.id).map_or(&[][..], |p| &p[..]),
-            &border,
-        ] {
-            raycast_layer(
-                placed.layer,
-                &placed.t_camera_layer,
-                k,
-                placed.id,
-                min_depth_m,
-                &mut target,
-                Pixels::Listed(pixels),
-            );
+        let own = own_rays.get(&placed.id).map_or(&[][..], |p| &p[..]);
+        for pixels in [own, &border] {
+            placed.raycast(k, min_depth_m, &mut target, Pixels::Listed(pixels));
         }
     }
     target

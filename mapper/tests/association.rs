@@ -173,7 +173,7 @@ fn ids_rendered_into_a_training_frame_match_ground_truth() {
 
 #[test]
 fn quarter_ray_rendering_matches_a_ray_through_every_pixel() {
-    use mapper::render::{raycast_layer, render_layers, Pixels, PlacedLayer, RenderTarget};
+    use mapper::render::{render_layers, Pixels, RenderTarget};
 
     let shapes = scene();
     let mut map = Map::new(MapConfig::default());
@@ -187,33 +187,12 @@ fn quarter_ray_rendering_matches_a_ray_through_every_pixel() {
         look_at(Point3::new(-1.6, -1.7, 1.2), Point3::new(0.0, 0.3, 0.3)),
         look_at(Point3::new(2.0, -0.5, 0.9), Point3::new(0.2, 0.4, 0.3)),
     ] {
-        let t_camera_world = pose.inverse();
-        let mut layers: Vec<PlacedLayer<'_>> = map
-            .objects()
-            .values()
-            .map(|o| PlacedLayer {
-                layer: &o.volume,
-                t_camera_layer: t_camera_world * o.t_world_object,
-                id: o.id.0,
-            })
-            .collect();
-        layers.sort_by(|a, b| {
-            let z = |l: &PlacedLayer<'_>| l.t_camera_layer.translation.vector.z;
-            z(a).total_cmp(&z(b))
-        });
+        let layers = map.objects_in_camera(&pose);
         // Depths within one voxel (the map's setting) are interpolated.
         let fast = render_layers(&layers, &k, 0.1, 0.04);
         let mut exact = RenderTarget::new(&k);
         for l in &layers {
-            raycast_layer(
-                l.layer,
-                &l.t_camera_layer,
-                &k,
-                l.id,
-                0.1,
-                &mut exact,
-                Pixels::All,
-            );
+            l.raycast(&k, 0.1, &mut exact, Pixels::All);
         }
         for px in 0..k.pixels() {
             compared += 1;
