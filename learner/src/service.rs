@@ -95,8 +95,6 @@ pub struct Learner {
     unet_worker: Option<UnetWorker>,
     /// The deployed U-Net's weights and temperature, broadcast and checkpointed.
     unet_weights: Option<(Vec<u8>, f32)>,
-    /// The U-Net thread's training state as of the last checkpoint.
-    unet_training: Option<UnetTrainingState>,
     affordances: usize,
     warned: HashSet<(MessageKind, &'static str)>,
     last_checkpoint: Instant,
@@ -125,7 +123,6 @@ impl Learner {
             history: Arc::new(Mutex::new(history)),
             unet_worker: None,
             unet_weights: None,
-            unet_training: None,
             affordances,
             warned: HashSet::new(),
             last_checkpoint: Instant::now(),
@@ -157,19 +154,15 @@ impl Learner {
         // final checkpoint holds its last state. Should the thread have
         // failed, the checkpoint is still written, with the state it left
         // after its last good round, and the failure reported after.
-        let mut unet_failure = None;
+        let (mut unet_training, mut unet_failure) = (None, None);
         if let Some(worker) = self.unet_worker.take() {
             tracing::info!("stopping the U-Net thread after its current round");
-            self.unet_training = worker.training_state();
-            match worker.stop() {
-                Ok(stopped) => {
-                    if let Some(weights) = stopped.deployed {
-                        self.unet_weights = Some(weights);
-                    }
-                    self.unet_training = stopped.training;
-                }
-                Err(e) => unet_failure = Some(e),
+            let (stopped, outcome) = worker.stop();
+            if let Some(weights) = stopped.deployed {
+                self.unet_weights = Some(weights);
             }
+            unet_training = stopped.training;
+            unet_failure = outcome.err();
             if result.is_ok() && !self.shared.shutdown.load(Ordering::Relaxed) {
                 unet_failure.get_or_insert_with(|| {
                     anyhow::anyhow!("the U-Net training thread ended unexpectedly")
@@ -178,7 +171,7 @@ impl Learner {
         }
         result?;
         tracing::info!("shutting down: writing a final checkpoint");
-        self.write_checkpoint()?;
+        self.write_checkpoint(unet_training.as_ref())?;
         unet_failure.map_or(Ok(()), Err)
     }
 
@@ -229,10 +222,11 @@ impl Learner {
                 break;
             }
             if self.checkpoint_due() {
-                if let Some(worker) = &self.unet_worker {
-                    self.unet_training = worker.training_state();
-                }
-                self.write_checkpoint()?;
+                let unet_training = self
+                    .unet_worker
+                    .as_ref()
+                    .and_then(UnetWorker::training_state);
+                self.write_checkpoint(unet_training.as_ref())?;
             }
         }
         Ok(())
@@ -434,7 +428,12 @@ impl Learner {
         by_count || by_time
     }
 
-    fn write_checkpoint(&mut self) -> anyhow::Result<()> {
+    /// Writes a checkpoint of both trainers; `unet_training` is the U-Net
+    /// thread's state, when the task has a U-Net.
+    fn write_checkpoint(
+        &mut self,
+        unet_training: Option<&UnetTrainingState>,
+    ) -> anyhow::Result<()> {
         let counters = {
             let status = self.shared.status();
             Counters {
@@ -461,7 +460,7 @@ impl Learner {
             (POLICY_OPTIMIZER_PARAMETERS, &adam_parameters),
         ];
         let unet_parameters;
-        if let Some(unet) = &self.unet_training {
+        if let Some(unet) = unet_training {
             unet_parameters = unet.optimizer.parameter_list_json();
             files.extend([
                 (UNET_CANDIDATE, &unet.candidate[..]),
@@ -541,17 +540,14 @@ pub fn resume(
             _ => Ok(None),
         }
     };
-    let optimizer = match optimizer_state(POLICY_OPTIMIZER_RECORD, POLICY_OPTIMIZER_PARAMETERS)? {
-        Some(state) => Some(state),
-        None => {
-            tracing::warn!(
-                "checkpoint {} holds no optimiser state (written by an older learner); \
-                 the policy's Adam starts afresh",
-                loaded.dir.display()
-            );
-            None
-        }
-    };
+    let optimizer = optimizer_state(POLICY_OPTIMIZER_RECORD, POLICY_OPTIMIZER_PARAMETERS)?;
+    if optimizer.is_none() {
+        tracing::warn!(
+            "checkpoint {} holds no optimiser state (written by an older learner); \
+             the policy's Adam starts afresh",
+            loaded.dir.display()
+        );
+    }
     trainers
         .policy
         .restore(

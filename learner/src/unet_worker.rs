@@ -136,19 +136,20 @@ impl UnetWorker {
             .clone()
     }
 
-    /// Stops the thread after its current round and returns what it left;
-    /// its error, if it failed.
-    pub fn stop(mut self) -> anyhow::Result<StoppedUnet> {
+    /// Stops the thread after its current round. Returns what it left (after
+    /// a failure, the state of its last good round) and its error, if it failed.
+    pub fn stop(mut self) -> (StoppedUnet, anyhow::Result<()>) {
         self.frames = None;
-        match self.thread.take().map(JoinHandle::join) {
-            Some(Ok(result)) => result?,
-            Some(Err(_)) => anyhow::bail!("the U-Net training thread panicked"),
-            None => {}
-        }
-        Ok(StoppedUnet {
+        let outcome = match self.thread.take().map(JoinHandle::join) {
+            Some(Ok(result)) => result,
+            Some(Err(_)) => Err(anyhow::anyhow!("the U-Net training thread panicked")),
+            None => Ok(()),
+        };
+        let stopped = StoppedUnet {
             deployed: self.take_deployed(),
             training: self.training_state(),
-        })
+        };
+        (stopped, outcome)
     }
 }
 
@@ -205,7 +206,8 @@ mod tests {
             assert!(Instant::now() < deadline, "the round never ended");
             std::thread::sleep(Duration::from_millis(10));
         }
-        let err = worker.stop().err().expect("the thread's error");
+        let (_, outcome) = worker.stop();
+        let err = outcome.expect_err("the thread's error");
         assert!(format!("{err:#}").contains("is the disk full?"), "{err:#}");
     }
 }
