@@ -8,7 +8,7 @@
 //! (occluded) are never touched.
 
 use nalgebra::{Point3, Vector3};
-use rustc_hash::FxHashSet;
+use rustc_hash::{FxHashMap, FxHashSet};
 
 use crate::camera::Intrinsics;
 use crate::layer::{BlockIndex, Layer, VoxelIndex, BLOCK_EDGE, BLOCK_VOXELS};
@@ -113,47 +113,96 @@ pub fn carving_pixels(k: &Intrinsics, depth_m: &[f32], params: &IntegrationParam
     out
 }
 
-/// Depth at continuous pixel coordinates: bilinear between the four
-/// surrounding pixels when all are valid and lie on one smooth surface (within
-/// `max_spread_m`), else the nearest pixel's. At 128 × 128 a pixel spans about
-/// a voxel at 2 m, so nearest-pixel lookup alone leaves errors of half a voxel
-/// on slanted surfaces.
-fn depth_at(
-    k: &Intrinsics,
-    depth_m: &[f32],
-    u: f32,
-    v: f32,
-    nearest: usize,
-    max_spread_m: f32,
-    params: &IntegrationParams,
-) -> f32 {
-    if !(u >= 0.0 && v >= 0.0) {
-        return depth_m[nearest];
-    }
-    let (u0, v0) = ((u as usize) as f32, (v as usize) as f32);
-    if u0 + 1.0 >= k.width as f32 || v0 + 1.0 >= k.height as f32 {
-        return depth_m[nearest];
-    }
-    let i = v0 as usize * k.width + u0 as usize;
-    let q = [
-        depth_m[i],
-        depth_m[i + 1],
-        depth_m[i + k.width],
-        depth_m[i + k.width + 1],
-    ];
-    if !q.iter().all(|&d| params.valid_depth(d)) {
-        return depth_m[nearest];
-    }
-    let (lo, hi) = q
-        .iter()
-        .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &d| {
-            (lo.min(d), hi.max(d))
+/// What integration reads of one pixel, gathered once per frame into one
+/// record, so each voxel reads one record instead of four images.
+#[derive(Debug, Clone, Copy)]
+struct PixelRecord {
+    /// Z-depth in metres; NaN where unusable (and for the off-image sentinel).
+    depth: f32,
+    /// The factor from [`normal_cosines`].
+    cos: f32,
+    /// The pixel may carve other surfaces ([`carving_pixels`]).
+    may_carve: bool,
+    /// Depth may be interpolated between this pixel and its right, lower and
+    /// lower-right neighbours: all four usable and on one smooth surface
+    /// (within one truncation distance).
+    smooth_quad: bool,
+}
+
+/// One depth frame prepared for integration into any number of layers: per
+/// pixel its usable depth, normal cosine, carving permission and whether
+/// bilinear interpolation may start there, plus an off-image sentinel.
+#[derive(Debug, Clone)]
+pub struct FramePixels {
+    width: usize,
+    /// `width × height` records, then the sentinel (depth NaN) that voxels
+    /// landing outside the image read.
+    records: Vec<PixelRecord>,
+}
+
+impl FramePixels {
+    /// Prepares `depth_m` (z-depth per pixel) for integration.
+    pub fn new(k: &Intrinsics, depth_m: &[f32], params: &IntegrationParams) -> Self {
+        let (w, h) = (k.width, k.height);
+        let cosines = normal_cosines(k, depth_m, params);
+        let may_carve = carving_pixels(k, depth_m, params);
+        let usable = |d: f32| if params.valid_depth(d) { d } else { f32::NAN };
+        let mut records: Vec<PixelRecord> = (0..w * h)
+            .map(|i| PixelRecord {
+                depth: usable(depth_m[i]),
+                cos: cosines[i],
+                may_carve: may_carve[i],
+                smooth_quad: false,
+            })
+            .collect();
+        for v in 0..h.saturating_sub(1) {
+            for u in 0..w.saturating_sub(1) {
+                let i = v * w + u;
+                let q = [i, i + 1, i + w, i + w + 1].map(|j| records[j].depth);
+                // NaN fails both comparisons, so unusable corners never pass.
+                let (lo, hi) = q
+                    .iter()
+                    .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &d| {
+                        (lo.min(d), hi.max(d))
+                    });
+                records[i].smooth_quad =
+                    q.iter().all(|d| !d.is_nan()) && hi - lo <= params.truncation_m;
+            }
+        }
+        records.push(PixelRecord {
+            depth: f32::NAN,
+            cos: 1.0,
+            may_carve: false,
+            smooth_quad: false,
         });
-    if hi - lo > max_spread_m {
-        return depth_m[nearest];
+        Self { width: w, records }
     }
-    let (fu, fv) = (u - u0, v - v0);
-    (q[0] * (1.0 - fu) + q[1] * fu) * (1.0 - fv) + (q[2] * (1.0 - fu) + q[3] * fu) * fv
+
+    /// The index voxels landing outside the image read.
+    fn off_image(&self) -> u32 {
+        (self.records.len() - 1) as u32
+    }
+
+    /// Depth at continuous pixel coordinates `(u, v)`, whose nearest pixel
+    /// has depth `nearest`: bilinear between the four surrounding pixels
+    /// where they form a smooth quad, else `nearest`. At 128 × 128 a pixel
+    /// spans about a voxel at 2 m, so nearest-pixel lookup alone leaves
+    /// errors of half a voxel on slanted surfaces.
+    #[inline]
+    fn depth_at(&self, u: f32, v: f32, nearest: f32) -> f32 {
+        if !(u >= 0.0 && v >= 0.0) {
+            return nearest;
+        }
+        let (u0, v0) = ((u as usize) as f32, (v as usize) as f32);
+        let i = v0 as usize * self.width + u0 as usize;
+        if !self.records[i].smooth_quad {
+            return nearest;
+        }
+        let w = self.width;
+        let q = [i, i + 1, i + w, i + w + 1].map(|j| self.records[j].depth);
+        let (fu, fv) = (u - u0, v - v0);
+        (q[0] * (1.0 - fu) + q[1] * fu) * (1.0 - fv) + (q[2] * (1.0 - fu) + q[3] * fu) * fv
+    }
 }
 
 /// Blocks within the truncation band of the owned pixels' surface points:
@@ -163,7 +212,7 @@ fn blocks_near_points(
     layer: &Layer,
     t_layer_camera: &Pose,
     k: &Intrinsics,
-    depth_m: &[f32],
+    pixels: &FramePixels,
     owned: Owned<'_>,
     params: &IntegrationParams,
 ) -> FxHashSet<BlockIndex> {
@@ -171,8 +220,10 @@ fn blocks_near_points(
     let t = params.truncation_m;
     let size = layer.block_size_m();
     let mut previous: Option<([i32; 3], [i32; 3])> = None;
-    for (i, &d) in depth_m.iter().enumerate() {
-        if !params.valid_depth(d) || !owned.contains(i) {
+    for &i in owned.pixels {
+        let i = i as usize;
+        let d = pixels.records[i].depth;
+        if d.is_nan() {
             continue;
         }
         let (u, v) = ((i % k.width) as f32, (i / k.width) as f32);
@@ -219,11 +270,8 @@ fn blocks_in_view(layer: &Layer, t_camera_layer: &Pose, k: &Intrinsics) -> Vec<B
         .collect()
 }
 
-/// Marks a voxel whose centre falls outside the image (or behind the camera).
-const OFF_IMAGE: u32 = u32::MAX;
-
 /// Where the `BLOCK_EDGE` voxels of one block row land: pixel index
-/// ([`OFF_IMAGE`] if none), continuous pixel coordinates and z-depth. A
+/// (`off_image` if none), continuous pixel coordinates and z-depth. A
 /// separate pass without early exits, so the projections of a row overlap in
 /// the CPU (and can be vectorised); same arithmetic as
 /// [`Intrinsics::project`] and [`Intrinsics::pixel_index`].
@@ -232,6 +280,7 @@ fn project_row(
     row: &Vector3<f32>,
     step: &Vector3<f32>,
     k: &Intrinsics,
+    off_image: u32,
 ) -> [(u32, f32, f32, f32); BLOCK_EDGE as usize] {
     let (width, height) = (k.width as f32, k.height as f32);
     std::array::from_fn(|xi| {
@@ -243,7 +292,7 @@ fn project_row(
         let px = if inside {
             vi as u32 * k.width as u32 + ui as u32
         } else {
-            OFF_IMAGE
+            off_image
         };
         (px, u, v, p.z)
     })
@@ -256,12 +305,8 @@ pub struct DepthView<'a> {
     pub t_layer_camera: &'a Pose,
     /// Camera model.
     pub k: &'a Intrinsics,
-    /// Z-depth per pixel.
-    pub depth_m: &'a [f32],
-    /// Per-pixel factors from [`normal_cosines`].
-    pub cosines: &'a [f32],
-    /// Pixels allowed to carve ([`carving_pixels`]).
-    pub may_carve: &'a [bool],
+    /// The frame's pixels, prepared once for all layers.
+    pub pixels: &'a FramePixels,
 }
 
 /// The pixels that show one layer's surface: those labelled `id`.
@@ -271,6 +316,19 @@ pub struct Owned<'a> {
     pub labels: &'a [u32],
     /// The layer's label.
     pub id: u32,
+    /// The indices of the pixels labelled `id` (from [`pixels_by_label`]), so
+    /// each layer visits its own pixels rather than the whole image.
+    pub pixels: &'a [u32],
+}
+
+/// Pixel indices grouped by label, each group ascending: one pass over the
+/// image serves every layer's [`Owned::pixels`].
+pub fn pixels_by_label(labels: &[u32]) -> FxHashMap<u32, Vec<u32>> {
+    let mut groups: FxHashMap<u32, Vec<u32>> = FxHashMap::default();
+    for (i, &label) in labels.iter().enumerate() {
+        groups.entry(label).or_default().push(i as u32);
+    }
+    groups
 }
 
 impl Owned<'_> {
@@ -294,12 +352,10 @@ pub fn integrate(
     let DepthView {
         t_layer_camera,
         k,
-        depth_m,
-        cosines,
-        may_carve,
+        pixels,
     } = *view;
     let t_camera_layer = t_layer_camera.inverse();
-    let mut blocks = blocks_near_points(layer, t_layer_camera, k, depth_m, owned, params);
+    let mut blocks = blocks_near_points(layer, t_layer_camera, k, pixels, owned, params);
     if carve {
         blocks.extend(blocks_in_view(layer, &t_camera_layer, k));
     }
@@ -317,6 +373,7 @@ pub fn integrate(
         t_camera_layer.rotation * e
     });
     let mut updates = Vec::with_capacity(BLOCK_VOXELS);
+    let off_image = pixels.off_image();
     for b in blocks {
         let exists = layer.block(b).is_some();
         updates.clear();
@@ -325,35 +382,30 @@ pub fn integrate(
         for zi in 0..edge {
             for yi in 0..edge {
                 let row = origin.coords + steps[1] * yi as f32 + steps[2] * zi as f32;
-                let landing = project_row(&row, &steps[0], k);
+                let landing = project_row(&row, &steps[0], k, off_image);
                 for (xi, &(px, u, v, z)) in landing.iter().enumerate() {
-                    if px == OFF_IMAGE {
-                        continue;
-                    }
-                    let px = px as usize;
-                    let nearest = depth_m[px];
-                    if !params.valid_depth(nearest) {
+                    let pixel = pixels.records[px as usize];
+                    let rough = pixel.depth - z;
+                    // Off the image, no usable depth (NaN), or so far behind
+                    // the surface that even interpolation keeps it occluded.
+                    if !(rough >= -2.0 * trunc) {
                         continue;
                     }
                     let o = xi + edge * (yi + edge * zi);
-                    if owned.contains(px) {
+                    if owned.contains(px as usize) {
                         // The interpolated depth is within one truncation of
-                        // the nearest pixel's: voxels this far behind stay
-                        // occluded, and this far in front need no interpolation.
-                        let rough = nearest - z;
-                        if rough < -2.0 * trunc {
-                            continue;
-                        }
+                        // the nearest pixel's: voxels this far in front need
+                        // no interpolation.
                         let d = if rough < 2.0 * trunc {
-                            depth_at(k, depth_m, u, v, px, trunc, params)
+                            pixels.depth_at(u, v, pixel.depth)
                         } else {
-                            nearest
+                            pixel.depth
                         };
                         let projective = d - z;
                         if projective < -trunc {
                             continue; // occluded: behind the observed surface
                         }
-                        let cos = cosines[px];
+                        let cos = pixel.cos;
                         let sdf = projective * cos;
                         // Full weight in front of the surface, dropping
                         // quadratically behind it (behind a surface, the ray's
@@ -366,7 +418,7 @@ pub fn integrate(
                                 (1.0 + sdf / trunc).powi(2).max(0.05)
                             };
                         updates.push((o, sdf.min(trunc), w, false));
-                    } else if carve && exists && nearest - z > trunc && may_carve[px] {
+                    } else if carve && exists && rough > trunc && pixel.may_carve {
                         updates.push((o, trunc, 1.0, true));
                     }
                 }

@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use crate::association::{associate, extract_segments, AssociationParams, Segment};
 use crate::camera::{Frame, Intrinsics};
 use crate::integrate::{
-    carving_pixels, integrate, normal_cosines, DepthView, IntegrationParams, Owned,
+    integrate, pixels_by_label, DepthView, FramePixels, IntegrationParams, Owned,
 };
 use crate::labels::{Affordance, ObjectLabels, Outcome};
 use crate::layer::Layer;
@@ -300,9 +300,9 @@ impl Map {
                     *m.entry(i).or_default() += 1;
                     m
                 });
-        let cosines = normal_cosines(&k, frame.depth_m, &params);
-        let may_carve = carving_pixels(&k, frame.depth_m, &params);
-        let (owner_ref, cosines_ref, may_carve_ref) = (&owner, &cosines, &may_carve);
+        let pixels = FramePixels::new(&k, frame.depth_m, &params);
+        let by_owner = pixels_by_label(&owner);
+        let (owner_ref, pixels_ref, by_owner_ref) = (&owner, &pixels, &by_owner);
         let work: Vec<&mut MapObject> = self
             .objects
             .values_mut()
@@ -315,9 +315,7 @@ impl Map {
             let view = DepthView {
                 t_layer_camera: &t_object_camera,
                 k: &k,
-                depth_m: frame.depth_m,
-                cosines: cosines_ref,
-                may_carve: may_carve_ref,
+                pixels: pixels_ref,
             };
             integrate(
                 &mut object.volume,
@@ -325,6 +323,7 @@ impl Map {
                 Owned {
                     labels: owner_ref,
                     id,
+                    pixels: by_owner_ref.get(&id).map_or(&[], Vec::as_slice),
                 },
                 &params,
                 true,
@@ -334,9 +333,7 @@ impl Map {
         let view = DepthView {
             t_layer_camera: &frame.t_world_camera,
             k: &k,
-            depth_m: frame.depth_m,
-            cosines: &cosines,
-            may_carve: &may_carve,
+            pixels: &pixels,
         };
         integrate(
             &mut self.background,
@@ -344,6 +341,12 @@ impl Map {
             Owned {
                 labels: instance,
                 id: 0,
+                pixels: &instance
+                    .iter()
+                    .enumerate()
+                    .filter(|&(_, &label)| label == 0)
+                    .map(|(i, _)| i as u32)
+                    .collect::<Vec<_>>(),
             },
             &params,
             false,
