@@ -42,23 +42,23 @@ impl IntegrationParams {
 /// distance to the surface by `1 / cos θ` off the normal; multiplying by this
 /// factor turns it into point-to-plane distance (and it down-weights grazing
 /// views). This is a departure from TSDF++/voxblox, which leave the bias in.
-pub fn normal_cosines(k: &Intrinsics, depth_m: &[f32], params: &IntegrationParams) -> Vec<f32> {
+fn normal_cosines(
+    k: &Intrinsics,
+    points: &[Option<Point3<f32>>],
+    params: &IntegrationParams,
+) -> Vec<f32> {
     let (w, h) = (k.width, k.height);
-    let point = |u: usize, v: usize| {
-        let d = depth_m[v * w + u];
-        params
-            .valid_depth(d)
-            .then(|| k.back_project(u as f32, v as f32, d))
-    };
     let mut out = vec![1.0; w * h];
     let max_jump = 4.0 * params.truncation_m;
     for v in 0..h {
         for u in 0..w {
-            let Some(c) = point(u, v) else { continue };
-            let near = |p: Option<Point3<f32>>| p.filter(|p| (p.z - c.z).abs() < max_jump);
+            let Some(c) = points[v * w + u] else { continue };
             let neighbour = |du: isize, dv: isize| {
                 let (x, y) = (u.checked_add_signed(du)?, v.checked_add_signed(dv)?);
-                (x < w && y < h).then(|| near(point(x, y))).flatten()
+                if x >= w || y >= h {
+                    return None;
+                }
+                points[y * w + x].filter(|p| (p.z - c.z).abs() < max_jump)
             };
             // Central differences where both neighbours lie on this surface,
             // one-sided at its edges: silhouettes are where views graze the
@@ -88,12 +88,51 @@ pub fn normal_cosines(k: &Intrinsics, depth_m: &[f32], params: &IntegrationParam
     out
 }
 
+/// Each pixel's camera-frame point where its depth is usable, back-projected
+/// once per frame (a pixel is the neighbour of four others, and the point of
+/// every layer's search for blocks).
+fn camera_points(
+    k: &Intrinsics,
+    depth_m: &[f32],
+    params: &IntegrationParams,
+) -> Vec<Option<Point3<f32>>> {
+    let mut points = Vec::with_capacity(k.width * k.height);
+    for v in 0..k.height {
+        for u in 0..k.width {
+            let d = depth_m[v * k.width + u];
+            points.push(
+                params
+                    .valid_depth(d)
+                    .then(|| k.back_project(u as f32, v as f32, d)),
+            );
+        }
+    }
+    points
+}
+
 /// Pixels that may carve other surfaces: those with no neighbour nearer by
 /// more than the truncation distance. A pixel just outside an object's
 /// silhouette sees the far background through the object's edge voxels;
 /// carving from it would erode every object by up to a pixel per view.
-pub fn carving_pixels(k: &Intrinsics, depth_m: &[f32], params: &IntegrationParams) -> Vec<bool> {
+fn carving_pixels(k: &Intrinsics, depth_m: &[f32], params: &IntegrationParams) -> Vec<bool> {
     let (w, h) = (k.width, k.height);
+    let usable = |d: f32| {
+        if params.valid_depth(d) {
+            d
+        } else {
+            f32::INFINITY
+        }
+    };
+    // The nearest usable depth in each pixel's 3 × 3 neighbourhood, as a
+    // minimum along rows and then along columns.
+    let mut row_min = vec![f32::INFINITY; w * h];
+    for v in 0..h {
+        for u in 0..w {
+            row_min[v * w + u] = (u.saturating_sub(1)..(u + 2).min(w))
+                .map(|x| usable(depth_m[v * w + x]))
+                .fold(f32::INFINITY, f32::min);
+        }
+    }
     let mut out = vec![false; w * h];
     for v in 0..h {
         for u in 0..w {
@@ -101,13 +140,10 @@ pub fn carving_pixels(k: &Intrinsics, depth_m: &[f32], params: &IntegrationParam
             if !params.valid_depth(d) {
                 continue;
             }
-            let nearer = (v.saturating_sub(1)..(v + 2).min(h)).any(|y| {
-                (u.saturating_sub(1)..(u + 2).min(w)).any(|x| {
-                    let n = depth_m[y * w + x];
-                    params.valid_depth(n) && n < d - params.truncation_m
-                })
-            });
-            out[v * w + u] = !nearer;
+            let nearest = (v.saturating_sub(1)..(v + 2).min(h))
+                .map(|y| row_min[y * w + u])
+                .fold(f32::INFINITY, f32::min);
+            out[v * w + u] = nearest >= d - params.truncation_m;
         }
     }
     out
@@ -138,13 +174,16 @@ pub struct FramePixels {
     /// `width × height` records, then the sentinel (depth NaN) that voxels
     /// landing outside the image read.
     records: Vec<PixelRecord>,
+    /// Each pixel's camera-frame point, where its depth is usable.
+    points: Vec<Option<Point3<f32>>>,
 }
 
 impl FramePixels {
     /// Prepares `depth_m` (z-depth per pixel) for integration.
     pub fn new(k: &Intrinsics, depth_m: &[f32], params: &IntegrationParams) -> Self {
         let (w, h) = (k.width, k.height);
-        let cosines = normal_cosines(k, depth_m, params);
+        let points = camera_points(k, depth_m, params);
+        let cosines = normal_cosines(k, &points, params);
         let may_carve = carving_pixels(k, depth_m, params);
         let usable = |d: f32| if params.valid_depth(d) { d } else { f32::NAN };
         let mut records: Vec<PixelRecord> = (0..w * h)
@@ -175,7 +214,11 @@ impl FramePixels {
             may_carve: false,
             smooth_quad: false,
         });
-        Self { width: w, records }
+        Self {
+            width: w,
+            records,
+            points,
+        }
     }
 
     /// The index voxels landing outside the image read.
@@ -211,44 +254,65 @@ impl FramePixels {
 fn blocks_near_points(
     layer: &Layer,
     t_layer_camera: &Pose,
-    k: &Intrinsics,
     pixels: &FramePixels,
     owned: Owned<'_>,
     params: &IntegrationParams,
 ) -> FxHashSet<BlockIndex> {
-    let mut blocks = FxHashSet::default();
     let t = params.truncation_m;
     let size = layer.block_size_m();
-    let mut previous: Option<([i32; 3], [i32; 3])> = None;
+    // Per block holding points, which of its 27 neighbours (itself included)
+    // are needed, as bits: one map update per change of block or band
+    // instead of one set insertion per needed block.
+    let mut needed: FxHashMap<[i32; 3], u32> = FxHashMap::default();
+    let mut previous: Option<([i32; 3], [i32; 3], [i32; 3])> = None;
     for &i in owned.pixels {
-        let i = i as usize;
-        let d = pixels.records[i].depth;
-        if d.is_nan() {
+        let Some(point) = pixels.points[i as usize] else {
             continue;
-        }
-        let (u, v) = ((i % k.width) as f32, (i / k.width) as f32);
-        let p = t_layer_camera * k.back_project(u, v, d);
-        let mut lo = [0i32; 3];
-        let mut hi = [0i32; 3];
+        };
+        let p = t_layer_camera * point;
+        let mut block = [0i32; 3];
+        let mut below = [0i32; 3];
+        let mut above = [0i32; 3];
         for a in 0..3 {
-            let block = crate::layer::floor_to_i32(p[a] / size) as f32;
-            let within = p[a] - block * size;
-            lo[a] = block as i32 - i32::from(within < t);
-            hi[a] = block as i32 + i32::from(within > size - t);
+            block[a] = crate::layer::floor_to_i32(p[a] / size);
+            let within = p[a] - block[a] as f32 * size;
+            below[a] = i32::from(within < t);
+            above[a] = i32::from(within > size - t);
         }
-        if previous == Some((lo, hi)) {
+        if previous == Some((block, below, above)) {
             continue;
         }
-        previous = Some((lo, hi));
-        for x in lo[0]..=hi[0] {
-            for y in lo[1]..=hi[1] {
-                for z in lo[2]..=hi[2] {
-                    blocks.insert(BlockIndex([x, y, z]));
+        previous = Some((block, below, above));
+        let mut bits = 0u32;
+        for x in -below[0]..=above[0] {
+            for y in -below[1]..=above[1] {
+                for z in -below[2]..=above[2] {
+                    bits |= 1 << neighbour_bit([x, y, z]);
+                }
+            }
+        }
+        *needed.entry(block).or_default() |= bits;
+    }
+    let mut blocks = FxHashSet::default();
+    for (block, bits) in needed {
+        for x in -1..=1 {
+            for y in -1..=1 {
+                for z in -1..=1 {
+                    if bits & (1 << neighbour_bit([x, y, z])) != 0 {
+                        blocks.insert(BlockIndex([block[0] + x, block[1] + y, block[2] + z]));
+                    }
                 }
             }
         }
     }
     blocks
+}
+
+/// The bit of a neighbour at offset `[-1..=1; 3]` in [`blocks_near_points`]'
+/// masks.
+#[inline]
+fn neighbour_bit(offset: [i32; 3]) -> u32 {
+    ((offset[0] + 1) * 9 + (offset[1] + 1) * 3 + offset[2] + 1) as u32
 }
 
 /// Existing blocks whose centre lies in the view frustum (carving candidates).
@@ -355,7 +419,7 @@ pub fn integrate(
         pixels,
     } = *view;
     let t_camera_layer = t_layer_camera.inverse();
-    let mut blocks = blocks_near_points(layer, t_layer_camera, k, pixels, owned, params);
+    let mut blocks = blocks_near_points(layer, t_layer_camera, pixels, owned, params);
     if carve {
         blocks.extend(blocks_in_view(layer, &t_camera_layer, k));
     }
