@@ -452,7 +452,7 @@ pub fn integrate(
                     let rough = pixel.depth - z;
                     // Off the image, no usable depth (NaN), or so far behind
                     // the surface that even interpolation keeps it occluded.
-                    if !(rough >= -2.0 * trunc) {
+                    if rough.is_nan() || rough < -2.0 * trunc {
                         continue;
                     }
                     let o = xi + edge * (yi + edge * zi);
