@@ -11,7 +11,7 @@ use nalgebra::{Point3, Vector3};
 use rustc_hash::{FxHashMap, FxHashSet};
 
 use crate::camera::Intrinsics;
-use crate::layer::{BlockIndex, Layer, VoxelIndex, BLOCK_EDGE, BLOCK_VOXELS};
+use crate::layer::{BlockIndex, Layer, Voxel, VoxelIndex, BLOCK_EDGE};
 use crate::Pose;
 
 /// Settings of the integrator.
@@ -436,13 +436,14 @@ pub fn integrate(
         e[a] = voxel;
         t_camera_layer.rotation * e
     });
-    let mut updates = Vec::with_capacity(BLOCK_VOXELS);
     let off_image = pixels.off_image();
     for b in blocks {
+        let origin = t_camera_layer * layer.voxel_center(VoxelIndex::join(b, 0));
         let exists = layer.block(b).is_some();
-        updates.clear();
-        let first = layer.voxel_center(VoxelIndex::join(b, 0));
-        let origin = t_camera_layer * first;
+        // Updated in place; a block allocated here and never updated is
+        // freed again below.
+        let block = layer.block_mut_or_insert(b);
+        let mut block_updates = 0;
         for zi in 0..edge {
             for yi in 0..edge {
                 let row = origin.coords + steps[1] * yi as f32 + steps[2] * zi as f32;
@@ -481,28 +482,32 @@ pub fn integrate(
                             } else {
                                 (1.0 + sdf / trunc).powi(2).max(0.05)
                             };
-                        updates.push((o, sdf.min(trunc), w, false));
+                        fuse(&mut block.voxels[o], sdf.min(trunc), w, params.max_weight);
+                        block_updates += 1;
                     } else if carve && exists && rough > trunc && pixel.may_carve {
-                        updates.push((o, trunc, 1.0, true));
+                        let voxel = &mut block.voxels[o];
+                        // Carving clears known surface; it never creates
+                        // knowledge.
+                        if voxel.weight > 0.0 {
+                            fuse(voxel, trunc, 1.0, params.max_weight);
+                            block_updates += 1;
+                        }
                     }
                 }
             }
         }
-        if updates.is_empty() {
-            continue;
+        if !exists && block_updates == 0 {
+            layer.remove_block(b);
         }
-        let block = layer.block_mut_or_insert(b);
-        for &(o, sdf, w, carving) in &updates {
-            let voxel = &mut block.voxels[o];
-            if carving && voxel.weight == 0.0 {
-                // Carving clears known surface; it never creates knowledge.
-                continue;
-            }
-            let total = voxel.weight + w;
-            voxel.sdf = (voxel.sdf * voxel.weight + sdf * w) / total;
-            voxel.weight = total.min(params.max_weight);
-            updated += 1;
-        }
+        updated += block_updates;
     }
     updated
+}
+
+/// Folds one measurement (`sdf`, weight `w`) into a voxel's weighted mean.
+#[inline]
+fn fuse(voxel: &mut Voxel, sdf: f32, w: f32, max_weight: f32) {
+    let total = voxel.weight + w;
+    voxel.sdf = (voxel.sdf * voxel.weight + sdf * w) / total;
+    voxel.weight = total.min(max_weight);
 }

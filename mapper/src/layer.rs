@@ -183,6 +183,11 @@ impl Layer {
         self.blocks.get_mut(&b)
     }
 
+    /// Frees the block at `b` (a no-op if it is not allocated).
+    pub fn remove_block(&mut self, b: BlockIndex) {
+        self.blocks.remove(&b);
+    }
+
     /// Allocated block indices, sorted (deterministic iteration).
     pub fn block_indices(&self) -> Vec<BlockIndex> {
         let mut v: Vec<_> = self.blocks.keys().copied().collect();
