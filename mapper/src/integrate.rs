@@ -334,10 +334,18 @@ fn blocks_in_view(layer: &Layer, t_camera_layer: &Pose, k: &Intrinsics) -> Vec<B
         .collect()
 }
 
-/// Where the `BLOCK_EDGE` voxels of one block row land: pixel index
-/// (`off_image` if none), continuous pixel coordinates and z-depth. A
-/// separate pass without early exits, so the projections of a row overlap in
-/// the CPU (and can be vectorised); same arithmetic as
+/// Where the `BLOCK_EDGE` voxels of one block row land, lane by lane: pixel
+/// index (`off_image` if none), continuous pixel coordinates and z-depth.
+struct RowLanding {
+    px: [u32; BLOCK_EDGE as usize],
+    u: [f32; BLOCK_EDGE as usize],
+    v: [f32; BLOCK_EDGE as usize],
+    z: [f32; BLOCK_EDGE as usize],
+}
+
+/// Projects one block row, starting at camera-frame point `row` and
+/// stepping by `step`. A pass of its own, without early exits and over
+/// plain arrays, so the compiler vectorises it; same arithmetic as
 /// [`Intrinsics::project`] and [`Intrinsics::pixel_index`].
 #[inline]
 fn project_row(
@@ -345,21 +353,29 @@ fn project_row(
     step: &Vector3<f32>,
     k: &Intrinsics,
     off_image: u32,
-) -> [(u32, f32, f32, f32); BLOCK_EDGE as usize] {
+) -> RowLanding {
     let (width, height) = (k.width as f32, k.height as f32);
-    std::array::from_fn(|xi| {
-        let p = row + step * xi as f32;
-        let inv_z = 1.0 / p.z;
-        let (u, v) = (k.fx * p.x * inv_z + k.cx, k.fy * p.y * inv_z + k.cy);
+    let mut out = RowLanding {
+        px: [0; BLOCK_EDGE as usize],
+        u: [0.0; BLOCK_EDGE as usize],
+        v: [0.0; BLOCK_EDGE as usize],
+        z: [0.0; BLOCK_EDGE as usize],
+    };
+    for xi in 0..BLOCK_EDGE as usize {
+        let t = xi as f32;
+        let (x, y, z) = (row.x + step.x * t, row.y + step.y * t, row.z + step.z * t);
+        let inv_z = 1.0 / z;
+        let (u, v) = (k.fx * x * inv_z + k.cx, k.fy * y * inv_z + k.cy);
         let (ui, vi) = (u + 0.5, v + 0.5);
-        let inside = p.z > 1e-6 && ui >= 0.0 && vi >= 0.0 && ui < width && vi < height;
-        let px = if inside {
-            vi as u32 * k.width as u32 + ui as u32
-        } else {
-            off_image
-        };
-        (px, u, v, p.z)
-    })
+        let inside = (z > 1e-6) & (ui >= 0.0) & (vi >= 0.0) & (ui < width) & (vi < height);
+        // In range wherever it is used; `as i32` converts four lanes at once.
+        let px = (vi as i32) * k.width as i32 + ui as i32;
+        out.px[xi] = if inside { px as u32 } else { off_image };
+        out.u[xi] = u;
+        out.v[xi] = v;
+        out.z[xi] = z;
+    }
+    out
 }
 
 /// One depth image as seen from a layer's frame.
@@ -448,7 +464,9 @@ pub fn integrate(
             for yi in 0..edge {
                 let row = origin.coords + steps[1] * yi as f32 + steps[2] * zi as f32;
                 let landing = project_row(&row, &steps[0], k, off_image);
-                for (xi, &(px, u, v, z)) in landing.iter().enumerate() {
+                for xi in 0..edge {
+                    let (px, u, v, z) =
+                        (landing.px[xi], landing.u[xi], landing.v[xi], landing.z[xi]);
                     let pixel = pixels.records[px as usize];
                     let rough = pixel.depth - z;
                     // Off the image, no usable depth (NaN), or so far behind
