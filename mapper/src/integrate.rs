@@ -265,11 +265,14 @@ fn blocks_near_points(
     // instead of one set insertion per needed block.
     let mut needed: FxHashMap<[i32; 3], u32> = FxHashMap::default();
     let mut previous: Option<([i32; 3], [i32; 3], [i32; 3])> = None;
+    // A matrix rotates a point in half the operations of a quaternion.
+    let rotation = t_layer_camera.rotation.to_rotation_matrix();
+    let translation = t_layer_camera.translation.vector;
     for &i in owned.pixels {
         let Some(point) = pixels.points[i as usize] else {
             continue;
         };
-        let p = t_layer_camera * point;
+        let p = rotation * point + translation;
         let mut block = [0i32; 3];
         let mut below = [0i32; 3];
         let mut above = [0i32; 3];
