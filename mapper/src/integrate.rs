@@ -34,21 +34,127 @@ impl IntegrationParams {
     }
 }
 
+/// What integration reads of one pixel, gathered once per frame into one
+/// record, so each voxel reads one record instead of four images.
+#[derive(Debug, Clone, Copy)]
+struct PixelRecord {
+    /// Z-depth in metres; NaN where unusable (and for the off-image sentinel).
+    depth: f32,
+    /// The factor from [`write_normal_cosines`].
+    cos: f32,
+    /// The pixel may carve other surfaces ([`mark_carving_pixels`]).
+    may_carve: bool,
+    /// Depth may be interpolated between this pixel and its right, lower and
+    /// lower-right neighbours: all four usable and on one smooth surface
+    /// (within one truncation distance).
+    smooth_quad: bool,
+}
+
+/// One depth frame prepared for integration into any number of layers: per
+/// pixel its usable depth, normal cosine, carving permission and whether
+/// bilinear interpolation may start there, plus an off-image sentinel.
+/// Kept by the map and refilled each frame: fresh buffers of this size cost
+/// page faults every frame.
+#[derive(Debug, Clone, Default)]
+pub struct FramePixels {
+    width: usize,
+    /// `width × height` records, then the sentinel (depth NaN) that voxels
+    /// landing outside the image read.
+    records: Vec<PixelRecord>,
+    /// Each pixel's camera-frame point, where its depth is usable.
+    points: Vec<Option<Point3<f32>>>,
+    /// Scratch for [`mark_carving_pixels`].
+    row_min: Vec<f32>,
+}
+
+impl FramePixels {
+    /// Prepares `depth_m` (z-depth per pixel) for integration, reusing this
+    /// value's buffers.
+    pub fn prepare(&mut self, k: &Intrinsics, depth_m: &[f32], params: &IntegrationParams) {
+        self.width = k.width;
+        fill_camera_points(k, depth_m, params, &mut self.points);
+        self.records.clear();
+        self.records.extend(depth_m.iter().map(|&d| PixelRecord {
+            depth: if params.valid_depth(d) { d } else { f32::NAN },
+            cos: 1.0,
+            may_carve: false,
+            smooth_quad: false,
+        }));
+        write_normal_cosines(k, &self.points, params, &mut self.records);
+        mark_carving_pixels(k, params, &mut self.records, &mut self.row_min);
+        mark_smooth_quads(k, params, &mut self.records);
+        self.records.push(PixelRecord {
+            depth: f32::NAN,
+            cos: 1.0,
+            may_carve: false,
+            smooth_quad: false,
+        });
+    }
+
+    /// The index voxels landing outside the image read.
+    fn off_image(&self) -> u32 {
+        (self.records.len() - 1) as u32
+    }
+
+    /// Depth at continuous pixel coordinates `(u, v)`, whose nearest pixel
+    /// has depth `nearest`: bilinear between the four surrounding pixels
+    /// where they form a smooth quad, else `nearest`. At 128 × 128 a pixel
+    /// spans about a voxel at 2 m, so nearest-pixel lookup alone leaves
+    /// errors of half a voxel on slanted surfaces.
+    #[inline]
+    fn depth_at(&self, u: f32, v: f32, nearest: f32) -> f32 {
+        if !(u >= 0.0 && v >= 0.0) {
+            return nearest;
+        }
+        let (u0, v0) = ((u as usize) as f32, (v as usize) as f32);
+        let i = v0 as usize * self.width + u0 as usize;
+        if !self.records[i].smooth_quad {
+            return nearest;
+        }
+        let w = self.width;
+        let q = [i, i + 1, i + w, i + w + 1].map(|j| self.records[j].depth);
+        let (fu, fv) = (u - u0, v - v0);
+        (q[0] * (1.0 - fu) + q[1] * fu) * (1.0 - fv) + (q[2] * (1.0 - fu) + q[3] * fu) * fv
+    }
+}
+
+/// Each pixel's camera-frame point where its depth is usable, back-projected
+/// once per frame (a pixel is the neighbour of four others, and the point of
+/// every layer's search for blocks).
+fn fill_camera_points(
+    k: &Intrinsics,
+    depth_m: &[f32],
+    params: &IntegrationParams,
+    points: &mut Vec<Option<Point3<f32>>>,
+) {
+    // The rays' x and y per column and row: the same values as
+    // `Intrinsics::back_project`, without two divisions per pixel.
+    let column_x: Vec<f32> = (0..k.width).map(|u| k.ray(u as f32, 0.0).x).collect();
+    let row_y: Vec<f32> = (0..k.height).map(|v| k.ray(0.0, v as f32).y).collect();
+    points.clear();
+    for (v, &y) in row_y.iter().enumerate() {
+        for (u, &x) in column_x.iter().enumerate() {
+            let d = depth_m[v * k.width + u];
+            points.push(params.valid_depth(d).then(|| Point3::new(x * d, y * d, d)));
+        }
+    }
+}
+
 /// Per pixel, `|cos|` of the angle between the viewing ray and the surface
 /// normal estimated from neighbouring depths: central differences inside a
-/// surface, one-sided at its edges (1 only for isolated pixels).
+/// surface, one-sided at its edges (left at 1 for isolated pixels).
 ///
 /// Projective TSDF measures distance along the ray, which overestimates the
 /// distance to the surface by `1 / cos θ` off the normal; multiplying by this
 /// factor turns it into point-to-plane distance (and it down-weights grazing
 /// views). This is a departure from TSDF++/voxblox, which leave the bias in.
-fn normal_cosines(
+fn write_normal_cosines(
     k: &Intrinsics,
     points: &[Option<Point3<f32>>],
     params: &IntegrationParams,
-) -> Vec<f32> {
+    records: &mut [PixelRecord],
+) {
     let (w, h) = (k.width, k.height);
-    let mut out = vec![1.0; w * h];
     let max_jump = 4.0 * params.truncation_m;
     for v in 0..h {
         for u in 0..w {
@@ -82,169 +188,74 @@ fn normal_cosines(
                 continue;
             }
             let ray = c.coords / c.coords.norm();
-            out[v * w + u] = (n.dot(&ray) / norm).abs().max(0.2);
+            records[v * w + u].cos = (n.dot(&ray) / norm).abs().max(0.2);
         }
     }
-    out
 }
 
-/// Each pixel's camera-frame point where its depth is usable, back-projected
-/// once per frame (a pixel is the neighbour of four others, and the point of
-/// every layer's search for blocks).
-fn camera_points(
+/// Marks the pixels that may carve other surfaces: those with no neighbour
+/// nearer by more than the truncation distance. A pixel just outside an
+/// object's silhouette sees the far background through the object's edge
+/// voxels; carving from it would erode every object by up to a pixel per
+/// view.
+fn mark_carving_pixels(
     k: &Intrinsics,
-    depth_m: &[f32],
     params: &IntegrationParams,
-) -> Vec<Option<Point3<f32>>> {
-    let mut points = Vec::with_capacity(k.width * k.height);
-    for v in 0..k.height {
-        for u in 0..k.width {
-            let d = depth_m[v * k.width + u];
-            points.push(
-                params
-                    .valid_depth(d)
-                    .then(|| k.back_project(u as f32, v as f32, d)),
-            );
-        }
-    }
-    points
-}
-
-/// Pixels that may carve other surfaces: those with no neighbour nearer by
-/// more than the truncation distance. A pixel just outside an object's
-/// silhouette sees the far background through the object's edge voxels;
-/// carving from it would erode every object by up to a pixel per view.
-fn carving_pixels(k: &Intrinsics, depth_m: &[f32], params: &IntegrationParams) -> Vec<bool> {
+    records: &mut [PixelRecord],
+    row_min: &mut Vec<f32>,
+) {
     let (w, h) = (k.width, k.height);
-    let usable = |d: f32| {
-        if params.valid_depth(d) {
-            d
-        } else {
+    let near = |r: &PixelRecord| {
+        if r.depth.is_nan() {
             f32::INFINITY
+        } else {
+            r.depth
         }
     };
     // The nearest usable depth in each pixel's 3 × 3 neighbourhood, as a
     // minimum along rows and then along columns.
-    let mut row_min = vec![f32::INFINITY; w * h];
-    for v in 0..h {
+    row_min.clear();
+    for row in records.chunks_exact(w).take(h) {
         for u in 0..w {
-            row_min[v * w + u] = (u.saturating_sub(1)..(u + 2).min(w))
-                .map(|x| usable(depth_m[v * w + x]))
-                .fold(f32::INFINITY, f32::min);
+            let mut m = near(&row[u]);
+            if u > 0 {
+                m = m.min(near(&row[u - 1]));
+            }
+            if u + 1 < w {
+                m = m.min(near(&row[u + 1]));
+            }
+            row_min.push(m);
         }
     }
-    let mut out = vec![false; w * h];
     for v in 0..h {
+        let above = v.saturating_sub(1) * w;
+        let below = (v + 1).min(h - 1) * w;
         for u in 0..w {
-            let d = depth_m[v * w + u];
-            if !params.valid_depth(d) {
-                continue;
-            }
-            let nearest = (v.saturating_sub(1)..(v + 2).min(h))
-                .map(|y| row_min[y * w + u])
-                .fold(f32::INFINITY, f32::min);
-            out[v * w + u] = nearest >= d - params.truncation_m;
+            let i = v * w + u;
+            let d = records[i].depth;
+            let nearest = row_min[i].min(row_min[above + u]).min(row_min[below + u]);
+            records[i].may_carve = !d.is_nan() && nearest >= d - params.truncation_m;
         }
     }
-    out
 }
 
-/// What integration reads of one pixel, gathered once per frame into one
-/// record, so each voxel reads one record instead of four images.
-#[derive(Debug, Clone, Copy)]
-struct PixelRecord {
-    /// Z-depth in metres; NaN where unusable (and for the off-image sentinel).
-    depth: f32,
-    /// The factor from [`normal_cosines`].
-    cos: f32,
-    /// The pixel may carve other surfaces ([`carving_pixels`]).
-    may_carve: bool,
-    /// Depth may be interpolated between this pixel and its right, lower and
-    /// lower-right neighbours: all four usable and on one smooth surface
-    /// (within one truncation distance).
-    smooth_quad: bool,
-}
-
-/// One depth frame prepared for integration into any number of layers: per
-/// pixel its usable depth, normal cosine, carving permission and whether
-/// bilinear interpolation may start there, plus an off-image sentinel.
-#[derive(Debug, Clone)]
-pub struct FramePixels {
-    width: usize,
-    /// `width × height` records, then the sentinel (depth NaN) that voxels
-    /// landing outside the image read.
-    records: Vec<PixelRecord>,
-    /// Each pixel's camera-frame point, where its depth is usable.
-    points: Vec<Option<Point3<f32>>>,
-}
-
-impl FramePixels {
-    /// Prepares `depth_m` (z-depth per pixel) for integration.
-    pub fn new(k: &Intrinsics, depth_m: &[f32], params: &IntegrationParams) -> Self {
-        let (w, h) = (k.width, k.height);
-        let points = camera_points(k, depth_m, params);
-        let cosines = normal_cosines(k, &points, params);
-        let may_carve = carving_pixels(k, depth_m, params);
-        let usable = |d: f32| if params.valid_depth(d) { d } else { f32::NAN };
-        let mut records: Vec<PixelRecord> = (0..w * h)
-            .map(|i| PixelRecord {
-                depth: usable(depth_m[i]),
-                cos: cosines[i],
-                may_carve: may_carve[i],
-                smooth_quad: false,
-            })
-            .collect();
-        for v in 0..h.saturating_sub(1) {
-            for u in 0..w.saturating_sub(1) {
-                let i = v * w + u;
-                let q = [i, i + 1, i + w, i + w + 1].map(|j| records[j].depth);
-                // NaN fails both comparisons, so unusable corners never pass.
-                let (lo, hi) = q
-                    .iter()
-                    .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &d| {
-                        (lo.min(d), hi.max(d))
-                    });
-                records[i].smooth_quad =
-                    q.iter().all(|d| !d.is_nan()) && hi - lo <= params.truncation_m;
-            }
+/// Marks the pixels where bilinear depth interpolation may start
+/// ([`PixelRecord::smooth_quad`]).
+fn mark_smooth_quads(k: &Intrinsics, params: &IntegrationParams, records: &mut [PixelRecord]) {
+    let (w, h) = (k.width, k.height);
+    for v in 0..h.saturating_sub(1) {
+        for u in 0..w.saturating_sub(1) {
+            let i = v * w + u;
+            let q = [i, i + 1, i + w, i + w + 1].map(|j| records[j].depth);
+            // NaN fails both comparisons, so unusable corners never pass.
+            let (lo, hi) = q
+                .iter()
+                .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &d| {
+                    (lo.min(d), hi.max(d))
+                });
+            records[i].smooth_quad =
+                q.iter().all(|d| !d.is_nan()) && hi - lo <= params.truncation_m;
         }
-        records.push(PixelRecord {
-            depth: f32::NAN,
-            cos: 1.0,
-            may_carve: false,
-            smooth_quad: false,
-        });
-        Self {
-            width: w,
-            records,
-            points,
-        }
-    }
-
-    /// The index voxels landing outside the image read.
-    fn off_image(&self) -> u32 {
-        (self.records.len() - 1) as u32
-    }
-
-    /// Depth at continuous pixel coordinates `(u, v)`, whose nearest pixel
-    /// has depth `nearest`: bilinear between the four surrounding pixels
-    /// where they form a smooth quad, else `nearest`. At 128 × 128 a pixel
-    /// spans about a voxel at 2 m, so nearest-pixel lookup alone leaves
-    /// errors of half a voxel on slanted surfaces.
-    #[inline]
-    fn depth_at(&self, u: f32, v: f32, nearest: f32) -> f32 {
-        if !(u >= 0.0 && v >= 0.0) {
-            return nearest;
-        }
-        let (u0, v0) = ((u as usize) as f32, (v as usize) as f32);
-        let i = v0 as usize * self.width + u0 as usize;
-        if !self.records[i].smooth_quad {
-            return nearest;
-        }
-        let w = self.width;
-        let q = [i, i + 1, i + w, i + w + 1].map(|j| self.records[j].depth);
-        let (fu, fv) = (u - u0, v - v0);
-        (q[0] * (1.0 - fu) + q[1] * fu) * (1.0 - fv) + (q[2] * (1.0 - fu) + q[3] * fu) * fv
     }
 }
 

@@ -160,6 +160,9 @@ pub struct Map {
     /// Objects the caller said may have moved, with an optional motion guess.
     notified: BTreeMap<ObjectId, Option<Pose>>,
     last_tracking: Vec<TrackingReport>,
+    /// The last frame's pixels prepared for integration; kept so that each
+    /// frame refills its buffers instead of allocating them afresh.
+    frame_pixels: FramePixels,
 }
 
 fn check_len(what: &'static str, got: usize, k: &Intrinsics) -> Result<(), MapError> {
@@ -186,6 +189,7 @@ impl Map {
             last_timings: IntegrateTimings::default(),
             notified: BTreeMap::new(),
             last_tracking: Vec::new(),
+            frame_pixels: FramePixels::default(),
         }
     }
 
@@ -300,9 +304,10 @@ impl Map {
                     *m.entry(i).or_default() += 1;
                     m
                 });
-        let pixels = FramePixels::new(&k, frame.depth_m, &params);
+        self.frame_pixels.prepare(&k, frame.depth_m, &params);
+        let pixels = &self.frame_pixels;
         let by_owner = pixels_by_label(&owner);
-        let (owner_ref, pixels_ref, by_owner_ref) = (&owner, &pixels, &by_owner);
+        let by_owner_ref = &by_owner;
         let work: Vec<&mut MapObject> = self
             .objects
             .values_mut()
@@ -315,13 +320,13 @@ impl Map {
             let view = DepthView {
                 t_layer_camera: &t_object_camera,
                 k: &k,
-                pixels: pixels_ref,
+                pixels,
             };
             integrate(
                 &mut object.volume,
                 &view,
                 Owned {
-                    labels: owner_ref,
+                    labels: &owner,
                     id,
                     pixels: by_owner_ref.get(&id).map_or(&[], Vec::as_slice),
                 },
@@ -333,7 +338,7 @@ impl Map {
         let view = DepthView {
             t_layer_camera: &frame.t_world_camera,
             k: &k,
-            pixels: &pixels,
+            pixels,
         };
         integrate(
             &mut self.background,
