@@ -307,7 +307,6 @@ impl Map {
         self.frame_pixels.prepare(&k, frame.depth_m, &params);
         let pixels = &self.frame_pixels;
         let by_owner = pixels_by_label(&owner);
-        let by_owner_ref = &by_owner;
         let work: Vec<&mut MapObject> = self
             .objects
             .values_mut()
@@ -328,13 +327,16 @@ impl Map {
                 Owned {
                     labels: &owner,
                     id,
-                    pixels: by_owner_ref.get(&id).map_or(&[], Vec::as_slice),
+                    pixels: by_owner.get(&id).map_or(&[], Vec::as_slice),
                 },
                 &params,
                 true,
             );
         });
         let objects_at = std::time::Instant::now();
+        let background_pixels: Vec<u32> = (0..instance.len() as u32)
+            .filter(|&i| instance[i as usize] == 0)
+            .collect();
         let view = DepthView {
             t_layer_camera: &frame.t_world_camera,
             k: &k,
@@ -346,12 +348,7 @@ impl Map {
             Owned {
                 labels: instance,
                 id: 0,
-                pixels: &instance
-                    .iter()
-                    .enumerate()
-                    .filter(|&(_, &label)| label == 0)
-                    .map(|(i, _)| i as u32)
-                    .collect::<Vec<_>>(),
+                pixels: &background_pixels,
             },
             &params,
             false,
