@@ -163,6 +163,28 @@ fn bench(c: &mut Criterion) {
     );
     compare_with_open3d(ours, ours_integration);
     compare_renderers(&warm, &frames);
+    time_surface_points(&map);
+}
+
+/// Gathering the map's surface points, which the actor's state does once
+/// per step for its projections: a scan of every voxel of the map.
+fn time_surface_points(map: &Map) {
+    let mut times = Vec::new();
+    for _ in 0..50 {
+        let started = std::time::Instant::now();
+        std::hint::black_box(map.surface_points());
+        times.push(started.elapsed().as_secs_f64());
+    }
+    times.sort_by(f64::total_cmp);
+    eprintln!(
+        "surface points of the whole map ({} blocks): median {:.3} ms",
+        map.objects()
+            .values()
+            .map(|o| o.volume.len())
+            .sum::<usize>()
+            + map.background().len(),
+        times[times.len() / 2] * 1e3
+    );
 }
 
 /// Rendering the objects for association: `render_layers` (a quarter of
