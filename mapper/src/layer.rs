@@ -146,12 +146,6 @@ impl Layer {
         VoxelIndex([p.x, p.y, p.z].map(|c| floor_to_i32(c / self.voxel_size_m)))
     }
 
-    /// The block containing point `p`.
-    pub fn block_of(&self, p: &Point3<f32>) -> BlockIndex {
-        let s = self.block_size_m();
-        BlockIndex([p.x, p.y, p.z].map(|c| floor_to_i32(c / s)))
-    }
-
     /// Centre of a voxel (layer frame).
     pub fn voxel_center(&self, v: VoxelIndex) -> Point3<f32> {
         let s = self.voxel_size_m;
@@ -331,7 +325,7 @@ mod tests {
             VoxelIndex([-1, 0, 0])
         );
         assert_eq!(
-            layer.block_of(&Point3::new(-0.001, 0.3199, 0.32)),
+            layer.voxel_of(&Point3::new(-0.001, 0.3199, 0.32)).split().0,
             BlockIndex([-1, 0, 1])
         );
         for v in [

@@ -12,7 +12,7 @@ use nalgebra::{Point3, Vector3};
 use rustc_hash::FxHashMap;
 
 use crate::camera::Intrinsics;
-use crate::layer::{CachedReader, Layer, VoxelIndex, BLOCK_EDGE};
+use crate::layer::{BlockIndex, CachedReader, Layer, VoxelIndex, BLOCK_EDGE};
 use crate::Pose;
 
 /// Per-pixel nearest surface: depth (z, metres; +∞ = nothing) and owner id (0 = none).
@@ -34,12 +34,40 @@ impl RenderTarget {
     }
 }
 
+/// What a ray learns at one point of a layer.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Sample {
+    /// The SDF there ([`sdf_at`]).
+    Known(f32),
+    /// The voxel there was never observed, in an allocated block.
+    Unobserved,
+    /// The point's block is not allocated.
+    Unallocated(BlockIndex),
+}
+
 /// Known SDF at `p`: trilinear between the eight surrounding voxel centres
 /// when all are observed (sub-voxel silhouettes), else the nearest voxel's;
 /// `None` if unobserved.
 pub(crate) fn sdf_at(reader: &mut CachedReader<'_>, p: &Point3<f32>) -> Option<f32> {
+    match sample(reader, p) {
+        Sample::Known(sdf) => Some(sdf),
+        Sample::Unobserved | Sample::Unallocated(_) => None,
+    }
+}
+
+/// [`sdf_at`], also telling an unobserved voxel from an unallocated block
+/// (which a ray may leap) from the one voxel lookup.
+fn sample(reader: &mut CachedReader<'_>, p: &Point3<f32>) -> Sample {
     let layer = reader.layer();
-    let nearest = reader.observed_sdf(layer.voxel_of(p))?;
+    let (block_index, offset) = layer.voxel_of(p).split();
+    let Some(block) = reader.block(block_index) else {
+        return Sample::Unallocated(block_index);
+    };
+    let voxel = block.voxels[offset];
+    if voxel.weight <= 0.0 {
+        return Sample::Unobserved;
+    }
+    let nearest = voxel.sdf;
     let s = layer.voxel_size_m;
     let g = [p.x / s - 0.5, p.y / s - 0.5, p.z / s - 0.5];
     let base = g.map(crate::layer::floor_to_i32);
@@ -63,12 +91,14 @@ pub(crate) fn sdf_at(reader: &mut CachedReader<'_>, p: &Point3<f32>) -> Option<f
     let mut sum = 0.0;
     if interior {
         // The whole stencil lies in one block: index it directly.
-        let block = reader.block(block_index)?;
+        let Some(block) = reader.block(block_index) else {
+            return Sample::Unobserved;
+        };
         for corner in 0..8 {
             let o = first + (corner & 1) + edge * ((corner >> 1) & 1) + edge * edge * (corner >> 2);
             let v = block.voxels[o];
             if v.weight <= 0.0 {
-                return Some(nearest);
+                return Sample::Known(nearest);
             }
             sum += weight(corner) * v.sdf;
         }
@@ -76,12 +106,12 @@ pub(crate) fn sdf_at(reader: &mut CachedReader<'_>, p: &Point3<f32>) -> Option<f
         for corner in 0..8 {
             let index = VoxelIndex([0, 1, 2].map(|a| base[a] + ((corner >> a) & 1) as i32));
             let Some(sdf) = reader.observed_sdf(index) else {
-                return Some(nearest);
+                return Sample::Known(nearest);
             };
             sum += weight(corner) * sdf;
         }
     }
-    Some(sum)
+    Sample::Known(sum)
 }
 
 /// Pixel rectangle covered by the projection of the box `[lo, hi]` (layer frame).
@@ -156,10 +186,9 @@ fn slab(
     (z0 <= z1).then_some((z0, z1))
 }
 
-/// Ray parameter where the ray `o + z·d` leaves the block containing `p`.
-fn block_exit(layer: &Layer, p: &Point3<f32>, o: &Point3<f32>, d: &Vector3<f32>) -> f32 {
+/// Ray parameter where the ray `o + z·d` leaves block `b`.
+fn block_exit(layer: &Layer, b: BlockIndex, o: &Point3<f32>, d: &Vector3<f32>) -> f32 {
     let s = layer.block_size_m();
-    let b = layer.block_of(p);
     (0..3)
         .filter(|&a| d[a].abs() > 1e-9)
         .map(|a| {
@@ -262,8 +291,9 @@ impl Marcher<'_> {
         let mut z = z0.max(self.min_depth_m);
         let mut previous: Option<(f32, f32)> = None;
         while z <= z_end {
-            let sample = sdf_at(reader, &(origin + dir * z));
-            if let (Some((zp, sp)), Some(s)) = (previous, sample) {
+            let p = origin + dir * z;
+            let here = sample(reader, &p);
+            if let (Some((zp, sp)), Sample::Known(s)) = (previous, here) {
                 if sp > 0.0 && s <= 0.0 {
                     let hit = zp + (z - zp) * sp / (sp - s);
                     return (hit < z_limit).then_some(hit);
@@ -272,18 +302,13 @@ impl Marcher<'_> {
             // Sphere-trace through known free space; half voxels near the
             // surface; unobserved space holds no crossing, so leap it: to
             // the exit of an unallocated block, else a whole voxel.
-            previous = sample.map(|s| (z, s));
-            z = match sample {
-                Some(s) if s > voxel => z + 0.8 * s / metres_per_z,
-                Some(_) => z + 0.5 * voxel / metres_per_z,
-                None => {
-                    let p = origin + dir * z;
-                    let next = z + voxel / metres_per_z;
-                    if reader.block(layer.block_of(&p)).is_some() {
-                        next
-                    } else {
-                        block_exit(layer, &p, &origin, dir).max(next)
-                    }
+            let next = z + voxel / metres_per_z;
+            (previous, z) = match here {
+                Sample::Known(s) if s > voxel => (Some((z, s)), z + 0.8 * s / metres_per_z),
+                Sample::Known(s) => (Some((z, s)), z + 0.5 * voxel / metres_per_z),
+                Sample::Unobserved => (None, next),
+                Sample::Unallocated(block) => {
+                    (None, block_exit(layer, block, &origin, dir).max(next))
                 }
             };
         }
