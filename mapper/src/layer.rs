@@ -172,11 +172,6 @@ impl Layer {
         self.blocks.entry(b).or_default()
     }
 
-    /// The block at `b`, if allocated.
-    pub fn block_mut(&mut self, b: BlockIndex) -> Option<&mut Block> {
-        self.blocks.get_mut(&b)
-    }
-
     /// Frees the block at `b` (a no-op if it is not allocated).
     pub fn remove_block(&mut self, b: BlockIndex) {
         self.blocks.remove(&b);
