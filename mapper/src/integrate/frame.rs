@@ -1,0 +1,232 @@
+//! One depth frame prepared for integration: what every layer's voxels read
+//! of a pixel, computed once per frame instead of once per layer.
+
+use nalgebra::Point3;
+
+use super::IntegrationParams;
+use crate::camera::Intrinsics;
+
+/// What integration reads of one pixel, gathered once per frame into one
+/// record, so each voxel reads one record instead of four images.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct PixelRecord {
+    /// Z-depth in metres; NaN where unusable (and for the off-image sentinel).
+    pub(super) depth: f32,
+    /// The factor from [`write_normal_cosines`].
+    pub(super) cos: f32,
+    /// The pixel may carve other surfaces ([`mark_carving_pixels`]).
+    pub(super) may_carve: bool,
+    /// Depth may be interpolated between this pixel and its right, lower and
+    /// lower-right neighbours: all four usable and on one smooth surface
+    /// (within one truncation distance).
+    smooth_quad: bool,
+}
+
+/// One depth frame prepared for integration into any number of layers: per
+/// pixel its usable depth, normal cosine, carving permission and whether
+/// bilinear interpolation may start there, plus an off-image sentinel.
+/// Kept by the map and refilled each frame: fresh buffers of this size cost
+/// page faults every frame.
+#[derive(Debug, Clone, Default)]
+pub struct FramePixels {
+    width: usize,
+    /// `width × height` records, then the sentinel (depth NaN) that voxels
+    /// landing outside the image read.
+    pub(super) records: Vec<PixelRecord>,
+    /// Each pixel's camera-frame point, where its depth is usable.
+    pub(super) points: Vec<Option<Point3<f32>>>,
+    /// Scratch for [`mark_carving_pixels`].
+    row_min: Vec<f32>,
+}
+
+impl FramePixels {
+    /// Prepares `depth_m` (z-depth per pixel) for integration, reusing this
+    /// value's buffers.
+    pub fn prepare(&mut self, k: &Intrinsics, depth_m: &[f32], params: &IntegrationParams) {
+        self.width = k.width;
+        fill_camera_points(k, depth_m, params, &mut self.points);
+        self.records.clear();
+        self.records.extend(depth_m.iter().map(|&d| PixelRecord {
+            depth: if params.valid_depth(d) { d } else { f32::NAN },
+            cos: 1.0,
+            may_carve: false,
+            smooth_quad: false,
+        }));
+        write_normal_cosines(k, &self.points, params, &mut self.records);
+        mark_carving_pixels(k, params, &mut self.records, &mut self.row_min);
+        mark_smooth_quads(k, params, &mut self.records);
+        self.records.push(PixelRecord {
+            depth: f32::NAN,
+            cos: 1.0,
+            may_carve: false,
+            smooth_quad: false,
+        });
+    }
+
+    /// The index voxels landing outside the image read.
+    pub(super) fn off_image(&self) -> u32 {
+        (self.records.len() - 1) as u32
+    }
+
+    /// Depth at continuous pixel coordinates `(u, v)`, whose nearest pixel
+    /// has depth `nearest`: bilinear between the four surrounding pixels
+    /// where they form a smooth quad, else `nearest`. At 128 × 128 a pixel
+    /// spans about a voxel at 2 m, so nearest-pixel lookup alone leaves
+    /// errors of half a voxel on slanted surfaces.
+    #[inline]
+    pub(super) fn depth_at(&self, u: f32, v: f32, nearest: f32) -> f32 {
+        if !(u >= 0.0 && v >= 0.0) {
+            return nearest;
+        }
+        let (u0, v0) = ((u as usize) as f32, (v as usize) as f32);
+        let i = v0 as usize * self.width + u0 as usize;
+        if !self.records[i].smooth_quad {
+            return nearest;
+        }
+        let w = self.width;
+        let q = [i, i + 1, i + w, i + w + 1].map(|j| self.records[j].depth);
+        let (fu, fv) = (u - u0, v - v0);
+        (q[0] * (1.0 - fu) + q[1] * fu) * (1.0 - fv) + (q[2] * (1.0 - fu) + q[3] * fu) * fv
+    }
+}
+
+/// Each pixel's camera-frame point where its depth is usable, back-projected
+/// once per frame (a pixel is the neighbour of four others, and the point of
+/// every layer's search for blocks).
+fn fill_camera_points(
+    k: &Intrinsics,
+    depth_m: &[f32],
+    params: &IntegrationParams,
+    points: &mut Vec<Option<Point3<f32>>>,
+) {
+    // The rays' x and y per column and row: the same values as
+    // `Intrinsics::back_project`, without two divisions per pixel.
+    let column_x: Vec<f32> = (0..k.width).map(|u| k.ray(u as f32, 0.0).x).collect();
+    let row_y: Vec<f32> = (0..k.height).map(|v| k.ray(0.0, v as f32).y).collect();
+    points.clear();
+    for (v, &y) in row_y.iter().enumerate() {
+        for (u, &x) in column_x.iter().enumerate() {
+            let d = depth_m[v * k.width + u];
+            points.push(params.valid_depth(d).then(|| Point3::new(x * d, y * d, d)));
+        }
+    }
+}
+
+/// Per pixel, `|cos|` of the angle between the viewing ray and the surface
+/// normal estimated from neighbouring depths: central differences inside a
+/// surface, one-sided at its edges (left at 1 for isolated pixels).
+///
+/// Projective TSDF measures distance along the ray, which overestimates the
+/// distance to the surface by `1 / cos θ` off the normal; multiplying by this
+/// factor turns it into point-to-plane distance (and it down-weights grazing
+/// views). This is a departure from TSDF++/voxblox, which leave the bias in.
+fn write_normal_cosines(
+    k: &Intrinsics,
+    points: &[Option<Point3<f32>>],
+    params: &IntegrationParams,
+    records: &mut [PixelRecord],
+) {
+    let (w, h) = (k.width, k.height);
+    let max_jump = 4.0 * params.truncation_m;
+    for v in 0..h {
+        for u in 0..w {
+            let Some(c) = points[v * w + u] else { continue };
+            let neighbour = |du: isize, dv: isize| {
+                let (x, y) = (u.checked_add_signed(du)?, v.checked_add_signed(dv)?);
+                if x >= w || y >= h {
+                    return None;
+                }
+                points[y * w + x].filter(|p| (p.z - c.z).abs() < max_jump)
+            };
+            // Central differences where both neighbours lie on this surface,
+            // one-sided at its edges: silhouettes are where views graze the
+            // surface, so "unknown" must not mean "head-on" there.
+            let tangent =
+                |before: Option<Point3<f32>>, after: Option<Point3<f32>>| match (before, after) {
+                    (Some(a), Some(b)) => Some(b - a),
+                    (None, Some(b)) => Some(b - c),
+                    (Some(a), None) => Some(c - a),
+                    (None, None) => None,
+                };
+            let (Some(along_u), Some(along_v)) = (
+                tangent(neighbour(-1, 0), neighbour(1, 0)),
+                tangent(neighbour(0, -1), neighbour(0, 1)),
+            ) else {
+                continue;
+            };
+            let n = along_u.cross(&along_v);
+            let norm = n.norm();
+            if norm < 1e-12 {
+                continue;
+            }
+            let ray = c.coords / c.coords.norm();
+            records[v * w + u].cos = (n.dot(&ray) / norm).abs().max(0.2);
+        }
+    }
+}
+
+/// Marks the pixels that may carve other surfaces: those with no neighbour
+/// nearer by more than the truncation distance. A pixel just outside an
+/// object's silhouette sees the far background through the object's edge
+/// voxels; carving from it would erode every object by up to a pixel per
+/// view.
+fn mark_carving_pixels(
+    k: &Intrinsics,
+    params: &IntegrationParams,
+    records: &mut [PixelRecord],
+    row_min: &mut Vec<f32>,
+) {
+    let (w, h) = (k.width, k.height);
+    let near = |r: &PixelRecord| {
+        if r.depth.is_nan() {
+            f32::INFINITY
+        } else {
+            r.depth
+        }
+    };
+    // The nearest usable depth in each pixel's 3 × 3 neighbourhood, as a
+    // minimum along rows and then along columns.
+    row_min.clear();
+    for row in records.chunks_exact(w).take(h) {
+        for u in 0..w {
+            let mut m = near(&row[u]);
+            if u > 0 {
+                m = m.min(near(&row[u - 1]));
+            }
+            if u + 1 < w {
+                m = m.min(near(&row[u + 1]));
+            }
+            row_min.push(m);
+        }
+    }
+    for v in 0..h {
+        let above = v.saturating_sub(1) * w;
+        let below = (v + 1).min(h - 1) * w;
+        for u in 0..w {
+            let i = v * w + u;
+            let d = records[i].depth;
+            let nearest = row_min[i].min(row_min[above + u]).min(row_min[below + u]);
+            records[i].may_carve = !d.is_nan() && nearest >= d - params.truncation_m;
+        }
+    }
+}
+
+/// Marks the pixels where bilinear depth interpolation may start
+/// ([`PixelRecord::smooth_quad`]).
+fn mark_smooth_quads(k: &Intrinsics, params: &IntegrationParams, records: &mut [PixelRecord]) {
+    let (w, h) = (k.width, k.height);
+    for v in 0..h.saturating_sub(1) {
+        for u in 0..w.saturating_sub(1) {
+            let i = v * w + u;
+            let q = [i, i + 1, i + w, i + w + 1].map(|j| records[j].depth);
+            // NaN fails both comparisons, so unusable corners never pass.
+            let (lo, hi) = q
+                .iter()
+                .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &d| {
+                    (lo.min(d), hi.max(d))
+                });
+            records[i].smooth_quad =
+                q.iter().all(|d| !d.is_nan()) && hi - lo <= params.truncation_m;
+        }
+    }
+}
