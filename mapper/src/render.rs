@@ -83,17 +83,17 @@ fn sample(reader: &mut CachedReader<'_>, p: &Point3<f32>) -> Sample {
             })
             .product()
     };
-    let (block_index, first) = VoxelIndex(base).split();
+    let (stencil_block, first) = VoxelIndex(base).split();
     let edge = BLOCK_EDGE as usize;
-    let interior = base
-        .iter()
-        .all(|&i| i.rem_euclid(BLOCK_EDGE) < BLOCK_EDGE - 1);
+    // The nearest voxel is one of the stencil's corners, so a stencil inside
+    // one block lies in the block already read.
+    let interior = stencil_block == block_index
+        && base
+            .iter()
+            .all(|&i| i.rem_euclid(BLOCK_EDGE) < BLOCK_EDGE - 1);
     let mut sum = 0.0;
     if interior {
         // The whole stencil lies in one block: index it directly.
-        let Some(block) = reader.block(block_index) else {
-            return Sample::Unobserved;
-        };
         for corner in 0..8 {
             let o = first + (corner & 1) + edge * ((corner >> 1) & 1) + edge * edge * (corner >> 2);
             let v = block.voxels[o];
