@@ -26,6 +26,8 @@ Options:
   --data DIR        shared data (iTHOR rooms, object catalogue); default ../shared/data
   --scenes S        ithor (the 20 training rooms, default) or generated
   --renderer R      gpu (wgpu: a GPU or Mesa lavapipe, default) or cpu
+  --seed N          the run's seed (default 0): initial networks, rooms, actions;
+                    runs that differ only in --seed are independent repeats
   --port PORT       HTTP port of the learner's metrics endpoint (default 9464)
   --debug           use debug builds (faster to build, slower to run)
   --bin-dir DIR     use the learner and actor binaries in DIR; build nothing
@@ -37,7 +39,7 @@ ignores SIGINT).
 USAGE
 }
 
-ACTORS="" RUN_DIR="" RESUME=0 PORT=9464 PROFILE=release BIN=""
+ACTORS="" RUN_DIR="" RESUME=0 PORT=9464 PROFILE=release BIN="" SEED=0
 TASK_ARGS=() ACTOR_ARGS=() METHOD=ours ENV_KIND=sim
 EXTRA=()
 while [[ $# -gt 0 ]]; do
@@ -53,6 +55,7 @@ while [[ $# -gt 0 ]]; do
     --scenes) ACTOR_ARGS+=(--scenes "${2:?--scenes needs a value}"); shift 2 ;;
     --renderer) ACTOR_ARGS+=(--renderer "${2:?--renderer needs a value}"); shift 2 ;;
     --port) PORT="${2:?--port needs a number}"; shift 2 ;;
+    --seed) SEED="${2:?--seed needs a number}"; TASK_ARGS+=(--seed "$SEED"); shift 2 ;;
     --debug) PROFILE=debug; shift ;;
     --bin-dir) BIN="$(cd "${2:?--bin-dir needs a directory}" && pwd)"; shift 2 ;;
     -h|--help) usage; exit 0 ;;
@@ -61,6 +64,7 @@ while [[ $# -gt 0 ]]; do
   esac
 done
 [[ "$ACTORS" =~ ^[1-9][0-9]*$ ]] || { echo "local.sh: --actors N is required (N >= 1)" >&2; usage >&2; exit 2; }
+[[ "$SEED" =~ ^[0-9]+$ ]] || { echo "local.sh: --seed needs a non-negative integer, got '$SEED'" >&2; exit 2; }
 if [[ $RESUME -eq 1 && -z "$RUN_DIR" ]]; then
   echo "local.sh: --resume needs --run-dir DIR (the run to resume)" >&2; exit 2
 fi
@@ -101,6 +105,11 @@ fi
 mkdir -p "$RUN_DIR/logs"
 RUN_DIR=$(cd "$RUN_DIR" && pwd)
 LOGS="$RUN_DIR/logs"
+if [[ $RESUME -eq 1 && -f "$RUN_DIR/config.toml" ]]; then
+  # The actors keep the run's seed (the learner's [policy] seed).
+  SAVED_SEED=$(sed -n 's/^seed = \([0-9][0-9]*\)$/\1/p' "$RUN_DIR/config.toml" | head -n 1)
+  SEED=${SAVED_SEED:-$SEED}
+fi
 PREFIX="afx-$(basename "$RUN_DIR" | tr -cd 'A-Za-z0-9_-')"
 STOP_FILE="$LOGS/.stopping"
 rm -f "$STOP_FILE" "$RUN_DIR/http.addr"
@@ -129,7 +138,7 @@ curl -fsS --retry 20 --retry-delay 0 --retry-connrefused "http://$ADDR/healthz" 
 supervise_actor() {
   local id=$1 restarts=0 backoff=1 code
   while :; do
-    "$BIN/actor" --actor-id "$id" --learner "$PREFIX" --config "$RUN_DIR/config.toml" --seed "$id" "${ACTOR_ARGS[@]}" \
+    "$BIN/actor" --actor-id "$id" --learner "$PREFIX" --config "$RUN_DIR/config.toml" --seed "$SEED" "${ACTOR_ARGS[@]}" \
       >>"$LOGS/actor-$id.log" 2>&1 &
     echo $! >"$LOGS/actor-$id.pid"
     code=0; wait $! || code=$?

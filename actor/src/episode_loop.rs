@@ -27,7 +27,9 @@ pub struct LoopSettings {
     pub actor_id: u32,
     /// Steps per rollout chunk.
     pub chunk_steps: usize,
-    /// Base seed; episode `k` of actor `a` resets with a seed derived from all three.
+    /// Base seed; episode `k` of actor `a` resets with a seed derived from
+    /// all three and from the run's environment steps when the actor
+    /// started ([`episode_seed`]).
     pub seed: u64,
     /// Stop after this many episodes (None = until SIGINT/SIGTERM).
     pub max_episodes: Option<u64>,
@@ -58,6 +60,28 @@ struct Policy {
     layout: PolicyLayout,
     policy_version: u64,
     unet_version: u64,
+    /// The run's environment steps over all actors when the learner sent
+    /// these weights (0 if it did not say).
+    env_steps: u64,
+}
+
+/// The seed of this process's random choices: `settings.seed`, moved on by
+/// the run's environment steps when the process got its first weights. A
+/// fresh run starts at 0 steps, so its seeds are the base seed's; an actor
+/// restarted mid-run, or a resumed run, starts later and does not replay
+/// the rooms and actions of the episodes it ran before.
+fn process_seed(settings: &LoopSettings, started_at_steps: u64) -> u64 {
+    settings
+        .seed
+        .wrapping_add(started_at_steps.wrapping_mul(0x9E37_79B9_7F4A_7C15))
+}
+
+/// The reset seed of this process's episode `episode`: distinct per actor
+/// and per episode.
+fn episode_seed(process_seed: u64, actor_id: u32, episode: u64) -> u64 {
+    process_seed
+        .wrapping_add(episode.wrapping_mul(1_000_003))
+        .wrapping_add(u64::from(actor_id))
 }
 
 /// Back-off after rollouts the learner had no room for: its queue for this
@@ -117,8 +141,9 @@ fn load_weights(
     )?;
     let metadata = nets::weights::metadata(weights.bytes()).unwrap_or_default();
     let number = |key: &str| metadata.get(key).and_then(|v| v.parse::<f64>().ok());
-    if let Some(steps) = number(WEIGHTS_META_ENV_STEPS) {
-        env.set_global_steps(steps as u64);
+    let env_steps = number(WEIGHTS_META_ENV_STEPS).map(|steps| steps as u64);
+    if let Some(steps) = env_steps {
+        env.set_global_steps(steps);
     }
     let has_unet = weights
         .tensors()
@@ -139,6 +164,7 @@ fn load_weights(
         layout,
         policy_version: header.policy_version,
         unet_version: header.unet_version,
+        env_steps: env_steps.unwrap_or(0),
     })
 }
 
@@ -298,7 +324,8 @@ pub fn run(
         settings.actor_id, policy.policy_version, policy.unet_version
     );
 
-    let mut rng = SmallRng::seed_from_u64(settings.seed ^ (u64::from(settings.actor_id) << 32));
+    let seed = process_seed(settings, policy.env_steps);
+    let mut rng = SmallRng::seed_from_u64(seed ^ (u64::from(settings.actor_id) << 32));
     let mut summary = LoopSummary::default();
     let mut backoff = Backoff::default();
     let count = |d: Delivery, s: &mut LoopSummary| match d {
@@ -310,12 +337,8 @@ pub fn run(
     {
         let episode_id = summary.episodes;
         let started = Instant::now();
-        let mut observation: Observation = env.reset(
-            settings
-                .seed
-                .wrapping_add(episode_id.wrapping_mul(1_000_003))
-                .wrapping_add(u64::from(settings.actor_id)),
-        )?;
+        let mut observation: Observation =
+            env.reset(episode_seed(seed, settings.actor_id, episode_id))?;
         let (mut step, mut episode_return) = (0u32, 0.0f32);
         // The GRU state before the next step; `None` = zeros (episode start).
         let mut hidden: Option<Tensor<2>> = None;
@@ -402,6 +425,35 @@ pub fn run(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_fresh_run_keeps_its_seeds_and_a_restarted_actor_does_not_replay_them() {
+        let settings = LoopSettings {
+            actor_id: 1,
+            chunk_steps: 16,
+            seed: 7,
+            max_episodes: None,
+            weights_timeout: Duration::from_secs(1),
+        };
+        let seeds = |started_at_steps: u64, actor_id: u32| -> Vec<u64> {
+            let seed = process_seed(&settings, started_at_steps);
+            (0..2000).map(|k| episode_seed(seed, actor_id, k)).collect()
+        };
+        // A fresh run: the seeds runs have always had, so runs reproduce.
+        let fresh = seeds(0, 1);
+        assert_eq!(fresh[3], 7 + 3 * 1_000_003 + 1);
+        // The same actor restarted (or the run resumed) later in the run, and
+        // another actor: none of their episodes repeats one of these.
+        let fresh: std::collections::HashSet<u64> = fresh.into_iter().collect();
+        for (started_at_steps, actor_id) in [(1, 1), (600, 1), (48_000, 1), (0, 2), (600, 2)] {
+            let other = seeds(started_at_steps, actor_id);
+            let repeated = other.iter().filter(|s| fresh.contains(s)).count();
+            assert_eq!(
+                repeated, 0,
+                "started at {started_at_steps} steps, actor {actor_id}: {repeated} repeated seeds"
+            );
+        }
+    }
 
     #[test]
     fn frames_split_into_messages_that_fit_and_lose_nothing() {

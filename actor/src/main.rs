@@ -86,7 +86,9 @@ struct RunArgs {
     /// Steps per rollout chunk sent to the learner.
     #[arg(long, default_value_t = 16)]
     chunk_steps: usize,
-    /// Base random seed.
+    /// Base random seed: rooms, their randomisation and sampled actions.
+    /// Moved on by the run's environment steps when the actor starts, so a
+    /// restarted actor, or a resumed run, does not replay its episodes.
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Stop after this many episodes (default: run until SIGINT/SIGTERM).

@@ -59,7 +59,8 @@ pub struct PolicyConfig {
     /// actors × 600 steps; the default fits a 2-core machine's memory and
     /// time at 128 × 128 (each step's observation is ~0.4 MB as floats).
     pub batch_steps: usize,
-    /// Seed of minibatch shuffling and of the dataset split.
+    /// The run's seed: initial weights of both networks, minibatch
+    /// shuffling and the dataset split.
     pub seed: u64,
 }
 

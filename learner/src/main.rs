@@ -85,6 +85,11 @@ struct ServeArgs {
     /// Steps per episode (overrides [task] episode_steps).
     #[arg(long, conflicts_with = "resume")]
     episode_steps: Option<usize>,
+    /// The run's seed: initial weights of both networks, minibatch shuffling
+    /// and the dataset split (overrides [policy] seed). Give the actors the
+    /// same `--seed` for a run that differs from others in every random choice.
+    #[arg(long, conflicts_with = "resume")]
+    seed: Option<u64>,
 }
 
 /// Parses a kebab-case enum value the way the config file spells it.
@@ -183,6 +188,9 @@ fn load_config(args: &ServeArgs, run_dir: &Path) -> anyhow::Result<LearnerConfig
     }
     if let Some(steps) = args.episode_steps {
         config.task.episode_steps = steps;
+    }
+    if let Some(seed) = args.seed {
+        config.policy.seed = seed;
     }
     config.validate()?;
     Ok(config)

@@ -67,8 +67,11 @@ pub struct Trainers {
 }
 
 impl Trainers {
-    /// Fresh networks for the configured task on `device`.
+    /// Fresh networks for the configured task on `device`, initialised from
+    /// the run's seed (`[policy] seed`): runs with the same seed start from
+    /// the same weights, runs with different seeds from different ones.
     pub fn new(config: &LearnerConfig, device: &burn::prelude::Device) -> Self {
+        device.seed(config.policy.seed);
         let affordance = (config.task.env == proto::EnvKind::Sim).then(|| {
             AffordanceLearner::new(
                 config.task.affordances.len(),

@@ -36,6 +36,9 @@ fn free_port() -> u16 {
         .port()
 }
 
+/// The `--seed` every launch gives.
+const RUN_SEED: &str = "7";
+
 /// Starts the script and waits until both actors feed the learner.
 fn launch(dir: &Path, case: &str) -> Launch {
     let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
@@ -51,6 +54,7 @@ fn launch(dir: &Path, case: &str) -> Launch {
         .arg("--run-dir")
         .arg(&run_dir)
         .args(["--port", &port.to_string()])
+        .args(["--seed", RUN_SEED])
         .stdout(Stdio::from(out.try_clone().expect("log handle")))
         .stderr(Stdio::from(out))
         .process_group(0)
@@ -146,6 +150,23 @@ fn assert_stopped_cleanly(mut launch: Launch) {
 fn sigterm_to_the_script_stops_actors_then_the_learner() {
     let dir = scratch_dir("local-sh-term");
     let launch = launch(&dir, "term");
+    // `--seed` reaches the learner (its saved config) and every actor.
+    let config = std::fs::read_to_string(launch.run_dir.join("config.toml")).expect("config.toml");
+    assert!(
+        config.lines().any(|l| l == format!("seed = {RUN_SEED}")),
+        "the run's config does not hold seed {RUN_SEED}:\n{config}"
+    );
+    let actors: Vec<String> = survivors(&launch.prefix)
+        .into_iter()
+        .filter(|c| c.contains("--actor-id"))
+        .collect();
+    assert_eq!(actors.len(), 2, "two actors: {actors:?}");
+    assert!(
+        actors
+            .iter()
+            .all(|c| c.contains(&format!("--seed {RUN_SEED} "))),
+        "actors without --seed {RUN_SEED}: {actors:?}"
+    );
     // SAFETY: kill(2) on our own child's pid has no memory-safety preconditions.
     unsafe {
         libc::kill(launch.script.id() as i32, libc::SIGTERM);
