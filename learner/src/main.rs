@@ -32,8 +32,12 @@ enum Command {
     /// SVG; with several --run-dir, one line per run to compare them.
     Plot {
         /// A run directory (holds history.jsonl); repeat to compare runs.
-        #[arg(long, required = true)]
-        run_dir: Vec<PathBuf>,
+        /// Several directories joined by commas are repeats of one setting
+        /// (seeds), drawn as their mean in a band from their lowest to their
+        /// highest value; `LABEL=` in front names the line:
+        /// `--run-dir ours=runs/a,runs/b`.
+        #[arg(long, required = true, value_name = "[LABEL=]DIR[,DIR...]")]
+        run_dir: Vec<learner::plot::RunGroup>,
         /// SVG file to write (default RUN_DIR/training_curves.svg for one run;
         /// required for several).
         #[arg(long)]
@@ -124,19 +128,19 @@ fn main() -> anyhow::Result<()> {
         } => {
             let out = match (out, run_dir.as_slice()) {
                 (Some(out), _) => out,
-                (None, [one]) => one.join("training_curves.svg"),
+                (None, [one]) if one.dirs.len() == 1 => one.dirs[0].join("training_curves.svg"),
                 (None, _) => anyhow::bail!(
-                    "several --run-dir given: say where the comparison goes with --out FILE.svg"
+                    "several runs given: say where the comparison goes with --out FILE.svg"
                 ),
             };
-            let runs: Vec<&std::path::Path> = run_dir.iter().map(PathBuf::as_path).collect();
-            let episodes = learner::plot::plot(&runs, &out, window)?;
-            if runs.len() == 1 {
+            let episodes = learner::plot::plot(&run_dir, &out, window)?;
+            let runs: usize = run_dir.iter().map(|g| g.dirs.len()).sum();
+            if runs == 1 {
                 println!("plotted {episodes} episodes into {}", out.display());
             } else {
                 println!(
-                    "plotted {} runs (the longest has {episodes} episodes) into {}",
-                    runs.len(),
+                    "plotted {runs} runs as {} lines (the longest run has {episodes} episodes) into {}",
+                    run_dir.len(),
                     out.display()
                 );
             }

@@ -1,9 +1,11 @@
 //! `learner plot`: the paper's six training curves (Fig. 3) from a run's
 //! `history.jsonl`, as one SVG: per-episode values over environment steps
 //! (dots) and their moving average (line); or several runs' moving averages
-//! in one figure, to compare methods.
+//! in one figure, to compare methods; or groups of repeats (seeds) as their
+//! mean with a min–max band.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
 
 use plotters::prelude::*;
 
@@ -56,6 +58,112 @@ pub fn moving_average(series: &Series, window: usize) -> Series {
         .collect()
 }
 
+/// Runs drawn as one line: one run, or repeats of one setting (seeds).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunGroup {
+    /// The line's name in the legend (default: from the directories' names).
+    pub label: Option<String>,
+    /// Run directories, each holding a `history.jsonl`.
+    pub dirs: Vec<PathBuf>,
+}
+
+impl FromStr for RunGroup {
+    type Err = String;
+
+    /// `[LABEL=]DIR[,DIR...]`: one run directory, or several (repeats of one
+    /// setting) joined by commas; an optional name for the legend.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let (label, dirs) = match s.split_once('=') {
+            Some((label, dirs)) if !label.contains('/') => (Some(label.to_string()), dirs),
+            _ => (None, s),
+        };
+        let dirs: Vec<PathBuf> = dirs.split(',').map(PathBuf::from).collect();
+        if dirs.iter().any(|d| d.as_os_str().is_empty()) {
+            return Err(format!(
+                "{s:?}: expected [LABEL=]DIR[,DIR...] (an empty directory name)"
+            ));
+        }
+        Ok(Self { label, dirs })
+    }
+}
+
+impl RunGroup {
+    /// The name in a legend: the label, else the run's directory name, else
+    /// the repeats' names' common leading parts and their count.
+    fn name(&self) -> String {
+        let names: Vec<String> = self.dirs.iter().map(|d| run_name(d)).collect();
+        if let Some(label) = &self.label {
+            return label.clone();
+        }
+        if let [one] = names.as_slice() {
+            return one.clone();
+        }
+        let common = names[1..].iter().fold(names[0].as_str(), |prefix, name| {
+            let len = prefix
+                .char_indices()
+                .zip(name.chars())
+                .take_while(|((_, a), b)| a == b)
+                .last()
+                .map_or(0, |((i, a), _)| i + a.len_utf8());
+            &prefix[..len]
+        });
+        // Whole name parts only: "x-seed1", "x-seed2" → "x".
+        let separators = ['-', '_', '.'];
+        let whole = names.iter().all(|n| {
+            n[common.len()..]
+                .chars()
+                .next()
+                .is_none_or(|c| separators.contains(&c))
+        });
+        let common = if whole {
+            common
+        } else {
+            common.rfind(separators).map_or("", |i| &common[..i])
+        };
+        let common = common.trim_end_matches(separators);
+        let stem = if common.is_empty() { &names[0] } else { common };
+        format!("{stem} ({} runs)", names.len())
+    }
+}
+
+/// A group of repeats as one curve: at `points` steps evenly spread up to
+/// where the shortest run ends, the mean, lowest and highest of the runs'
+/// moving averages (each run's latest value at or before that step).
+/// Steps before every run has a value are left out.
+pub fn group_curve(runs: &[Series], window: usize, points: usize) -> Vec<(f64, f64, f64, f64)> {
+    let averaged: Vec<Series> = runs
+        .iter()
+        .filter(|s| !s.is_empty())
+        .map(|s| moving_average(s, window))
+        .collect();
+    if averaged.len() < runs.len() || runs.is_empty() {
+        return Vec::new();
+    }
+    let start = averaged.iter().map(|s| s[0].0).fold(f64::MIN, f64::max);
+    let end = averaged
+        .iter()
+        .map(|s| s[s.len() - 1].0)
+        .fold(f64::MAX, f64::min);
+    let points = points.max(2);
+    (0..points)
+        .map(|i| end * i as f64 / (points - 1) as f64)
+        .filter(|&x| x >= start)
+        .map(|x| {
+            let values: Vec<f64> = averaged
+                .iter()
+                .map(|s| s[s.partition_point(|p| p.0 <= x) - 1].1)
+                .collect();
+            let mean = values.iter().sum::<f64>() / values.len() as f64;
+            let lo = values.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            (x, mean, lo, hi)
+        })
+        .collect()
+}
+
+/// Points of a group's curve.
+const GROUP_POINTS: usize = 200;
+
 /// Line colours of the runs in a comparison, in order (then repeated).
 const RUN_COLOURS: [RGBColor; 6] = [
     RGBColor(214, 39, 40),
@@ -76,35 +184,39 @@ fn run_name(run_dir: &Path) -> String {
 
 /// Draws the six curves into `out` (an SVG file). One run: every episode as
 /// a dot and the moving average as a line. Several runs (a comparison of
-/// methods or settings): one moving-average line per run, with a legend.
-/// Returns the number of episodes of the longest run.
-pub fn plot(run_dirs: &[&Path], out: &Path, window: usize) -> anyhow::Result<usize> {
-    anyhow::ensure!(!run_dirs.is_empty(), "no run directory to plot");
-    let mut runs = Vec::with_capacity(run_dirs.len());
-    for run_dir in run_dirs {
-        let curves = read_curves(run_dir)?;
-        anyhow::ensure!(
-            curves.iter().any(|c| !c.is_empty()),
-            "{} has no episode records yet: let the run report a few episodes first",
-            run_dir.join(HISTORY_FILE).display()
-        );
-        runs.push((run_name(run_dir), curves));
+/// methods or settings): one moving-average line per run, with a legend; a
+/// group of repeats is drawn as their mean, in a band from their lowest to
+/// their highest value. Returns the number of episodes of the longest run.
+pub fn plot(groups: &[RunGroup], out: &Path, window: usize) -> anyhow::Result<usize> {
+    anyhow::ensure!(
+        groups.iter().any(|g| !g.dirs.is_empty()),
+        "no run directory to plot"
+    );
+    let mut runs = Vec::with_capacity(groups.len());
+    for group in groups {
+        let mut curves_of_runs = Vec::with_capacity(group.dirs.len());
+        for run_dir in &group.dirs {
+            let curves = read_curves(run_dir)?;
+            anyhow::ensure!(
+                curves.iter().any(|c| !c.is_empty()),
+                "{} has no episode records yet: let the run report a few episodes first",
+                run_dir.join(HISTORY_FILE).display()
+            );
+            curves_of_runs.push(curves);
+        }
+        runs.push((group.name(), curves_of_runs));
     }
-    let episodes = runs
-        .iter()
-        .flat_map(|(_, curves)| curves.iter().map(Vec::len))
-        .max()
-        .unwrap_or(0);
-    let max_steps = runs
-        .iter()
-        .flat_map(|(_, curves)| curves.iter().flatten())
-        .map(|p| p.0)
-        .fold(1.0f64, f64::max);
+    let all_series = || {
+        runs.iter()
+            .flat_map(|(_, group)| group.iter().flat_map(|curves| curves.iter()))
+    };
+    let episodes = all_series().map(Vec::len).max().unwrap_or(0);
+    let max_steps = all_series().flatten().map(|p| p.0).fold(1.0f64, f64::max);
     let root = SVGBackend::new(out, (1500, 860)).into_drawing_area();
     let draw =
         |e: Box<dyn std::error::Error + '_>| anyhow::anyhow!("drawing {}: {e}", out.display());
     root.fill(&WHITE).map_err(|e| draw(Box::new(e)))?;
-    let comparison = runs.len() > 1;
+    let comparison = runs.len() > 1 || runs[0].1.len() > 1;
     for (index, (panel, (_, title))) in root
         .split_evenly((2, 3))
         .iter()
@@ -113,7 +225,8 @@ pub fn plot(run_dirs: &[&Path], out: &Path, window: usize) -> anyhow::Result<usi
     {
         let top = runs
             .iter()
-            .flat_map(|(_, curves)| curves[index].iter().map(|p| p.1))
+            .flat_map(|(_, group)| group.iter().flat_map(|curves| curves[index].iter()))
+            .map(|p| p.1)
             .fold(0.0f64, f64::max);
         let y_max = if top <= 1.0 { 1.0 } else { top * 1.05 };
         let mut chart = ChartBuilder::on(panel)
@@ -130,27 +243,43 @@ pub fn plot(run_dirs: &[&Path], out: &Path, window: usize) -> anyhow::Result<usi
             .y_labels(6)
             .draw()
             .map_err(|e| draw(Box::new(e)))?;
-        for (run, (name, curves)) in runs.iter().enumerate() {
-            let series = &curves[index];
+        for (run, (name, group)) in runs.iter().enumerate() {
             let colour = if comparison {
                 RUN_COLOURS[run % RUN_COLOURS.len()]
             } else {
                 RED
             };
-            if !comparison {
+            let line = if let [curves] = group.as_slice() {
+                let series = &curves[index];
+                if !comparison {
+                    chart
+                        .draw_series(
+                            series
+                                .iter()
+                                .map(|&p| Circle::new(p, 2, BLUE.mix(0.3).filled())),
+                        )
+                        .map_err(|e| draw(Box::new(e)))?;
+                }
+                moving_average(series, window)
+            } else {
+                let series: Vec<Series> =
+                    group.iter().map(|curves| curves[index].clone()).collect();
+                let curve = group_curve(&series, window, GROUP_POINTS);
+                let band: Vec<(f64, f64)> = curve
+                    .iter()
+                    .map(|&(x, _, _, hi)| (x, hi))
+                    .chain(curve.iter().rev().map(|&(x, _, lo, _)| (x, lo)))
+                    .collect();
                 chart
-                    .draw_series(
-                        series
-                            .iter()
-                            .map(|&p| Circle::new(p, 2, BLUE.mix(0.3).filled())),
-                    )
+                    .draw_series(std::iter::once(Polygon::new(
+                        band,
+                        colour.mix(0.15).filled(),
+                    )))
                     .map_err(|e| draw(Box::new(e)))?;
-            }
+                curve.iter().map(|&(x, mean, _, _)| (x, mean)).collect()
+            };
             let line = chart
-                .draw_series(LineSeries::new(
-                    moving_average(series, window),
-                    colour.stroke_width(2),
-                ))
+                .draw_series(LineSeries::new(line, colour.stroke_width(2)))
                 .map_err(|e| draw(Box::new(e)))?;
             if comparison {
                 line.label(name.as_str()).legend(move |(x, y)| {
@@ -176,6 +305,73 @@ pub fn plot(run_dirs: &[&Path], out: &Path, window: usize) -> anyhow::Result<usi
 mod tests {
     use super::*;
 
+    fn one(dir: &Path) -> RunGroup {
+        RunGroup {
+            label: None,
+            dirs: vec![dir.to_path_buf()],
+        }
+    }
+
+    /// A history file of episodes at `steps`, each with this IoU.
+    fn history(dir: &Path, episodes: &[(u32, f64)]) {
+        let lines: String = episodes
+            .iter()
+            .map(|(steps, iou)| {
+                format!("{{\"kind\":\"episode\",\"env_steps\":{steps},\"stats\":{{\"affordance_iou\":{iou}}}}}\n")
+            })
+            .collect();
+        std::fs::write(dir.join(HISTORY_FILE), lines).unwrap();
+    }
+
+    #[test]
+    fn repeats_are_drawn_as_their_mean_within_their_range() {
+        // Seed A reports 0.2 from step 100 to 1000; seed B 0.4, then 0.6
+        // from step 500, from step 200 to 800.
+        let a: Series = (1..=10).map(|i| (100.0 * i as f64, 0.2)).collect();
+        let b: Series = (2..=8)
+            .map(|i| (100.0 * i as f64, if i < 5 { 0.4 } else { 0.6 }))
+            .collect();
+        let curve = group_curve(&[a.clone(), b.clone()], 1, 9);
+        // Steps 0, 100, …, 800 (the shorter run's end); 0 and 100 come
+        // before seed B's first episode.
+        let steps: Vec<f64> = curve.iter().map(|p| p.0).collect();
+        assert_eq!(steps, [200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0]);
+        for &(x, mean, lo, hi) in &curve {
+            let b_value = if x < 500.0 { 0.4 } else { 0.6 };
+            assert!(
+                (mean - (0.2 + b_value) / 2.0).abs() < 1e-12,
+                "{x}: mean {mean}"
+            );
+            assert_eq!((lo, hi), (0.2, b_value), "{x}");
+        }
+        assert!(group_curve(&[a, Series::new()], 1, 9).is_empty());
+
+        // `--run-dir` values, the legend's names, and a plot with a group.
+        let parsed: RunGroup = "ours=runs/x-seed1,runs/x-seed2".parse().unwrap();
+        assert_eq!(parsed.label.as_deref(), Some("ours"));
+        assert_eq!(parsed.dirs.len(), 2);
+        assert!("runs/a,,runs/b".parse::<RunGroup>().is_err());
+        let root = tempfile::tempdir().unwrap();
+        let dirs: Vec<PathBuf> = ["ours64-seed1", "ours64-seed2", "nomap64"]
+            .iter()
+            .map(|n| root.path().join(n))
+            .collect();
+        for (dir, iou) in dirs.iter().zip([0.2, 0.4, 0.3]) {
+            std::fs::create_dir(dir).unwrap();
+            history(dir, &[(100, iou), (200, iou)]);
+        }
+        let seeds = RunGroup {
+            label: None,
+            dirs: dirs[..2].to_vec(),
+        };
+        assert_eq!(seeds.name(), "ours64 (2 runs)");
+        let svg = root.path().join("seeds.svg");
+        assert_eq!(plot(&[seeds, one(&dirs[2])], &svg, 5).unwrap(), 2);
+        let text = std::fs::read_to_string(&svg).unwrap();
+        assert!(text.contains("ours64 (2 runs)") && text.contains("nomap64"));
+        assert!(text.contains("<polygon"), "no band drawn for the repeats");
+    }
+
     #[test]
     fn moving_average_trails_and_history_records_become_curves() {
         let s: Series = vec![(1.0, 0.0), (2.0, 1.0), (3.0, 2.0), (4.0, 3.0)];
@@ -195,7 +391,7 @@ mod tests {
         assert_eq!(curves[4], vec![(100.0, 0.25), (200.0, 0.5)]);
         assert_eq!(curves[5], vec![(200.0, 0.75)]);
         let svg = dir.path().join("curves.svg");
-        assert_eq!(plot(&[dir.path()], &svg, 5).unwrap(), 2);
+        assert_eq!(plot(&[one(dir.path())], &svg, 5).unwrap(), 2);
         let text = std::fs::read_to_string(&svg).unwrap();
         assert!(text.contains("<svg") && text.contains("affordance IoU"));
 
@@ -206,7 +402,10 @@ mod tests {
             "{\"kind\":\"episode\",\"env_steps\":300,\"stats\":{\"affordance_iou\":0.1}}\n",
         )
         .unwrap();
-        assert_eq!(plot(&[dir.path(), other.path()], &svg, 5).unwrap(), 2);
+        assert_eq!(
+            plot(&[one(dir.path()), one(other.path())], &svg, 5).unwrap(),
+            2
+        );
         let text = std::fs::read_to_string(&svg).unwrap();
         for run in [dir.path(), other.path()] {
             assert!(
@@ -217,7 +416,7 @@ mod tests {
         }
 
         std::fs::write(dir.path().join(HISTORY_FILE), "").unwrap();
-        assert!(plot(&[dir.path()], &svg, 5)
+        assert!(plot(&[one(dir.path())], &svg, 5)
             .unwrap_err()
             .to_string()
             .contains("no episode records"));
