@@ -8,6 +8,11 @@
 //! measured by `cargo bench -p training` (policy inference, one step).
 //!
 //! `cargo bench -p actor --bench env_steps`
+//!
+//! `AFX_DEVICE=gpu` runs the U-Net on the GPU (a build with
+//! `--features nets/gpu`); `AFX_DATA` points at the shared data directory
+//! (default `../shared/data` beside the repository), for running the bench
+//! binary on another machine.
 
 use std::time::{Duration, Instant};
 
@@ -42,8 +47,16 @@ fn main() {
     if std::env::var_os("LP_NUM_THREADS").is_none() {
         std::env::set_var("LP_NUM_THREADS", "1");
     }
-    let data = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
-    let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).expect("cpu");
+    let data = std::env::var_os("AFX_DATA").map_or_else(
+        || std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"),
+        std::path::PathBuf::from,
+    );
+    let choice: nets::device::DeviceChoice = std::env::var("AFX_DEVICE")
+        .unwrap_or_else(|_| "cpu".into())
+        .parse()
+        .expect("AFX_DEVICE: cpu or gpu");
+    let device = nets::device::open_device(choice).expect("the U-Net's device (AFX_DEVICE)");
+    println!("U-Net on {choice:?}; data from {}", data.display());
     let case = |method, image_size, renderer| Case {
         method,
         image_size,
