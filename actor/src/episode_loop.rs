@@ -65,15 +65,13 @@ struct Policy {
     env_steps: u64,
 }
 
-/// The seed of this process's random choices: `settings.seed`, moved on by
+/// The seed of this process's random choices: the `base` seed, moved on by
 /// the run's environment steps when the process got its first weights. A
 /// fresh run starts at 0 steps, so its seeds are the base seed's; an actor
 /// restarted mid-run, or a resumed run, starts later and does not replay
 /// the rooms and actions of the episodes it ran before.
-fn process_seed(settings: &LoopSettings, started_at_steps: u64) -> u64 {
-    settings
-        .seed
-        .wrapping_add(started_at_steps.wrapping_mul(0x9E37_79B9_7F4A_7C15))
+fn process_seed(base: u64, started_at_steps: u64) -> u64 {
+    base.wrapping_add(started_at_steps.wrapping_mul(0x9E37_79B9_7F4A_7C15))
 }
 
 /// The reset seed of this process's episode `episode`: distinct per actor
@@ -324,7 +322,7 @@ pub fn run(
         settings.actor_id, policy.policy_version, policy.unet_version
     );
 
-    let seed = process_seed(settings, policy.env_steps);
+    let seed = process_seed(settings.seed, policy.env_steps);
     let mut rng = SmallRng::seed_from_u64(seed ^ (u64::from(settings.actor_id) << 32));
     let mut summary = LoopSummary::default();
     let mut backoff = Backoff::default();
@@ -428,15 +426,8 @@ mod tests {
 
     #[test]
     fn a_fresh_run_keeps_its_seeds_and_a_restarted_actor_does_not_replay_them() {
-        let settings = LoopSettings {
-            actor_id: 1,
-            chunk_steps: 16,
-            seed: 7,
-            max_episodes: None,
-            weights_timeout: Duration::from_secs(1),
-        };
         let seeds = |started_at_steps: u64, actor_id: u32| -> Vec<u64> {
-            let seed = process_seed(&settings, started_at_steps);
+            let seed = process_seed(7, started_at_steps);
             (0..2000).map(|k| episode_seed(seed, actor_id, k)).collect()
         };
         // A fresh run: the seeds runs have always had, so runs reproduce.

@@ -91,10 +91,10 @@ impl RunGroup {
     /// The name in a legend: the label, else the run's directory name, else
     /// the repeats' names' common leading parts and their count.
     fn name(&self) -> String {
-        let names: Vec<String> = self.dirs.iter().map(|d| run_name(d)).collect();
         if let Some(label) = &self.label {
             return label.clone();
         }
+        let names: Vec<String> = self.dirs.iter().map(|d| run_name(d)).collect();
         if let [one] = names.as_slice() {
             return one.clone();
         }

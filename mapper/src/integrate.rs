@@ -110,12 +110,12 @@ fn neighbour_bit(offset: [i32; 3]) -> u32 {
 
 /// Existing blocks whose centre lies in the view frustum (carving candidates).
 fn blocks_in_view(layer: &Layer, t_camera_layer: &Pose, k: &Intrinsics) -> Vec<BlockIndex> {
-    let half = layer.block_size_m() / 2.0;
+    let s = layer.block_size_m();
+    let half = s / 2.0;
     layer
         .block_indices()
         .into_iter()
         .filter(|b| {
-            let s = layer.block_size_m();
             let c = Point3::new(
                 b.0[0] as f32 * s + half,
                 b.0[1] as f32 * s + half,
