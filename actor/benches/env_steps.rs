@@ -99,23 +99,18 @@ fn main() {
             episode_steps: STEPS,
             ..SimEnvConfig::paper(method, &AFFORDANCES)
         };
-        let mut env = SimEnv::new(
-            config,
-            source,
-            profile,
-            renderer,
-            AffordanceModel::new(AFFORDANCES.len(), &device),
-        );
+        let model = AffordanceModel::new(AFFORDANCES.len(), &device);
+        let mut env = SimEnv::new(config, source, profile, renderer);
         let mut rng = StdRng::seed_from_u64(1);
         let reset_started = Instant::now();
-        let mut observation = env.reset(1).expect("reset");
+        let mut observation = env.reset(1, &model).expect("reset");
         let reset = reset_started.elapsed();
         let mut stages: Vec<StepTimings> = Vec::with_capacity(STEPS);
         let start = Instant::now();
         for _ in 0..STEPS {
             let action =
                 random_allowed_action(env.action_space(), &observation.mask, 0.5, &mut rng);
-            observation = env.step(action).expect("step").observation;
+            observation = env.step(action, &model).expect("step").observation;
             stages.push(env.last_timings());
         }
         let elapsed = start.elapsed();

@@ -5,7 +5,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use anyhow::{bail, Context};
+use anyhow::{bail, ensure, Context};
 use burn::prelude::*;
 use nets::policy::{PolicyInput, PolicyLayout, PolicyNet};
 use nets::sample;
@@ -18,7 +18,10 @@ use rand::rngs::SmallRng;
 use rand::{Rng, SeedableRng};
 use transport::{ActorPorts, Delivery, ReceivedMessage, TransportConfig};
 
-use crate::env::{Environment, Observation};
+use rayon::prelude::*;
+
+use crate::env::affordance_model::AffordanceModel;
+use crate::env::{EpisodeEnd, Environment, Observation, StepOutcome};
 
 /// Settings of one actor's loop.
 #[derive(Debug, Clone)]
@@ -31,7 +34,8 @@ pub struct LoopSettings {
     /// all three and from the run's environment steps when the actor
     /// started ([`episode_seed`]).
     pub seed: u64,
-    /// Stop after this many episodes (None = until SIGINT/SIGTERM).
+    /// Stop after this many episodes over all environments (None = until
+    /// SIGINT/SIGTERM).
     pub max_episodes: Option<u64>,
     /// How long to wait for the first weights.
     pub weights_timeout: Duration,
@@ -61,8 +65,8 @@ struct Policy {
     policy_version: u64,
     unet_version: u64,
     /// The run's environment steps over all actors when the learner sent
-    /// these weights (0 if it did not say).
-    env_steps: u64,
+    /// these weights, if it said.
+    env_steps: Option<u64>,
 }
 
 /// The seed of this process's random choices: the `base` seed, moved on by
@@ -109,12 +113,13 @@ impl Backoff {
     }
 }
 
-/// Loads a weights message: the policy always, the U-Net when the message
-/// carries one of another version than `current`'s.
+/// Loads a weights message: the policy always, the U-Net (into `model`)
+/// when the message carries one of another version than `current`'s.
 fn load_weights(
     message: &ReceivedMessage,
     transport: &TransportConfig,
-    env: &mut dyn Environment,
+    layout: &PolicyLayout,
+    model: Option<&mut AffordanceModel>,
     device: &Device,
     current: Option<&Policy>,
 ) -> anyhow::Result<Policy> {
@@ -130,8 +135,7 @@ fn load_weights(
             message.kind()
         );
     };
-    let layout = env.layout().clone();
-    let mut net = PolicyNet::new(&layout, device);
+    let mut net = PolicyNet::new(layout, device);
     let policy_bytes = unbundle(weights.bytes(), WEIGHTS_POLICY_PREFIX)
         .context("the learner's weights hold no policy")?;
     load_safetensors(&mut net, policy_bytes).context(
@@ -140,18 +144,18 @@ fn load_weights(
     let metadata = nets::weights::metadata(weights.bytes()).unwrap_or_default();
     let number = |key: &str| metadata.get(key).and_then(|v| v.parse::<f64>().ok());
     let env_steps = number(WEIGHTS_META_ENV_STEPS).map(|steps| steps as u64);
-    if let Some(steps) = env_steps {
-        env.set_global_steps(steps);
-    }
     let has_unet = weights
         .tensors()
         .names()
         .iter()
         .any(|n| n.starts_with(WEIGHTS_UNET_PREFIX));
     let unet_changed = current.is_none_or(|p| p.unet_version != header.unet_version);
-    if has_unet && unet_changed {
+    if let (true, true, Some(model)) = (has_unet, unet_changed, model) {
         let temperature = number(WEIGHTS_META_TEMPERATURE).unwrap_or(1.0) as f32;
-        env.load_unet(unbundle(weights.bytes(), WEIGHTS_UNET_PREFIX)?, temperature)?;
+        model
+            .load_weights(unbundle(weights.bytes(), WEIGHTS_UNET_PREFIX)?)
+            .context("loading the learner's U-Net")?;
+        model.temperature = temperature;
         eprintln!(
             "actor: loaded U-Net version {} (temperature {temperature:.3})",
             header.unet_version
@@ -159,85 +163,132 @@ fn load_weights(
     }
     Ok(Policy {
         net,
-        layout,
+        layout: layout.clone(),
         policy_version: header.policy_version,
         unet_version: header.unet_version,
-        env_steps: env_steps.unwrap_or(0),
+        env_steps,
     })
 }
 
-/// What the policy did at one step.
+/// What the policy chose for one environment at one step.
 struct Acted {
     action: u32,
     log_prob: f32,
     /// The critic's value of the observation.
     value: f32,
     /// The GRU state after this step (policies with memory).
-    hidden: Option<Tensor<2>>,
+    hidden: Option<Vec<f32>>,
 }
 
-/// One action sampled from the policy, given its recurrent state before
-/// this step (`None` at an episode's start, or without a GRU).
-fn act(
+/// The policy's output for one environment's observation.
+struct PolicyStep {
+    /// Log-probabilities of the actions, −∞ where masked.
+    log_probs: Vec<f32>,
+    /// The critic's value.
+    value: f32,
+    /// The GRU state after the step (policies with memory).
+    hidden: Option<Vec<f32>>,
+}
+
+/// One forward pass of the policy over several environments' observations,
+/// each with its recurrent state before this step (`None` = zeros, an
+/// episode's start).
+fn forward_batch(
     policy: &Policy,
-    observation: &Observation,
-    hidden: Option<Tensor<2>>,
-    uniform: f32,
+    inputs: &[(&Observation, Option<&[f32]>)],
     device: &Device,
-) -> Option<Acted> {
+) -> anyhow::Result<Vec<PolicyStep>> {
+    let n = inputs.len();
+    let features: Vec<f32> = inputs
+        .iter()
+        .flat_map(|(o, _)| o.features.iter().copied())
+        .collect();
+    let masks: Vec<u8> = inputs
+        .iter()
+        .flat_map(|(o, _)| o.action_mask.iter().copied())
+        .collect();
+    let hidden = policy.layout.gru_hidden.map(|size| {
+        let values: Vec<f32> = inputs
+            .iter()
+            .flat_map(|(_, h)| h.map_or_else(|| vec![0.0; size], <[f32]>::to_vec))
+            .collect();
+        Tensor::<1>::from_floats(values.as_slice(), device).reshape([n, size])
+    });
     let out = policy.net.forward(
-        &PolicyInput::from_flat(
-            &policy.layout,
-            &observation.features,
-            &observation.action_mask,
-            1,
-            device,
-        ),
+        &PolicyInput::from_flat(&policy.layout, &features, &masks, n, device),
         hidden,
     );
-    let mut log_probs: Vec<f32> = out.log_probs.into_data().try_to_vec().ok()?;
-    for (lp, &allowed) in log_probs.iter_mut().zip(&observation.action_mask) {
-        if allowed == 0 {
-            *lp = f32::NEG_INFINITY;
-        }
-    }
-    let value = out.values.into_scalar::<f32>();
-    sample(&log_probs, uniform).map(|(action, log_prob)| Acted {
-        action,
-        log_prob,
-        value,
-        hidden: out.hidden,
-    })
+    let read = |t: Tensor<1>| -> anyhow::Result<Vec<f32>> {
+        t.into_data()
+            .try_to_vec()
+            .map_err(|e| anyhow::anyhow!("reading the policy's output: {e:?}"))
+    };
+    let log_probs = read(out.log_probs.reshape([-1]))?;
+    let values = read(out.values)?;
+    let hidden = out.hidden.map(|h| read(h.reshape([-1]))).transpose()?;
+    let n_actions = policy.layout.n_actions;
+    Ok((0..n)
+        .map(|i| {
+            let mut lp = log_probs[i * n_actions..(i + 1) * n_actions].to_vec();
+            for (lp, &allowed) in lp.iter_mut().zip(&inputs[i].0.action_mask) {
+                if allowed == 0 {
+                    *lp = f32::NEG_INFINITY;
+                }
+            }
+            let h = hidden.as_ref().map(|h| {
+                let size = h.len() / n;
+                h[i * size..(i + 1) * size].to_vec()
+            });
+            PolicyStep {
+                log_probs: lp,
+                value: values[i],
+                hidden: h,
+            }
+        })
+        .collect())
 }
 
-/// The critic's value of `observation` (the recurrent state is not advanced).
-fn value_of(
+/// One action per environment sampled from the policy in one batch; the
+/// `uniforms` decide the draws.
+fn act_batch(
     policy: &Policy,
-    observation: &Observation,
-    hidden: Option<Tensor<2>>,
+    inputs: &[(&Observation, Option<&[f32]>)],
+    uniforms: &[f32],
     device: &Device,
-) -> f32 {
-    act(policy, observation, hidden, 0.0, device).map_or(0.0, |a| a.value)
+) -> anyhow::Result<Vec<Acted>> {
+    forward_batch(policy, inputs, device)?
+        .into_iter()
+        .zip(uniforms)
+        .map(|(step, &uniform)| {
+            let (action, log_prob) = sample(&step.log_probs, uniform)
+                .context("the environment allowed no action")?;
+            Ok(Acted {
+                action,
+                log_prob,
+                value: step.value,
+                hidden: step.hidden,
+            })
+        })
+        .collect()
 }
 
 /// The recurrent state as the chunk carries it: zeros before an episode's
 /// first step, nothing for a policy without memory.
-fn hidden_values(layout: &PolicyLayout, hidden: Option<&Tensor<2>>) -> Vec<f32> {
+fn hidden_values(layout: &PolicyLayout, hidden: Option<&[f32]>) -> Vec<f32> {
     match (layout.gru_hidden, hidden) {
         (None, _) => Vec::new(),
         (Some(size), None) => vec![0.0; size],
-        (Some(_), Some(h)) => h.clone().into_data().try_to_vec().unwrap_or_default(),
+        (Some(_), Some(h)) => h.to_vec(),
     }
 }
 
-/// An empty chunk for `env`'s layout, starting from recurrent state `start_hidden`.
+/// An empty chunk in `layout`, starting from recurrent state `start_hidden`.
 fn new_chunk(
     episode_id: u64,
     first_step: u32,
-    env: &dyn Environment,
+    layout: &PolicyLayout,
     start_hidden: Vec<f32>,
 ) -> RolloutChunk {
-    let layout = env.layout();
     RolloutChunk {
         episode_id,
         first_step,
@@ -292,15 +343,326 @@ fn split_frames(batch: FrameBatch, max_bytes: usize) -> Vec<FrameBatch> {
         .collect()
 }
 
-/// Runs episodes until `stop` is set or `max_episodes` are done.
+/// One environment of the actor and its running episode.
+struct Slot {
+    env: Box<dyn Environment>,
+    /// `None` once the actor starts no more episodes here.
+    episode: Option<RunningEpisode>,
+}
+
+/// The bookkeeping of one running episode.
+struct RunningEpisode {
+    id: u64,
+    steps: u32,
+    episode_return: f32,
+    started: Instant,
+    /// The actor's steps (all environments) when the episode started.
+    actor_steps_at_start: u64,
+    observation: Observation,
+    /// The GRU state before the next step; `None` = zeros (episode start).
+    hidden: Option<Vec<f32>>,
+    chunk: RolloutChunk,
+}
+
+/// The affordance U-Net's probabilities for every slot's camera frame, in
+/// one batch (empty planes for an environment without a camera).
+fn perceive(
+    slots: &[&mut Slot],
+    model: Option<&AffordanceModel>,
+) -> anyhow::Result<Vec<Vec<Vec<f32>>>> {
+    let frames: Vec<_> = slots.iter().map(|s| s.env.camera_frame()).collect();
+    let batch: Vec<_> = frames.iter().flatten().copied().collect();
+    if batch.is_empty() {
+        return Ok(vec![Vec::new(); slots.len()]);
+    }
+    let model = model.context("this environment's camera frames need the U-Net")?;
+    let mut predicted = model.predict_batch(&batch).into_iter();
+    Ok(frames
+        .iter()
+        .map(|f| match f {
+            Some(_) => predicted.next().unwrap_or_default(),
+            None => Vec::new(),
+        })
+        .collect())
+}
+
+/// The second half of every slot's reset or step: the U-Net over all
+/// their frames in one batch, then each environment's observation, in
+/// parallel.
+fn observe_all(
+    slots: &mut [&mut Slot],
+    model: Option<&AffordanceModel>,
+) -> anyhow::Result<Vec<Observation>> {
+    let affordances = perceive(slots, model)?;
+    slots
+        .par_iter_mut()
+        .zip(affordances)
+        .map(|(slot, a)| slot.env.observe(a))
+        .collect()
+}
+
+/// What the loop keeps between steps besides the slots.
+struct Actor<'a> {
+    ports: &'a mut ActorPorts,
+    transport: &'a TransportConfig,
+    settings: &'a LoopSettings,
+    device: &'a Device,
+    model: Option<AffordanceModel>,
+    policy: Policy,
+    seed: u64,
+    rng: SmallRng,
+    summary: LoopSummary,
+    /// Episodes started over all slots (their ids).
+    started: u64,
+    backoff: Backoff,
+}
+
+impl Actor<'_> {
+    fn count(&mut self, delivery: Delivery) {
+        match delivery {
+            Delivery::Delivered(_) => self.summary.delivered += 1,
+            Delivery::Dropped => self.summary.dropped += 1,
+        }
+    }
+
+    fn publish_chunk(&mut self, chunk: &RolloutChunk) -> anyhow::Result<()> {
+        let delivery =
+            self.ports
+                .publish(chunk, self.policy.policy_version, self.policy.unet_version)?;
+        self.count(delivery);
+        self.backoff.after(delivery);
+        Ok(())
+    }
+
+    /// Takes the newest weights, if the learner sent any since the last look.
+    fn refresh_weights(&mut self, slots: &mut [Slot]) -> anyhow::Result<()> {
+        if let Some(message) = self.ports.take_latest_weights()? {
+            let layout = self.policy.layout.clone();
+            self.policy = load_weights(
+                &message,
+                self.transport,
+                &layout,
+                self.model.as_mut(),
+                self.device,
+                Some(&self.policy),
+            )?;
+            if let Some(steps) = self.policy.env_steps {
+                for slot in slots.iter_mut() {
+                    slot.env.set_global_steps(steps);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Starts the next episode in each of `slots` (resets in parallel, the
+    /// first frames through the U-Net in one batch); a slot gets none once
+    /// `max_episodes` have started.
+    fn start_episodes(&mut self, slots: Vec<&mut Slot>) -> anyhow::Result<()> {
+        let mut starting = Vec::new();
+        for slot in slots {
+            if self
+                .settings
+                .max_episodes
+                .is_some_and(|max| self.started >= max)
+            {
+                slot.episode = None;
+                continue;
+            }
+            let id = self.started;
+            self.started += 1;
+            starting.push((slot, id));
+        }
+        let (seed, actor_id) = (self.seed, self.settings.actor_id);
+        starting
+            .par_iter_mut()
+            .map(|(slot, id)| slot.env.begin_reset(episode_seed(seed, actor_id, *id)))
+            .collect::<anyhow::Result<()>>()?;
+        let (mut slots, ids): (Vec<&mut Slot>, Vec<u64>) = starting.into_iter().unzip();
+        let observations = observe_all(&mut slots, self.model.as_ref())?;
+        let layout = &self.policy.layout;
+        for ((slot, id), observation) in slots.into_iter().zip(ids).zip(observations) {
+            slot.episode = Some(RunningEpisode {
+                id,
+                steps: 0,
+                episode_return: 0.0,
+                started: Instant::now(),
+                actor_steps_at_start: self.summary.steps,
+                observation,
+                hidden: None,
+                chunk: new_chunk(id, 0, layout, hidden_values(layout, None)),
+            });
+        }
+        Ok(())
+    }
+
+    /// One step of every slot with a running episode: the policy over all
+    /// observations in one batch, the actions in parallel, the U-Net over
+    /// all new frames in one batch. Full chunks go to the learner; ended
+    /// episodes (or all, once `stopping`) are finished and reported.
+    /// Returns the slots whose episodes ended.
+    fn step_all<'s>(
+        &mut self,
+        slots: &'s mut [Slot],
+        stopping: bool,
+    ) -> anyhow::Result<Vec<&'s mut Slot>> {
+        let mut running: Vec<&mut Slot> =
+            slots.iter_mut().filter(|s| s.episode.is_some()).collect();
+        let acted = {
+            let episodes: Vec<&RunningEpisode> =
+                running.iter().filter_map(|s| s.episode.as_ref()).collect();
+            let inputs: Vec<_> = episodes
+                .iter()
+                .map(|e| (&e.observation, e.hidden.as_deref()))
+                .collect();
+            let uniforms: Vec<f32> = inputs.iter().map(|_| self.rng.random::<f32>()).collect();
+            act_batch(&self.policy, &inputs, &uniforms, self.device)?
+        };
+        let outcomes: Vec<StepOutcome> = running
+            .par_iter_mut()
+            .zip(&acted)
+            .map(|(slot, a)| slot.env.begin_step(a.action))
+            .collect::<anyhow::Result<_>>()?;
+        let observations = observe_all(&mut running, self.model.as_ref())?;
+        let chunk_steps = self.settings.chunk_steps;
+        let mut closing = Vec::new();
+        for (((slot, acted), outcome), observation) in
+            running.iter_mut().zip(acted).zip(&outcomes).zip(observations)
+        {
+            let episode = slot.episode.as_mut().context("a running episode")?;
+            episode.steps += 1;
+            episode.episode_return += outcome.reward;
+            let chunk = &mut episode.chunk;
+            push_obs(chunk, &episode.observation.features);
+            chunk.masks.extend_from_slice(&episode.observation.action_mask);
+            chunk.actions.push(acted.action);
+            chunk.log_probs.push(acted.log_prob);
+            chunk.values.push(acted.value);
+            chunk.rewards.push(outcome.reward);
+            chunk.dones.push(u8::from(outcome.done));
+            episode.observation = observation;
+            episode.hidden = acted.hidden;
+            if chunk.actions.len() >= chunk_steps || outcome.done || stopping {
+                closing.push((episode.id, outcome.done));
+            }
+        }
+        self.summary.steps += running.len() as u64;
+        self.close_chunks(&mut running, &closing)?;
+        let ended: Vec<&mut Slot> = running
+            .into_iter()
+            .zip(&outcomes)
+            .filter(|(_, o)| o.done || stopping)
+            .map(|(slot, _)| slot)
+            .collect();
+        self.finish_episodes(ended)
+    }
+
+    /// Sends the chunks of the episodes in `closing` (id, done): those
+    /// cut mid-episode get the critic's value of their next observation,
+    /// in one batch.
+    fn close_chunks(
+        &mut self,
+        running: &mut [&mut Slot],
+        closing: &[(u64, bool)],
+    ) -> anyhow::Result<()> {
+        let mut episodes: Vec<&mut RunningEpisode> = running
+            .iter_mut()
+            .filter_map(|s| s.episode.as_mut())
+            .filter(|e| closing.iter().any(|(id, _)| *id == e.id))
+            .collect();
+        let cut: Vec<usize> = (0..episodes.len())
+            .filter(|&i| closing.iter().any(|&(id, done)| id == episodes[i].id && !done))
+            .collect();
+        let values = {
+            let inputs: Vec<_> = cut
+                .iter()
+                .map(|&i| (&episodes[i].observation, episodes[i].hidden.as_deref()))
+                .collect();
+            if inputs.is_empty() {
+                Vec::new()
+            } else {
+                forward_batch(&self.policy, &inputs, self.device)?
+            }
+        };
+        for (&i, step) in cut.iter().zip(values) {
+            episodes[i].chunk.bootstrap_value = step.value;
+        }
+        let layout = self.policy.layout.clone();
+        for episode in &mut episodes {
+            let next = new_chunk(
+                episode.id,
+                episode.steps,
+                &layout,
+                hidden_values(&layout, episode.hidden.as_deref()),
+            );
+            let chunk = std::mem::replace(&mut episode.chunk, next);
+            self.publish_chunk(&chunk)?;
+        }
+        Ok(())
+    }
+
+    /// Ends the episodes of `ended` (labelling in parallel) and sends their
+    /// labelled frames and stats.
+    fn finish_episodes<'s>(&mut self, ended: Vec<&'s mut Slot>) -> anyhow::Result<Vec<&'s mut Slot>> {
+        let mut finishing: Vec<(&mut Slot, RunningEpisode)> = ended
+            .into_iter()
+            .filter_map(|slot| slot.episode.take().map(|e| (slot, e)))
+            .collect();
+        // Read before the environment lets go of the episode.
+        let scenes: Vec<u32> = finishing.iter().map(|(s, _)| s.env.scene_index()).collect();
+        let ends: Vec<EpisodeEnd> = finishing
+            .par_iter_mut()
+            .map(|(slot, episode)| slot.env.finish_episode(episode.id))
+            .collect::<anyhow::Result<_>>()?;
+        let actor_steps = self.summary.steps;
+        let mut slots = Vec::new();
+        for (((slot, episode), end), scene) in finishing.into_iter().zip(ends).zip(scenes) {
+            let (version, unet) = (self.policy.policy_version, self.policy.unet_version);
+            if let Some(frames) = end.frames.filter(|f| f.n_frames() > 0) {
+                for part in split_frames(frames, self.transport.max_frames_bytes) {
+                    let delivery = self.ports.publish(&part, version, unet)?;
+                    self.count(delivery);
+                }
+            }
+            let seconds = episode.started.elapsed().as_secs_f64().max(1e-9);
+            let mut stats = EpisodeStats::new(episode.id, episode.steps, scene)
+                .with(StatField::EpisodeReturn, episode.episode_return)
+                .with(
+                    StatField::StepsPerSecond,
+                    ((actor_steps - episode.actor_steps_at_start) as f64 / seconds) as f32,
+                );
+            for (field, value) in end.stats {
+                stats = stats.with(field, value);
+            }
+            let delivery = self.ports.publish(&stats, version, unet)?;
+            self.count(delivery);
+            self.summary.episodes += 1;
+            slots.push(slot);
+        }
+        Ok(slots)
+    }
+}
+
+/// Runs episodes in every environment of `envs`, in lock-step, until
+/// `stop` is set or `max_episodes` are done. `model` is the affordance
+/// U-Net for environments with a camera (it takes the learner's new
+/// U-Nets); environments without one need none.
 pub fn run(
-    env: &mut dyn Environment,
+    envs: Vec<Box<dyn Environment>>,
+    model: Option<AffordanceModel>,
     ports: &mut ActorPorts,
     transport: &TransportConfig,
     settings: &LoopSettings,
     device: &Device,
     stop: &AtomicBool,
 ) -> anyhow::Result<LoopSummary> {
+    let Some(layout) = envs.first().map(|e| e.layout().clone()) else {
+        bail!("an actor needs at least one environment");
+    };
+    ensure!(
+        envs.iter().all(|e| *e.layout() == layout),
+        "an actor's environments share one task"
+    );
     eprintln!(
         "actor {}: waiting up to {:.0} s for weights on service prefix {:?}",
         settings.actor_id,
@@ -315,108 +677,53 @@ pub fn run(
             settings.weights_timeout.as_secs_f64()
         );
     };
-    let mut policy = load_weights(&first, transport, env, device, None)?;
+    let mut model = model;
+    let policy = load_weights(&first, transport, &layout, model.as_mut(), device, None)?;
     drop(first);
     eprintln!(
-        "actor {}: got policy version {}, U-Net version {}",
-        settings.actor_id, policy.policy_version, policy.unet_version
+        "actor {}: got policy version {}, U-Net version {}; {} environment(s)",
+        settings.actor_id,
+        policy.policy_version,
+        policy.unet_version,
+        envs.len()
     );
-
-    let seed = process_seed(settings.seed, policy.env_steps);
-    let mut rng = SmallRng::seed_from_u64(seed ^ (u64::from(settings.actor_id) << 32));
-    let mut summary = LoopSummary::default();
-    let mut backoff = Backoff::default();
-    let count = |d: Delivery, s: &mut LoopSummary| match d {
-        Delivery::Delivered(_) => s.delivered += 1,
-        Delivery::Dropped => s.dropped += 1,
-    };
-    while !stop.load(Ordering::Relaxed)
-        && settings.max_episodes.is_none_or(|m| summary.episodes < m)
-    {
-        let episode_id = summary.episodes;
-        let started = Instant::now();
-        let mut observation: Observation =
-            env.reset(episode_seed(seed, settings.actor_id, episode_id))?;
-        let (mut step, mut episode_return) = (0u32, 0.0f32);
-        // The GRU state before the next step; `None` = zeros (episode start).
-        let mut hidden: Option<Tensor<2>> = None;
-        let mut chunk = new_chunk(episode_id, 0, env, hidden_values(env.layout(), None));
-        loop {
-            if let Some(message) = ports.take_latest_weights()? {
-                policy = load_weights(&message, transport, env, device, Some(&policy))?;
-            }
-            let Some(Acted {
-                action,
-                log_prob,
-                value,
-                hidden: next_hidden,
-            }) = act(
-                &policy,
-                &observation,
-                hidden.take(),
-                rng.random::<f32>(),
-                device,
-            )
-            else {
-                bail!("the environment allowed no action at step {step}");
-            };
-            hidden = next_hidden;
-            let transition = env.step(action)?;
-            step += 1;
-            episode_return += transition.reward;
-            push_obs(&mut chunk, &observation.features);
-            chunk.masks.extend_from_slice(&observation.action_mask);
-            chunk.actions.push(action);
-            chunk.log_probs.push(log_prob);
-            chunk.values.push(value);
-            chunk.rewards.push(transition.reward);
-            chunk.dones.push(u8::from(transition.done));
-            observation = transition.observation;
-            let stopping = stop.load(Ordering::Relaxed);
-            if chunk.actions.len() >= settings.chunk_steps || transition.done || stopping {
-                chunk.bootstrap_value = if transition.done {
-                    0.0
-                } else {
-                    value_of(&policy, &observation, hidden.clone(), device)
-                };
-                let delivery = ports.publish(&chunk, policy.policy_version, policy.unet_version)?;
-                count(delivery, &mut summary);
-                backoff.after(delivery);
-                chunk = new_chunk(
-                    episode_id,
-                    step,
-                    env,
-                    hidden_values(env.layout(), hidden.as_ref()),
-                );
-            }
-            if transition.done || stopping {
-                break;
-            }
+    let mut slots: Vec<Slot> = envs
+        .into_iter()
+        .map(|env| Slot { env, episode: None })
+        .collect();
+    if let Some(steps) = policy.env_steps {
+        for slot in &mut slots {
+            slot.env.set_global_steps(steps);
         }
-        summary.steps += u64::from(step);
-        let seconds = started.elapsed().as_secs_f64().max(1e-9);
-        let end = env.finish_episode(episode_id)?;
-        if let Some(frames) = end.frames.filter(|f| f.n_frames() > 0) {
-            for part in split_frames(frames, transport.max_frames_bytes) {
-                let delivery = ports.publish(&part, policy.policy_version, policy.unet_version)?;
-                count(delivery, &mut summary);
-            }
-        }
-        let mut stats = EpisodeStats::new(episode_id, step, env.scene_index())
-            .with(StatField::EpisodeReturn, episode_return)
-            .with(
-                StatField::StepsPerSecond,
-                (f64::from(step) / seconds) as f32,
-            );
-        for (field, value) in end.stats {
-            stats = stats.with(field, value);
-        }
-        let delivery = ports.publish(&stats, policy.policy_version, policy.unet_version)?;
-        count(delivery, &mut summary);
-        summary.episodes += 1;
     }
-    summary.policy_version = policy.policy_version;
-    summary.unet_version = policy.unet_version;
+    let seed = process_seed(settings.seed, policy.env_steps.unwrap_or(0));
+    let mut actor = Actor {
+        ports,
+        transport,
+        settings,
+        device,
+        model,
+        policy,
+        seed,
+        rng: SmallRng::seed_from_u64(seed ^ (u64::from(settings.actor_id) << 32)),
+        summary: LoopSummary::default(),
+        started: 0,
+        backoff: Backoff::default(),
+    };
+    if !stop.load(Ordering::Relaxed) {
+        actor.start_episodes(slots.iter_mut().collect())?;
+    }
+    while slots.iter().any(|s| s.episode.is_some()) {
+        actor.refresh_weights(&mut slots)?;
+        let stopping = stop.load(Ordering::Relaxed);
+        let ended = actor.step_all(&mut slots, stopping)?;
+        if !stopping && !stop.load(Ordering::Relaxed) {
+            actor.start_episodes(ended)?;
+        }
+    }
+    let mut summary = actor.summary;
+    summary.policy_version = actor.policy.policy_version;
+    summary.unet_version = actor.policy.unet_version;
     Ok(summary)
 }
 

@@ -91,9 +91,17 @@ struct RunArgs {
     /// restarted actor, or a resumed run, does not replay its episodes.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Stop after this many episodes (default: run until SIGINT/SIGTERM).
+    /// Stop after this many episodes over all environments (default: run
+    /// until SIGINT/SIGTERM).
     #[arg(long)]
     max_episodes: Option<u64>,
+    /// Environments this actor runs side by side, in lock-step: each steps
+    /// on a thread of its own, and the U-Net and the policy see all their
+    /// frames in one batch. On a GPU, a batch costs little more than one
+    /// frame, so this is how one actor process fills a GPU; on a CPU it
+    /// uses more cores, like more actors would.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=256))]
+    envs: u16,
     /// Seconds to wait for the learner's first weights before giving up.
     #[arg(long, default_value_t = 30.0)]
     weights_timeout_s: f64,
@@ -153,11 +161,7 @@ fn sim_view(args: SimViewArgs) -> anyhow::Result<()> {
 }
 
 /// The simulator environment for `task`.
-fn sim_environment(
-    task: &TaskSpec,
-    cli: &RunArgs,
-    device: &burn::prelude::Device,
-) -> anyhow::Result<SimEnvironment> {
+fn sim_environment(task: &TaskSpec, cli: &RunArgs) -> anyhow::Result<SimEnvironment> {
     let mut profile = RobotProfile::load(&cli.profile)?;
     profile.image_size = task.image_size;
     let rooms = cli.data.join("ithor-livingrooms");
@@ -181,8 +185,7 @@ fn sim_environment(
         reward: task.reward,
         ..SimEnvConfig::paper(task.method, &task.affordances)
     };
-    let model = AffordanceModel::new(task.affordances.len(), device);
-    let mut env = SimEnv::new(config, source, profile, renderer, model);
+    let mut env = SimEnv::new(config, source, profile, renderer);
     if let Some(dir) = &cli.record {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("creating the --record directory {}", dir.display()))?;
@@ -232,10 +235,16 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(signal, stop.clone()).context("installing signal handlers")?;
     }
-    let mut env: Box<dyn Environment> = match task.env {
-        EnvKind::BanditFixture => Box::new(BanditFixture::new()),
-        EnvKind::Sim => Box::new(sim_environment(&task, &cli, &device)?),
-    };
+    let envs = (0..cli.envs)
+        .map(|_| -> anyhow::Result<Box<dyn Environment>> {
+            Ok(match task.env {
+                EnvKind::BanditFixture => Box::new(BanditFixture::new()),
+                EnvKind::Sim => Box::new(sim_environment(&task, &cli)?),
+            })
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let model = (task.env == EnvKind::Sim)
+        .then(|| AffordanceModel::new(task.affordances.len(), &device));
     let mut ports = transport::ActorPorts::open(&transport, actor_id).context(
         "opening the shared-memory services (same --learner prefix and config as the learner?)",
     )?;
@@ -247,7 +256,8 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
         weights_timeout: Duration::from_secs_f64(cli.weights_timeout_s),
     };
     let summary = run(
-        env.as_mut(),
+        envs,
+        model,
         &mut ports,
         &transport,
         &settings,

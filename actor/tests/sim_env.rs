@@ -19,6 +19,12 @@ fn environment(steps: usize) -> SimEnv {
     environment_for(Method::Ours, steps)
 }
 
+/// A freshly initialised U-Net on the CPU.
+fn unet() -> AffordanceModel {
+    let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).unwrap();
+    AffordanceModel::new(AFFORDANCES.len(), &device)
+}
+
 fn environment_for(method: Method, steps: usize) -> SimEnv {
     let data = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
     let profile = RobotProfile::load("default").unwrap();
@@ -29,7 +35,6 @@ fn environment_for(method: Method, steps: usize) -> SimEnv {
         &profile,
     )
     .unwrap();
-    let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).unwrap();
     let config = SimEnvConfig {
         episode_steps: steps,
         balanced_frames: false,
@@ -40,18 +45,22 @@ fn environment_for(method: Method, steps: usize) -> SimEnv {
         source,
         profile,
         Renderer::open(RendererChoice::Cpu).unwrap(),
-        AffordanceModel::new(AFFORDANCES.len(), &device),
     )
 }
 
-fn run(env: &mut SimEnv, seed: u64, steps: usize) -> (Vec<(f32, bool)>, Vec<SimObservation>) {
+fn run(
+    env: &mut SimEnv,
+    model: &AffordanceModel,
+    seed: u64,
+    steps: usize,
+) -> (Vec<(f32, bool)>, Vec<SimObservation>) {
     let mut rng = StdRng::seed_from_u64(seed);
-    let mut observation = env.reset(seed).unwrap();
+    let mut observation = env.reset(seed, model).unwrap();
     let (mut outcomes, mut observations) = (Vec::new(), vec![observation.clone()]);
     for step in 0..steps {
         let action = random_allowed_action(env.action_space(), &observation.mask, 0.5, &mut rng);
         assert_eq!(observation.mask[action], 1);
-        let result = env.step(action).unwrap();
+        let result = env.step(action, model).unwrap();
         assert!(result.reward.is_finite());
         assert_eq!(result.done, step + 1 == steps, "done exactly at the budget");
         outcomes.push((result.reward, result.success));
@@ -65,9 +74,10 @@ fn run(env: &mut SimEnv, seed: u64, steps: usize) -> (Vec<(f32, bool)>, Vec<SimO
 fn an_episode_runs_labels_and_repeats_exactly() {
     let steps = 40;
     let mut env = environment(steps);
+    let model = unet();
     let n_actions = env.action_space().len();
     assert_eq!(n_actions, 30);
-    let (outcomes, observations) = run(&mut env, 2, steps);
+    let (outcomes, observations) = run(&mut env, &model, 2, steps);
     let config = env.state_config().clone();
     for o in &observations {
         assert_eq!(o.mask.len(), n_actions);
@@ -103,11 +113,11 @@ fn an_episode_runs_labels_and_repeats_exactly() {
     assert!(batch.n_frames() <= steps + 1);
     println!("labelled frames: {}", batch.n_frames());
 
-    let (again, observations_again) = run(&mut env, 2, steps);
+    let (again, observations_again) = run(&mut env, &model, 2, steps);
     assert_eq!(outcomes, again, "same seed, same episode");
     assert!(observations == observations_again);
     assert!(
-        env.step(99).is_err(),
+        env.step(99, &model).is_err(),
         "an action outside the space is an error"
     );
 }
@@ -123,12 +133,13 @@ fn annotation_by_confidence_starts_at_the_configured_global_step() {
     let mut env = environment(steps);
     // A near-zero temperature makes every probability 0 or 1: the U-Net is
     // "sure" about every object, so every untouched object gets a label.
-    env.model_mut().temperature = 1e-3;
-    run(&mut env, 5, steps);
+    let mut model = unet();
+    model.temperature = 1e-3;
+    run(&mut env, &model, 5, steps);
     env.set_global_steps(399_999);
     assert!(!env.annotates_by_confidence());
     let before = labelled(&env.finish_episode(1).unwrap().frames);
-    run(&mut env, 5, steps);
+    run(&mut env, &model, 5, steps);
     env.set_global_steps(400_000);
     assert!(env.annotates_by_confidence());
     let after = labelled(&env.finish_episode(2).unwrap().frames);
@@ -143,7 +154,7 @@ fn a_recorded_episode_holds_every_frame_label_and_step() {
     let dir = std::env::temp_dir().join(format!("afx-record-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     env.record_to(dir.clone(), "test_".into());
-    run(&mut env, 3, steps);
+    run(&mut env, &unet(), 3, steps);
     env.finish_episode(7).unwrap();
     let bytes = std::fs::read(dir.join("test_episode000007.mcap")).unwrap();
     let mut counts = std::collections::BTreeMap::<String, usize>::new();
@@ -175,6 +186,7 @@ fn a_recorded_episode_holds_every_frame_label_and_step() {
 #[test]
 fn methods_without_a_map_fit_their_layout_and_label_from_interaction_points() {
     let steps = 40;
+    let model = unet();
     for method in [Method::NomapSeg, Method::NomapNoseg, Method::Intexp] {
         let env = environment_for(method, steps);
         let task = proto::TaskSpec {
@@ -187,7 +199,7 @@ fn methods_without_a_map_fit_their_layout_and_label_from_interaction_points() {
         // The wrapper checks the state against the task's layout.
         let mut env = actor::env::SimEnvironment::new(env, &task).unwrap();
         let mut rng = StdRng::seed_from_u64(3);
-        let mut observation = actor::env::Environment::reset(&mut env, 3).unwrap();
+        let mut observation = actor::env::Environment::reset(&mut env, 3, Some(&model)).unwrap();
         let mut interactions = 0;
         for _ in 0..steps {
             assert_eq!(observation.features.len(), layout.obs_len(), "{method:?}");
@@ -198,9 +210,9 @@ fn methods_without_a_map_fit_their_layout_and_label_from_interaction_points() {
                 Some(actor::env::actions::PolicyAction::Select { .. })
             );
             interactions += usize::from(is_interaction);
-            observation = actor::env::Environment::step(&mut env, action as u32)
+            observation = actor::env::Environment::step(&mut env, action as u32, Some(&model))
                 .unwrap()
-                .observation;
+                .1;
         }
         let end = actor::env::Environment::finish_episode(&mut env, 1).unwrap();
         let frames = end.frames.unwrap();

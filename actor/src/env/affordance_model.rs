@@ -39,27 +39,53 @@ impl AffordanceModel {
         Ok(())
     }
 
-    /// Per affordance, the `h · w` probability plane for an RGB-D frame
-    /// (`rgb` interleaved bytes, `depth_m` metres).
-    pub fn predict(
-        &self,
-        rgb: &[u8],
-        depth_m: &[f32],
-        height: usize,
-        width: usize,
-    ) -> Vec<Vec<f32>> {
-        let n = height * width;
-        let mut input = Vec::with_capacity(4 * n);
-        for c in 0..3 {
-            input.extend(rgb.iter().skip(c).step_by(3).map(|&b| f32::from(b) / 255.0));
-        }
-        input.extend(
-            depth_m
-                .iter()
-                .map(|&d| if d.is_finite() { d.max(0.0) } else { 0.0 }),
+    /// Per affordance, the `h · w` probability plane of one frame.
+    pub fn predict(&self, frame: &CameraFrame<'_>) -> Vec<Vec<f32>> {
+        self.predict_batch(std::slice::from_ref(frame))
+            .pop()
+            .unwrap_or_default()
+    }
+
+    /// [`AffordanceModel::predict`] for several frames of one size in one
+    /// forward pass (on a GPU a batch costs little more than one frame).
+    ///
+    /// # Panics
+    /// If the frames differ in size: an actor's environments share one task.
+    pub fn predict_batch(&self, frames: &[CameraFrame<'_>]) -> Vec<Vec<Vec<f32>>> {
+        let Some(first) = frames.first() else {
+            return Vec::new();
+        };
+        let (height, width) = (first.height, first.width);
+        assert!(
+            frames.iter().all(|f| (f.height, f.width) == (height, width)),
+            "frames of one batch share a size"
         );
-        let x =
-            Tensor::<1>::from_floats(input.as_slice(), &self.device).reshape([1, 4, height, width]);
+        let n = height * width;
+        let mut input = Vec::with_capacity(frames.len() * 4 * n);
+        for frame in frames {
+            for c in 0..3 {
+                input.extend(
+                    frame
+                        .rgb
+                        .iter()
+                        .skip(c)
+                        .step_by(3)
+                        .map(|&b| f32::from(b) / 255.0),
+                );
+            }
+            input.extend(
+                frame
+                    .depth_m
+                    .iter()
+                    .map(|&d| if d.is_finite() { d.max(0.0) } else { 0.0 }),
+            );
+        }
+        let x = Tensor::<1>::from_floats(input.as_slice(), &self.device).reshape([
+            frames.len(),
+            4,
+            height,
+            width,
+        ]);
         let logits: Vec<f32> = self
             .net
             .forward(x)
@@ -67,15 +93,34 @@ impl AffordanceModel {
             .try_to_vec()
             .expect("the U-Net returns f32 logits");
         let t = self.temperature.max(1e-3);
+        let planes_per_frame = logits.len() / frames.len();
         logits
-            .chunks(n)
-            .take(self.affordances)
-            .map(|plane| {
-                plane
-                    .iter()
-                    .map(|&l| 1.0 / (1.0 + (-l / t).exp()))
+            .chunks(planes_per_frame)
+            .map(|frame| {
+                frame
+                    .chunks(n)
+                    .take(self.affordances)
+                    .map(|plane| {
+                        plane
+                            .iter()
+                            .map(|&l| 1.0 / (1.0 + (-l / t).exp()))
+                            .collect()
+                    })
                     .collect()
             })
             .collect()
     }
+}
+
+/// One RGB-D camera frame as the U-Net reads it.
+#[derive(Debug, Clone, Copy)]
+pub struct CameraFrame<'a> {
+    /// Interleaved RGB bytes, `height · width · 3`.
+    pub rgb: &'a [u8],
+    /// Depth in metres (non-finite = nothing seen), `height · width`.
+    pub depth_m: &'a [f32],
+    /// Rows.
+    pub height: usize,
+    /// Columns.
+    pub width: usize,
 }

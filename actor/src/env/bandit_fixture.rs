@@ -9,7 +9,8 @@ use rand::{Rng, SeedableRng};
 
 use proto::{EnvKind, PolicyLayout, StatField, TaskSpec};
 
-use super::{Environment, EpisodeEnd, Observation, Transition};
+use super::affordance_model::CameraFrame;
+use super::{Environment, EpisodeEnd, Observation, StepOutcome};
 
 /// The bandit fixture.
 #[derive(Debug, Clone)]
@@ -43,7 +44,8 @@ impl BanditFixture {
         }
     }
 
-    fn observe(&mut self) -> Observation {
+    /// Draws the next context and its mask.
+    fn next_context(&mut self) -> Observation {
         self.context = self.rng.random_range(0..self.contexts);
         let mut features = vec![0.0; self.contexts];
         features[self.context] = 1.0;
@@ -71,22 +73,27 @@ impl Environment for BanditFixture {
     fn scene_index(&self) -> u32 {
         0
     }
-    fn reset(&mut self, seed: u64) -> anyhow::Result<Observation> {
+    fn begin_reset(&mut self, seed: u64) -> anyhow::Result<()> {
         self.rng = SmallRng::seed_from_u64(seed);
         self.step = 0;
         self.successes = 0;
-        Ok(self.observe())
+        Ok(())
     }
-    fn step(&mut self, action: u32) -> anyhow::Result<Transition> {
+    fn begin_step(&mut self, action: u32) -> anyhow::Result<StepOutcome> {
         let success = action as usize == self.context % self.n_actions;
         self.step += 1;
         self.successes += u32::from(success);
-        Ok(Transition {
-            observation: self.observe(),
+        Ok(StepOutcome {
             reward: if success { 1.0 } else { 0.0 },
             done: self.step >= self.episode_steps,
             success,
         })
+    }
+    fn camera_frame(&self) -> Option<CameraFrame<'_>> {
+        None
+    }
+    fn observe(&mut self, _affordances: Vec<Vec<f32>>) -> anyhow::Result<Observation> {
+        Ok(self.next_context())
     }
     fn finish_episode(&mut self, _episode_id: u64) -> anyhow::Result<EpisodeEnd> {
         Ok(EpisodeEnd {
@@ -96,9 +103,6 @@ impl Environment for BanditFixture {
                 self.successes as f32 / self.step.max(1) as f32,
             )],
         })
-    }
-    fn load_unet(&mut self, _weights: Vec<u8>, _temperature: f32) -> anyhow::Result<()> {
-        Ok(())
     }
     fn set_global_steps(&mut self, _steps: u64) {}
 }
@@ -110,20 +114,20 @@ mod tests {
     #[test]
     fn same_seed_same_episode_and_the_right_action_is_never_masked() {
         let (mut a, mut b) = (BanditFixture::new(), BanditFixture::new());
-        assert_eq!(a.reset(7).unwrap(), b.reset(7).unwrap());
+        assert_eq!(a.reset(7, None).unwrap(), b.reset(7, None).unwrap());
         for i in 0..64 {
-            let ta = a.step(i % 4).unwrap();
-            assert_eq!(ta, b.step(i % 4).unwrap());
-            assert_eq!(ta.observation.action_mask[a.context % 4], 1);
+            let (outcome, observation) = a.step(i % 4, None).unwrap();
+            assert_eq!((outcome, observation.clone()), b.step(i % 4, None).unwrap());
+            assert_eq!(observation.action_mask[a.context % 4], 1);
             assert_eq!(
-                ta.observation
+                observation
                     .action_mask
                     .iter()
                     .filter(|&&m| m == 0)
                     .count(),
                 1
             );
-            assert_eq!(ta.done, i == 63);
+            assert_eq!(outcome.done, i == 63);
         }
     }
 }

@@ -13,6 +13,8 @@ pub use sim_environment::SimEnvironment;
 
 use proto::{FrameBatch, PolicyLayout, StatField};
 
+use affordance_model::{AffordanceModel, CameraFrame};
+
 /// What the policy sees after a reset or a step.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Observation {
@@ -23,11 +25,9 @@ pub struct Observation {
     pub action_mask: Vec<u8>,
 }
 
-/// The result of one step.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Transition {
-    /// Observation after the step (of the next episode's first state is not included).
-    pub observation: Observation,
+/// What an action did, known before the next observation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepOutcome {
     /// Reward for the step.
     pub reward: f32,
     /// True when the episode ended with this step.
@@ -46,20 +46,62 @@ pub struct EpisodeEnd {
 }
 
 /// An episodic environment with a discrete, maskable action space.
-pub trait Environment {
+///
+/// A reset or step comes in two halves: `begin_*` does everything up to the
+/// affordance U-Net (simulate, render, map), [`Environment::observe`] the
+/// rest, given the U-Net's probabilities for [`Environment::camera_frame`].
+/// An actor running several environments thus infers all their frames in
+/// one batch; [`Environment::reset`] and [`Environment::step`] do both
+/// halves for one environment.
+pub trait Environment: Send {
     /// Shapes of the observation and the action count.
     fn layout(&self) -> &PolicyLayout;
     /// Index of the current scene (reported in episode stats).
     fn scene_index(&self) -> u32;
     /// Starts a new episode, deterministically for a given seed.
-    fn reset(&mut self, seed: u64) -> anyhow::Result<Observation>;
+    fn begin_reset(&mut self, seed: u64) -> anyhow::Result<()>;
     /// Applies an allowed action.
-    fn step(&mut self, action: u32) -> anyhow::Result<Transition>;
+    fn begin_step(&mut self, action: u32) -> anyhow::Result<StepOutcome>;
+    /// The camera frame the U-Net must see before [`Environment::observe`];
+    /// `None` for an environment without a camera.
+    fn camera_frame(&self) -> Option<CameraFrame<'_>>;
+    /// Completes the reset or step begun, with the U-Net's probability
+    /// planes for its camera frame (empty without one).
+    fn observe(&mut self, affordances: Vec<Vec<f32>>) -> anyhow::Result<Observation>;
     /// Ends the episode: labelled frames and metrics.
     fn finish_episode(&mut self, episode_id: u64) -> anyhow::Result<EpisodeEnd>;
-    /// Takes new U-Net weights (safetensors bytes) and their calibration
-    /// temperature from the learner.
-    fn load_unet(&mut self, weights: Vec<u8>, temperature: f32) -> anyhow::Result<()>;
     /// The run's environment steps over all actors, as the learner last reported them.
     fn set_global_steps(&mut self, steps: u64);
+
+    /// Both halves of a reset, `model` seeing the camera frame (an
+    /// environment with a camera needs one).
+    fn reset(&mut self, seed: u64, model: Option<&AffordanceModel>) -> anyhow::Result<Observation> {
+        self.begin_reset(seed)?;
+        let affordances = predict(self.camera_frame(), model)?;
+        self.observe(affordances)
+    }
+
+    /// Both halves of a step, `model` seeing the camera frame (an
+    /// environment with a camera needs one).
+    fn step(
+        &mut self,
+        action: u32,
+        model: Option<&AffordanceModel>,
+    ) -> anyhow::Result<(StepOutcome, Observation)> {
+        let outcome = self.begin_step(action)?;
+        let affordances = predict(self.camera_frame(), model)?;
+        Ok((outcome, self.observe(affordances)?))
+    }
+}
+
+/// `model`'s probability planes for `frame`; none without a frame.
+fn predict(
+    frame: Option<CameraFrame<'_>>,
+    model: Option<&AffordanceModel>,
+) -> anyhow::Result<Vec<Vec<f32>>> {
+    match (frame, model) {
+        (None, _) => Ok(Vec::new()),
+        (Some(frame), Some(model)) => Ok(model.predict(&frame)),
+        (Some(_), None) => anyhow::bail!("this environment's camera frames need the U-Net"),
+    }
 }

@@ -1,6 +1,9 @@
 //! The simulator environment of the four methods. For `ours` each step goes
 //! simulator → map integration → U-Net inference → state → (policy,
-//! outside) → action; at the end of an episode the labeler turns the map's
+//! outside) → action. A step comes in two halves around the U-Net
+//! ([`SimEnv::begin_step`], then [`SimEnv::observe`] with its
+//! probabilities), so that an actor running several environments infers
+//! their frames in one batch; at the end of an episode the labeler turns the map's
 //! interaction records into labelled frames for the learner. A picked-up
 //! object is held in the map (kept, unseen) and released where the
 //! simulator put it down.
@@ -32,7 +35,7 @@ use crate::env::actions::{
     cell_targets, centred_target, ActionSpace, CellTargets, PolicyAction, Selection, SelectionRule,
     Target,
 };
-use crate::env::affordance_model::AffordanceModel;
+use crate::env::affordance_model::{AffordanceModel, CameraFrame};
 use crate::env::reward::{RewardTracker, RewardWeights, StepEvent};
 use crate::env::state::{build_state, ActionHistory, State, StateConfig, StateInputs};
 use crate::labeler::{
@@ -101,7 +104,20 @@ pub struct SimObservation {
     pub mask: Vec<u8>,
 }
 
-/// The result of a step.
+/// What an action did, known before the next observation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ActionOutcome {
+    /// The reward.
+    pub reward: f32,
+    /// Whether the action succeeded.
+    pub success: bool,
+    /// Why not.
+    pub failure: Option<Failure>,
+    /// True when the episode's step budget is used up.
+    pub done: bool,
+}
+
+/// The result of a whole step.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SimStep {
     /// The next observation.
@@ -137,7 +153,6 @@ pub struct SimEnv {
     source: SceneSource,
     profile: RobotProfile,
     renderer: Renderer,
-    model: AffordanceModel,
     space: ActionSpace,
     state_config: StateConfig,
     episode: Option<Episode>,
@@ -147,8 +162,18 @@ pub struct SimEnv {
     recording: Option<(std::path::PathBuf, String)>,
 }
 
+/// A frame rendered (and integrated into the map) that waits for the
+/// U-Net's probabilities before it becomes an observation.
+struct Captured {
+    frame: Frame,
+    camera: sim::raycast::Camera,
+    map_ids: Vec<u32>,
+}
+
 /// One episode's working state.
 struct Episode {
+    /// The frame of the reset or step begun, until [`SimEnv::observe`].
+    pending: Option<Captured>,
     sim: Simulator,
     map: Map,
     reward: RewardTracker,
@@ -239,7 +264,6 @@ impl SimEnv {
         source: SceneSource,
         profile: RobotProfile,
         renderer: Renderer,
-        model: AffordanceModel,
     ) -> Self {
         let space = ActionSpace::new(&config.affordances, Selection::of(config.method));
         let state_config = StateConfig {
@@ -252,7 +276,6 @@ impl SimEnv {
             source,
             profile,
             renderer,
-            model,
             space,
             state_config,
             episode: None,
@@ -292,11 +315,6 @@ impl SimEnv {
         &self.state_config
     }
 
-    /// The U-Net, for new weights.
-    pub fn model_mut(&mut self) -> &mut AffordanceModel {
-        &mut self.model
-    }
-
     /// Time spent in the last step (or reset), by stage.
     pub fn last_timings(&self) -> StepTimings {
         self.timings
@@ -312,8 +330,43 @@ impl SimEnv {
         self.episode.as_ref().map(|e| &e.sim)
     }
 
-    /// Starts an episode: a room picked and randomised by `seed`.
-    pub fn reset(&mut self, seed: u64) -> anyhow::Result<SimObservation> {
+    /// Starts an episode (a room picked and randomised by `seed`) and
+    /// observes its first frame with `model`.
+    pub fn reset(&mut self, seed: u64, model: &AffordanceModel) -> anyhow::Result<SimObservation> {
+        self.begin_reset(seed)?;
+        self.observe_with(model)
+    }
+
+    /// Applies action `index` of the action space and observes the next
+    /// frame with `model`.
+    pub fn step(&mut self, index: usize, model: &AffordanceModel) -> anyhow::Result<SimStep> {
+        let outcome = self.begin_step(index)?;
+        let observation = self.observe_with(model)?;
+        Ok(SimStep {
+            observation,
+            reward: outcome.reward,
+            success: outcome.success,
+            failure: outcome.failure,
+            done: outcome.done,
+        })
+    }
+
+    /// [`SimEnv::observe`] with `model`'s probabilities for the pending frame.
+    fn observe_with(&mut self, model: &AffordanceModel) -> anyhow::Result<SimObservation> {
+        let started = Instant::now();
+        let probabilities = self
+            .camera_frame()
+            .map(|frame| model.predict(&frame))
+            .context("observe before reset or step")?;
+        let unet = started.elapsed();
+        let observation = self.observe(probabilities)?;
+        self.timings.unet = unet;
+        Ok(observation)
+    }
+
+    /// Starts an episode: a room picked and randomised by `seed`; its first
+    /// frame is rendered and mapped, and waits for [`SimEnv::observe`].
+    pub fn begin_reset(&mut self, seed: u64) -> anyhow::Result<()> {
         let (scene_index, scene) = self.source.pick(seed);
         let mut rng = StdRng::seed_from_u64(seed);
         let (sim, _) = randomise(&scene, &self.profile, &mut rng)
@@ -336,6 +389,7 @@ impl SimEnv {
             })
             .collect();
         self.episode = Some(Episode {
+            pending: None,
             truth,
             truth_ids: Vec::new(),
             probabilities: Vec::new(),
@@ -361,11 +415,12 @@ impl SimEnv {
             in_hand: None,
         });
         self.timings = StepTimings::default();
-        self.observe()
+        self.capture()
     }
 
-    /// Applies action `index` of the action space.
-    pub fn step(&mut self, index: usize) -> anyhow::Result<SimStep> {
+    /// Applies action `index` of the action space; the next frame is
+    /// rendered and mapped, and waits for [`SimEnv::observe`].
+    pub fn begin_step(&mut self, index: usize) -> anyhow::Result<ActionOutcome> {
         let action = self.space.get(index).with_context(|| {
             format!(
                 "action {index} is outside the action space ({})",
@@ -373,6 +428,10 @@ impl SimEnv {
             )
         })?;
         let episode = self.episode.as_mut().context("step before reset")?;
+        anyhow::ensure!(
+            episode.pending.is_none(),
+            "step before the last frame was observed"
+        );
         let started = Instant::now();
         let dropped = episode.sim.held();
         let interaction = match action {
@@ -508,10 +567,9 @@ impl SimEnv {
         episode.steps += 1;
         let done = episode.steps >= self.config.episode_steps;
         let sim_time = started.elapsed();
-        let observation = self.observe()?;
+        self.capture()?;
         self.timings.sim = sim_time;
-        Ok(SimStep {
-            observation,
+        Ok(ActionOutcome {
             reward,
             success: outcome.success,
             failure: outcome.failure,
@@ -519,9 +577,10 @@ impl SimEnv {
         })
     }
 
-    /// Renders, integrates, predicts and builds the observation.
-    fn observe(&mut self) -> anyhow::Result<SimObservation> {
-        let episode = self.episode.as_mut().context("observe before reset")?;
+    /// Renders the agent's view and integrates it into the map; the frame
+    /// then waits for the U-Net ([`SimEnv::camera_frame`], [`SimEnv::observe`]).
+    fn capture(&mut self) -> anyhow::Result<()> {
+        let episode = self.episode.as_mut().context("capture before reset")?;
         let t0 = Instant::now();
         let frame: Frame = episode.sim.render(&mut self.renderer)?;
         let camera = episode.sim.camera();
@@ -545,9 +604,57 @@ impl SimEnv {
             frame.ids.clone()
         };
         let t2 = Instant::now();
-        let probabilities =
-            self.model
-                .predict(&frame.rgb, &frame.depth_m, frame.height, frame.width);
+        episode.pending = Some(Captured {
+            frame,
+            camera,
+            map_ids,
+        });
+        self.timings = StepTimings {
+            sim: Duration::ZERO,
+            render: t1 - t0,
+            map: t2 - t1,
+            unet: Duration::ZERO,
+            state: Duration::ZERO,
+        };
+        Ok(())
+    }
+
+    /// The frame of the reset or step begun, for the U-Net; `None` before a
+    /// reset or once observed.
+    pub fn camera_frame(&self) -> Option<CameraFrame<'_>> {
+        let frame = &self.episode.as_ref()?.pending.as_ref()?.frame;
+        Some(CameraFrame {
+            rgb: &frame.rgb,
+            depth_m: &frame.depth_m,
+            height: frame.height,
+            width: frame.width,
+        })
+    }
+
+    /// Completes the reset or step begun: scores the U-Net's `probabilities`
+    /// (per affordance, a plane for [`SimEnv::camera_frame`]) against the
+    /// ground truth, chooses the interaction targets and builds the state.
+    pub fn observe(&mut self, probabilities: Vec<Vec<f32>>) -> anyhow::Result<SimObservation> {
+        let episode = self.episode.as_mut().context("observe before reset")?;
+        let Captured {
+            frame,
+            camera,
+            map_ids,
+        } = episode
+            .pending
+            .take()
+            .context("observe twice, or before a reset or step")?;
+        anyhow::ensure!(
+            probabilities.len() == self.config.affordances.len()
+                && probabilities
+                    .iter()
+                    .all(|p| p.len() == frame.height * frame.width),
+            "the U-Net gave {} planes for {} affordances at {} × {} px",
+            probabilities.len(),
+            self.config.affordances.len(),
+            frame.height,
+            frame.width
+        );
         let t3 = Instant::now();
         for (plane, (probabilities, sums)) in
             probabilities.iter().zip(&mut episode.scores).enumerate()
@@ -620,13 +727,7 @@ impl SimEnv {
             map_ids,
             t_world_camera: camera.t_world_camera,
         });
-        self.timings = StepTimings {
-            sim: Duration::ZERO,
-            render: t1 - t0,
-            map: t2 - t1,
-            unet: t3 - t2,
-            state: t3.elapsed(),
-        };
+        self.timings.state = t3.elapsed();
         Ok(SimObservation { state, mask })
     }
 

@@ -5,11 +5,12 @@
 //! bytes, which is exactly what the policy acts on and what the learner
 //! trains on.
 
-use anyhow::{ensure, Context};
+use anyhow::ensure;
 use proto::{PolicyLayout, TaskSpec};
 
 use super::sim_env::{SimEnv, SimObservation};
-use super::{Environment, EpisodeEnd, Observation, Transition};
+use super::affordance_model::CameraFrame;
+use super::{Environment, EpisodeEnd, Observation, StepOutcome};
 
 /// [`SimEnv`] as an [`Environment`].
 pub struct SimEnvironment {
@@ -76,19 +77,26 @@ impl Environment for SimEnvironment {
         self.env.scene_index() as u32
     }
 
-    fn reset(&mut self, seed: u64) -> anyhow::Result<Observation> {
-        let o = self.env.reset(seed)?;
-        Ok(self.observation(o))
+    fn begin_reset(&mut self, seed: u64) -> anyhow::Result<()> {
+        self.env.begin_reset(seed)
     }
 
-    fn step(&mut self, action: u32) -> anyhow::Result<Transition> {
-        let step = self.env.step(action as usize)?;
-        Ok(Transition {
-            observation: self.observation(step.observation),
-            reward: step.reward,
-            done: step.done,
-            success: step.success,
+    fn begin_step(&mut self, action: u32) -> anyhow::Result<StepOutcome> {
+        let outcome = self.env.begin_step(action as usize)?;
+        Ok(StepOutcome {
+            reward: outcome.reward,
+            done: outcome.done,
+            success: outcome.success,
         })
+    }
+
+    fn camera_frame(&self) -> Option<CameraFrame<'_>> {
+        self.env.camera_frame()
+    }
+
+    fn observe(&mut self, affordances: Vec<Vec<f32>>) -> anyhow::Result<Observation> {
+        let o = self.env.observe(affordances)?;
+        Ok(self.observation(o))
     }
 
     fn finish_episode(&mut self, episode_id: u64) -> anyhow::Result<EpisodeEnd> {
@@ -97,15 +105,6 @@ impl Environment for SimEnvironment {
             frames: Some(summary.frames),
             stats: summary.stats,
         })
-    }
-
-    fn load_unet(&mut self, weights: Vec<u8>, temperature: f32) -> anyhow::Result<()> {
-        let model = self.env.model_mut();
-        model
-            .load_weights(weights)
-            .context("loading the learner's U-Net")?;
-        model.temperature = temperature;
-        Ok(())
     }
 
     fn set_global_steps(&mut self, steps: u64) {
