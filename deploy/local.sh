@@ -14,6 +14,10 @@ shared-memory resources.
 
 Options:
   --actors N        number of actor processes (required)
+  --envs-per-actor K
+                    environments each actor steps side by side (default 1): a
+                    thread each, the U-Net and policy batched over them; use it
+                    to fill a GPU, or the cores of a big CPU with fewer processes
   --run-dir DIR     run directory (config, checkpoints, logs); default runs/run-<time>
   --resume          resume the run in --run-dir from its newest valid checkpoint
   --method M        ours (default: object-level map), nomap-seg, nomap-noseg
@@ -39,12 +43,13 @@ ignores SIGINT).
 USAGE
 }
 
-ACTORS="" RUN_DIR="" RESUME=0 PORT=9464 PROFILE=release BIN="" SEED=0
+ACTORS="" ENVS=1 RUN_DIR="" RESUME=0 PORT=9464 PROFILE=release BIN="" SEED=0
 TASK_ARGS=() ACTOR_ARGS=() METHOD=ours ENV_KIND=sim
 EXTRA=()
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --actors) ACTORS="${2:?--actors needs a number}"; shift 2 ;;
+    --envs-per-actor) ENVS="${2:?--envs-per-actor needs a number}"; shift 2 ;;
     --run-dir) RUN_DIR="${2:?--run-dir needs a directory}"; shift 2 ;;
     --resume) RESUME=1; shift ;;
     --method) METHOD="${2:?--method needs a value}"; TASK_ARGS+=(--method "$METHOD"); shift 2 ;;
@@ -64,6 +69,7 @@ while [[ $# -gt 0 ]]; do
   esac
 done
 [[ "$ACTORS" =~ ^[1-9][0-9]*$ ]] || { echo "local.sh: --actors N is required (N >= 1)" >&2; usage >&2; exit 2; }
+[[ "$ENVS" =~ ^[1-9][0-9]*$ && "$ENVS" -le 256 ]] || { echo "local.sh: --envs-per-actor needs an integer in 1..256, got '$ENVS'" >&2; exit 2; }
 [[ "$SEED" =~ ^[0-9]+$ ]] || { echo "local.sh: --seed needs a non-negative integer, got '$SEED'" >&2; exit 2; }
 if [[ $RESUME -eq 1 && -z "$RUN_DIR" ]]; then
   echo "local.sh: --resume needs --run-dir DIR (the run to resume)" >&2; exit 2
@@ -138,7 +144,7 @@ curl -fsS --retry 20 --retry-delay 0 --retry-connrefused "http://$ADDR/healthz" 
 supervise_actor() {
   local id=$1 restarts=0 backoff=1 code
   while :; do
-    "$BIN/actor" --actor-id "$id" --learner "$PREFIX" --config "$RUN_DIR/config.toml" --seed "$SEED" "${ACTOR_ARGS[@]}" \
+    "$BIN/actor" --actor-id "$id" --learner "$PREFIX" --config "$RUN_DIR/config.toml" --seed "$SEED" --envs "$ENVS" "${ACTOR_ARGS[@]}" \
       >>"$LOGS/actor-$id.log" 2>&1 &
     echo $! >"$LOGS/actor-$id.pid"
     code=0; wait $! || code=$?

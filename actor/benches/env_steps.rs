@@ -9,18 +9,25 @@
 //!
 //! `cargo bench -p actor --bench env_steps`
 //!
+//! A second table steps several environments in one process in lock-step
+//! (`actor --envs N`: a thread per environment, the U-Net over all their
+//! frames in one batch) and reports steps/s per process and per environment.
+//!
 //! `AFX_DEVICE=gpu` runs the U-Net on the GPU (a build with
 //! `--features nets/gpu`); `AFX_DATA` points at the shared data directory
 //! (default `../shared/data` beside the repository), for running the bench
-//! binary on another machine.
+//! binary on another machine; `AFX_ENVS` lists the environment counts of the
+//! second table (default `1,2`).
 
 use std::time::{Duration, Instant};
 
 use actor::env::actions::random_allowed_action;
 use actor::env::affordance_model::AffordanceModel;
+use actor::env::lockstep::{reset_all, step_all};
 use actor::env::sim_env::{SimEnv, SimEnvConfig, StepTimings};
+use actor::env::SimEnvironment;
 use mapper::Affordance;
-use proto::Method;
+use proto::{Method, TaskSpec};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use sim::ithor::SceneSet;
@@ -86,21 +93,8 @@ fn main() {
             }
         };
         let name = renderer.describe();
-        let mut profile = RobotProfile::load("default").expect("profile");
-        profile.image_size = image_size;
-        let source = SceneSource::open(
-            Some(&data.join("ithor-livingrooms")),
-            SceneSet::Test,
-            &data.join("ithor-object-types.tsv"),
-            &profile,
-        )
-        .expect("scenes");
-        let config = SimEnvConfig {
-            episode_steps: STEPS,
-            ..SimEnvConfig::paper(method, &AFFORDANCES)
-        };
+        let mut env = sim_env(&data, method, image_size, renderer);
         let model = AffordanceModel::new(AFFORDANCES.len(), &device);
-        let mut env = SimEnv::new(config, source, profile, renderer);
         let mut rng = StdRng::seed_from_u64(1);
         let reset_started = Instant::now();
         let mut observation = env.reset(1, &model).expect("reset");
@@ -128,5 +122,92 @@ fn main() {
             ms(|t| t.unet),
             ms(|t| t.state),
         );
+    }
+    lockstep_table(&data, &device);
+}
+
+/// An environment of `method` at `image_size` px in the test rooms.
+fn sim_env(
+    data: &std::path::Path,
+    method: Method,
+    image_size: usize,
+    renderer: Renderer,
+) -> SimEnv {
+    let mut profile = RobotProfile::load("default").expect("profile");
+    profile.image_size = image_size;
+    let source = SceneSource::open(
+        Some(&data.join("ithor-livingrooms")),
+        SceneSet::Test,
+        &data.join("ithor-object-types.tsv"),
+        &profile,
+    )
+    .expect("scenes");
+    let config = SimEnvConfig {
+        episode_steps: STEPS,
+        ..SimEnvConfig::paper(method, &AFFORDANCES)
+    };
+    SimEnv::new(config, source, profile, renderer)
+}
+
+/// Several environments per process in lock-step (CPU renderer, 64 px):
+/// steps/s of the process and of each environment.
+fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
+    let counts: Vec<usize> = std::env::var("AFX_ENVS")
+        .unwrap_or_else(|_| "1,2".into())
+        .split(',')
+        .map(|n| {
+            n.trim()
+                .parse()
+                .expect("AFX_ENVS: environment counts, e.g. 1,2,4")
+        })
+        .collect();
+    let model = AffordanceModel::new(AFFORDANCES.len(), device);
+    println!();
+    println!("| method | px | environments | steps/s per process | steps/s per environment |");
+    println!("|---|---|---|---|---|");
+    for method in [Method::Ours, Method::NomapSeg] {
+        for &n in &counts {
+            let task = TaskSpec {
+                method,
+                affordances: AFFORDANCES.to_vec(),
+                image_size: 64,
+                episode_steps: STEPS,
+                ..TaskSpec::default()
+            };
+            let mut envs: Vec<SimEnvironment> = (0..n)
+                .map(|_| {
+                    let renderer = Renderer::open(RendererChoice::Cpu).expect("CPU renderer");
+                    SimEnvironment::new(sim_env(data, method, 64, renderer), &task)
+                        .expect("the environment fits its task")
+                })
+                .collect();
+            let mut refs: Vec<&mut SimEnvironment> = envs.iter_mut().collect();
+            let seeds: Vec<u64> = (1..=n as u64).collect();
+            let mut observations = reset_all(&mut refs, &seeds, Some(&model)).expect("reset");
+            let mut rng = StdRng::seed_from_u64(1);
+            let steps = STEPS / 2;
+            let start = Instant::now();
+            for _ in 0..steps {
+                let actions: Vec<u32> = refs
+                    .iter()
+                    .zip(&observations)
+                    .map(|(env, o)| {
+                        let space = env.inner().action_space();
+                        random_allowed_action(space, &o.action_mask, 0.5, &mut rng) as u32
+                    })
+                    .collect();
+                observations = step_all(&mut refs, &actions, Some(&model))
+                    .expect("step")
+                    .into_iter()
+                    .map(|(_, o)| o)
+                    .collect();
+            }
+            let per_process = (n * steps) as f64 / start.elapsed().as_secs_f64();
+            println!(
+                "| {} | 64 | {n} | {per_process:.1} | {:.1} |",
+                method.as_str(),
+                per_process / n as f64
+            );
+        }
     }
 }

@@ -21,7 +21,7 @@ use transport::{ActorPorts, Delivery, ReceivedMessage, TransportConfig};
 use rayon::prelude::*;
 
 use crate::env::affordance_model::AffordanceModel;
-use crate::env::{EpisodeEnd, Environment, Observation, StepOutcome};
+use crate::env::{lockstep, Environment, EpisodeEnd, Observation, StepOutcome};
 
 /// Settings of one actor's loop.
 #[derive(Debug, Clone)]
@@ -260,8 +260,8 @@ fn act_batch(
         .into_iter()
         .zip(uniforms)
         .map(|(step, &uniform)| {
-            let (action, log_prob) = sample(&step.log_probs, uniform)
-                .context("the environment allowed no action")?;
+            let (action, log_prob) =
+                sample(&step.log_probs, uniform).context("the environment allowed no action")?;
             Ok(Acted {
                 action,
                 log_prob,
@@ -364,41 +364,9 @@ struct RunningEpisode {
     chunk: RolloutChunk,
 }
 
-/// The affordance U-Net's probabilities for every slot's camera frame, in
-/// one batch (empty planes for an environment without a camera).
-fn perceive(
-    slots: &[&mut Slot],
-    model: Option<&AffordanceModel>,
-) -> anyhow::Result<Vec<Vec<Vec<f32>>>> {
-    let frames: Vec<_> = slots.iter().map(|s| s.env.camera_frame()).collect();
-    let batch: Vec<_> = frames.iter().flatten().copied().collect();
-    if batch.is_empty() {
-        return Ok(vec![Vec::new(); slots.len()]);
-    }
-    let model = model.context("this environment's camera frames need the U-Net")?;
-    let mut predicted = model.predict_batch(&batch).into_iter();
-    Ok(frames
-        .iter()
-        .map(|f| match f {
-            Some(_) => predicted.next().unwrap_or_default(),
-            None => Vec::new(),
-        })
-        .collect())
-}
-
-/// The second half of every slot's reset or step: the U-Net over all
-/// their frames in one batch, then each environment's observation, in
-/// parallel.
-fn observe_all(
-    slots: &mut [&mut Slot],
-    model: Option<&AffordanceModel>,
-) -> anyhow::Result<Vec<Observation>> {
-    let affordances = perceive(slots, model)?;
-    slots
-        .par_iter_mut()
-        .zip(affordances)
-        .map(|(slot, a)| slot.env.observe(a))
-        .collect()
+/// The environments of `slots`, for [`lockstep`].
+fn envs_of<'a>(slots: &'a mut [&mut Slot]) -> Vec<&'a mut (dyn Environment + 'static)> {
+    slots.iter_mut().map(|s| s.env.as_mut()).collect()
 }
 
 /// What the loop keeps between steps besides the slots.
@@ -473,13 +441,13 @@ impl Actor<'_> {
             self.started += 1;
             starting.push((slot, id));
         }
-        let (seed, actor_id) = (self.seed, self.settings.actor_id);
-        starting
-            .par_iter_mut()
-            .map(|(slot, id)| slot.env.begin_reset(episode_seed(seed, actor_id, *id)))
-            .collect::<anyhow::Result<()>>()?;
         let (mut slots, ids): (Vec<&mut Slot>, Vec<u64>) = starting.into_iter().unzip();
-        let observations = observe_all(&mut slots, self.model.as_ref())?;
+        let seeds: Vec<u64> = ids
+            .iter()
+            .map(|&id| episode_seed(self.seed, self.settings.actor_id, id))
+            .collect();
+        let observations =
+            lockstep::reset_all(&mut envs_of(&mut slots), &seeds, self.model.as_ref())?;
         let layout = &self.policy.layout;
         for ((slot, id), observation) in slots.into_iter().zip(ids).zip(observations) {
             slot.episode = Some(RunningEpisode {
@@ -518,23 +486,27 @@ impl Actor<'_> {
             let uniforms: Vec<f32> = inputs.iter().map(|_| self.rng.random::<f32>()).collect();
             act_batch(&self.policy, &inputs, &uniforms, self.device)?
         };
-        let outcomes: Vec<StepOutcome> = running
-            .par_iter_mut()
-            .zip(&acted)
-            .map(|(slot, a)| slot.env.begin_step(a.action))
-            .collect::<anyhow::Result<_>>()?;
-        let observations = observe_all(&mut running, self.model.as_ref())?;
+        let actions: Vec<u32> = acted.iter().map(|a| a.action).collect();
+        let (outcomes, observations): (Vec<StepOutcome>, Vec<Observation>) =
+            lockstep::step_all(&mut envs_of(&mut running), &actions, self.model.as_ref())?
+                .into_iter()
+                .unzip();
         let chunk_steps = self.settings.chunk_steps;
         let mut closing = Vec::new();
-        for (((slot, acted), outcome), observation) in
-            running.iter_mut().zip(acted).zip(&outcomes).zip(observations)
+        for (((slot, acted), outcome), observation) in running
+            .iter_mut()
+            .zip(acted)
+            .zip(&outcomes)
+            .zip(observations)
         {
             let episode = slot.episode.as_mut().context("a running episode")?;
             episode.steps += 1;
             episode.episode_return += outcome.reward;
             let chunk = &mut episode.chunk;
             push_obs(chunk, &episode.observation.features);
-            chunk.masks.extend_from_slice(&episode.observation.action_mask);
+            chunk
+                .masks
+                .extend_from_slice(&episode.observation.action_mask);
             chunk.actions.push(acted.action);
             chunk.log_probs.push(acted.log_prob);
             chunk.values.push(acted.value);
@@ -571,7 +543,11 @@ impl Actor<'_> {
             .filter(|e| closing.iter().any(|(id, _)| *id == e.id))
             .collect();
         let cut: Vec<usize> = (0..episodes.len())
-            .filter(|&i| closing.iter().any(|&(id, done)| id == episodes[i].id && !done))
+            .filter(|&i| {
+                closing
+                    .iter()
+                    .any(|&(id, done)| id == episodes[i].id && !done)
+            })
             .collect();
         let values = {
             let inputs: Vec<_> = cut
@@ -603,7 +579,10 @@ impl Actor<'_> {
 
     /// Ends the episodes of `ended` (labelling in parallel) and sends their
     /// labelled frames and stats.
-    fn finish_episodes<'s>(&mut self, ended: Vec<&'s mut Slot>) -> anyhow::Result<Vec<&'s mut Slot>> {
+    fn finish_episodes<'s>(
+        &mut self,
+        ended: Vec<&'s mut Slot>,
+    ) -> anyhow::Result<Vec<&'s mut Slot>> {
         let mut finishing: Vec<(&mut Slot, RunningEpisode)> = ended
             .into_iter()
             .filter_map(|slot| slot.episode.take().map(|e| (slot, e)))
@@ -751,6 +730,73 @@ mod tests {
                 "started at {started_at_steps} steps, actor {actor_id}: {repeated} repeated seeds"
             );
         }
+    }
+
+    #[test]
+    fn one_batched_forward_equals_a_forward_per_environment() {
+        let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).unwrap();
+        let layout = PolicyLayout {
+            image_channels: vec![2],
+            image_size: 64,
+            vector_dims: vec![5],
+            n_actions: 4,
+            obs_dtype: ObsDtype::F32,
+            gru_hidden: Some(8),
+        };
+        let policy = Policy {
+            net: PolicyNet::new(&layout, &device),
+            layout: layout.clone(),
+            policy_version: 1,
+            unet_version: 0,
+            env_steps: None,
+        };
+        let observations: Vec<Observation> = (0..3)
+            .map(|k| Observation {
+                features: (0..layout.obs_len())
+                    .map(|i| ((i * 7 + k * 13) % 17) as f32 / 17.0)
+                    .collect(),
+                action_mask: (0..4).map(|a| u8::from(a != k)).collect(),
+            })
+            .collect();
+        // An episode's start (zeros) beside two running recurrent states.
+        let hidden = [
+            None,
+            Some((0..8).map(|i| i as f32 / 8.0 - 0.5).collect::<Vec<f32>>()),
+            Some(vec![0.3; 8]),
+        ];
+        let inputs: Vec<_> = observations
+            .iter()
+            .zip(&hidden)
+            .map(|(o, h)| (o, h.as_deref()))
+            .collect();
+        let batched = forward_batch(&policy, &inputs, &device).unwrap();
+        assert_eq!(batched.len(), 3);
+        let close = |a: f32, b: f32| (a == b) || (a - b).abs() < 1e-5;
+        for (k, (input, together)) in inputs.iter().zip(&batched).enumerate() {
+            let alone = forward_batch(&policy, std::slice::from_ref(input), &device)
+                .unwrap()
+                .remove(0);
+            assert!(close(together.value, alone.value), "value of {k}");
+            assert_eq!(together.log_probs[k], f32::NEG_INFINITY, "masked action");
+            assert!(
+                together
+                    .log_probs
+                    .iter()
+                    .zip(&alone.log_probs)
+                    .all(|(&a, &b)| close(a, b)),
+                "log-probabilities of {k}: {:?} vs {:?}",
+                together.log_probs,
+                alone.log_probs
+            );
+            let (t, a) = (
+                together.hidden.as_ref().unwrap(),
+                alone.hidden.as_ref().unwrap(),
+            );
+            assert_eq!(t.len(), 8);
+            assert!(t.iter().zip(a).all(|(&x, &y)| close(x, y)), "state of {k}");
+        }
+        // The recurrent state matters: another state, another output.
+        assert!(batched[1].hidden != batched[2].hidden);
     }
 
     #[test]

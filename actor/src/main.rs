@@ -243,8 +243,8 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
             })
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let model = (task.env == EnvKind::Sim)
-        .then(|| AffordanceModel::new(task.affordances.len(), &device));
+    let model =
+        (task.env == EnvKind::Sim).then(|| AffordanceModel::new(task.affordances.len(), &device));
     let mut ports = transport::ActorPorts::open(&transport, actor_id).context(
         "opening the shared-memory services (same --learner prefix and config as the learner?)",
     )?;
@@ -256,13 +256,7 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
         weights_timeout: Duration::from_secs_f64(cli.weights_timeout_s),
     };
     let summary = run(
-        envs,
-        model,
-        &mut ports,
-        &transport,
-        &settings,
-        &device,
-        &stop,
+        envs, model, &mut ports, &transport, &settings, &device, &stop,
     )?;
     eprintln!(
         "actor {}: stopped after {} episodes, {} steps; {} messages delivered, {} dropped; policy version {}, U-Net version {}",

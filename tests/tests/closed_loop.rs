@@ -1,6 +1,7 @@
 //! The closed loop, CI-sized: a learner and two simulator actors (64 × 64
-//! images, short episodes), for method `ours` and then for `nomap-seg`
-//! (GRU policy: recurrent rollouts). Labelled frames reach the learner, the
+//! images, short episodes), the second running two environments in
+//! lock-step (`--envs 2`: batched inference), for method `ours` and then for
+//! `nomap-seg` (GRU policy: recurrent rollouts). Labelled frames reach the learner, the
 //! U-Net trains on them and passes its validation gate, the policy updates,
 //! and both networks' new weights reach the actors.
 
@@ -67,6 +68,7 @@ fn closed_loop(method: &str) {
     let data = data_dir();
     let mut actors: Vec<Process> = (0..2)
         .map(|id| {
+            let envs = (id + 1).to_string();
             start_actor(
                 id,
                 &prefix,
@@ -82,6 +84,8 @@ fn closed_loop(method: &str) {
                     "8",
                     "--seed",
                     &id.to_string(),
+                    "--envs",
+                    &envs,
                 ],
             )
         })
@@ -156,6 +160,21 @@ fn closed_loop(method: &str) {
             .iter()
             .all(|r| r["kind"] == "episode" && r["stats"]["episode_return"].is_number()),
         "{history}"
+    );
+    // Episodes report the rooms they were played in (the seeds are fixed, so
+    // which rooms is too): the 20 training rooms are indices 0..20.
+    let (_, body) = system_tests::http_get(&learner.addr, "/api/history?kind=episode")
+        .expect("/api/history answers");
+    let history: serde_json::Value = serde_json::from_str(&body).expect("JSON history");
+    let scenes: Vec<u64> = history["records"]
+        .as_array()
+        .expect("records")
+        .iter()
+        .filter_map(|r| r["scene"].as_u64())
+        .collect();
+    assert!(
+        scenes.iter().all(|&s| s < 20) && scenes.iter().any(|&s| s > 0),
+        "rooms {scenes:?}"
     );
 
     // New weights of both networks reach both actors.

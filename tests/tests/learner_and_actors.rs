@@ -79,8 +79,12 @@ fn learner_serves_three_actors_and_survives_a_killed_one() {
         dir.join("learner.log"),
     );
     let config = run_dir.join("config.toml").display().to_string();
+    // Actor 2 runs three environments in lock-step.
     let mut actors: Vec<_> = (0..3)
-        .map(|id| start_actor(id, &prefix, &dir, &["--config", &config]))
+        .map(|id| {
+            let envs = if id == 2 { "3" } else { "1" };
+            start_actor(id, &prefix, &dir, &["--config", &config, "--envs", envs])
+        })
         .collect();
 
     // Every actor streams chunks made with weights version >= 1.

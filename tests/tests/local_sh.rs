@@ -54,7 +54,7 @@ fn launch(dir: &Path, case: &str) -> Launch {
         .arg("--run-dir")
         .arg(&run_dir)
         .args(["--port", &port.to_string()])
-        .args(["--seed", RUN_SEED])
+        .args(["--seed", RUN_SEED, "--envs-per-actor", "2"])
         .stdout(Stdio::from(out.try_clone().expect("log handle")))
         .stderr(Stdio::from(out))
         .process_group(0)
@@ -150,7 +150,8 @@ fn assert_stopped_cleanly(mut launch: Launch) {
 fn sigterm_to_the_script_stops_actors_then_the_learner() {
     let dir = scratch_dir("local-sh-term");
     let launch = launch(&dir, "term");
-    // `--seed` reaches the learner (its saved config) and every actor.
+    // `--seed` reaches the learner (its saved config) and every actor, and
+    // so does `--envs-per-actor`.
     let config = std::fs::read_to_string(launch.run_dir.join("config.toml")).expect("config.toml");
     assert!(
         config.lines().any(|l| l == format!("seed = {RUN_SEED}")),
@@ -164,8 +165,8 @@ fn sigterm_to_the_script_stops_actors_then_the_learner() {
     assert!(
         actors
             .iter()
-            .all(|c| c.contains(&format!("--seed {RUN_SEED} "))),
-        "actors without --seed {RUN_SEED}: {actors:?}"
+            .all(|c| c.contains(&format!("--seed {RUN_SEED} --envs 2 "))),
+        "actors without --seed {RUN_SEED} --envs 2: {actors:?}"
     );
     // SAFETY: kill(2) on our own child's pid has no memory-safety preconditions.
     unsafe {

@@ -57,7 +57,9 @@ impl AffordanceModel {
         };
         let (height, width) = (first.height, first.width);
         assert!(
-            frames.iter().all(|f| (f.height, f.width) == (height, width)),
+            frames
+                .iter()
+                .all(|f| (f.height, f.width) == (height, width)),
             "frames of one batch share a size"
         );
         let n = height * width;

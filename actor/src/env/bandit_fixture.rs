@@ -120,11 +120,7 @@ mod tests {
             assert_eq!((outcome, observation.clone()), b.step(i % 4, None).unwrap());
             assert_eq!(observation.action_mask[a.context % 4], 1);
             assert_eq!(
-                observation
-                    .action_mask
-                    .iter()
-                    .filter(|&&m| m == 0)
-                    .count(),
+                observation.action_mask.iter().filter(|&&m| m == 0).count(),
                 1
             );
             assert_eq!(outcome.done, i == 63);

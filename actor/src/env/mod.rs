@@ -3,6 +3,7 @@
 pub mod actions;
 pub mod affordance_model;
 mod bandit_fixture;
+pub mod lockstep;
 pub mod reward;
 pub mod sim_env;
 mod sim_environment;
@@ -75,10 +76,15 @@ pub trait Environment: Send {
 
     /// Both halves of a reset, `model` seeing the camera frame (an
     /// environment with a camera needs one).
-    fn reset(&mut self, seed: u64, model: Option<&AffordanceModel>) -> anyhow::Result<Observation> {
-        self.begin_reset(seed)?;
-        let affordances = predict(self.camera_frame(), model)?;
-        self.observe(affordances)
+    fn reset(&mut self, seed: u64, model: Option<&AffordanceModel>) -> anyhow::Result<Observation>
+    where
+        Self: Sized,
+    {
+        let observations = lockstep::reset_all(&mut [self], &[seed], model)?;
+        observations
+            .into_iter()
+            .next()
+            .ok_or_else(|| anyhow::anyhow!("a reset observes"))
     }
 
     /// Both halves of a step, `model` seeing the camera frame (an
@@ -87,21 +93,14 @@ pub trait Environment: Send {
         &mut self,
         action: u32,
         model: Option<&AffordanceModel>,
-    ) -> anyhow::Result<(StepOutcome, Observation)> {
-        let outcome = self.begin_step(action)?;
-        let affordances = predict(self.camera_frame(), model)?;
-        Ok((outcome, self.observe(affordances)?))
-    }
-}
-
-/// `model`'s probability planes for `frame`; none without a frame.
-fn predict(
-    frame: Option<CameraFrame<'_>>,
-    model: Option<&AffordanceModel>,
-) -> anyhow::Result<Vec<Vec<f32>>> {
-    match (frame, model) {
-        (None, _) => Ok(Vec::new()),
-        (Some(frame), Some(model)) => Ok(model.predict(&frame)),
-        (Some(_), None) => anyhow::bail!("this environment's camera frames need the U-Net"),
+    ) -> anyhow::Result<(StepOutcome, Observation)>
+    where
+        Self: Sized,
+    {
+        let steps = lockstep::step_all(&mut [self], &[action], model)?;
+        steps
+            .into_iter()
+            .next()
+            .ok_or_else(|| anyhow::anyhow!("a step observes"))
     }
 }

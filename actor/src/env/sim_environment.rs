@@ -8,8 +8,8 @@
 use anyhow::ensure;
 use proto::{PolicyLayout, TaskSpec};
 
-use super::sim_env::{SimEnv, SimObservation};
 use super::affordance_model::CameraFrame;
+use super::sim_env::{SimEnv, SimObservation};
 use super::{Environment, EpisodeEnd, Observation, StepOutcome};
 
 /// [`SimEnv`] as an [`Environment`].
