@@ -190,10 +190,27 @@ struct PolicyStep {
     hidden: Option<Vec<f32>>,
 }
 
-/// One forward pass of the policy over several environments' observations,
-/// each with its recurrent state before this step (`None` = zeros, an
-/// episode's start).
+/// The policy over several environments' observations, each with its
+/// recurrent state before this step (`None` = zeros, an episode's start):
+/// one forward pass on a GPU, one per observation and thread on the CPU
+/// (where a batch costs the same per observation, on one thread).
 fn forward_batch(
+    policy: &Policy,
+    inputs: &[(&Observation, Option<&[f32]>)],
+    device: &Device,
+) -> anyhow::Result<Vec<PolicyStep>> {
+    if inputs.len() > 1 && nets::device::is_cpu(device) {
+        return inputs
+            .par_iter()
+            .map(|input| forward(policy, std::slice::from_ref(input), device))
+            .collect::<anyhow::Result<Vec<_>>>()
+            .map(|steps| steps.into_iter().flatten().collect());
+    }
+    forward(policy, inputs, device)
+}
+
+/// One forward pass of the policy over `inputs` (see [`forward_batch`]).
+fn forward(
     policy: &Policy,
     inputs: &[(&Observation, Option<&[f32]>)],
     device: &Device,
@@ -769,13 +786,20 @@ mod tests {
             .zip(&hidden)
             .map(|(o, h)| (o, h.as_deref()))
             .collect();
-        let batched = forward_batch(&policy, &inputs, &device).unwrap();
+        // One pass over the batch (as on a GPU) against one per environment.
+        let batched = forward(&policy, &inputs, &device).unwrap();
         assert_eq!(batched.len(), 3);
+        let threaded = forward_batch(&policy, &inputs, &device).unwrap();
+        assert_eq!(threaded.len(), 3);
         let close = |a: f32, b: f32| (a == b) || (a - b).abs() < 1e-5;
         for (k, (input, together)) in inputs.iter().zip(&batched).enumerate() {
-            let alone = forward_batch(&policy, std::slice::from_ref(input), &device)
+            let alone = forward(&policy, std::slice::from_ref(input), &device)
                 .unwrap()
                 .remove(0);
+            assert_eq!(
+                threaded[k].log_probs, alone.log_probs,
+                "threads keep the order"
+            );
             assert!(close(together.value, alone.value), "value of {k}");
             assert_eq!(together.log_probs[k], f32::NEG_INFINITY, "masked action");
             assert!(

@@ -3,6 +3,7 @@
 
 use burn::prelude::*;
 use nets::unet::AffordanceUnet;
+use rayon::prelude::*;
 
 /// The U-Net the actor infers with, and its calibration.
 #[derive(Debug)]
@@ -46,12 +47,29 @@ impl AffordanceModel {
             .unwrap_or_default()
     }
 
-    /// [`AffordanceModel::predict`] for several frames of one size in one
-    /// forward pass (on a GPU a batch costs little more than one frame).
+    /// [`AffordanceModel::predict`] for several frames of one size: on a
+    /// GPU in one forward pass (a batch costs little more than one frame),
+    /// on the CPU a frame per thread (there a batch costs the same per
+    /// frame, on one thread).
     ///
     /// # Panics
     /// If the frames differ in size: an actor's environments share one task.
     pub fn predict_batch(&self, frames: &[CameraFrame<'_>]) -> Vec<Vec<Vec<f32>>> {
+        if frames.len() > 1 && nets::device::is_cpu(&self.device) {
+            return frames
+                .par_iter()
+                .map(|frame| {
+                    self.forward(std::slice::from_ref(frame))
+                        .pop()
+                        .unwrap_or_default()
+                })
+                .collect();
+        }
+        self.forward(frames)
+    }
+
+    /// Probability planes of `frames` from one forward pass.
+    fn forward(&self, frames: &[CameraFrame<'_>]) -> Vec<Vec<Vec<f32>>> {
         let Some(first) = frames.first() else {
             return Vec::new();
         };
@@ -125,4 +143,58 @@ pub struct CameraFrame<'a> {
     pub height: usize,
     /// Columns.
     pub width: usize,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_batch_gives_each_frame_what_it_gets_alone() {
+        let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).unwrap();
+        let model = AffordanceModel::new(2, &device);
+        let (h, w) = (32, 32);
+        let rgb: Vec<Vec<u8>> = (0..3)
+            .map(|k| {
+                (0..h * w * 3)
+                    .map(|i| ((i * 31 + k * 77) % 256) as u8)
+                    .collect()
+            })
+            .collect();
+        let depth: Vec<Vec<f32>> = (0..3)
+            .map(|k| {
+                (0..h * w)
+                    .map(|i| {
+                        if i % 50 == k {
+                            f32::NAN
+                        } else {
+                            0.5 + (i % 13) as f32 * 0.1
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let frames: Vec<CameraFrame<'_>> = (0..3)
+            .map(|k| CameraFrame {
+                rgb: &rgb[k],
+                depth_m: &depth[k],
+                height: h,
+                width: w,
+            })
+            .collect();
+        // One pass over three frames (the GPU's way) and a thread per frame
+        // (the CPU's) against each frame alone.
+        let one_pass = model.forward(&frames);
+        let threaded = model.predict_batch(&frames);
+        assert_eq!((one_pass.len(), threaded.len()), (3, 3));
+        for (k, frame) in frames.iter().enumerate() {
+            let alone = model.predict(frame);
+            assert_eq!(alone.len(), 2);
+            assert_eq!(threaded[k], alone, "frame {k}");
+            for (a, b) in one_pass[k].iter().flatten().zip(alone.iter().flatten()) {
+                assert!((a - b).abs() < 1e-5, "frame {k}: {a} vs {b}");
+            }
+        }
+        assert_ne!(threaded[0], threaded[1]);
+    }
 }

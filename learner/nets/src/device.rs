@@ -47,6 +47,13 @@ pub fn open_device(choice: DeviceChoice) -> Result<Device, DeviceError> {
     }
 }
 
+/// True for the CPU backend. Its forward pass of one sample runs on one
+/// thread and a batch costs the same per sample, so callers with several
+/// independent samples do better running them on threads of their own.
+pub fn is_cpu(device: &Device) -> bool {
+    *device == Device::flex()
+}
+
 #[cfg(feature = "gpu")]
 fn open_gpu() -> Result<Device, DeviceError> {
     // wgpu panics when there is no adapter; turn that into an error.
@@ -81,7 +88,7 @@ mod tests {
         assert_eq!("gpu".parse::<DeviceChoice>(), Ok(DeviceChoice::Gpu));
         let err = "tpu".parse::<DeviceChoice>().unwrap_err();
         assert!(err.to_string().contains("use `cpu` or `gpu`"));
-        assert!(open_device(DeviceChoice::Cpu).is_ok());
+        assert!(open_device(DeviceChoice::Cpu).is_ok_and(|d| is_cpu(&d)));
         #[cfg(not(feature = "gpu"))]
         assert!(matches!(
             open_device(DeviceChoice::Gpu),
