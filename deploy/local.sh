@@ -30,6 +30,8 @@ Options:
   --data DIR        shared data (iTHOR rooms, object catalogue); default ../shared/data
   --scenes S        ithor (the 20 training rooms, default) or generated
   --renderer R      gpu (wgpu: a GPU or Mesa lavapipe, default) or cpu
+  --device D        where learner and actors run the networks: cpu (default) or
+                    gpu (binaries built with --features nets/gpu; see README)
   --seed N          the run's seed (default 0): initial networks, rooms, actions;
                     runs that differ only in --seed are independent repeats
   --port PORT       HTTP port of the learner's metrics endpoint (default 9464)
@@ -44,7 +46,7 @@ USAGE
 }
 
 ACTORS="" ENVS=1 RUN_DIR="" RESUME=0 PORT=9464 PROFILE=release BIN="" SEED=0
-TASK_ARGS=() ACTOR_ARGS=() METHOD=ours ENV_KIND=sim
+TASK_ARGS=() ACTOR_ARGS=() LEARNER_DEVICE=() METHOD=ours ENV_KIND=sim
 EXTRA=()
 while [[ $# -gt 0 ]]; do
   case "$1" in
@@ -59,6 +61,7 @@ while [[ $# -gt 0 ]]; do
     --data) ACTOR_ARGS+=(--data "$(cd "${2:?--data needs a directory}" && pwd)"); shift 2 ;;
     --scenes) ACTOR_ARGS+=(--scenes "${2:?--scenes needs a value}"); shift 2 ;;
     --renderer) ACTOR_ARGS+=(--renderer "${2:?--renderer needs a value}"); shift 2 ;;
+    --device) DEVICE="${2:?--device needs a value}"; ACTOR_ARGS+=(--device "$DEVICE"); LEARNER_DEVICE=(--device "$DEVICE"); shift 2 ;;
     --port) PORT="${2:?--port needs a number}"; shift 2 ;;
     --seed) SEED="${2:?--seed needs a number}"; TASK_ARGS+=(--seed "$SEED"); shift 2 ;;
     --debug) PROFILE=debug; shift ;;
@@ -120,7 +123,7 @@ PREFIX="afx-$(basename "$RUN_DIR" | tr -cd 'A-Za-z0-9_-')"
 STOP_FILE="$LOGS/.stopping"
 rm -f "$STOP_FILE" "$RUN_DIR/http.addr"
 
-LEARNER_ARGS=(serve --service-prefix "$PREFIX" --max-actors "$ACTORS" --http-addr "127.0.0.1:$PORT")
+LEARNER_ARGS=(serve --service-prefix "$PREFIX" --max-actors "$ACTORS" --http-addr "127.0.0.1:$PORT" "${LEARNER_DEVICE[@]}")
 if [[ $RESUME -eq 1 ]]; then
   [[ ${#TASK_ARGS[@]} -eq 0 ]] || echo "local.sh: resuming: the run's saved task is used; ignoring ${TASK_ARGS[*]}" >&2
   LEARNER_ARGS+=(--resume "$RUN_DIR")

@@ -54,7 +54,14 @@ fn launch(dir: &Path, case: &str) -> Launch {
         .arg("--run-dir")
         .arg(&run_dir)
         .args(["--port", &port.to_string()])
-        .args(["--seed", RUN_SEED, "--envs-per-actor", "2"])
+        .args([
+            "--seed",
+            RUN_SEED,
+            "--envs-per-actor",
+            "2",
+            "--device",
+            "cpu",
+        ])
         .stdout(Stdio::from(out.try_clone().expect("log handle")))
         .stderr(Stdio::from(out))
         .process_group(0)
@@ -157,10 +164,25 @@ fn sigterm_to_the_script_stops_actors_then_the_learner() {
         config.lines().any(|l| l == format!("seed = {RUN_SEED}")),
         "the run's config does not hold seed {RUN_SEED}:\n{config}"
     );
-    let actors: Vec<String> = survivors(&launch.prefix)
-        .into_iter()
+    let processes = survivors(&launch.prefix);
+    let actors: Vec<String> = processes
+        .iter()
         .filter(|c| c.contains("--actor-id"))
+        .cloned()
         .collect();
+    // `--device` reaches the learner and every actor.
+    let learners: Vec<&String> = processes
+        .iter()
+        .filter(|c| !c.contains("--actor-id"))
+        .collect();
+    assert!(
+        learners.len() == 1 && learners[0].contains("--device cpu"),
+        "one learner, with --device cpu: {processes:?}"
+    );
+    assert!(
+        actors.iter().all(|c| c.contains("--device cpu")),
+        "actors without --device cpu: {actors:?}"
+    );
     assert_eq!(actors.len(), 2, "two actors: {actors:?}");
     assert!(
         actors
