@@ -213,3 +213,65 @@ fn learner_serves_three_actors_and_survives_a_killed_one() {
         learner.process.log_text()
     );
 }
+
+#[test]
+fn an_actor_with_several_environments_stops_after_max_episodes() {
+    let dir = scratch_dir("max-episodes");
+    let prefix = format!("it-max-episodes-{}", std::process::id());
+    let run_dir = dir.join("run");
+    let bandit = bandit_config(&dir, &prefix, "");
+    let learner = Learner::start(
+        &run_dir,
+        &[
+            "--config".into(),
+            bandit.display().to_string(),
+            "--run-dir".into(),
+            run_dir.display().to_string(),
+        ],
+        dir.join("learner.log"),
+    );
+    let config = run_dir.join("config.toml").display().to_string();
+    // Two environments, five episodes: the third pair starts only one.
+    let mut actor = start_actor(
+        0,
+        &prefix,
+        &dir,
+        &["--config", &config, "--envs", "2", "--max-episodes", "5"],
+    );
+    let exit = actor
+        .wait_exit(Duration::from_secs(60))
+        .expect("the actor stops by itself after its episodes");
+    let log = actor.log_text();
+    assert!(exit.success(), "actor exit {exit}:\n{log}");
+    // The bandit's episodes are 64 steps long.
+    assert!(log.contains("stopped after 5 episodes, 320 steps"), "{log}");
+    // What reached the learner: all of it unless the actor reports drops
+    // (the learner's queue was full), which a quiet machine never sees.
+    let complete = log.contains(", 0 dropped");
+    let status = wait_for(
+        Duration::from_secs(10),
+        "the episodes' stats at the learner",
+        || {
+            let s = learner.status();
+            (!complete || s["episodes"].as_u64() == Some(5)).then_some(s)
+        },
+    );
+    if complete {
+        assert_eq!(status["env_steps"].as_u64(), Some(320), "{status}");
+    }
+    let (_, body) = system_tests::http_get(&learner.addr, "/api/history?kind=episode")
+        .expect("/api/history answers");
+    let history: serde_json::Value = serde_json::from_str(&body).expect("JSON history");
+    let mut ids: Vec<u64> = history["records"]
+        .as_array()
+        .expect("records")
+        .iter()
+        .filter_map(|r| r["episode"].as_u64())
+        .collect();
+    ids.sort_unstable();
+    ids.dedup();
+    assert!(ids.iter().all(|&id| id < 5), "{history}");
+    if complete {
+        assert_eq!(ids, [0, 1, 2, 3, 4], "{history}");
+    }
+}
