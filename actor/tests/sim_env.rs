@@ -4,6 +4,7 @@
 use actor::env::actions::random_allowed_action;
 use actor::env::affordance_model::AffordanceModel;
 use actor::env::sim_env::{SimEnv, SimEnvConfig, SimObservation};
+use actor::env::Environment;
 use mapper::Affordance;
 use proto::{Method, StatField, LABEL_UNKNOWN};
 use rand::rngs::StdRng;
@@ -199,7 +200,7 @@ fn methods_without_a_map_fit_their_layout_and_label_from_interaction_points() {
         // The wrapper checks the state against the task's layout.
         let mut env = actor::env::SimEnvironment::new(env, &task).unwrap();
         let mut rng = StdRng::seed_from_u64(3);
-        let mut observation = actor::env::Environment::reset(&mut env, 3, Some(&model)).unwrap();
+        let mut observation = env.reset(3, Some(&model)).unwrap();
         let mut interactions = 0;
         for _ in 0..steps {
             assert_eq!(observation.features.len(), layout.obs_len(), "{method:?}");
@@ -210,11 +211,9 @@ fn methods_without_a_map_fit_their_layout_and_label_from_interaction_points() {
                 Some(actor::env::actions::PolicyAction::Select { .. })
             );
             interactions += usize::from(is_interaction);
-            observation = actor::env::Environment::step(&mut env, action as u32, Some(&model))
-                .unwrap()
-                .1;
+            observation = env.step(action as u32, Some(&model)).unwrap().1;
         }
-        let end = actor::env::Environment::finish_episode(&mut env, 1).unwrap();
+        let end = env.finish_episode(1).unwrap();
         let frames = end.frames.unwrap();
         println!(
             "{method:?}: {interactions} interactions, {} labelled frames, {} labelled pixels",
@@ -235,4 +234,62 @@ fn methods_without_a_map_fit_their_layout_and_label_from_interaction_points() {
             );
         }
     }
+}
+
+#[test]
+fn environments_in_lock_step_play_exactly_the_episodes_they_play_alone() {
+    let steps = 10;
+    let model = unet();
+    let task = proto::TaskSpec {
+        method: Method::Ours,
+        affordances: AFFORDANCES.to_vec(),
+        episode_steps: steps,
+        ..proto::TaskSpec::default()
+    };
+    let wrap = |env| actor::env::SimEnvironment::new(env, &task).unwrap();
+    let seeds = [2u64, 3];
+    // Each environment alone, its actions drawn from its own generator.
+    let mut alone = Vec::new();
+    for &seed in &seeds {
+        let mut env = wrap(environment(steps));
+        let mut rng = StdRng::seed_from_u64(seed);
+        let mut observation = env.reset(seed, Some(&model)).unwrap();
+        let mut trace = vec![observation.clone()];
+        for _ in 0..steps {
+            let space = env.inner().action_space();
+            let action = random_allowed_action(space, &observation.action_mask, 0.5, &mut rng);
+            let (outcome, next) = env.step(action as u32, Some(&model)).unwrap();
+            trace.push(next.clone());
+            observation = next;
+            assert!(outcome.reward.is_finite());
+        }
+        alone.push(trace);
+    }
+    // Both together: resets and steps in one call, the U-Net over both frames.
+    let mut envs: Vec<_> = seeds.iter().map(|_| wrap(environment(steps))).collect();
+    let mut rngs: Vec<StdRng> = seeds.iter().map(|&s| StdRng::seed_from_u64(s)).collect();
+    let mut refs: Vec<&mut actor::env::SimEnvironment> = envs.iter_mut().collect();
+    let mut observations =
+        actor::env::lockstep::reset_all(&mut refs, &seeds, Some(&model)).unwrap();
+    let mut together = vec![vec![observations[0].clone()], vec![observations[1].clone()]];
+    for _ in 0..steps {
+        let actions: Vec<u32> = (0..2)
+            .map(|i| {
+                let space = refs[i].inner().action_space();
+                random_allowed_action(space, &observations[i].action_mask, 0.5, &mut rngs[i]) as u32
+            })
+            .collect();
+        let results = actor::env::lockstep::step_all(&mut refs, &actions, Some(&model)).unwrap();
+        observations = results.into_iter().map(|(_, o)| o).collect();
+        for (trace, o) in together.iter_mut().zip(&observations) {
+            trace.push(o.clone());
+        }
+    }
+    for (i, (a, b)) in alone.iter().zip(&together).enumerate() {
+        assert!(
+            a == b,
+            "environment {i} played another episode in lock-step"
+        );
+    }
+    assert!(alone[0] != alone[1], "two seeds, two episodes");
 }
