@@ -1,7 +1,8 @@
 //! `deploy/local.sh` as a user runs it, with the bandit fixture and the
 //! already built binaries (`--bin-dir`): it brings up the learner and two
 //! actors, and a stop, whichever processes it reaches, ends every process
-//! of the run with a final checkpoint and exit status 0.
+//! of the run with a final checkpoint and exit status 0. Also
+//! `deploy/throughput.sh`, which measures runs of `local.sh`.
 
 use std::fs::File;
 use std::os::unix::process::CommandExt;
@@ -216,4 +217,58 @@ fn sigterm_that_also_kills_the_actor_supervisors_still_stops_the_learner() {
         }
     }
     assert_stopped_cleanly(launch);
+}
+
+#[test]
+fn throughput_sh_measures_each_setting_and_stops_its_runs() {
+    let dir = scratch_dir("throughput-sh");
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let bin_dir = bin("learner").parent().expect("binary dir").to_path_buf();
+    let runs = dir.join(format!("tp-{}", std::process::id()));
+    let output = Command::new(repo.join("deploy/throughput.sh"))
+        .args(["--settings", "1x1,1x2", "--warmup", "1", "--seconds", "2"])
+        .arg("--runs-dir")
+        .arg(&runs)
+        .args(["--port", &free_port().to_string()])
+        .args(["--", "--env", "bandit-fixture", "--bin-dir"])
+        .arg(&bin_dir)
+        .output()
+        .expect("running deploy/throughput.sh");
+    let table = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success(),
+        "{}\n{table}\n{}",
+        output.status,
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let rows: Vec<Vec<f64>> = table
+        .lines()
+        .skip(2)
+        .map(|l| {
+            l.split('|')
+                .filter_map(|cell| cell.trim().parse::<f64>().ok())
+                .collect()
+        })
+        .collect();
+    assert_eq!(rows.len(), 2, "{table}");
+    for (row, (actors, envs)) in rows.iter().zip([(1.0, 1.0), (1.0, 2.0)]) {
+        assert_eq!(row.len(), 4, "{table}");
+        assert_eq!((row[0], row[1]), (actors, envs), "{table}");
+        assert!(row[2] > 0.0 && row[3] > 0.0, "no steps counted:\n{table}");
+    }
+    // Each run was stopped cleanly: a final checkpoint, nothing left running.
+    for setting in ["1x1", "1x2"] {
+        let log = std::fs::read_to_string(runs.join(format!("{setting}.log"))).unwrap_or_default();
+        assert!(
+            log.contains("stopped (learner exit status 0)"),
+            "{setting}:\n{log}"
+        );
+        let prefix = format!("afx-{setting}");
+        assert!(
+            survivors(&prefix)
+                .iter()
+                .all(|c| !c.contains(&*runs.to_string_lossy())),
+            "{setting}: processes left"
+        );
+    }
 }

@@ -1,0 +1,107 @@
+#!/usr/bin/env bash
+# Measures the whole system's environment steps/s (learner training beside the
+# actors) for several actor × environment settings, one run after the other.
+# See `deploy/throughput.sh --help`.
+set -euo pipefail
+
+usage() {
+  cat <<'USAGE'
+Usage: deploy/throughput.sh [options] [-- local.sh options]
+
+For each setting AxK, starts `deploy/local.sh --actors A --envs-per-actor K` on a
+fresh run, lets it warm up, counts the environment steps the learner receives
+over the measuring window (its /api/status), stops the run, and prints a
+Markdown table: steps/s of all actors, and per actor process.
+
+Options:
+  --settings LIST   comma-separated AxK pairs (default 2x1,1x2)
+  --warmup S        seconds before counting (default 60: builds, first weights,
+                    first episodes)
+  --seconds S       seconds counted (default 180)
+  --runs-dir DIR    where the runs go (default runs/throughput-<time>)
+  --port PORT       the learners' HTTP port (default 9480)
+  -h, --help        this help
+Everything after `--` goes to every local.sh run, e.g.
+  deploy/throughput.sh --settings 1x1,1x8,2x8 -- --bin-dir target/release \
+    --device gpu --image-size 64 --episode-steps 100
+Runs are stopped with SIGTERM (final checkpoint and all); their directories stay.
+USAGE
+}
+
+SETTINGS="2x1,1x2" WARMUP=60 SECONDS_COUNTED=180 RUNS="" PORT=9480
+PASS=()
+while [[ $# -gt 0 ]]; do
+  case "$1" in
+    --settings) SETTINGS="${2:?--settings needs a list}"; shift 2 ;;
+    --warmup) WARMUP="${2:?--warmup needs seconds}"; shift 2 ;;
+    --seconds) SECONDS_COUNTED="${2:?--seconds needs seconds}"; shift 2 ;;
+    --runs-dir) RUNS="${2:?--runs-dir needs a directory}"; shift 2 ;;
+    --port) PORT="${2:?--port needs a number}"; shift 2 ;;
+    -h|--help) usage; exit 0 ;;
+    --) shift; PASS=("$@"); break ;;
+    *) echo "throughput.sh: unknown argument '$1'" >&2; usage >&2; exit 2 ;;
+  esac
+done
+[[ "$SETTINGS" =~ ^[1-9][0-9]*x[1-9][0-9]*(,[1-9][0-9]*x[1-9][0-9]*)*$ ]] \
+  || { echo "throughput.sh: --settings needs AxK pairs like 2x1,1x2, got '$SETTINGS'" >&2; exit 2; }
+for n in "$WARMUP" "$SECONDS_COUNTED" "$PORT"; do
+  [[ "$n" =~ ^[0-9]+$ ]] || { echo "throughput.sh: '$n' is not a whole number" >&2; exit 2; }
+done
+[[ "$SECONDS_COUNTED" -gt 0 ]] || { echo "throughput.sh: --seconds must be above 0" >&2; exit 2; }
+
+cd "$(dirname "$0")/.."
+command -v curl >/dev/null || { echo "throughput.sh: needs curl (sudo apt-get install curl)" >&2; exit 1; }
+command -v python3 >/dev/null || { echo "throughput.sh: needs python3" >&2; exit 1; }
+[[ -n "$RUNS" ]] || RUNS="runs/throughput-$(date -u +%Y%m%dT%H%M%SZ)"
+mkdir -p "$RUNS"
+
+steps() {
+  curl -fsS "http://127.0.0.1:$PORT/api/status" \
+    | python3 -c 'import json, sys; print(json.load(sys.stdin)["env_steps"])'
+}
+
+RUN_PID=""
+stop_run() {
+  [[ -n "$RUN_PID" ]] || return 0
+  kill -TERM "$RUN_PID" 2>/dev/null || true
+  wait "$RUN_PID" 2>/dev/null || true
+  RUN_PID=""
+}
+trap 'stop_run' EXIT
+trap 'stop_run; exit 130' INT TERM
+
+ROWS=()
+IFS=',' read -ra PAIRS <<<"$SETTINGS"
+for pair in "${PAIRS[@]}"; do
+  actors=${pair%x*} envs=${pair#*x}
+  run="$RUNS/${actors}x${envs}"
+  echo "== $actors actor(s) x $envs environment(s): $run" >&2
+  # A background job ignores SIGINT, so local.sh is stopped with SIGTERM.
+  deploy/local.sh --actors "$actors" --envs-per-actor "$envs" --run-dir "$run" \
+    --port "$PORT" "${PASS[@]}" >"$run.log" 2>&1 &
+  RUN_PID=$!
+  up=0
+  for _ in $(seq 1 3000); do
+    if curl -fsS "http://127.0.0.1:$PORT/healthz" >/dev/null 2>&1; then up=1; break; fi
+    kill -0 "$RUN_PID" 2>/dev/null || break
+    sleep 0.2
+  done
+  if [[ $up -eq 0 ]]; then
+    echo "throughput.sh: the run did not come up; see $run.log:" >&2
+    tail -n 20 "$run.log" >&2
+    stop_run
+    exit 1
+  fi
+  sleep "$WARMUP"
+  s0=$(steps) t0=$(date +%s.%N)
+  sleep "$SECONDS_COUNTED"
+  s1=$(steps) t1=$(date +%s.%N)
+  stop_run
+  ROWS+=("$(python3 -c "
+d = ($s1 - $s0) / ($t1 - $t0)
+print('| $actors | $envs | %.1f | %.1f |' % (d, d / $actors))")")
+done
+
+echo "| actors | environments each | steps/s, all actors | steps/s per actor process |"
+echo "|---|---|---|---|"
+printf '%s\n' "${ROWS[@]}"
