@@ -23,7 +23,7 @@ use std::time::{Duration, Instant};
 
 use actor::env::actions::random_allowed_action;
 use actor::env::affordance_model::AffordanceModel;
-use actor::env::lockstep::{reset_all, step_all};
+use actor::env::lockstep::{reset_all, step_all, Inference};
 use actor::env::sim_env::{SimEnv, SimEnvConfig, StepTimings};
 use actor::env::SimEnvironment;
 use mapper::Affordance;
@@ -162,7 +162,9 @@ fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
         })
         .collect();
     let model = AffordanceModel::new(AFFORDANCES.len(), device);
+    let inference = Inference::suited_to(Some(&model));
     println!();
+    println!("Several environments per process, U-Net inference {inference:?}:");
     println!("| method | px | environments | steps/s per process | steps/s per environment |");
     println!("|---|---|---|---|---|");
     for method in [Method::Ours, Method::NomapSeg] {
@@ -183,7 +185,8 @@ fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
                 .collect();
             let mut refs: Vec<&mut SimEnvironment> = envs.iter_mut().collect();
             let seeds: Vec<u64> = (1..=n as u64).collect();
-            let mut observations = reset_all(&mut refs, &seeds, Some(&model)).expect("reset");
+            let mut observations =
+                reset_all(&mut refs, &seeds, Some(&model), inference).expect("reset");
             let mut rng = StdRng::seed_from_u64(1);
             let steps = STEPS / 2;
             let start = Instant::now();
@@ -196,7 +199,7 @@ fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
                         random_allowed_action(space, &o.action_mask, 0.5, &mut rng) as u32
                     })
                     .collect();
-                observations = step_all(&mut refs, &actions, Some(&model))
+                observations = step_all(&mut refs, &actions, Some(&model), inference)
                     .expect("step")
                     .into_iter()
                     .map(|(_, o)| o)

@@ -393,6 +393,8 @@ struct Actor<'a> {
     settings: &'a LoopSettings,
     device: &'a Device,
     model: Option<AffordanceModel>,
+    /// How the U-Net sees the environments' frames (suited to `model`).
+    inference: lockstep::Inference,
     policy: Policy,
     seed: u64,
     rng: SmallRng,
@@ -463,8 +465,12 @@ impl Actor<'_> {
             .iter()
             .map(|&id| episode_seed(self.seed, self.settings.actor_id, id))
             .collect();
-        let observations =
-            lockstep::reset_all(&mut envs_of(&mut slots), &seeds, self.model.as_ref())?;
+        let observations = lockstep::reset_all(
+            &mut envs_of(&mut slots),
+            &seeds,
+            self.model.as_ref(),
+            self.inference,
+        )?;
         let layout = &self.policy.layout;
         for ((slot, id), observation) in slots.into_iter().zip(ids).zip(observations) {
             slot.episode = Some(RunningEpisode {
@@ -504,10 +510,14 @@ impl Actor<'_> {
             act_batch(&self.policy, &inputs, &uniforms, self.device)?
         };
         let actions: Vec<u32> = acted.iter().map(|a| a.action).collect();
-        let (outcomes, observations): (Vec<StepOutcome>, Vec<Observation>) =
-            lockstep::step_all(&mut envs_of(&mut running), &actions, self.model.as_ref())?
-                .into_iter()
-                .unzip();
+        let (outcomes, observations): (Vec<StepOutcome>, Vec<Observation>) = lockstep::step_all(
+            &mut envs_of(&mut running),
+            &actions,
+            self.model.as_ref(),
+            self.inference,
+        )?
+        .into_iter()
+        .unzip();
         let chunk_steps = self.settings.chunk_steps;
         let mut closing = Vec::new();
         for (((slot, acted), outcome), observation) in running
@@ -698,6 +708,7 @@ pub fn run(
         transport,
         settings,
         device,
+        inference: lockstep::Inference::suited_to(model.as_ref()),
         model,
         policy,
         seed,

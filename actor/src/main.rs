@@ -97,9 +97,8 @@ struct RunArgs {
     max_episodes: Option<u64>,
     /// Environments this actor runs side by side, in lock-step: each steps
     /// on a thread of its own, and the U-Net and the policy see all their
-    /// frames in one batch. On a GPU, a batch costs little more than one
-    /// frame, so this is how one actor process fills a GPU; on a CPU it
-    /// uses more cores, like more actors would.
+    /// frames in one batch. On a GPU, batches are how one actor process
+    /// keeps it busy; on a CPU this uses more cores, like more actors would.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=256))]
     envs: u16,
     /// Seconds to wait for the learner's first weights before giving up.

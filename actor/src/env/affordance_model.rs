@@ -3,7 +3,6 @@
 
 use burn::prelude::*;
 use nets::unet::AffordanceUnet;
-use rayon::prelude::*;
 
 /// The U-Net the actor infers with, and its calibration.
 #[derive(Debug)]
@@ -47,29 +46,18 @@ impl AffordanceModel {
             .unwrap_or_default()
     }
 
-    /// [`AffordanceModel::predict`] for several frames of one size: on a
-    /// GPU in one forward pass (a batch costs little more than one frame),
-    /// on the CPU a frame per thread (there a batch costs the same per
-    /// frame, on one thread).
+    /// True when the network runs on the CPU, where a batch of frames costs
+    /// the same per frame as one frame alone (and runs on one thread).
+    pub fn on_cpu(&self) -> bool {
+        nets::device::is_cpu(&self.device)
+    }
+
+    /// [`AffordanceModel::predict`] for several frames of one size, in one
+    /// forward pass (batches are what keep a GPU busy).
     ///
     /// # Panics
     /// If the frames differ in size: an actor's environments share one task.
     pub fn predict_batch(&self, frames: &[CameraFrame<'_>]) -> Vec<Vec<Vec<f32>>> {
-        if frames.len() > 1 && nets::device::is_cpu(&self.device) {
-            return frames
-                .par_iter()
-                .map(|frame| {
-                    self.forward(std::slice::from_ref(frame))
-                        .pop()
-                        .unwrap_or_default()
-                })
-                .collect();
-        }
-        self.forward(frames)
-    }
-
-    /// Probability planes of `frames` from one forward pass.
-    fn forward(&self, frames: &[CameraFrame<'_>]) -> Vec<Vec<Vec<f32>>> {
         let Some(first) = frames.first() else {
             return Vec::new();
         };
@@ -182,19 +170,17 @@ mod tests {
                 width: w,
             })
             .collect();
-        // One pass over three frames (the GPU's way) and a thread per frame
-        // (the CPU's) against each frame alone.
-        let one_pass = model.forward(&frames);
-        let threaded = model.predict_batch(&frames);
-        assert_eq!((one_pass.len(), threaded.len()), (3, 3));
+        // One pass over three frames (the GPU's way) against each alone.
+        let one_pass = model.predict_batch(&frames);
+        assert_eq!(one_pass.len(), 3);
         for (k, frame) in frames.iter().enumerate() {
             let alone = model.predict(frame);
             assert_eq!(alone.len(), 2);
-            assert_eq!(threaded[k], alone, "frame {k}");
+            assert_eq!(alone[0].len(), h * w);
             for (a, b) in one_pass[k].iter().flatten().zip(alone.iter().flatten()) {
                 assert!((a - b).abs() < 1e-5, "frame {k}: {a} vs {b}");
             }
         }
-        assert_ne!(threaded[0], threaded[1]);
+        assert!(one_pass[0] != one_pass[1]);
     }
 }

@@ -1,26 +1,64 @@
-//! Several environments stepped as one: the first halves of their resets or
-//! steps run in parallel (a thread each), the affordance U-Net sees all
-//! their camera frames in one batch, then the second halves run in parallel.
-//! This is how one actor process keeps a GPU busy: a batch of frames costs
-//! it little more than one.
+//! Several environments stepped as one, a thread each.
+//!
+//! [`Inference::Batched`] (for a U-Net on a GPU): the first halves of their
+//! resets or steps run in parallel, the U-Net sees all their camera frames in
+//! one batch, then the second halves run in parallel. This is how one actor
+//! process can keep a GPU busy, with batches of frames rather than one frame
+//! at a time. [`Inference::PerEnvironment`] (for the CPU, where a batch
+//! costs the same per frame): each environment runs its whole reset or step,
+//! U-Net pass included, on its thread, and none waits for the others
+//! halfway.
 
 use rayon::prelude::*;
 
-use super::affordance_model::AffordanceModel;
+use super::affordance_model::{AffordanceModel, CameraFrame};
 use super::{Environment, Observation, StepOutcome};
+
+/// How the U-Net sees several environments' frames.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Inference {
+    /// All frames in one forward pass, between the halves of every
+    /// environment's reset or step (for a GPU).
+    Batched,
+    /// Each frame on its environment's thread, inside its reset or step
+    /// (for the CPU, where a batch costs the same per frame).
+    PerEnvironment,
+}
+
+impl Inference {
+    /// The way that suits where `model` runs.
+    pub fn suited_to(model: Option<&AffordanceModel>) -> Self {
+        if model.is_some_and(|m| !m.on_cpu()) {
+            Self::Batched
+        } else {
+            Self::PerEnvironment
+        }
+    }
+}
 
 /// Resets every environment of `envs` with its seed in `seeds`.
 pub fn reset_all<E: Environment + ?Sized>(
     envs: &mut [&mut E],
     seeds: &[u64],
     model: Option<&AffordanceModel>,
+    inference: Inference,
 ) -> anyhow::Result<Vec<Observation>> {
     anyhow::ensure!(envs.len() == seeds.len(), "one seed per environment");
+    if inference == Inference::PerEnvironment {
+        return envs
+            .par_iter_mut()
+            .zip(seeds)
+            .map(|(env, &seed)| {
+                env.begin_reset(seed)?;
+                observe_alone(&mut **env, model)
+            })
+            .collect();
+    }
     envs.par_iter_mut()
         .zip(seeds)
         .map(|(env, &seed)| env.begin_reset(seed))
         .collect::<anyhow::Result<()>>()?;
-    observe_all(envs, model)
+    observe_batched(envs, model)
 }
 
 /// Steps every environment of `envs` with its action in `actions`.
@@ -28,8 +66,19 @@ pub fn step_all<E: Environment + ?Sized>(
     envs: &mut [&mut E],
     actions: &[u32],
     model: Option<&AffordanceModel>,
+    inference: Inference,
 ) -> anyhow::Result<Vec<(StepOutcome, Observation)>> {
     anyhow::ensure!(envs.len() == actions.len(), "one action per environment");
+    if inference == Inference::PerEnvironment {
+        return envs
+            .par_iter_mut()
+            .zip(actions)
+            .map(|(env, &action)| {
+                let outcome = env.begin_step(action)?;
+                Ok((outcome, observe_alone(&mut **env, model)?))
+            })
+            .collect();
+    }
     let outcomes: Vec<StepOutcome> = envs
         .par_iter_mut()
         .zip(actions)
@@ -37,33 +86,48 @@ pub fn step_all<E: Environment + ?Sized>(
         .collect::<anyhow::Result<_>>()?;
     Ok(outcomes
         .into_iter()
-        .zip(observe_all(envs, model)?)
+        .zip(observe_batched(envs, model)?)
         .collect())
+}
+
+/// The U-Net's planes for `frames` (`None`: an environment without a camera).
+fn predict<'f>(
+    frames: impl IntoIterator<Item = Option<CameraFrame<'f>>>,
+    model: Option<&AffordanceModel>,
+) -> anyhow::Result<Vec<Vec<Vec<f32>>>> {
+    let frames: Vec<_> = frames.into_iter().collect();
+    let batch: Vec<_> = frames.iter().flatten().copied().collect();
+    let mut predicted = match (batch.is_empty(), model) {
+        (true, _) => Vec::new(),
+        (false, Some(model)) => model.predict_batch(&batch),
+        (false, None) => anyhow::bail!("this environment's camera frames need the U-Net"),
+    }
+    .into_iter();
+    Ok(frames
+        .iter()
+        .map(|f| match f {
+            Some(_) => predicted.next().unwrap_or_default(),
+            None => Vec::new(),
+        })
+        .collect())
+}
+
+/// The second half of one environment's reset or step.
+fn observe_alone<E: Environment + ?Sized>(
+    env: &mut E,
+    model: Option<&AffordanceModel>,
+) -> anyhow::Result<Observation> {
+    let affordances = predict([env.camera_frame()], model)?;
+    env.observe(affordances.into_iter().next().unwrap_or_default())
 }
 
 /// The second halves: the U-Net over every camera frame in one batch, then
 /// each environment's observation.
-fn observe_all<E: Environment + ?Sized>(
+fn observe_batched<E: Environment + ?Sized>(
     envs: &mut [&mut E],
     model: Option<&AffordanceModel>,
 ) -> anyhow::Result<Vec<Observation>> {
-    let affordances = {
-        let frames: Vec<_> = envs.iter().map(|e| e.camera_frame()).collect();
-        let batch: Vec<_> = frames.iter().flatten().copied().collect();
-        let mut predicted = match (batch.is_empty(), model) {
-            (true, _) => Vec::new(),
-            (false, Some(model)) => model.predict_batch(&batch),
-            (false, None) => anyhow::bail!("this environment's camera frames need the U-Net"),
-        }
-        .into_iter();
-        frames
-            .iter()
-            .map(|f| match f {
-                Some(_) => predicted.next().unwrap_or_default(),
-                None => Vec::new(),
-            })
-            .collect::<Vec<_>>()
-    };
+    let affordances = predict(envs.iter().map(|e| e.camera_frame()), model)?;
     envs.par_iter_mut()
         .zip(affordances)
         .map(|(env, a)| env.observe(a))

@@ -80,7 +80,8 @@ pub trait Environment: Send {
     where
         Self: Sized,
     {
-        let observations = lockstep::reset_all(&mut [self], &[seed], model)?;
+        let inference = lockstep::Inference::PerEnvironment;
+        let observations = lockstep::reset_all(&mut [self], &[seed], model, inference)?;
         observations
             .into_iter()
             .next()
@@ -97,7 +98,8 @@ pub trait Environment: Send {
     where
         Self: Sized,
     {
-        let steps = lockstep::step_all(&mut [self], &[action], model)?;
+        let inference = lockstep::Inference::PerEnvironment;
+        let steps = lockstep::step_all(&mut [self], &[action], model, inference)?;
         steps
             .into_iter()
             .next()
