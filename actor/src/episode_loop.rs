@@ -32,7 +32,7 @@ pub struct LoopSettings {
     pub chunk_steps: usize,
     /// Base seed; episode `k` of actor `a` resets with a seed derived from
     /// all three and from the run's environment steps when the actor
-    /// started ([`episode_seed`]).
+    /// started (`episode_seed`).
     pub seed: u64,
     /// Stop after this many episodes over all environments (None = until
     /// SIGINT/SIGTERM).

@@ -95,7 +95,7 @@ impl AffordanceUnet {
     }
 
     /// `[batch, channels, h, w]` → logits `[batch, affordances, h, w]`
-    /// (apply a sigmoid, or [`crate::temperature`] scaling, for probabilities).
+    /// (apply a sigmoid, after the learner's temperature scaling, for probabilities).
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         let mut skips = Vec::with_capacity(3);
         let mut x = self.down[0].forward(x);
