@@ -104,7 +104,7 @@ fn main() {
         for _ in 0..STEPS {
             let action =
                 random_allowed_action(env.action_space(), &observation.mask, 0.5, &mut rng);
-            observation = env.step(action, &model).expect("step").observation;
+            observation = env.step(action, &model).expect("step").1;
             stages.push(env.last_timings());
         }
         let elapsed = start.elapsed();
@@ -162,7 +162,7 @@ fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
         })
         .collect();
     let model = AffordanceModel::new(AFFORDANCES.len(), device);
-    let inference = Inference::suited_to(Some(&model));
+    let inference = Inference::for_device(device);
     println!();
     println!("Several environments per process, U-Net inference {inference:?}:");
     println!("| method | px | environments | steps/s per process | steps/s per environment |");

@@ -192,14 +192,14 @@ struct PolicyStep {
 
 /// The policy over several environments' observations, each with its
 /// recurrent state before this step (`None` = zeros, an episode's start):
-/// one forward pass on a GPU, one per observation and thread on the CPU
-/// (where a batch costs the same per observation, on one thread).
+/// one forward pass, or one per observation and thread.
 fn forward_batch(
     policy: &Policy,
     inputs: &[(&Observation, Option<&[f32]>)],
     device: &Device,
+    inference: lockstep::Inference,
 ) -> anyhow::Result<Vec<PolicyStep>> {
-    if inputs.len() > 1 && nets::device::is_cpu(device) {
+    if inputs.len() > 1 && inference == lockstep::Inference::PerEnvironment {
         return inputs
             .par_iter()
             .map(|input| forward(policy, std::slice::from_ref(input), device))
@@ -227,7 +227,7 @@ fn forward(
     let hidden = policy.layout.gru_hidden.map(|size| {
         let values: Vec<f32> = inputs
             .iter()
-            .flat_map(|(_, h)| h.map_or_else(|| vec![0.0; size], <[f32]>::to_vec))
+            .flat_map(|(_, h)| hidden_values(&policy.layout, *h))
             .collect();
         Tensor::<1>::from_floats(values.as_slice(), device).reshape([n, size])
     });
@@ -272,8 +272,9 @@ fn act_batch(
     inputs: &[(&Observation, Option<&[f32]>)],
     uniforms: &[f32],
     device: &Device,
+    inference: lockstep::Inference,
 ) -> anyhow::Result<Vec<Acted>> {
-    forward_batch(policy, inputs, device)?
+    forward_batch(policy, inputs, device, inference)?
         .into_iter()
         .zip(uniforms)
         .map(|(step, &uniform)| {
@@ -393,7 +394,7 @@ struct Actor<'a> {
     settings: &'a LoopSettings,
     device: &'a Device,
     model: Option<AffordanceModel>,
-    /// How the U-Net sees the environments' frames (suited to `model`).
+    /// How the networks see the environments' inputs (suited to `device`).
     inference: lockstep::Inference,
     policy: Policy,
     seed: u64,
@@ -500,14 +501,19 @@ impl Actor<'_> {
         let mut running: Vec<&mut Slot> =
             slots.iter_mut().filter(|s| s.episode.is_some()).collect();
         let acted = {
-            let episodes: Vec<&RunningEpisode> =
-                running.iter().filter_map(|s| s.episode.as_ref()).collect();
-            let inputs: Vec<_> = episodes
+            let inputs: Vec<_> = running
                 .iter()
+                .filter_map(|s| s.episode.as_ref())
                 .map(|e| (&e.observation, e.hidden.as_deref()))
                 .collect();
             let uniforms: Vec<f32> = inputs.iter().map(|_| self.rng.random::<f32>()).collect();
-            act_batch(&self.policy, &inputs, &uniforms, self.device)?
+            act_batch(
+                &self.policy,
+                &inputs,
+                &uniforms,
+                self.device,
+                self.inference,
+            )?
         };
         let actions: Vec<u32> = acted.iter().map(|a| a.action).collect();
         let (outcomes, observations): (Vec<StepOutcome>, Vec<Observation>) = lockstep::step_all(
@@ -519,7 +525,9 @@ impl Actor<'_> {
         .into_iter()
         .unzip();
         let chunk_steps = self.settings.chunk_steps;
-        let mut closing = Vec::new();
+        // Per running slot: whether its chunk goes out now (`Some`), and
+        // whether its episode ended.
+        let mut closing = Vec::with_capacity(running.len());
         for (((slot, acted), outcome), observation) in running
             .iter_mut()
             .zip(acted)
@@ -541,9 +549,8 @@ impl Actor<'_> {
             chunk.dones.push(u8::from(outcome.done));
             episode.observation = observation;
             episode.hidden = acted.hidden;
-            if chunk.actions.len() >= chunk_steps || outcome.done || stopping {
-                closing.push((episode.id, outcome.done));
-            }
+            let full = chunk.actions.len() >= chunk_steps;
+            closing.push((full || outcome.done || stopping).then_some(outcome.done));
         }
         self.summary.steps += running.len() as u64;
         self.close_chunks(&mut running, &closing)?;
@@ -556,42 +563,37 @@ impl Actor<'_> {
         self.finish_episodes(ended)
     }
 
-    /// Sends the chunks of the episodes in `closing` (id, done): those
-    /// cut mid-episode get the critic's value of their next observation,
-    /// in one batch.
+    /// Sends the chunks of the slots whose `closing` entry is `Some(done)`:
+    /// those cut mid-episode get the critic's value of their next
+    /// observation, in one batch.
     fn close_chunks(
         &mut self,
         running: &mut [&mut Slot],
-        closing: &[(u64, bool)],
+        closing: &[Option<bool>],
     ) -> anyhow::Result<()> {
-        let mut episodes: Vec<&mut RunningEpisode> = running
+        let mut episodes: Vec<(&mut RunningEpisode, bool)> = running
             .iter_mut()
-            .filter_map(|s| s.episode.as_mut())
-            .filter(|e| closing.iter().any(|(id, _)| *id == e.id))
-            .collect();
-        let cut: Vec<usize> = (0..episodes.len())
-            .filter(|&i| {
-                closing
-                    .iter()
-                    .any(|&(id, done)| id == episodes[i].id && !done)
-            })
+            .zip(closing)
+            .filter_map(|(s, done)| Some((s.episode.as_mut()?, (*done)?)))
             .collect();
         let values = {
-            let inputs: Vec<_> = cut
+            let inputs: Vec<_> = episodes
                 .iter()
-                .map(|&i| (&episodes[i].observation, episodes[i].hidden.as_deref()))
+                .filter(|(_, done)| !done)
+                .map(|(e, _)| (&e.observation, e.hidden.as_deref()))
                 .collect();
             if inputs.is_empty() {
                 Vec::new()
             } else {
-                forward_batch(&self.policy, &inputs, self.device)?
+                forward_batch(&self.policy, &inputs, self.device, self.inference)?
             }
         };
-        for (&i, step) in cut.iter().zip(values) {
-            episodes[i].chunk.bootstrap_value = step.value;
-        }
+        let mut values = values.into_iter();
         let layout = self.policy.layout.clone();
-        for episode in &mut episodes {
+        for (episode, done) in &mut episodes {
+            if !*done {
+                episode.chunk.bootstrap_value = values.next().map_or(0.0, |step| step.value);
+            }
             let next = new_chunk(
                 episode.id,
                 episode.steps,
@@ -708,7 +710,7 @@ pub fn run(
         transport,
         settings,
         device,
-        inference: lockstep::Inference::suited_to(model.as_ref()),
+        inference: lockstep::Inference::for_device(device),
         model,
         policy,
         seed,
@@ -800,7 +802,13 @@ mod tests {
         // One pass over the batch (as on a GPU) against one per environment.
         let batched = forward(&policy, &inputs, &device).unwrap();
         assert_eq!(batched.len(), 3);
-        let threaded = forward_batch(&policy, &inputs, &device).unwrap();
+        let threaded = forward_batch(
+            &policy,
+            &inputs,
+            &device,
+            lockstep::Inference::PerEnvironment,
+        )
+        .unwrap();
         assert_eq!(threaded.len(), 3);
         let close = |a: f32, b: f32| (a == b) || (a - b).abs() < 1e-5;
         for (k, (input, together)) in inputs.iter().zip(&batched).enumerate() {

@@ -61,11 +61,15 @@ fn run(
     for step in 0..steps {
         let action = random_allowed_action(env.action_space(), &observation.mask, 0.5, &mut rng);
         assert_eq!(observation.mask[action], 1);
-        let result = env.step(action, model).unwrap();
-        assert!(result.reward.is_finite());
-        assert_eq!(result.done, step + 1 == steps, "done exactly at the budget");
-        outcomes.push((result.reward, result.success));
-        observation = result.observation;
+        let (outcome, next) = env.step(action, model).unwrap();
+        assert!(outcome.reward.is_finite());
+        assert_eq!(
+            outcome.done,
+            step + 1 == steps,
+            "done exactly at the budget"
+        );
+        outcomes.push((outcome.reward, outcome.success));
+        observation = next;
         observations.push(observation.clone());
     }
     (outcomes, observations)

@@ -46,12 +46,6 @@ impl AffordanceModel {
             .unwrap_or_default()
     }
 
-    /// True when the network runs on the CPU, where a batch of frames costs
-    /// the same per frame as one frame alone (and runs on one thread).
-    pub fn on_cpu(&self) -> bool {
-        nets::device::is_cpu(&self.device)
-    }
-
     /// [`AffordanceModel::predict`] for several frames of one size, in one
     /// forward pass (batches are what keep a GPU busy).
     ///

@@ -14,24 +14,26 @@ use rayon::prelude::*;
 use super::affordance_model::{AffordanceModel, CameraFrame};
 use super::{Environment, Observation, StepOutcome};
 
-/// How the U-Net sees several environments' frames.
+/// How the networks see several environments' inputs (the U-Net their
+/// frames, the actor's policy their observations).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Inference {
-    /// All frames in one forward pass, between the halves of every
-    /// environment's reset or step (for a GPU).
+    /// All inputs in one forward pass; the U-Net's between the halves of
+    /// every environment's reset or step (for a GPU).
     Batched,
-    /// Each frame on its environment's thread, inside its reset or step
-    /// (for the CPU, where a batch costs the same per frame).
+    /// Each input on a thread of its own; the U-Net's on its environment's
+    /// thread, inside its reset or step (for the CPU, where a batch costs
+    /// the same per input, on one thread).
     PerEnvironment,
 }
 
 impl Inference {
-    /// The way that suits where `model` runs.
-    pub fn suited_to(model: Option<&AffordanceModel>) -> Self {
-        if model.is_some_and(|m| !m.on_cpu()) {
-            Self::Batched
-        } else {
+    /// The way that suits networks on `device`.
+    pub fn for_device(device: &burn::prelude::Device) -> Self {
+        if nets::device::is_cpu(device) {
             Self::PerEnvironment
+        } else {
+            Self::Batched
         }
     }
 }

@@ -12,6 +12,7 @@ pub mod state;
 pub use bandit_fixture::BanditFixture;
 pub use sim_environment::SimEnvironment;
 
+use anyhow::Context;
 use proto::{FrameBatch, PolicyLayout, StatField};
 
 use affordance_model::{AffordanceModel, CameraFrame};
@@ -81,11 +82,8 @@ pub trait Environment: Send {
         Self: Sized,
     {
         let inference = lockstep::Inference::PerEnvironment;
-        let observations = lockstep::reset_all(&mut [self], &[seed], model, inference)?;
-        observations
-            .into_iter()
-            .next()
-            .ok_or_else(|| anyhow::anyhow!("a reset observes"))
+        let mut observations = lockstep::reset_all(&mut [self], &[seed], model, inference)?;
+        observations.pop().context("a reset observes")
     }
 
     /// Both halves of a step, `model` seeing the camera frame (an
@@ -99,10 +97,7 @@ pub trait Environment: Send {
         Self: Sized,
     {
         let inference = lockstep::Inference::PerEnvironment;
-        let steps = lockstep::step_all(&mut [self], &[action], model, inference)?;
-        steps
-            .into_iter()
-            .next()
-            .ok_or_else(|| anyhow::anyhow!("a step observes"))
+        let mut steps = lockstep::step_all(&mut [self], &[action], model, inference)?;
+        steps.pop().context("a step observes")
     }
 }

@@ -117,21 +117,6 @@ pub struct ActionOutcome {
     pub done: bool,
 }
 
-/// The result of a whole step.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SimStep {
-    /// The next observation.
-    pub observation: SimObservation,
-    /// The reward.
-    pub reward: f32,
-    /// Whether the action succeeded.
-    pub success: bool,
-    /// Why not.
-    pub failure: Option<Failure>,
-    /// True when the episode's step budget is used up.
-    pub done: bool,
-}
-
 /// Where a step's time went.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct StepTimings {
@@ -166,7 +151,6 @@ pub struct SimEnv {
 /// U-Net's probabilities before it becomes an observation.
 struct Captured {
     frame: Frame,
-    camera: sim::raycast::Camera,
     map_ids: Vec<u32>,
 }
 
@@ -339,16 +323,13 @@ impl SimEnv {
 
     /// Applies action `index` of the action space and observes the next
     /// frame with `model`.
-    pub fn step(&mut self, index: usize, model: &AffordanceModel) -> anyhow::Result<SimStep> {
+    pub fn step(
+        &mut self,
+        index: usize,
+        model: &AffordanceModel,
+    ) -> anyhow::Result<(ActionOutcome, SimObservation)> {
         let outcome = self.begin_step(index)?;
-        let observation = self.observe_with(model)?;
-        Ok(SimStep {
-            observation,
-            reward: outcome.reward,
-            success: outcome.success,
-            failure: outcome.failure,
-            done: outcome.done,
-        })
+        Ok((outcome, self.observe_with(model)?))
     }
 
     /// [`SimEnv::observe`] with `model`'s probabilities for the pending frame.
@@ -604,11 +585,7 @@ impl SimEnv {
             frame.ids.clone()
         };
         let t2 = Instant::now();
-        episode.pending = Some(Captured {
-            frame,
-            camera,
-            map_ids,
-        });
+        episode.pending = Some(Captured { frame, map_ids });
         self.timings = StepTimings {
             sim: Duration::ZERO,
             render: t1 - t0,
@@ -636,11 +613,7 @@ impl SimEnv {
     /// ground truth, chooses the interaction targets and builds the state.
     pub fn observe(&mut self, probabilities: Vec<Vec<f32>>) -> anyhow::Result<SimObservation> {
         let episode = self.episode.as_mut().context("observe before reset")?;
-        let Captured {
-            frame,
-            camera,
-            map_ids,
-        } = episode
+        let Captured { frame, map_ids } = episode
             .pending
             .take()
             .context("observe twice, or before a reset or step")?;
@@ -671,6 +644,8 @@ impl SimEnv {
                 sums.accuracy_frames += 1;
             }
         }
+        // The agent has not moved since the frame was captured.
+        let camera = episode.sim.camera();
         let k = intrinsics(&camera);
         let agent = episode.sim.agent();
         let holding = episode.sim.held().is_some();
