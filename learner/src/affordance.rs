@@ -5,6 +5,7 @@
 
 use burn::prelude::*;
 use nets::unet::AffordanceUnet;
+use nets::unet_inference::UnetInference;
 use nets::weights::{load_safetensors, to_safetensors, WeightsError};
 use proto::{FrameBatchView, LABEL_UNKNOWN};
 use rand::rngs::StdRng;
@@ -233,9 +234,10 @@ impl AffordanceLearner {
         let newest = &frames[frames
             .len()
             .saturating_sub(self.settings.max_validation_frames)..];
+        let net = UnetInference::new(net.clone(), &self.device);
         let (mut logits, mut labels) = (Vec::new(), Vec::new());
         for frame in newest {
-            let predicted = predict_logits(net, frame, &self.device);
+            let predicted = predict_logits(&net, frame);
             for (&l, &label) in predicted.iter().zip(&frame.labels) {
                 if label != UNKNOWN {
                     logits.push(l);

@@ -3,11 +3,12 @@
 
 use burn::prelude::*;
 use nets::unet::AffordanceUnet;
+use nets::unet_inference::UnetInference;
 
 /// The U-Net the actor infers with, and its calibration.
 #[derive(Debug)]
 pub struct AffordanceModel {
-    net: AffordanceUnet,
+    net: UnetInference,
     device: Device,
     affordances: usize,
     /// Temperature from the learner's calibration (1 = plain sigmoid).
@@ -18,16 +19,11 @@ impl AffordanceModel {
     /// A freshly initialised network (before the learner's first weights).
     pub fn new(affordances: usize, device: &Device) -> Self {
         Self {
-            net: AffordanceUnet::new(4, affordances, device),
+            net: UnetInference::new(AffordanceUnet::new(4, affordances, device), device),
             device: device.clone(),
             affordances,
             temperature: 1.0,
         }
-    }
-
-    /// Replaces the network (new weights from the learner).
-    pub fn set_net(&mut self, net: AffordanceUnet) {
-        self.net = net;
     }
 
     /// Loads safetensors weights from the learner; on error the current
@@ -35,7 +31,7 @@ impl AffordanceModel {
     pub fn load_weights(&mut self, bytes: Vec<u8>) -> Result<(), nets::weights::WeightsError> {
         let mut net = AffordanceUnet::new(4, self.affordances, &self.device);
         nets::weights::load_safetensors(&mut net, bytes)?;
-        self.net = net;
+        self.net = UnetInference::new(net, &self.device);
         Ok(())
     }
 
@@ -46,8 +42,8 @@ impl AffordanceModel {
             .unwrap_or_default()
     }
 
-    /// [`AffordanceModel::predict`] for several frames of one size, in one
-    /// forward pass (batches are what keep a GPU busy).
+    /// [`AffordanceModel::predict`] for several frames of one size (on a GPU
+    /// in one forward pass).
     ///
     /// # Panics
     /// If the frames differ in size: an actor's environments share one task.
@@ -63,41 +59,12 @@ impl AffordanceModel {
             "frames of one batch share a size"
         );
         let n = height * width;
-        let mut input = Vec::with_capacity(frames.len() * 4 * n);
-        for frame in frames {
-            for c in 0..3 {
-                input.extend(
-                    frame
-                        .rgb
-                        .iter()
-                        .skip(c)
-                        .step_by(3)
-                        .map(|&b| f32::from(b) / 255.0),
-                );
-            }
-            input.extend(
-                frame
-                    .depth_m
-                    .iter()
-                    .map(|&d| if d.is_finite() { d.max(0.0) } else { 0.0 }),
-            );
-        }
-        let x = Tensor::<1>::from_floats(input.as_slice(), &self.device).reshape([
-            frames.len(),
-            4,
-            height,
-            width,
-        ]);
-        let logits: Vec<f32> = self
-            .net
-            .forward(x)
-            .into_data()
-            .try_to_vec()
-            .expect("the U-Net returns f32 logits");
+        let inputs: Vec<Vec<f32>> = frames.iter().map(network_input).collect();
+        let inputs: Vec<&[f32]> = inputs.iter().map(Vec::as_slice).collect();
+        let logits = self.net.logits(&inputs, height, width);
         let t = self.temperature.max(1e-3);
-        let planes_per_frame = logits.len() / frames.len();
         logits
-            .chunks(planes_per_frame)
+            .iter()
             .map(|frame| {
                 frame
                     .chunks(n)
@@ -112,6 +79,29 @@ impl AffordanceModel {
             })
             .collect()
     }
+}
+
+/// The U-Net's input for one frame: `[r, g, b, depth]` planes, colour in
+/// 0..1, depth in metres with nothing seen as 0.
+fn network_input(frame: &CameraFrame<'_>) -> Vec<f32> {
+    let mut input = Vec::with_capacity(4 * frame.height * frame.width);
+    for c in 0..3 {
+        input.extend(
+            frame
+                .rgb
+                .iter()
+                .skip(c)
+                .step_by(3)
+                .map(|&b| f32::from(b) / 255.0),
+        );
+    }
+    input.extend(
+        frame
+            .depth_m
+            .iter()
+            .map(|&d| if d.is_finite() { d.max(0.0) } else { 0.0 }),
+    );
+    input
 }
 
 /// One RGB-D camera frame as the U-Net reads it.
@@ -132,9 +122,24 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_batch_gives_each_frame_what_it_gets_alone() {
+    fn burns_batch_gives_each_frame_what_the_cpu_path_gives_it_alone() {
         let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).unwrap();
-        let model = AffordanceModel::new(2, &device);
+        let net = AffordanceUnet::new(4, 2, &device);
+        let cpu = AffordanceModel {
+            net: UnetInference::Cpu(nets::unet_cpu::CpuUnet::from_network(&net)),
+            device: device.clone(),
+            affordances: 2,
+            temperature: 0.7,
+        };
+        let model = AffordanceModel {
+            net: UnetInference::Burn {
+                net: Box::new(net),
+                device: device.clone(),
+            },
+            device: device.clone(),
+            affordances: 2,
+            temperature: 0.7,
+        };
         let (h, w) = (32, 32);
         let rgb: Vec<Vec<u8>> = (0..3)
             .map(|k| {
@@ -164,11 +169,12 @@ mod tests {
                 width: w,
             })
             .collect();
-        // One pass over three frames (the GPU's way) against each alone.
+        // One burn pass over three frames (the GPU's way) against each
+        // frame alone through the CPU path.
         let one_pass = model.predict_batch(&frames);
         assert_eq!(one_pass.len(), 3);
         for (k, frame) in frames.iter().enumerate() {
-            let alone = model.predict(frame);
+            let alone = cpu.predict(frame);
             assert_eq!(alone.len(), 2);
             assert_eq!(alone[0].len(), h * w);
             for (a, b) in one_pass[k].iter().flatten().zip(alone.iter().flatten()) {

@@ -7,6 +7,9 @@
 //! - [`policy`]: the exploration policy (conv encoders, MLPs, optional GRU,
 //!   actor and critic heads with masked logits), on burn;
 //! - [`unet`]: the affordance U-Net and its labelled-pixels-only loss;
+//! - [`unet_cpu`]: the same U-Net's forward pass for CPU inference, without
+//!   burn's copies (the actor's per-frame pass);
+//! - [`unet_inference`]: which of the two a device gets;
 //! - [`weights`]: either network to and from safetensors bytes;
 //! - [`device`]: `--device cpu|gpu` at run time;
 //! - [`sample`]: the masked categorical draw the actor acts with.
@@ -15,6 +18,8 @@ pub mod device;
 mod masked_categorical;
 pub mod policy;
 pub mod unet;
+pub mod unet_cpu;
+pub mod unet_inference;
 pub mod weights;
 
 pub use masked_categorical::sample;

@@ -18,8 +18,8 @@ pub const UNET_CHANNELS: [usize; 4] = [24, 48, 92, 164];
 /// Two 3 × 3 same-padded convolutions with ReLU.
 #[derive(Module, Debug)]
 pub struct DoubleConv {
-    first: Conv2d,
-    second: Conv2d,
+    pub(crate) first: Conv2d,
+    pub(crate) second: Conv2d,
 }
 
 impl DoubleConv {
@@ -43,8 +43,8 @@ impl DoubleConv {
 /// One decoder level: upsample, concatenate the skip, two convolutions.
 #[derive(Module, Debug)]
 pub struct UpLevel {
-    up: ConvTranspose2d,
-    conv: DoubleConv,
+    pub(crate) up: ConvTranspose2d,
+    pub(crate) conv: DoubleConv,
 }
 
 impl UpLevel {
@@ -66,10 +66,10 @@ impl UpLevel {
 /// The U-Net.
 #[derive(Module, Debug)]
 pub struct AffordanceUnet {
-    down: Vec<DoubleConv>,
+    pub(crate) down: Vec<DoubleConv>,
     pool: MaxPool2d,
-    up: Vec<UpLevel>,
-    head: Conv2d,
+    pub(crate) up: Vec<UpLevel>,
+    pub(crate) head: Conv2d,
 }
 
 impl AffordanceUnet {

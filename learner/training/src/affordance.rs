@@ -4,6 +4,7 @@ use burn::optim::decay::WeightDecayConfig;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use nets::unet::{masked_bce_dice, AffordanceUnet};
+use nets::unet_inference::UnetInference;
 
 use crate::optimizer_state::{OptimizerState, OptimizerStateError};
 
@@ -130,9 +131,11 @@ fn adam(config: &UnetTrainingConfig) -> ModuleOptimizer {
 }
 
 /// Logits `[affordances, h, w]` of one frame, row-major.
-pub fn predict_logits(net: &AffordanceUnet, frame: &LabelledFrame, device: &Device) -> Vec<f32> {
-    let (x, _, _) = batch_tensors(&[frame], device);
-    net.forward(x).into_data().try_to_vec().expect("f32 logits")
+pub fn predict_logits(net: &UnetInference, frame: &LabelledFrame) -> Vec<f32> {
+    let [h, w] = frame.size;
+    net.logits(&[&frame.rgbd], h, w)
+        .pop()
+        .expect("one image in, one out")
 }
 
 /// How well a network does on labelled frames.
@@ -148,12 +151,13 @@ pub struct Evaluation {
 
 /// Evaluates `net` on `frames` (one at a time, so memory stays flat).
 pub fn evaluate(net: &AffordanceUnet, frames: &[&LabelledFrame], device: &Device) -> Evaluation {
+    let inference = UnetInference::new(net.clone(), device);
     let (mut loss, mut inter, mut union, mut labelled) = (0.0f64, 0usize, 0usize, 0usize);
     for frame in frames {
-        let (x, y, known) = batch_tensors(&[frame], device);
-        let logits = net.forward(x);
-        loss += f64::from(masked_bce_dice(logits.clone(), y, known).into_scalar::<f32>());
-        let values: Vec<f32> = logits.into_data().try_to_vec().expect("f32 logits");
+        let values = predict_logits(&inference, frame);
+        let (_, y, known) = batch_tensors(&[frame], device);
+        let logits = Tensor::<1>::from_floats(values.as_slice(), device).reshape(y.dims());
+        loss += f64::from(masked_bce_dice(logits, y, known).into_scalar::<f32>());
         for (&l, &label) in values.iter().zip(&frame.labels) {
             if label == UNKNOWN {
                 continue;

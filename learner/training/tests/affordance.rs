@@ -5,6 +5,7 @@ use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::GradientsParams;
 use burn::prelude::*;
 use nets::unet::{masked_bce_dice, AffordanceUnet};
+use nets::unet_inference::UnetInference;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use training::affordance::{
@@ -323,13 +324,19 @@ fn unet_training_resumed_with_the_saved_adam_state_continues_the_same_optimisati
     for trainer in [&mut original, &mut resumed, &mut restarted] {
         trainer.step(&refs[4..8]);
     }
-    let reference = predict_logits(&original.inference_net(&device), &frames[0], &device);
+    let reference = predict_logits(
+        &UnetInference::new(original.inference_net(&device), &device),
+        &frames[0],
+    );
     let largest_difference = |trainer: &UnetTrainer| {
-        predict_logits(&trainer.inference_net(&device), &frames[0], &device)
-            .iter()
-            .zip(&reference)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0f32, f32::max)
+        predict_logits(
+            &UnetInference::new(trainer.inference_net(&device), &device),
+            &frames[0],
+        )
+        .iter()
+        .zip(&reference)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max)
     };
     let (with_state, without) = (largest_difference(&resumed), largest_difference(&restarted));
     eprintln!("after one more step: resumed with Adam's state {with_state:e}, with a fresh Adam {without:e}");
