@@ -8,7 +8,7 @@
 //!   actor and critic heads with masked logits), on burn;
 //! - [`unet`]: the affordance U-Net and its labelled-pixels-only loss;
 //! - [`unet_cpu`]: the same U-Net's forward pass for CPU inference, without
-//!   burn's copies (the actor's per-frame pass);
+//!   burn's copies, with Winograd convolutions (the actor's per-frame pass);
 //! - [`unet_inference`]: which of the two a device gets;
 //! - [`weights`]: either network to and from safetensors bytes;
 //! - [`device`]: `--device cpu|gpu` at run time;

@@ -2,7 +2,9 @@
 //! by side with the same networks in PyTorch (`benches/torch_reference.py`)
 //! when `python3` has `torch`.
 //!
-//! - U-Net training step, batch 8 of 128 × 128 RGB-D, and single-frame inference;
+//! - U-Net training step, batch 8 of 128 × 128 RGB-D, and single-frame
+//!   inference, with burn and through the actor's CPU path (`nets::unet_cpu`,
+//!   one thread, against PyTorch on one thread);
 //! - one PPO update on 8 × 600 steps (4 epochs × 2 minibatches);
 //! - policy inference for one step.
 //!
@@ -15,6 +17,7 @@ use std::time::Instant;
 use burn::prelude::*;
 use nets::policy::{ObsDtype, PolicyInput, PolicyLayout, PolicyNet};
 use nets::unet::AffordanceUnet;
+use nets::unet_cpu::CpuUnet;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use training::affordance::{LabelledFrame, UnetTrainer, UnetTrainingConfig};
@@ -116,6 +119,14 @@ fn main() {
             let _: Vec<f32> = unet.forward(one.clone()).into_data().try_to_vec().unwrap();
         }),
     ));
+    // The same network through the actor's CPU path (`nets::unet_cpu`).
+    let cpu_path = CpuUnet::from_network(&unet);
+    results.push((
+        "unet_inference_1frame_cpu_path_ms",
+        time(repeats.max(5), || {
+            cpu_path.forward(&frames[0].rgbd, 128, 128);
+        }),
+    ));
 
     // Policy inference, one step.
     let policy = PolicyNet::new(&policy_config(), &device);
@@ -198,9 +209,11 @@ fn compare_with_torch(ours: &[(&str, f64)], envs: usize, repeats: usize) {
     };
     print!("{text}");
     for (name, ms) in ours {
+        // The CPU path runs on one thread: PyTorch on one thread is its peer.
+        let reference = name.replace("_cpu_path", "_1thread");
         let theirs = text
             .lines()
-            .find(|l| l.trim_start().starts_with(&format!("{name}:")))
+            .find(|l| l.trim_start().starts_with(&format!("{reference}:")))
             .and_then(|l| l.split("median ").nth(1))
             .and_then(|r| r.split(' ').next())
             .and_then(|v| v.parse::<f64>().ok());

@@ -157,6 +157,10 @@ def main():
             unet(one).cpu()
 
     results["unet_inference_1frame_ms"] = timed(max(args.repeats, 5), unet_infer)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    results["unet_inference_1frame_1thread_ms"] = timed(max(args.repeats, 5), unet_infer)
+    torch.set_num_threads(threads)
 
     policy = Policy().to(dev)
 
