@@ -1,7 +1,7 @@
 //! The U-Net ready for inference on its device: the one place that decides
 //! how a forward pass without gradients runs.
 //!
-//! On the CPU that is [`CpuUnet`] (half the time of burn's CPU backend, same
+//! On the CPU that is [`CpuUnet`] (less than half the time of burn's CPU backend, same
 //! results); elsewhere it is burn, with several images in one pass (batches
 //! are what keep a GPU busy).
 
