@@ -10,8 +10,9 @@
 //! `cargo bench -p actor --bench env_steps`
 //!
 //! A second table steps several environments in one process in lock-step
-//! (`actor --envs N`: a thread per environment, the U-Net over all their
-//! frames in one batch) and reports steps/s per process and per environment.
+//! (`actor --envs N`: a thread per environment; on a GPU the U-Net over all
+//! their frames in one batch, on the CPU each environment's U-Net pass on its
+//! own thread) and reports steps/s per process and per environment.
 //!
 //! `AFX_DEVICE=gpu` runs the U-Net on the GPU (a build with
 //! `--features nets/gpu`); `AFX_DATA` points at the shared data directory
