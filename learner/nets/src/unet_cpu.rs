@@ -34,9 +34,6 @@ use crate::unet::{AffordanceUnet, DoubleConv, UpLevel};
 /// The U-Net's weights, laid out for [`CpuUnet::forward`].
 #[derive(Debug)]
 pub struct CpuUnet {
-    input_channels: usize,
-    /// Channels per level, shallow to deep.
-    channels: Vec<usize>,
     /// Two convolutions per encoder level.
     down: Vec<[Conv3x3; 2]>,
     /// Per decoder level, shallow to deep (index `l` upsamples level `l + 1`
@@ -59,10 +56,7 @@ impl CpuUnet {
         // burn's decoder runs deep to shallow; index ours by the level it fills.
         up.reverse();
         let head = Pointwise::from_layer(&net.head);
-        let channels: Vec<usize> = down.iter().map(|pair| pair[1].outputs).collect();
         Self {
-            input_channels: down[0][0].inputs,
-            channels,
             down,
             up,
             head,
@@ -78,7 +72,7 @@ impl CpuUnet {
     /// is not `input_channels · height · width` long: the caller's frame
     /// size comes from a validated task.
     pub fn forward(&self, input: &[f32], height: usize, width: usize) -> Vec<f32> {
-        let levels = self.channels.len();
+        let levels = self.down.len();
         let divisor = 1 << (levels - 1);
         assert!(
             height > 0
@@ -89,7 +83,7 @@ impl CpuUnet {
         );
         assert_eq!(
             input.len(),
-            self.input_channels * height * width,
+            self.input_channels() * height * width,
             "U-Net input length"
         );
         let mut workspace = self.take_workspace(height, width);
@@ -99,6 +93,16 @@ impl CpuUnet {
             .unwrap_or_else(|poisoned| poisoned.into_inner())
             .push(workspace);
         logits
+    }
+
+    /// Channels of the input image.
+    fn input_channels(&self) -> usize {
+        self.down[0][0].inputs
+    }
+
+    /// Channels out of encoder level `l` (0 = shallowest).
+    fn channels(&self, l: usize) -> usize {
+        self.down[l][1].outputs
     }
 
     fn take_workspace(&self, height: usize, width: usize) -> Workspace {
@@ -113,7 +117,7 @@ impl CpuUnet {
     }
 
     fn run(&self, ws: &mut Workspace, input: &[f32]) -> Vec<f32> {
-        let levels = self.channels.len();
+        let levels = self.down.len();
         let (height, width) = ws.size;
         let level_size = |l: usize| (height >> l, width >> l);
         fill_padded(&mut ws.inputs[0], input, height, width);
@@ -124,14 +128,14 @@ impl CpuUnet {
             let [first, second] = &self.down[l];
             first.forward(&ws.inputs[l], &mut ws.middle[l], (h, w), &mut ws.tiles);
             let output = if l + 1 < levels {
-                let skip_start = self.channels[l] * plane_len(h, w);
+                let skip_start = self.channels(l) * plane_len(h, w);
                 &mut ws.concat[l][skip_start..]
             } else {
                 &mut ws.deepest[..]
             };
             second.forward(&ws.middle[l], output, (h, w), &mut ws.tiles);
             if l + 1 < levels {
-                let skip_start = self.channels[l] * plane_len(h, w);
+                let skip_start = self.channels(l) * plane_len(h, w);
                 max_pool_2x2(&ws.concat[l][skip_start..], &mut ws.inputs[l + 1], h, w);
             }
         }
@@ -145,7 +149,7 @@ impl CpuUnet {
             } else {
                 &ws.decoded[l + 1]
             };
-            let up_len = self.channels[l] * plane_len(h, w);
+            let up_len = self.channels(l) * plane_len(h, w);
             upconv.forward(
                 deeper,
                 &mut ws.concat[l][..up_len],
@@ -699,7 +703,7 @@ struct Workspace {
 
 impl Workspace {
     fn new(net: &CpuUnet, height: usize, width: usize) -> Self {
-        let levels = net.channels.len();
+        let levels = net.down.len();
         let plane = |l: usize| plane_len(height >> l, width >> l);
         let planes = |count: usize, l: usize| vec![0.0f32; count * plane(l)];
         Self {
@@ -707,21 +711,21 @@ impl Workspace {
             inputs: (0..levels)
                 .map(|l| {
                     let channels = if l == 0 {
-                        net.input_channels
+                        net.input_channels()
                     } else {
-                        net.channels[l - 1]
+                        net.channels(l - 1)
                     };
                     planes(channels, l)
                 })
                 .collect(),
-            middle: (0..levels).map(|l| planes(net.channels[l], l)).collect(),
+            middle: (0..levels).map(|l| planes(net.channels(l), l)).collect(),
             concat: (0..levels - 1)
-                .map(|l| planes(2 * net.channels[l], l))
+                .map(|l| planes(2 * net.channels(l), l))
                 .collect(),
             decoded: (0..levels - 1)
-                .map(|l| planes(net.channels[l], l))
+                .map(|l| planes(net.channels(l), l))
                 .collect(),
-            deepest: planes(net.channels[levels - 1], levels - 1),
+            deepest: planes(net.channels(levels - 1), levels - 1),
             scratch: Vec::new(),
             tiles: TileBuffers::default(),
         }

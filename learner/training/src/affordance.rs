@@ -53,21 +53,25 @@ pub fn batch_tensors(
     device: &Device,
 ) -> (Tensor<4>, Tensor<4>, Tensor<4>) {
     let [h, w] = frames[0].size;
-    let a = frames[0].affordances();
-    let b = frames.len();
     let rgbd: Vec<f32> = frames.iter().flat_map(|f| f.rgbd.iter().copied()).collect();
-    let labels: Vec<f32> = frames
-        .iter()
-        .flat_map(|f| f.labels.iter().map(|&l| f32::from(u8::from(l == 1))))
-        .collect();
-    let known: Vec<f32> = frames
-        .iter()
-        .flat_map(|f| f.labels.iter().map(|&l| f32::from(u8::from(l != UNKNOWN))))
-        .collect();
-    let tensor = |v: Vec<f32>, c: usize| {
-        Tensor::<1>::from_floats(v.as_slice(), device).reshape([b, c, h, w])
+    let x = Tensor::<1>::from_floats(rgbd.as_slice(), device).reshape([frames.len(), 4, h, w]);
+    let (labels, known) = label_tensors(frames, device);
+    (x, labels, known)
+}
+
+/// `(labels [b, a, h, w], known [b, a, h, w])` of [`batch_tensors`], for a
+/// loss whose logits come from elsewhere.
+fn label_tensors(frames: &[&LabelledFrame], device: &Device) -> (Tensor<4>, Tensor<4>) {
+    let [h, w] = frames[0].size;
+    let shape = [frames.len(), frames[0].affordances(), h, w];
+    let plane = |value: fn(u8) -> bool| {
+        let v: Vec<f32> = frames
+            .iter()
+            .flat_map(|f| f.labels.iter().map(move |&l| f32::from(u8::from(value(l)))))
+            .collect();
+        Tensor::<1>::from_floats(v.as_slice(), device).reshape(shape)
     };
-    (tensor(rgbd, 4), tensor(labels, a), tensor(known, a))
+    (plane(|l| l == 1), plane(|l| l != UNKNOWN))
 }
 
 /// Trains a U-Net with Adam (weight decay) on the masked BCE + Dice loss.
@@ -155,7 +159,7 @@ pub fn evaluate(net: &AffordanceUnet, frames: &[&LabelledFrame], device: &Device
     let (mut loss, mut inter, mut union, mut labelled) = (0.0f64, 0usize, 0usize, 0usize);
     for frame in frames {
         let values = predict_logits(&inference, frame);
-        let (_, y, known) = batch_tensors(&[frame], device);
+        let (y, known) = label_tensors(&[frame], device);
         let logits = Tensor::<1>::from_floats(values.as_slice(), device).reshape(y.dims());
         loss += f64::from(masked_bce_dice(logits, y, known).into_scalar::<f32>());
         for (&l, &label) in values.iter().zip(&frame.labels) {
