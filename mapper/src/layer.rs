@@ -67,6 +67,26 @@ pub struct Block {
     pub voxels: Box<[Voxel; BLOCK_VOXELS]>,
 }
 
+impl Block {
+    /// Calls `f(offset, sdf)` for every observed voxel within `band_m` of
+    /// the surface, in offset order. Tests eight voxels at a time into a
+    /// bit mask, so the (mostly empty) runs cost no branch per voxel.
+    #[inline]
+    pub fn for_each_near_surface(&self, band_m: f32, mut f: impl FnMut(usize, f32)) {
+        for (chunk_index, chunk) in self.voxels.chunks_exact(8).enumerate() {
+            let mut mask = 0u8;
+            for (i, v) in chunk.iter().enumerate() {
+                mask |= u8::from((v.weight > 0.0) & (v.sdf.abs() < band_m)) << i;
+            }
+            while mask != 0 {
+                let i = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                f(chunk_index * 8 + i, chunk[i].sdf);
+            }
+        }
+    }
+}
+
 impl Default for Block {
     fn default() -> Self {
         Self {
@@ -198,12 +218,9 @@ impl Layer {
     pub fn near_surface_voxels(&self, band_m: f32) -> Vec<(Point3<f32>, f32)> {
         let mut out = Vec::new();
         for b in self.block_indices() {
-            let block = &self.blocks[&b];
-            for (o, v) in block.voxels.iter().enumerate() {
-                if v.weight > 0.0 && v.sdf.abs() < band_m {
-                    out.push((self.voxel_center(VoxelIndex::join(b, o)), v.sdf));
-                }
-            }
+            self.blocks[&b].for_each_near_surface(band_m, |o, sdf| {
+                out.push((self.voxel_center(VoxelIndex::join(b, o)), sdf));
+            });
         }
         out
     }

@@ -1,10 +1,10 @@
 //! 2-D projections of the map onto the floor plane (world z is up), at any
 //! extent and resolution, world-aligned or egocentric.
 
-use nalgebra::{Point2, Point3};
+use nalgebra::{Isometry3, Point2, Point3};
 
 use crate::labels::Affordance;
-use crate::layer::floor_to_i32;
+use crate::layer::{floor_to_i32, BlockIndex, Layer, BLOCK_EDGE};
 use crate::map::{Map, MapObject};
 
 /// A square grid on the floor plane.
@@ -52,6 +52,19 @@ impl CellLocator {
         }
     }
 
+    /// False when `group`'s box lies wholly outside the circle around the
+    /// grid (so outside the grid, whatever its heading).
+    fn may_cover(&self, group: &PointGroup<'_>) -> bool {
+        let centre = [self.center.x, self.center.y];
+        let gap = |a: usize| {
+            (group.lo[a] - centre[a])
+                .max(centre[a] - group.hi[a])
+                .max(0.0)
+        };
+        let reach = self.half_extent_m * std::f32::consts::SQRT_2;
+        gap(0).powi(2) + gap(1).powi(2) <= reach * reach
+    }
+
     #[inline]
     fn cell_of(&self, x: f32, y: f32) -> Option<usize> {
         let (dx, dy) = (x - self.center.x, y - self.center.y);
@@ -97,29 +110,76 @@ impl Map {
     /// World-frame surface points of the background and of every object not
     /// held (observed voxels within one voxel of the surface).
     pub fn surface_points(&self) -> SurfacePoints<'_> {
+        let mut groups = Vec::new();
         let background = self.background();
-        let objects = self
-            .objects()
-            .values()
-            .filter(|o| !o.held)
-            .map(|object| {
-                let points = object
-                    .volume
-                    .near_surface_voxels(object.volume.voxel_size_m)
-                    .into_iter()
-                    .map(|(p, _)| object.t_world_object * p)
-                    .collect();
-                (object, points)
-            })
-            .collect();
-        SurfacePoints {
-            background: background
-                .near_surface_voxels(background.voxel_size_m)
-                .into_iter()
-                .map(|(p, _)| p)
-                .collect(),
-            objects,
+        for b in background.block_indices() {
+            let mut points = PointGroup::new(None);
+            gather_block(background, b, &Isometry3::identity(), &mut points);
+            groups.push(points);
         }
+        for object in self.objects().values().filter(|o| !o.held) {
+            let mut points = PointGroup::new(Some(object));
+            for b in object.volume.block_indices() {
+                gather_block(&object.volume, b, &object.t_world_object, &mut points);
+            }
+            groups.push(points);
+        }
+        groups.retain(|g| !g.points.is_empty());
+        SurfacePoints { groups }
+    }
+}
+
+/// Appends to `group` the surface points of block `b` of `layer`, moved
+/// into the world by `t_world_layer`.
+fn gather_block(
+    layer: &Layer,
+    b: BlockIndex,
+    t_world_layer: &Isometry3<f32>,
+    group: &mut PointGroup<'_>,
+) {
+    let Some(block) = layer.block(b) else {
+        return;
+    };
+    let s = layer.voxel_size_m;
+    let edge = BLOCK_EDGE as usize;
+    let origin = b.0.map(|i| (i * BLOCK_EDGE) as f32 + 0.5);
+    let rotation = t_world_layer.rotation.to_rotation_matrix();
+    let translation = t_world_layer.translation.vector;
+    block.for_each_near_surface(s, |o, _| {
+        let local = Point3::new(
+            (origin[0] + (o % edge) as f32) * s,
+            (origin[1] + (o / edge % edge) as f32) * s,
+            (origin[2] + (o / (edge * edge)) as f32) * s,
+        );
+        group.push(rotation * local + translation);
+    });
+}
+
+/// Surface points of one owner (the background or an object) and the box
+/// they span on the floor plane, so that a grid can skip the whole group.
+#[derive(Debug, Clone)]
+struct PointGroup<'a> {
+    /// `None` for the background.
+    object: Option<&'a MapObject>,
+    points: Vec<Point3<f32>>,
+    lo: [f32; 2],
+    hi: [f32; 2],
+}
+
+impl<'a> PointGroup<'a> {
+    fn new(object: Option<&'a MapObject>) -> Self {
+        Self {
+            object,
+            points: Vec::new(),
+            lo: [f32::INFINITY; 2],
+            hi: [f32::NEG_INFINITY; 2],
+        }
+    }
+
+    fn push(&mut self, p: Point3<f32>) {
+        self.lo = [self.lo[0].min(p.x), self.lo[1].min(p.y)];
+        self.hi = [self.hi[0].max(p.x), self.hi[1].max(p.y)];
+        self.points.push(p);
     }
 }
 
@@ -127,48 +187,132 @@ impl Map {
 /// the expensive part) and rasterised into any number of projections.
 #[derive(Debug, Clone)]
 pub struct SurfacePoints<'a> {
-    background: Vec<Point3<f32>>,
-    objects: Vec<(&'a MapObject, Vec<Point3<f32>>)>,
+    /// The background's points a group per block, then each object's.
+    groups: Vec<PointGroup<'a>>,
 }
 
 impl SurfacePoints<'_> {
     /// Rasterises `kind` onto `grid` (row-major, `cells × cells`, values 0 / 1).
     pub fn project(&self, kind: ProjectionKind, grid: &GridSpec) -> Vec<f32> {
-        let mut out = vec![0.0; grid.cells * grid.cells];
-        let heights = match kind {
-            ProjectionKind::Occupancy {
-                min_height_m,
-                max_height_m,
-            } => Some(min_height_m..=max_height_m),
-            _ => None,
-        };
-        let locator = CellLocator::new(grid);
-        let mut mark = |points: &[Point3<f32>]| {
-            for p in points {
-                if heights.as_ref().is_some_and(|h| !h.contains(&p.z)) {
+        self.project_all(&[(kind, *grid)])
+            .pop()
+            .expect("one projection per request")
+    }
+
+    /// Rasterises every `(kind, grid)` request in one pass over the points,
+    /// in the order asked: a point's cell is worked out once per distinct
+    /// grid, however many projections share that grid.
+    pub fn project_all(&self, requests: &[(ProjectionKind, GridSpec)]) -> Vec<Vec<f32>> {
+        let mut raster = Raster::new(requests);
+        for group in &self.groups {
+            raster.mark(group, |kind| match group.object {
+                Some(object) => shows(object, kind),
+                None => matches!(kind, ProjectionKind::Occupancy { .. }),
+            });
+        }
+        raster.planes(requests)
+    }
+}
+
+/// Whether projections of `kind` show `object`'s surface.
+fn shows(object: &MapObject, kind: ProjectionKind) -> bool {
+    match kind {
+        ProjectionKind::Occupancy { .. } => true,
+        ProjectionKind::InteractedSuccess(a) => {
+            object.labels.interacted(a) && object.labels.label(a) == Some(true)
+        }
+        ProjectionKind::InteractedFailure(a) => {
+            object.labels.interacted(a) && object.labels.label(a) == Some(false)
+        }
+        ProjectionKind::NotInteracted(a) => !object.labels.interacted(a),
+    }
+}
+
+/// Up to 64 projections onto one grid, rasterised together: a cell holds one
+/// bit per projection.
+struct Slot {
+    locator: CellLocator,
+    /// `(request index, kind)` of each bit.
+    planes: Vec<(usize, ProjectionKind)>,
+    bits: Vec<u64>,
+}
+
+/// Projections being rasterised together, grouped by grid.
+struct Raster {
+    slots: Vec<Slot>,
+}
+
+impl Raster {
+    fn new(requests: &[(ProjectionKind, GridSpec)]) -> Self {
+        let mut grids: Vec<GridSpec> = Vec::new();
+        let mut slots: Vec<Slot> = Vec::new();
+        for (index, (kind, grid)) in requests.iter().enumerate() {
+            let slot = slots
+                .iter()
+                .zip(&grids)
+                .position(|(s, g)| g == grid && s.planes.len() < 64);
+            let slot = slot.unwrap_or_else(|| {
+                grids.push(*grid);
+                slots.push(Slot {
+                    locator: CellLocator::new(grid),
+                    planes: Vec::new(),
+                    bits: vec![0; grid.cells * grid.cells],
+                });
+                slots.len() - 1
+            });
+            slots[slot].planes.push((index, *kind));
+        }
+        Self { slots }
+    }
+
+    /// Marks `points` in every projection whose kind `shows`; occupancy
+    /// projections only where a point lies within their heights.
+    fn mark(&mut self, group: &PointGroup<'_>, shows: impl Fn(ProjectionKind) -> bool) {
+        for slot in self.slots.iter_mut().filter(|s| s.locator.may_cover(group)) {
+            let mut always = 0u64;
+            let mut by_height: Vec<(u64, std::ops::RangeInclusive<f32>)> = Vec::new();
+            for (bit, (_, kind)) in slot.planes.iter().enumerate() {
+                if !shows(*kind) {
                     continue;
                 }
-                if let Some(c) = locator.cell_of(p.x, p.y) {
-                    out[c] = 1.0;
+                match *kind {
+                    ProjectionKind::Occupancy {
+                        min_height_m,
+                        max_height_m,
+                    } => by_height.push((1 << bit, min_height_m..=max_height_m)),
+                    _ => always |= 1 << bit,
                 }
             }
-        };
-        if heights.is_some() {
-            mark(&self.background);
+            if always == 0 && by_height.is_empty() {
+                continue;
+            }
+            for p in &group.points {
+                let mut mask = always;
+                for (bit, heights) in &by_height {
+                    if heights.contains(&p.z) {
+                        mask |= bit;
+                    }
+                }
+                if mask == 0 {
+                    continue;
+                }
+                if let Some(c) = slot.locator.cell_of(p.x, p.y) {
+                    slot.bits[c] |= mask;
+                }
+            }
         }
-        for (object, points) in &self.objects {
-            let include = match kind {
-                ProjectionKind::Occupancy { .. } => true,
-                ProjectionKind::InteractedSuccess(a) => {
-                    object.labels.interacted(a) && object.labels.label(a) == Some(true)
-                }
-                ProjectionKind::InteractedFailure(a) => {
-                    object.labels.interacted(a) && object.labels.label(a) == Some(false)
-                }
-                ProjectionKind::NotInteracted(a) => !object.labels.interacted(a),
-            };
-            if include {
-                mark(points);
+    }
+
+    /// The projections, in the order of `requests`.
+    fn planes(self, requests: &[(ProjectionKind, GridSpec)]) -> Vec<Vec<f32>> {
+        let mut out: Vec<Vec<f32>> = requests.iter().map(|_| Vec::new()).collect();
+        for slot in self.slots {
+            for (bit, (index, _)) in slot.planes.iter().enumerate() {
+                out[*index] = slot
+                    .bits
+                    .iter()
+                    .map(|b| f32::from(u8::from(b >> bit & 1 == 1)))
+                    .collect();
             }
         }
         out

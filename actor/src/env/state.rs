@@ -179,17 +179,18 @@ pub struct State {
 /// (and every map input when `input.map` is `None`) stay empty.
 pub fn build_state(config: &StateConfig, input: &StateInputs<'_>) -> State {
     let map = input.map.filter(|_| config.map_channels() > 0);
-    // Gathered once: both extents and every plane rasterise the same points.
-    let surface = map.map(Map::surface_points);
-    let planes = |extent_m: f32| {
-        surface
-            .as_ref()
-            .map_or_else(Vec::new, |s| map_planes(config, input, s, extent_m))
-    };
+    let (global_map, local_map) = map.map_or_else(Default::default, |m| {
+        map_planes(
+            config,
+            input,
+            &m.surface_points(),
+            [config.global_extent_m, config.local_extent_m],
+        )
+    });
     State {
         camera: camera_planes(config, input, map),
-        global_map: planes(config.global_extent_m),
-        local_map: planes(config.local_extent_m),
+        global_map,
+        local_map,
         history: history_vector(config, input.history),
         inventory: vec![f32::from(u8::from(input.holding))],
     }
@@ -247,38 +248,49 @@ fn camera_planes(config: &StateConfig, input: &StateInputs<'_>, map: Option<&Map
     out
 }
 
+/// The egocentric map planes at the global and the local extent, every
+/// projection of both rasterised in one pass over the map's surface points.
 fn map_planes(
     config: &StateConfig,
     input: &StateInputs<'_>,
     surface: &SurfacePoints<'_>,
-    extent_m: f32,
-) -> Vec<f32> {
+    [global_m, local_m]: [f32; 2],
+) -> (Vec<f32>, Vec<f32>) {
     let (x, y, heading) = input.agent;
-    let grid = GridSpec {
+    let grid = |extent_m| GridSpec {
         center: Point2::new(x, y),
         up_heading_rad: heading,
         extent_m,
         cells: config.map_cells,
     };
     let (lo, hi) = config.occupancy_heights_m;
-    let mut out = visited(input.visited, &grid);
-    out.extend(surface.project(
-        ProjectionKind::Occupancy {
-            min_height_m: input.floor_z + lo,
-            max_height_m: input.floor_z + hi,
-        },
-        &grid,
-    ));
+    let mut kinds = vec![ProjectionKind::Occupancy {
+        min_height_m: input.floor_z + lo,
+        max_height_m: input.floor_z + hi,
+    }];
     for &a in &config.affordances {
-        for kind in [
+        kinds.extend([
             ProjectionKind::InteractedSuccess(a),
             ProjectionKind::InteractedFailure(a),
             ProjectionKind::NotInteracted(a),
-        ] {
-            out.extend(surface.project(kind, &grid));
-        }
+        ]);
     }
-    out
+    let grids = [grid(global_m), grid(local_m)];
+    let requests: Vec<_> = grids
+        .iter()
+        .flat_map(|g| kinds.iter().map(|&k| (k, *g)))
+        .collect();
+    let mut projections = surface.project_all(&requests).into_iter();
+    let mut planes = |grid: &GridSpec| {
+        let mut out = visited(input.visited, grid);
+        for plane in projections.by_ref().take(kinds.len()) {
+            out.extend(plane);
+        }
+        out
+    };
+    let global = planes(&grids[0]);
+    let local = planes(&grids[1]);
+    (global, local)
 }
 
 /// A reward as the history holds it: `[-1, 2]` mapped onto `[0, 1]` (clamped),
