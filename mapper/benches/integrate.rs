@@ -245,7 +245,7 @@ fn compare_renderers(map: &Map, frames: &[OwnedFrame]) {
             for f in frames {
                 let layers = map.objects_in_camera(&f.pose);
                 let started = std::time::Instant::now();
-                std::hint::black_box(render_layers(&layers, &k, 0.1, 0.04));
+                std::hint::black_box(render_layers(&layers, &k, 0.1, 0.04, None));
                 quarter.push(started.elapsed().as_secs_f64());
                 let started = std::time::Instant::now();
                 let mut target = RenderTarget::new(&k);

@@ -260,7 +260,8 @@ impl Map {
             |d| params.valid_depth(d),
             self.config.association.min_segment_px,
         );
-        let rendered = self.render_objects(&frame.t_world_camera, &k);
+        let far_m = self.visible_depth_limits(frame);
+        let rendered = self.render_objects(&frame.t_world_camera, &k, Some(&far_m));
         let rendered_at = std::time::Instant::now();
         let mut matches = associate(
             &segments,
@@ -440,21 +441,51 @@ impl Map {
 
     /// Renders every object into a camera: nearest object depth and id per
     /// pixel ([`render_layers`]: exact at silhouettes and depth edges,
-    /// interpolated within a surface).
-    fn render_objects(&self, t_world_camera: &Pose, k: &Intrinsics) -> RenderTarget {
+    /// interpolated within a surface), only nearer than `far_m` per pixel
+    /// when given.
+    fn render_objects(
+        &self,
+        t_world_camera: &Pose,
+        k: &Intrinsics,
+        far_m: Option<&[f32]>,
+    ) -> RenderTarget {
         render_layers(
             &self.objects_in_camera(t_world_camera),
             k,
             self.config.integration.min_depth_m,
             self.config.voxel_size_m,
+            far_m,
         )
+    }
+
+    /// How far the map needs rendering into a frame, per pixel: a surface
+    /// more than association's depth tolerance (and a voxel, for the ray's
+    /// step) behind the measured depth is hidden by what the camera sees. It
+    /// can match no segment (association counts only pixels whose depths
+    /// agree), it is not where the object should be seen (no miss), and
+    /// integration never touches occluded voxels. Pixels without a usable
+    /// depth measurement limit nothing.
+    fn visible_depth_limits(&self, frame: &Frame<'_>) -> Vec<f32> {
+        let params = self.config.integration;
+        let margin = self.config.association.depth_tolerance_m + self.config.voxel_size_m;
+        frame
+            .depth_m
+            .iter()
+            .map(|&d| {
+                if params.valid_depth(d) {
+                    d + margin
+                } else {
+                    f32::INFINITY
+                }
+            })
+            .collect()
     }
 
     /// Renders the map's object ids and depth into any camera (label
     /// propagation to past frames). The background volume occludes objects
     /// behind walls; its own pixels get id 0.
     pub fn render_ids(&self, t_world_camera: &Pose, k: &Intrinsics) -> RenderTarget {
-        let mut target = self.render_objects(t_world_camera, k);
+        let mut target = self.render_objects(t_world_camera, k, None);
         let t_camera_world = t_world_camera.inverse();
         let mut background = RenderTarget::new(k);
         raycast_layer(

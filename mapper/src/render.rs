@@ -114,43 +114,55 @@ fn sample(reader: &mut CachedReader<'_>, p: &Point3<f32>) -> Sample {
     Sample::Known(sum)
 }
 
-/// Pixel rectangle covered by the projection of the box `[lo, hi]` (layer frame).
+/// Pixel rectangle covered by the projection of the part of the box
+/// `[lo, hi]` (layer frame) at z-depth `near` or more: its corners there,
+/// and where its edges cross that depth. Rays march no nearer than `near`,
+/// so no pixel outside can see the box; a box reaching behind the camera
+/// covers only the side of the image it lies on, not the whole image.
 fn projected_rect(
     lo: &Point3<f32>,
     hi: &Point3<f32>,
     t_camera_layer: &Pose,
     k: &Intrinsics,
+    near: f32,
 ) -> Option<(usize, usize, usize, usize)> {
+    let corners: [Point3<f32>; 8] = std::array::from_fn(|i| {
+        t_camera_layer
+            * Point3::new(
+                if i & 1 == 0 { lo.x } else { hi.x },
+                if i & 2 == 0 { lo.y } else { hi.y },
+                if i & 4 == 0 { lo.z } else { hi.z },
+            )
+    });
     let (mut umin, mut vmin, mut umax, mut vmax) = (
         f32::INFINITY,
         f32::INFINITY,
         f32::NEG_INFINITY,
         f32::NEG_INFINITY,
     );
-    let mut any_behind = false;
-    let mut any_in_front = false;
-    for i in 0..8 {
-        let c = Point3::new(
-            if i & 1 == 0 { lo.x } else { hi.x },
-            if i & 2 == 0 { lo.y } else { hi.y },
-            if i & 4 == 0 { lo.z } else { hi.z },
-        );
-        match k.project(&(t_camera_layer * c)) {
-            Some((u, v, _)) => {
-                any_in_front = true;
-                umin = umin.min(u);
-                umax = umax.max(u);
-                vmin = vmin.min(v);
-                vmax = vmax.max(v);
+    let mut include = |p: &Point3<f32>| {
+        if let Some((u, v, _)) = k.project(p) {
+            umin = umin.min(u);
+            umax = umax.max(u);
+            vmin = vmin.min(v);
+            vmax = vmax.max(v);
+        }
+    };
+    for (i, a) in corners.iter().enumerate() {
+        if a.z >= near {
+            include(a);
+        }
+        // The edges from this corner along each axis it has not yet taken.
+        for axis in (0..3).filter(|axis| i & (1 << axis) == 0) {
+            let b = &corners[i | (1 << axis)];
+            if (a.z < near) != (b.z < near) {
+                let t = (near - a.z) / (b.z - a.z);
+                include(&(a + (b - a) * t));
             }
-            None => any_behind = true,
         }
     }
-    if !any_in_front {
+    if !(umin <= umax && vmin <= vmax) {
         return None;
-    }
-    if any_behind {
-        return Some((0, k.width - 1, 0, k.height - 1));
     }
     let clamp = |x: f32, n: usize| x.round().clamp(0.0, (n - 1) as f32) as usize;
     if umax < -0.5 || vmax < -0.5 || umin > k.width as f32 - 0.5 || vmin > k.height as f32 - 0.5 {
@@ -225,7 +237,8 @@ pub fn raycast_layer(
     let Some((lo, hi)) = layer.block_bounds() else {
         return 0;
     };
-    let Some((u0, u1, v0, v1)) = projected_rect(&lo, &hi, t_camera_layer, k) else {
+    let Some((u0, u1, v0, v1)) = projected_rect(&lo, &hi, t_camera_layer, k, min_depth_m.max(1e-4))
+    else {
         return 0;
     };
     let t_layer_camera = t_camera_layer.inverse();
@@ -360,13 +373,21 @@ impl PlacedLayer<'_> {
 /// last row and column, which lack neighbours on one side, get rays into
 /// every layer. What this can miss: a layer narrower than two pixels, which
 /// association ignores anyway.
+///
+/// With `far_m` (a z-depth per pixel), a pixel shows only surfaces nearer
+/// than its `far_m`: rays stop there, and layers wholly beyond it are not
+/// marched at all. Pixels showing nothing get +∞ depth either way.
 pub fn render_layers(
     layers: &[PlacedLayer<'_>],
     k: &Intrinsics,
     min_depth_m: f32,
     max_spread_m: f32,
+    far_m: Option<&[f32]>,
 ) -> RenderTarget {
     let mut target = RenderTarget::new(k);
+    if let Some(far_m) = far_m {
+        target.depth_m.copy_from_slice(far_m);
+    }
     for placed in layers {
         placed.raycast(k, min_depth_m, &mut target, Pixels::EvenGrid);
     }
@@ -400,9 +421,11 @@ pub fn render_layers(
                     (lo.min(d), hi.max(d))
                 });
             let one_layer = ids.iter().all(|&i| i == ids[0]);
-            if one_layer && (ids[0] == 0 || hi - lo <= max_spread_m) {
+            let mean = depths.iter().sum::<f32>() / 4.0;
+            if one_layer && (ids[0] == 0 || (hi - lo <= max_spread_m && mean < target.depth_m[px]))
+            {
                 if ids[0] != 0 {
-                    target.depth_m[px] = depths.iter().sum::<f32>() / 4.0;
+                    target.depth_m[px] = mean;
                     target.ids[px] = ids[0];
                 }
                 continue;
@@ -418,6 +441,13 @@ pub fn render_layers(
         let own = own_rays.get(&placed.id).map_or(&[][..], |p| &p[..]);
         for pixels in [own, &border] {
             placed.raycast(k, min_depth_m, &mut target, Pixels::Listed(pixels));
+        }
+    }
+    if far_m.is_some() {
+        for (depth, &id) in target.depth_m.iter_mut().zip(&target.ids) {
+            if id == 0 {
+                *depth = f32::INFINITY;
+            }
         }
     }
     target
@@ -492,5 +522,72 @@ mod tests {
             }
         }
         assert!(checked > 2000, "only {checked} observed samples");
+    }
+
+    #[test]
+    fn a_box_reaching_behind_the_camera_covers_only_the_pixels_that_can_see_it() {
+        let k = Intrinsics::from_fov(64, 48, 90.0);
+        let near = 0.1;
+        // Boxes around the camera: beside it reaching behind, straddling
+        // the image's edge, wholly in front, and behind.
+        let boxes = [
+            (Point3::new(-1.5, -0.5, -1.0), Point3::new(-0.4, 0.5, 0.6)),
+            (Point3::new(0.3, -0.2, -0.5), Point3::new(0.9, 0.4, 2.0)),
+            (Point3::new(-0.2, -0.3, 1.0), Point3::new(0.4, 0.1, 1.6)),
+            (Point3::new(-1.0, -1.0, 0.2), Point3::new(1.0, 1.0, 0.5)),
+            (Point3::new(-0.5, -0.5, -2.0), Point3::new(0.5, 0.5, -0.5)),
+        ];
+        let poses = [
+            Pose::identity(),
+            Pose::new(Vector3::new(0.1, -0.2, 0.05), Vector3::new(0.3, -0.5, 0.2)),
+        ];
+        let mut narrower_than_the_image = 0;
+        for (lo, hi) in &boxes {
+            for pose in &poses {
+                let rect = projected_rect(lo, hi, pose, &k, near);
+                // Every pixel whose ray meets the box at z ≥ near lies inside.
+                let inverse = pose.inverse();
+                let origin = inverse * Point3::origin();
+                let mut seen = 0;
+                for v in 0..k.height {
+                    for u in 0..k.width {
+                        let dir = inverse.rotation * k.ray(u as f32, v as f32);
+                        let Some((z0, z1)) = slab(&origin, &dir, lo, hi) else {
+                            continue;
+                        };
+                        if z1 < near || z0 > 100.0 {
+                            continue;
+                        }
+                        seen += 1;
+                        let (u0, u1, v0, v1) = rect.unwrap_or_else(|| {
+                            panic!("box {lo} – {hi} seen at ({u}, {v}), no rect")
+                        });
+                        assert!(
+                            (u0..=u1).contains(&u) && (v0..=v1).contains(&v),
+                            "box {lo} – {hi}: pixel ({u}, {v}) outside {:?}",
+                            rect
+                        );
+                    }
+                }
+                if seen == 0 {
+                    assert_eq!(rect, None, "box {lo} – {hi} unseen");
+                }
+                if let Some((u0, u1, v0, v1)) = rect {
+                    if (u1 - u0 + 1) * (v1 - v0 + 1) < k.pixels() / 2 {
+                        narrower_than_the_image += 1;
+                    }
+                }
+            }
+        }
+        // Before clipping at `near`, the first box (beside the camera,
+        // reaching behind it) covered the whole image.
+        let beside = projected_rect(&boxes[0].0, &boxes[0].1, &Pose::identity(), &k, near);
+        let (u0, u1, _, _) = beside.unwrap();
+        assert_eq!(u0, 0);
+        assert!(
+            u1 < k.width / 2,
+            "the box left of the camera reaches column {u1}"
+        );
+        assert!(narrower_than_the_image >= 4);
     }
 }

@@ -129,6 +129,48 @@ fn a_noise_segment_creates_no_object_and_an_over_segmented_object_keeps_one_id()
 }
 
 #[test]
+fn an_object_hidden_behind_an_unmapped_surface_is_not_missed() {
+    let shapes = scene();
+    let mut map = Map::new(MapConfig::default());
+    for pose in viewpoints() {
+        map.integrate(&OwnedFrame::capture(&shapes, pose, k128()).frame())
+            .unwrap();
+    }
+    let ids_before: BTreeSet<_> = map.objects().keys().copied().collect();
+    // A screen (background: instance 0) between the camera and the scene
+    // hides every object, for more frames than the map lets an object that
+    // should be seen go unseen.
+    let pose = look_at(Point3::new(2.6, 0.3, 1.0), Point3::new(0.0, 0.3, 0.3));
+    let mut hidden = shapes.clone();
+    hidden.push(Shape::Box {
+        t_world_box: Isometry3::translation(1.9, 0.3, 1.0),
+        half: Vector3::new(0.05, 3.0, 3.0),
+        id: 0,
+    });
+    let frame = OwnedFrame::capture(&hidden, pose, k128());
+    assert!(
+        frame.ids.iter().all(|&i| i == 0),
+        "the screen hides everything"
+    );
+    for _ in 0..=MapConfig::default().max_misses + 2 {
+        map.integrate(&frame.frame()).unwrap();
+    }
+    let ids_after: BTreeSet<_> = map.objects().keys().copied().collect();
+    assert_eq!(
+        ids_after, ids_before,
+        "objects behind the screen were deleted"
+    );
+    // Without the screen, the camera sees them again under their ids.
+    let seen = OwnedFrame::capture(&shapes, pose, k128());
+    let map_ids = map.integrate(&seen.frame()).unwrap();
+    let got: BTreeSet<_> = map_ids.iter().filter(|&&id| id != 0).copied().collect();
+    assert!(!got.is_empty());
+    assert!(got
+        .iter()
+        .all(|id| ids_before.contains(&mapper::ObjectId(*id))));
+}
+
+#[test]
 fn ids_rendered_into_a_training_frame_match_ground_truth() {
     let shapes = scene();
     let mut map = Map::new(MapConfig::default());
@@ -189,7 +231,7 @@ fn quarter_ray_rendering_matches_a_ray_through_every_pixel() {
     ] {
         let layers = map.objects_in_camera(&pose);
         // Depths within one voxel (the map's setting) are interpolated.
-        let fast = render_layers(&layers, &k, 0.1, 0.04);
+        let fast = render_layers(&layers, &k, 0.1, 0.04, None);
         let mut exact = RenderTarget::new(&k);
         for l in &layers {
             l.raycast(&k, 0.1, &mut exact, Pixels::All);
