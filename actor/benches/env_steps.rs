@@ -80,6 +80,7 @@ fn main() {
     ];
     println!("| method | px | renderer | steps/s | reset | sim | render | map | U-Net | state |");
     println!("|---|---|---|---|---|---|---|---|---|---|");
+    let mut map_splits = Vec::new();
     for Case {
         method,
         image_size,
@@ -123,6 +124,33 @@ fn main() {
             ms(|t| t.unet),
             ms(|t| t.state),
         );
+        if method == Method::Ours {
+            let stage = |f: fn(&mapper::IntegrateTimings) -> f64| {
+                let times = stages
+                    .iter()
+                    .map(|t| Duration::from_secs_f64(f(&t.map_stages)));
+                median(times.collect()).as_secs_f64() * 1e3
+            };
+            map_splits.push(format!(
+                "| {} | {image_size} | {:.2} ms | {:.2} ms | {:.2} ms | {:.2} ms | {:.2} ms | {:.2} ms |",
+                method.as_str(),
+                stage(|m| m.render_s),
+                stage(|m| m.associate_s),
+                stage(|m| m.tracking_s),
+                stage(|m| m.integrate_s),
+                stage(|m| m.background_s),
+                stage(|m| m.book_keeping_s),
+            ));
+        }
+    }
+    println!();
+    println!("The map's own split of its column (medians per stage):");
+    println!(
+        "| method | px | render | association | tracking | objects | background | book-keeping |"
+    );
+    println!("|---|---|---|---|---|---|---|---|");
+    for line in map_splits {
+        println!("{line}");
     }
     lockstep_table(&data, &device);
 }

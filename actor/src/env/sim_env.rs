@@ -126,6 +126,8 @@ pub struct StepTimings {
     pub render: Duration,
     /// Map integration.
     pub map: Duration,
+    /// The map's own split of `map` (zero without a map).
+    pub map_stages: mapper::IntegrateTimings,
     /// U-Net inference.
     pub unet: Duration,
     /// State building, targets and mask.
@@ -585,11 +587,17 @@ impl SimEnv {
             frame.ids.clone()
         };
         let t2 = Instant::now();
+        let map_stages = if self.config.uses_map() {
+            episode.map.last_timings()
+        } else {
+            mapper::IntegrateTimings::default()
+        };
         episode.pending = Some(Captured { frame, map_ids });
         self.timings = StepTimings {
             sim: Duration::ZERO,
             render: t1 - t0,
             map: t2 - t1,
+            map_stages,
             unet: Duration::ZERO,
             state: Duration::ZERO,
         };
