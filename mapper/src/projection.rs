@@ -4,7 +4,7 @@
 use nalgebra::{Isometry3, Point2, Point3};
 
 use crate::labels::Affordance;
-use crate::layer::{floor_to_i32, BlockIndex, Layer, BLOCK_EDGE};
+use crate::layer::{floor_to_i32, BlockIndex, Layer, VoxelIndex};
 use crate::map::{Map, MapObject};
 
 /// A square grid on the floor plane.
@@ -140,18 +140,8 @@ fn gather_block(
     let Some(block) = layer.block(b) else {
         return;
     };
-    let s = layer.voxel_size_m;
-    let edge = BLOCK_EDGE as usize;
-    let origin = b.0.map(|i| (i * BLOCK_EDGE) as f32 + 0.5);
-    let rotation = t_world_layer.rotation.to_rotation_matrix();
-    let translation = t_world_layer.translation.vector;
-    block.for_each_near_surface(s, |o, _| {
-        let local = Point3::new(
-            (origin[0] + (o % edge) as f32) * s,
-            (origin[1] + (o / edge % edge) as f32) * s,
-            (origin[2] + (o / (edge * edge)) as f32) * s,
-        );
-        group.push(rotation * local + translation);
+    block.for_each_near_surface(layer.voxel_size_m, |o, _| {
+        group.push(t_world_layer * layer.voxel_center(VoxelIndex::join(b, o)));
     });
 }
 
@@ -231,6 +221,7 @@ fn shows(object: &MapObject, kind: ProjectionKind) -> bool {
 /// Up to 64 projections onto one grid, rasterised together: a cell holds one
 /// bit per projection.
 struct Slot {
+    grid: GridSpec,
     locator: CellLocator,
     /// `(request index, kind)` of each bit.
     planes: Vec<(usize, ProjectionKind)>,
@@ -244,16 +235,14 @@ struct Raster {
 
 impl Raster {
     fn new(requests: &[(ProjectionKind, GridSpec)]) -> Self {
-        let mut grids: Vec<GridSpec> = Vec::new();
         let mut slots: Vec<Slot> = Vec::new();
         for (index, (kind, grid)) in requests.iter().enumerate() {
             let slot = slots
                 .iter()
-                .zip(&grids)
-                .position(|(s, g)| g == grid && s.planes.len() < 64);
+                .position(|s| s.grid == *grid && s.planes.len() < 64);
             let slot = slot.unwrap_or_else(|| {
-                grids.push(*grid);
                 slots.push(Slot {
+                    grid: *grid,
                     locator: CellLocator::new(grid),
                     planes: Vec::new(),
                     bits: vec![0; grid.cells * grid.cells],
