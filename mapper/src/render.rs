@@ -377,6 +377,10 @@ impl PlacedLayer<'_> {
 /// With `far_m` (a z-depth per pixel), a pixel shows only surfaces nearer
 /// than its `far_m`: rays stop there, and layers wholly beyond it are not
 /// marched at all. Pixels showing nothing get +∞ depth either way.
+///
+/// # Panics
+/// If `far_m` does not hold one depth per pixel of `k` (the map passes its
+/// frame's depth image, whose size it has checked).
 pub fn render_layers(
     layers: &[PlacedLayer<'_>],
     k: &Intrinsics,
@@ -386,6 +390,11 @@ pub fn render_layers(
 ) -> RenderTarget {
     let mut target = RenderTarget::new(k);
     if let Some(far_m) = far_m {
+        assert_eq!(
+            far_m.len(),
+            k.pixels(),
+            "render_layers: one far depth per pixel"
+        );
         target.depth_m.copy_from_slice(far_m);
     }
     for placed in layers {
