@@ -18,7 +18,11 @@
 //! `--features nets/gpu`); `AFX_DATA` points at the shared data directory
 //! (default `../shared/data` beside the repository), for running the bench
 //! binary on another machine; `AFX_ENVS` lists the environment counts of the
-//! second table (default `1,2`).
+//! second table (default `1,2`; `none` skips it). `AFX_CASES` keeps only the first table's
+//! rows whose name (`method-px-renderer`, e.g. `ours-64-cpu`) contains one of
+//! its comma-separated parts (`none` skips the table); `AFX_STEPS` sets the
+//! episode length (default 120; the map, and with it the map's and the
+//! state's time, grows over an episode).
 
 use std::time::{Duration, Instant};
 
@@ -36,8 +40,28 @@ use sim::profile::RobotProfile;
 use sim::renderer::{Renderer, RendererChoice};
 use sim::scenes::SceneSource;
 
-const STEPS: usize = 120;
+/// Episode length unless `AFX_STEPS` says otherwise.
+const DEFAULT_STEPS: usize = 120;
 const AFFORDANCES: [Affordance; 2] = [Affordance::PickUp, Affordance::Push];
+
+/// The episode length: `AFX_STEPS`, else [`DEFAULT_STEPS`].
+fn episode_steps() -> usize {
+    std::env::var("AFX_STEPS").map_or(DEFAULT_STEPS, |s| {
+        s.trim()
+            .parse()
+            .ok()
+            .filter(|&n: &usize| n >= 2)
+            .expect("AFX_STEPS: an episode length of at least 2 steps")
+    })
+}
+
+/// True if the first table's row `name` is selected by `AFX_CASES`.
+fn selected(name: &str) -> bool {
+    match std::env::var("AFX_CASES") {
+        Ok(cases) => cases.split(',').any(|part| name.contains(part.trim())),
+        Err(_) => true,
+    }
+}
 
 fn median(mut xs: Vec<Duration>) -> Duration {
     xs.sort();
@@ -81,12 +105,18 @@ fn main() {
     println!("| method | px | renderer | steps/s | reset | sim | render | map | U-Net | state |");
     println!("|---|---|---|---|---|---|---|---|---|---|");
     let mut map_splits = Vec::new();
+    let steps = episode_steps();
     for Case {
         method,
         image_size,
         renderer: choice,
     } in cases
     {
+        let renderer_name = format!("{choice:?}").to_lowercase();
+        let row = format!("{}-{image_size}-{renderer_name}", method.as_str());
+        if !selected(&row) {
+            continue;
+        }
         let renderer = match Renderer::open(choice) {
             Ok(r) => r,
             Err(e) => {
@@ -101,9 +131,9 @@ fn main() {
         let reset_started = Instant::now();
         let mut observation = env.reset(1, &model).expect("reset");
         let reset = reset_started.elapsed();
-        let mut stages: Vec<StepTimings> = Vec::with_capacity(STEPS);
+        let mut stages: Vec<StepTimings> = Vec::with_capacity(steps);
         let start = Instant::now();
-        for _ in 0..STEPS {
+        for _ in 0..steps {
             let action =
                 random_allowed_action(env.action_space(), &observation.mask, 0.5, &mut rng);
             observation = env.step(action, &model).expect("step").1;
@@ -116,7 +146,7 @@ fn main() {
         println!(
             "| {} | {image_size} | {name} | {:.1} | {:.0} ms | {:.2} ms | {:.2} ms | {:.2} ms | {:.1} ms | {:.2} ms |",
             method.as_str(),
-            STEPS as f64 / elapsed.as_secs_f64(),
+            steps as f64 / elapsed.as_secs_f64(),
             reset.as_secs_f64() * 1e3,
             ms(|t| t.sim),
             ms(|t| t.render),
@@ -172,7 +202,7 @@ fn sim_env(
     )
     .expect("scenes");
     let config = SimEnvConfig {
-        episode_steps: STEPS,
+        episode_steps: episode_steps(),
         ..SimEnvConfig::paper(method, &AFFORDANCES)
     };
     SimEnv::new(config, source, profile, renderer)
@@ -181,8 +211,11 @@ fn sim_env(
 /// Several environments per process in lock-step (CPU renderer, 64 px):
 /// steps/s of the process and of each environment.
 fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
-    let counts: Vec<usize> = std::env::var("AFX_ENVS")
-        .unwrap_or_else(|_| "1,2".into())
+    let counts = std::env::var("AFX_ENVS").unwrap_or_else(|_| "1,2".into());
+    if counts.trim() == "none" {
+        return;
+    }
+    let counts: Vec<usize> = counts
         .split(',')
         .map(|n| {
             n.trim()
@@ -202,7 +235,7 @@ fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
                 method,
                 affordances: AFFORDANCES.to_vec(),
                 image_size: 64,
-                episode_steps: STEPS,
+                episode_steps: episode_steps(),
                 ..TaskSpec::default()
             };
             let mut envs: Vec<SimEnvironment> = (0..n)
@@ -217,7 +250,7 @@ fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
             let mut observations =
                 reset_all(&mut refs, &seeds, Some(&model), inference).expect("reset");
             let mut rng = StdRng::seed_from_u64(1);
-            let steps = STEPS / 2;
+            let steps = episode_steps() / 2;
             let start = Instant::now();
             for _ in 0..steps {
                 let actions: Vec<u32> = refs
