@@ -249,64 +249,66 @@ pub fn integrate(
     for b in blocks {
         let origin = t_camera_layer * layer.voxel_center(VoxelIndex::join(b, 0));
         let exists = layer.block(b).is_some();
-        // Updated in place; a block allocated here and never updated is
-        // freed again below.
-        let block = layer.block_mut_or_insert(b);
-        let mut block_updates = 0;
-        for zi in 0..edge {
-            for yi in 0..edge {
-                let row = origin.coords + steps[1] * yi as f32 + steps[2] * zi as f32;
-                let landing = project_row(&row, &steps[0], k, off_image);
-                for xi in 0..edge {
-                    let (px, u, v, z) =
-                        (landing.px[xi], landing.u[xi], landing.v[xi], landing.z[xi]);
-                    let pixel = pixels.records[px as usize];
-                    let rough = pixel.depth - z;
-                    // Off the image, no usable depth (NaN), or so far behind
-                    // the surface that even interpolation keeps it occluded.
-                    if rough.is_nan() || rough < -2.0 * trunc {
-                        continue;
-                    }
-                    let o = xi + edge * (yi + edge * zi);
-                    if owned.contains(px as usize) {
-                        // The interpolated depth is within one truncation of
-                        // the nearest pixel's: voxels this far in front need
-                        // no interpolation.
-                        let d = if rough < 2.0 * trunc {
-                            pixels.depth_at(u, v, pixel.depth)
-                        } else {
-                            pixel.depth
-                        };
-                        let projective = d - z;
-                        if projective < -trunc {
-                            continue; // occluded: behind the observed surface
+        // Updated in place, which tells the block its cached surface is
+        // stale; a block allocated here and never updated is freed again.
+        let block_updates = layer.block_mut_or_insert(b).update(|voxels| {
+            let mut block_updates = 0;
+            for zi in 0..edge {
+                for yi in 0..edge {
+                    let row = origin.coords + steps[1] * yi as f32 + steps[2] * zi as f32;
+                    let landing = project_row(&row, &steps[0], k, off_image);
+                    for xi in 0..edge {
+                        let (px, u, v, z) =
+                            (landing.px[xi], landing.u[xi], landing.v[xi], landing.z[xi]);
+                        let pixel = pixels.records[px as usize];
+                        let rough = pixel.depth - z;
+                        // Off the image, no usable depth (NaN), or so far behind
+                        // the surface that even interpolation keeps it occluded.
+                        if rough.is_nan() || rough < -2.0 * trunc {
+                            continue;
                         }
-                        let cos = pixel.cos;
-                        let sdf = projective * cos;
-                        // Full weight in front of the surface, dropping
-                        // quadratically behind it (behind a surface, the ray's
-                        // distance says least about the voxel's: corners and
-                        // edges); grazing views count less.
-                        let w = cos
-                            * if sdf >= 0.0 {
-                                1.0
+                        let o = xi + edge * (yi + edge * zi);
+                        if owned.contains(px as usize) {
+                            // The interpolated depth is within one truncation of
+                            // the nearest pixel's: voxels this far in front need
+                            // no interpolation.
+                            let d = if rough < 2.0 * trunc {
+                                pixels.depth_at(u, v, pixel.depth)
                             } else {
-                                (1.0 + sdf / trunc).powi(2).max(0.05)
+                                pixel.depth
                             };
-                        fuse(&mut block.voxels[o], sdf.min(trunc), w, params.max_weight);
-                        block_updates += 1;
-                    } else if carve && exists && rough > trunc && pixel.may_carve {
-                        let voxel = &mut block.voxels[o];
-                        // Carving clears known surface; it never creates
-                        // knowledge.
-                        if voxel.weight > 0.0 {
-                            fuse(voxel, trunc, 1.0, params.max_weight);
+                            let projective = d - z;
+                            if projective < -trunc {
+                                continue; // occluded: behind the observed surface
+                            }
+                            let cos = pixel.cos;
+                            let sdf = projective * cos;
+                            // Full weight in front of the surface, dropping
+                            // quadratically behind it (behind a surface, the ray's
+                            // distance says least about the voxel's: corners and
+                            // edges); grazing views count less.
+                            let w = cos
+                                * if sdf >= 0.0 {
+                                    1.0
+                                } else {
+                                    (1.0 + sdf / trunc).powi(2).max(0.05)
+                                };
+                            fuse(&mut voxels[o], sdf.min(trunc), w, params.max_weight);
                             block_updates += 1;
+                        } else if carve && exists && rough > trunc && pixel.may_carve {
+                            let voxel = &mut voxels[o];
+                            // Carving clears known surface; it never creates
+                            // knowledge.
+                            if voxel.weight > 0.0 {
+                                fuse(voxel, trunc, 1.0, params.max_weight);
+                                block_updates += 1;
+                            }
                         }
                     }
                 }
             }
-        }
+            block_updates
+        });
         if !exists && block_updates == 0 {
             layer.remove_block(b);
         }

@@ -4,6 +4,8 @@
 //! `(i + ½)·s`); negative indices use floor division, so there is no seam at 0.
 
 use nalgebra::{Point3, Vector3};
+use std::sync::OnceLock;
+
 use rustc_hash::FxHashMap;
 
 /// Voxels per block edge.
@@ -61,19 +63,59 @@ impl VoxelIndex {
 }
 
 /// A block of voxels.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub struct Block {
+    /// One allocation, so that a block is a pointer in its layer's hash map.
+    data: Box<BlockData>,
+}
+
+/// A block's voxels and what is derived from them.
+#[derive(Debug, Clone)]
+struct BlockData {
     /// Voxels, x fastest, then y, then z.
-    pub voxels: Box<[Voxel; BLOCK_VOXELS]>,
+    voxels: [Voxel; BLOCK_VOXELS],
+    /// The layer-frame centres of the observed voxels within one voxel of
+    /// the surface ([`Layer::surface_points`]), worked out on first request
+    /// and forgotten when a voxel changes: the actor's state asks for the
+    /// whole map's surface every step, while a step changes only the blocks
+    /// in view (about a third of them over an episode).
+    surface: OnceLock<Vec<Point3<f32>>>,
+}
+
+impl Default for BlockData {
+    fn default() -> Self {
+        Self {
+            voxels: [Voxel::default(); BLOCK_VOXELS],
+            surface: OnceLock::new(),
+        }
+    }
 }
 
 impl Block {
+    /// The voxels, x fastest, then y, then z.
+    #[inline]
+    pub fn voxels(&self) -> &[Voxel; BLOCK_VOXELS] {
+        &self.data.voxels
+    }
+
+    /// Lets `f` change the voxels; `f` returns how many it changed, and
+    /// when that is not zero the block's cached surface is forgotten.
+    /// Returns `f`'s count.
+    #[inline]
+    pub fn update(&mut self, f: impl FnOnce(&mut [Voxel; BLOCK_VOXELS]) -> usize) -> usize {
+        let changed = f(&mut self.data.voxels);
+        if changed > 0 {
+            self.data.surface.take();
+        }
+        changed
+    }
+
     /// Calls `f(offset, sdf)` for every observed voxel within `band_m` of
     /// the surface, in offset order. Tests eight voxels at a time into a
     /// bit mask, so the (mostly empty) runs cost no branch per voxel.
     #[inline]
     pub fn for_each_near_surface(&self, band_m: f32, mut f: impl FnMut(usize, f32)) {
-        for (chunk_index, chunk) in self.voxels.chunks_exact(8).enumerate() {
+        for (chunk_index, chunk) in self.voxels().chunks_exact(8).enumerate() {
             let mut mask = 0u8;
             for (i, v) in chunk.iter().enumerate() {
                 mask |= u8::from((v.weight > 0.0) & (v.sdf.abs() < band_m)) << i;
@@ -83,14 +125,6 @@ impl Block {
                 mask &= mask - 1;
                 f(chunk_index * 8 + i, chunk[i].sdf);
             }
-        }
-    }
-}
-
-impl Default for Block {
-    fn default() -> Self {
-        Self {
-            voxels: Box::new([Voxel::default(); BLOCK_VOXELS]),
         }
     }
 }
@@ -133,7 +167,7 @@ impl<'a> CachedReader<'a> {
     pub fn observed_sdf(&mut self, v: VoxelIndex) -> Option<f32> {
         let (b, o) = v.split();
         self.block(b)
-            .map(|block| block.voxels[o])
+            .map(|block| block.voxels()[o])
             .filter(|voxel| voxel.weight > 0.0)
             .map(|voxel| voxel.sdf)
     }
@@ -179,7 +213,7 @@ impl Layer {
     /// The voxel at `v`, if its block exists.
     pub fn voxel(&self, v: VoxelIndex) -> Option<&Voxel> {
         let (b, o) = v.split();
-        self.blocks.get(&b).map(|blk| &blk.voxels[o])
+        self.blocks.get(&b).map(|blk| &blk.voxels()[o])
     }
 
     /// The block at `b`, if allocated.
@@ -190,6 +224,21 @@ impl Layer {
     /// The block at `b`, allocated if missing.
     pub fn block_mut_or_insert(&mut self, b: BlockIndex) -> &mut Block {
         self.blocks.entry(b).or_default()
+    }
+
+    /// The layer-frame centres of block `b`'s observed voxels within one
+    /// voxel of the surface, in offset order (`None` if `b` is not
+    /// allocated). Worked out once and kept until the block's voxels change.
+    pub fn surface_points(&self, b: BlockIndex) -> Option<&[Point3<f32>]> {
+        let block = self.blocks.get(&b)?;
+        let points = block.data.surface.get_or_init(|| {
+            let mut points = Vec::new();
+            block.for_each_near_surface(self.voxel_size_m, |o, _| {
+                points.push(self.voxel_center(VoxelIndex::join(b, o)));
+            });
+            points
+        });
+        Some(points)
     }
 
     /// Frees the block at `b` (a no-op if it is not allocated).
@@ -237,7 +286,7 @@ impl Layer {
     ) {
         for b in self.block_indices() {
             let block = &self.blocks[&b];
-            for (o, a) in block.voxels.iter().enumerate() {
+            for (o, a) in block.voxels().iter().enumerate() {
                 if a.weight <= 0.0 {
                     continue;
                 }

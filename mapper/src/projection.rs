@@ -1,10 +1,12 @@
 //! 2-D projections of the map onto the floor plane (world z is up), at any
 //! extent and resolution, world-aligned or egocentric.
 
-use nalgebra::{Isometry3, Point2, Point3};
+use std::borrow::Cow;
+
+use nalgebra::{Point2, Point3};
 
 use crate::labels::Affordance;
-use crate::layer::{floor_to_i32, BlockIndex, Layer, VoxelIndex};
+use crate::layer::floor_to_i32;
 use crate::map::{Map, MapObject};
 
 /// A square grid on the floor plane.
@@ -108,68 +110,57 @@ impl Map {
     }
 
     /// World-frame surface points of the background and of every object not
-    /// held (observed voxels within one voxel of the surface).
+    /// held (observed voxels within one voxel of the surface). Each block's
+    /// points are kept by the block until its voxels change, and the
+    /// background's (whose frame is the world's) are borrowed, not copied.
     pub fn surface_points(&self) -> SurfacePoints<'_> {
         let mut groups = Vec::new();
         let background = self.background();
         for b in background.block_indices() {
-            let mut points = PointGroup::new(None);
-            gather_block(background, b, &Isometry3::identity(), &mut points);
-            groups.push(points);
+            if let Some(points) = background.surface_points(b) {
+                groups.push(PointGroup::new(None, Cow::Borrowed(points)));
+            }
         }
         for object in self.objects().values().filter(|o| !o.held) {
-            let mut points = PointGroup::new(Some(object));
-            for b in object.volume.block_indices() {
-                gather_block(&object.volume, b, &object.t_world_object, &mut points);
+            let volume = &object.volume;
+            let mut points = Vec::new();
+            for b in volume.block_indices() {
+                if let Some(block_points) = volume.surface_points(b) {
+                    points.extend(block_points.iter().map(|p| object.t_world_object * p));
+                }
             }
-            groups.push(points);
+            groups.push(PointGroup::new(Some(object), Cow::Owned(points)));
         }
         groups.retain(|g| !g.points.is_empty());
         SurfacePoints { groups }
     }
 }
 
-/// Appends to `group` the surface points of block `b` of `layer`, moved
-/// into the world by `t_world_layer`.
-fn gather_block(
-    layer: &Layer,
-    b: BlockIndex,
-    t_world_layer: &Isometry3<f32>,
-    group: &mut PointGroup<'_>,
-) {
-    let Some(block) = layer.block(b) else {
-        return;
-    };
-    block.for_each_near_surface(layer.voxel_size_m, |o, _| {
-        group.push(t_world_layer * layer.voxel_center(VoxelIndex::join(b, o)));
-    });
-}
-
-/// Surface points of one owner (the background or an object) and the box
-/// they span on the floor plane, so that a grid can skip the whole group.
+/// Surface points of one owner (the background's block or an object) and
+/// the box they span on the floor plane, so that a grid can skip the whole
+/// group.
 #[derive(Debug, Clone)]
 struct PointGroup<'a> {
     /// `None` for the background.
     object: Option<&'a MapObject>,
-    points: Vec<Point3<f32>>,
+    points: Cow<'a, [Point3<f32>]>,
     lo: [f32; 2],
     hi: [f32; 2],
 }
 
 impl<'a> PointGroup<'a> {
-    fn new(object: Option<&'a MapObject>) -> Self {
+    fn new(object: Option<&'a MapObject>, points: Cow<'a, [Point3<f32>]>) -> Self {
+        let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
+        for p in points.iter() {
+            lo = [lo[0].min(p.x), lo[1].min(p.y)];
+            hi = [hi[0].max(p.x), hi[1].max(p.y)];
+        }
         Self {
             object,
-            points: Vec::new(),
-            lo: [f32::INFINITY; 2],
-            hi: [f32::NEG_INFINITY; 2],
+            points,
+            lo,
+            hi,
         }
-    }
-
-    fn push(&mut self, p: Point3<f32>) {
-        self.lo = [self.lo[0].min(p.x), self.lo[1].min(p.y)];
-        self.hi = [self.hi[0].max(p.x), self.hi[1].max(p.y)];
-        self.points.push(p);
     }
 }
 
@@ -275,7 +266,7 @@ impl Raster {
             if always == 0 && by_height.is_empty() {
                 continue;
             }
-            for p in &group.points {
+            for p in group.points.iter() {
                 let mut mask = always;
                 for (bit, heights) in &by_height {
                     if heights.contains(&p.z) {

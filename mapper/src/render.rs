@@ -63,7 +63,7 @@ fn sample(reader: &mut CachedReader<'_>, p: &Point3<f32>) -> Sample {
     let Some(block) = reader.block(block_index) else {
         return Sample::Unallocated(block_index);
     };
-    let voxel = block.voxels[offset];
+    let voxel = block.voxels()[offset];
     if voxel.weight <= 0.0 {
         return Sample::Unobserved;
     }
@@ -96,7 +96,7 @@ fn sample(reader: &mut CachedReader<'_>, p: &Point3<f32>) -> Sample {
         // The whole stencil lies in one block: index it directly.
         for corner in 0..8 {
             let o = first + (corner & 1) + edge * ((corner >> 1) & 1) + edge * edge * (corner >> 2);
-            let v = block.voxels[o];
+            let v = block.voxels()[o];
             if v.weight <= 0.0 {
                 return Sample::Known(nearest);
             }
@@ -501,15 +501,17 @@ mod tests {
         let mut layer = Layer::new(0.04);
         for b in [[0, 0, 0], [1, 0, 0], [0, -1, 0]] {
             let block_index = crate::layer::BlockIndex(b);
-            let block = layer.block_mut_or_insert(block_index);
-            for (o, voxel) in block.voxels.iter_mut().enumerate() {
-                let v = VoxelIndex::join(block_index, o);
-                if b == [0, -1, 0] && o % 3 == 0 {
-                    continue; // unobserved voxels force the nearest-voxel fallback
+            layer.block_mut_or_insert(block_index).update(|voxels| {
+                for (o, voxel) in voxels.iter_mut().enumerate() {
+                    let v = VoxelIndex::join(block_index, o);
+                    if b == [0, -1, 0] && o % 3 == 0 {
+                        continue; // unobserved voxels force the nearest-voxel fallback
+                    }
+                    voxel.weight = 1.0;
+                    voxel.sdf = 0.3 * v.0[0] as f32 - 0.2 * v.0[1] as f32 + 0.1 * v.0[2] as f32;
                 }
-                voxel.weight = 1.0;
-                voxel.sdf = 0.3 * v.0[0] as f32 - 0.2 * v.0[1] as f32 + 0.1 * v.0[2] as f32;
-            }
+                crate::layer::BLOCK_VOXELS
+            });
         }
         let mut reader = CachedReader::new(&layer);
         let mut checked = 0;

@@ -41,6 +41,11 @@ fn scene() -> Vec<Shape> {
 /// The map of [`scene`] seen from eight viewpoints, with the object under
 /// `PICKED` labelled a pick-up success and the one under `FAILED` a failure.
 fn labelled_map() -> Map {
+    labelled_map_watched(|_| {})
+}
+
+/// [`labelled_map`], calling `after_each_view` on the map after each view.
+fn labelled_map_watched(mut after_each_view: impl FnMut(&Map)) -> Map {
     let shapes = scene();
     let mut map = Map::new(MapConfig::default());
     let target = Point3::new(0.0, 0.4, 0.2);
@@ -60,6 +65,7 @@ fn labelled_map() -> Map {
                 }
             }
         }
+        after_each_view(&map);
     }
     assert_eq!(map.objects().len(), 3, "the scene's three objects");
     map
@@ -158,6 +164,22 @@ fn one_pass_over_many_projections_gives_what_a_plain_scan_gives() {
         assert!(marked(&expected) > 0, "{kind:?} on {grid:?} shows nothing");
         assert_eq!(plane, &expected, "{kind:?} on {grid:?}");
         assert_eq!(plane, &surface.project(*kind, grid), "{kind:?} alone");
+    }
+}
+
+#[test]
+fn surface_points_follow_the_map_as_it_changes() {
+    // Blocks keep their surface points until their voxels change: asking
+    // after every view fills those caches while later views still change
+    // the blocks, so stale points would show in the final planes.
+    let mut gathered = Vec::new();
+    let map =
+        labelled_map_watched(|map| gathered.push(map.surface_points().project_all(&requests())));
+    assert_ne!(gathered[0], gathered[7], "later views changed the planes");
+    let requests = requests();
+    let planes = map.surface_points().project_all(&requests);
+    for ((kind, grid), plane) in requests.iter().zip(&planes) {
+        assert_eq!(plane, &reference(&map, *kind, grid), "{kind:?} on {grid:?}");
     }
 }
 
