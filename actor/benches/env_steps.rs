@@ -12,7 +12,9 @@
 //! A second table steps several environments in one process in lock-step
 //! (`actor --envs N`: a thread per environment; on a GPU the U-Net over all
 //! their frames in one batch, on the CPU each environment's U-Net pass on its
-//! own thread) and reports steps/s per process and per environment.
+//! own thread) through a whole episode, and reports steps/s per process and
+//! per environment, then the episode's end (labelling, in parallel as the
+//! actor does it) and steps/s per process with that end included.
 //!
 //! `AFX_DEVICE=gpu` runs the U-Net on the GPU (a build with
 //! `--features nets/gpu`); `AFX_DATA` points at the shared data directory
@@ -21,8 +23,8 @@
 //! second table (default `1,2`; `none` skips it). `AFX_CASES` keeps only the first table's
 //! rows whose name (`method-px-renderer`, e.g. `ours-64-cpu`) contains one of
 //! its comma-separated parts (`none` skips the table); `AFX_STEPS` sets the
-//! episode length (default 120; the map, and with it the map's and the
-//! state's time, grows over an episode).
+//! episode length of both tables (default 120; the paper's is 600: the map,
+//! and with it the map's and the state's time, grows over an episode).
 
 use std::time::{Duration, Instant};
 
@@ -30,11 +32,12 @@ use actor::env::actions::random_allowed_action;
 use actor::env::affordance_model::AffordanceModel;
 use actor::env::lockstep::{reset_all, step_all, Inference};
 use actor::env::sim_env::{SimEnv, SimEnvConfig, StepTimings};
-use actor::env::SimEnvironment;
+use actor::env::{Environment, SimEnvironment};
 use mapper::Affordance;
 use proto::{Method, TaskSpec};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
+use rayon::prelude::*;
 use sim::ithor::SceneSet;
 use sim::profile::RobotProfile;
 use sim::renderer::{Renderer, RendererChoice};
@@ -208,8 +211,9 @@ fn sim_env(
     SimEnv::new(config, source, profile, renderer)
 }
 
-/// Several environments per process in lock-step (CPU renderer, 64 px):
-/// steps/s of the process and of each environment.
+/// Several environments per process in lock-step (CPU renderer, 64 px),
+/// one whole episode: steps/s of the process and of each environment, the
+/// episode's end, and steps/s of the process with the end included.
 fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
     let counts = std::env::var("AFX_ENVS").unwrap_or_else(|_| "1,2".into());
     if counts.trim() == "none" {
@@ -227,8 +231,8 @@ fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
     let inference = Inference::for_device(device);
     println!();
     println!("Several environments per process, U-Net inference {inference:?}:");
-    println!("| method | px | environments | steps/s per process | steps/s per environment |");
-    println!("|---|---|---|---|---|");
+    println!("| method | px | environments | steps/s per process | steps/s per environment | episode end | steps/s per process, end included |");
+    println!("|---|---|---|---|---|---|---|");
     for method in [Method::Ours, Method::NomapSeg] {
         for &n in &counts {
             let task = TaskSpec {
@@ -250,7 +254,7 @@ fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
             let mut observations =
                 reset_all(&mut refs, &seeds, Some(&model), inference).expect("reset");
             let mut rng = StdRng::seed_from_u64(1);
-            let steps = episode_steps() / 2;
+            let steps = episode_steps();
             let start = Instant::now();
             for _ in 0..steps {
                 let actions: Vec<u32> = refs
@@ -267,11 +271,21 @@ fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
                     .map(|(_, o)| o)
                     .collect();
             }
-            let per_process = (n * steps) as f64 / start.elapsed().as_secs_f64();
+            let stepping = start.elapsed();
+            let end_started = Instant::now();
+            refs.par_iter_mut()
+                .enumerate()
+                .map(|(i, env)| env.finish_episode(i as u64))
+                .collect::<anyhow::Result<Vec<_>>>()
+                .expect("the episode's end");
+            let end = end_started.elapsed();
+            let per_process = (n * steps) as f64 / stepping.as_secs_f64();
             println!(
-                "| {} | 64 | {n} | {per_process:.1} | {:.1} |",
+                "| {} | 64 | {n} | {per_process:.1} | {:.1} | {:.0} ms | {:.1} |",
                 method.as_str(),
-                per_process / n as f64
+                per_process / n as f64,
+                end.as_secs_f64() * 1e3,
+                (n * steps) as f64 / (stepping + end).as_secs_f64(),
             );
         }
     }
