@@ -3,9 +3,9 @@
 //! Voxel `(i, j, k)` covers `[i·s, (i+1)·s)` along each axis (its centre is at
 //! `(i + ½)·s`); negative indices use floor division, so there is no seam at 0.
 
-use nalgebra::{Point3, Vector3};
 use std::sync::OnceLock;
 
+use nalgebra::{Point3, Vector3};
 use rustc_hash::FxHashMap;
 
 /// Voxels per block edge.
