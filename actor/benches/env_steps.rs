@@ -12,9 +12,11 @@
 //! A second table steps several environments in one process in lock-step
 //! (`actor --envs N`: a thread per environment; on a GPU the U-Net over all
 //! their frames in one batch, on the CPU each environment's U-Net pass on its
-//! own thread) through a whole episode, and reports steps/s per process and
-//! per environment, then the episode's end (labelling, in parallel as the
-//! actor does it) and steps/s per process with that end included.
+//! own thread) through a whole episode, each step with the policy's forward
+//! pass as the actor runs it (the actions themselves stay random), and
+//! reports steps/s per process and per environment, then the episode's end
+//! (labelling, in parallel as the actor does it) and steps/s per process
+//! with that end included.
 //!
 //! `AFX_DEVICE=gpu` runs the U-Net on the GPU (a build with
 //! `--features nets/gpu`); `AFX_DATA` points at the shared data directory
@@ -32,8 +34,10 @@ use actor::env::actions::random_allowed_action;
 use actor::env::affordance_model::AffordanceModel;
 use actor::env::lockstep::{reset_all, step_all, Inference};
 use actor::env::sim_env::{SimEnv, SimEnvConfig, StepTimings};
-use actor::env::{Environment, SimEnvironment};
+use actor::env::{Environment, Observation, SimEnvironment};
+use burn::prelude::*;
 use mapper::Affordance;
+use nets::policy::{PolicyInput, PolicyLayout, PolicyNet};
 use proto::{Method, TaskSpec};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
@@ -212,8 +216,9 @@ fn sim_env(
 }
 
 /// Several environments per process in lock-step (CPU renderer, 64 px),
-/// one whole episode: steps/s of the process and of each environment, the
-/// episode's end, and steps/s of the process with the end included.
+/// one whole episode with the policy's forward pass every step: steps/s of
+/// the process and of each environment, the episode's end, and steps/s of
+/// the process with the end included.
 fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
     let counts = std::env::var("AFX_ENVS").unwrap_or_else(|_| "1,2".into());
     if counts.trim() == "none" {
@@ -254,9 +259,12 @@ fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
             let mut observations =
                 reset_all(&mut refs, &seeds, Some(&model), inference).expect("reset");
             let mut rng = StdRng::seed_from_u64(1);
+            let layout = refs[0].layout().clone();
+            let policy = PolicyNet::new(&layout, device);
             let steps = episode_steps();
             let start = Instant::now();
             for _ in 0..steps {
+                policy_pass(&policy, &layout, &observations, device, inference);
                 let actions: Vec<u32> = refs
                     .iter()
                     .zip(&observations)
@@ -288,5 +296,43 @@ fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
                 (n * steps) as f64 / (stepping + end).as_secs_f64(),
             );
         }
+    }
+}
+
+/// The policy's forward pass over `observations`, as the actor runs it each
+/// lock-step: one pass over all of them, or one per observation and thread
+/// on the CPU. A fresh episode's recurrent state (zeros) for GRU policies.
+fn policy_pass(
+    policy: &PolicyNet,
+    layout: &PolicyLayout,
+    observations: &[Observation],
+    device: &Device,
+    inference: Inference,
+) {
+    let pass = |batch: &[&Observation]| {
+        let n = batch.len();
+        let features: Vec<f32> = batch
+            .iter()
+            .flat_map(|o| o.features.iter().copied())
+            .collect();
+        let masks: Vec<u8> = batch
+            .iter()
+            .flat_map(|o| o.action_mask.iter().copied())
+            .collect();
+        let hidden = layout
+            .gru_hidden
+            .map(|size| Tensor::<2>::zeros([n, size], device));
+        let input = PolicyInput::from_flat(layout, &features, &masks, n, device);
+        let out = policy.forward(&input, hidden);
+        let log_probs: Vec<f32> = out
+            .log_probs
+            .into_data()
+            .try_to_vec()
+            .expect("the policy's log-probabilities");
+        std::hint::black_box(log_probs);
+    };
+    match inference {
+        Inference::PerEnvironment => observations.par_iter().for_each(|o| pass(&[o])),
+        Inference::Batched => pass(&observations.iter().collect::<Vec<_>>()),
     }
 }
