@@ -37,7 +37,7 @@ use actor::env::sim_env::{SimEnv, SimEnvConfig, StepTimings};
 use actor::env::{Environment, Observation, SimEnvironment};
 use burn::prelude::*;
 use mapper::Affordance;
-use nets::policy::{PolicyInput, PolicyLayout, PolicyNet};
+use nets::policy::{CpuPolicy, PolicyInput, PolicyLayout, PolicyNet};
 use proto::{Method, TaskSpec};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
@@ -260,7 +260,13 @@ fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
                 reset_all(&mut refs, &seeds, Some(&model), inference).expect("reset");
             let mut rng = StdRng::seed_from_u64(1);
             let layout = refs[0].layout().clone();
-            let policy = PolicyNet::new(&layout, device);
+            let net = PolicyNet::new(&layout, device);
+            let cpu = if nets::device::is_cpu(device) {
+                CpuPolicy::from_network(&net, &layout)
+            } else {
+                None
+            };
+            let policy = (net, cpu);
             let steps = episode_steps();
             let start = Instant::now();
             for _ in 0..steps {
@@ -301,14 +307,21 @@ fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
 
 /// The policy's forward pass over `observations`, as the actor runs it each
 /// lock-step: one pass over all of them, or one per observation and thread
-/// on the CPU. A fresh episode's recurrent state (zeros) for GRU policies.
+/// on the CPU (its own pass where it has one, burn's otherwise). A fresh
+/// episode's recurrent state (zeros) for GRU policies.
 fn policy_pass(
-    policy: &PolicyNet,
+    (policy, cpu): &(PolicyNet, Option<CpuPolicy>),
     layout: &PolicyLayout,
     observations: &[Observation],
     device: &Device,
     inference: Inference,
 ) {
+    if let Some(cpu) = cpu {
+        observations.par_iter().for_each(|o| {
+            std::hint::black_box(cpu.forward(&o.features, &o.action_mask));
+        });
+        return;
+    }
     let pass = |batch: &[&Observation]| {
         let n = batch.len();
         let features: Vec<f32> = batch

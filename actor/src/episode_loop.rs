@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, ensure, Context};
 use burn::prelude::*;
-use nets::policy::{PolicyInput, PolicyLayout, PolicyNet};
+use nets::policy::{CpuPolicy, PolicyInput, PolicyLayout, PolicyNet};
 use nets::sample;
 use nets::weights::{load_safetensors, unbundle};
 use proto::{
@@ -61,6 +61,9 @@ pub struct LoopSummary {
 /// The broadcast policy the actor acts with.
 struct Policy {
     net: PolicyNet,
+    /// The same weights for the CPU's own pass (`nets::policy::CpuPolicy`):
+    /// on a CPU device, for policies without a GRU.
+    cpu: Option<CpuPolicy>,
     layout: PolicyLayout,
     policy_version: u64,
     unet_version: u64,
@@ -161,8 +164,14 @@ fn load_weights(
             header.unet_version
         );
     }
+    let cpu = if nets::device::is_cpu(device) {
+        CpuPolicy::from_network(&net, layout)
+    } else {
+        None
+    };
     Ok(Policy {
         net,
+        cpu,
         layout: layout.clone(),
         policy_version: header.policy_version,
         unet_version: header.unet_version,
@@ -215,6 +224,19 @@ fn forward(
     inputs: &[(&Observation, Option<&[f32]>)],
     device: &Device,
 ) -> anyhow::Result<Vec<PolicyStep>> {
+    if let Some(cpu) = &policy.cpu {
+        return Ok(inputs
+            .iter()
+            .map(|(observation, _)| {
+                let step = cpu.forward(&observation.features, &observation.action_mask);
+                PolicyStep {
+                    log_probs: masked(step.log_probs, &observation.action_mask),
+                    value: step.value,
+                    hidden: None,
+                }
+            })
+            .collect());
+    }
     let n = inputs.len();
     let features: Vec<f32> = inputs
         .iter()
@@ -246,12 +268,10 @@ fn forward(
     let n_actions = policy.layout.n_actions;
     Ok((0..n)
         .map(|i| {
-            let mut lp = log_probs[i * n_actions..(i + 1) * n_actions].to_vec();
-            for (lp, &allowed) in lp.iter_mut().zip(&inputs[i].0.action_mask) {
-                if allowed == 0 {
-                    *lp = f32::NEG_INFINITY;
-                }
-            }
+            let lp = masked(
+                log_probs[i * n_actions..(i + 1) * n_actions].to_vec(),
+                &inputs[i].0.action_mask,
+            );
             let h = hidden.as_ref().map(|h| {
                 let size = h.len() / n;
                 h[i * size..(i + 1) * size].to_vec()
@@ -263,6 +283,16 @@ fn forward(
             }
         })
         .collect())
+}
+
+/// `log_probs` with −∞ for the actions `mask` forbids.
+fn masked(mut log_probs: Vec<f32>, mask: &[u8]) -> Vec<f32> {
+    for (lp, &allowed) in log_probs.iter_mut().zip(mask) {
+        if allowed == 0 {
+            *lp = f32::NEG_INFINITY;
+        }
+    }
+    log_probs
 }
 
 /// One action per environment sampled from the policy in one batch; the
@@ -775,6 +805,7 @@ mod tests {
         };
         let policy = Policy {
             net: PolicyNet::new(&layout, &device),
+            cpu: None,
             layout: layout.clone(),
             policy_version: 1,
             unet_version: 0,
@@ -840,6 +871,53 @@ mod tests {
         }
         // The recurrent state matters: another state, another output.
         assert!(batched[1].hidden != batched[2].hidden);
+    }
+
+    #[test]
+    fn the_cpu_pass_acts_as_burns_pass_does() {
+        let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).unwrap();
+        let layout = PolicyLayout {
+            image_channels: vec![3, 2],
+            image_size: 64,
+            vector_dims: vec![5, 1],
+            n_actions: 6,
+            obs_dtype: ObsDtype::U8,
+            gru_hidden: None,
+        };
+        let net = PolicyNet::new(&layout, &device);
+        let cpu = CpuPolicy::from_network(&net, &layout);
+        assert!(cpu.is_some(), "a policy without memory gets the CPU pass");
+        let policy = |cpu: Option<CpuPolicy>| Policy {
+            net: net.clone(),
+            cpu,
+            layout: layout.clone(),
+            policy_version: 1,
+            unet_version: 0,
+            env_steps: None,
+        };
+        let (with_cpu, burn_only) = (policy(cpu), policy(None));
+        let observations: Vec<Observation> = (0..2)
+            .map(|k| Observation {
+                features: (0..layout.obs_len())
+                    .map(|i| ((i * 11 + k * 5) % 19) as f32 / 19.0)
+                    .collect(),
+                action_mask: (0..6).map(|a| u8::from(a != 2 * k + 1)).collect(),
+            })
+            .collect();
+        let inputs: Vec<_> = observations.iter().map(|o| (o, None)).collect();
+        let fast = forward(&with_cpu, &inputs, &device).unwrap();
+        let reference = forward(&burn_only, &inputs, &device).unwrap();
+        for (k, (f, r)) in fast.iter().zip(&reference).enumerate() {
+            assert_eq!(f.log_probs[2 * k + 1], f32::NEG_INFINITY, "masked action");
+            assert!((f.value - r.value).abs() < 1e-5, "value of {k}");
+            for (a, (x, y)) in f.log_probs.iter().zip(&r.log_probs).enumerate() {
+                assert!(
+                    x == y || (x - y).abs() < 1e-5,
+                    "action {a} of {k}: {x} vs {y}"
+                );
+            }
+            assert!(f.hidden.is_none());
+        }
     }
 
     #[test]

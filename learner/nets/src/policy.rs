@@ -10,6 +10,10 @@ use burn::tensor::activation::{relu, tanh};
 use burn::tensor::Bool;
 pub use proto::{ObsDtype, PolicyLayout};
 
+mod cpu;
+
+pub use cpu::{CpuPolicy, CpuPolicyStep};
+
 impl PolicyInput {
     /// Splits `rows` flat observations (`rows · obs_len` values, each row
     /// images then vectors, as [`PolicyLayout::obs_len`] counts them) and

@@ -216,7 +216,7 @@ fn max_pool_2x2(source: &[f32], pooled: &mut [f32], h: usize, w: usize) {
 /// `lhs` is row-major `m × k`; row `i` of `dst` starts at `i · dst_rows`,
 /// row `k` of `rhs` at `k · rhs_rows`; columns are contiguous.
 #[allow(clippy::too_many_arguments)]
-fn matmul(
+pub(crate) fn matmul(
     dst: &mut [f32],
     dst_rows: usize,
     lhs: &[f32],

@@ -1,0 +1,301 @@
+//! The policy's forward pass on the CPU for one observation, for acting.
+//!
+//! Why it exists: an actor runs the policy on every step, and on the CPU
+//! burn's pass over `ours`' three conv encoders (about 15 MFLOP at 64 px)
+//! took 1.2 ms alone and about 2 ms per step in lock-step: the time goes to
+//! per-operation overhead (tensor allocation, layout copies), not to
+//! arithmetic. Here each convolution is one im2col copy and one GEMM, the
+//! rest plain loops over weights copied out once. Policies with a GRU keep
+//! burn's pass (the methods that use one are fast enough without this).
+//!
+//! The arithmetic is the network's own: [`CpuPolicy::forward`] equals
+//! [`PolicyNet::forward`] to float rounding (tested below).
+
+use burn::module::Param;
+use burn::nn::conv::Conv2d;
+use burn::nn::Linear;
+use burn::prelude::*;
+
+use super::{ConvEncoder, Head, PolicyLayout, PolicyNet, VectorEncoder, MASKED_LOGIT};
+use crate::unet_cpu::matmul;
+
+/// The policy's weights, laid out for [`CpuPolicy::forward`].
+#[derive(Debug, Clone)]
+pub struct CpuPolicy {
+    layout: PolicyLayout,
+    images: Vec<[Conv; 3]>,
+    image_fcs: Vec<Dense>,
+    vectors: Vec<[Dense; 2]>,
+    actor: [Dense; 3],
+    critic: [Dense; 3],
+}
+
+/// What the policy says for one observation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CpuPolicyStep {
+    /// Log-probabilities of the actions (masked ones hold what
+    /// [`PolicyNet::forward`] gives them: very negative).
+    pub log_probs: Vec<f32>,
+    /// The critic's value.
+    pub value: f32,
+}
+
+impl CpuPolicy {
+    /// Copies the weights of `net` (built for `layout`), or `None` for a
+    /// policy with a GRU.
+    pub fn from_network(net: &PolicyNet, layout: &PolicyLayout) -> Option<Self> {
+        if net.gru.is_some() || layout.gru_hidden.is_some() {
+            return None;
+        }
+        let head = |h: &Head| [&h.fc1, &h.fc2, &h.out].map(Dense::from_layer);
+        Some(Self {
+            layout: layout.clone(),
+            images: net
+                .images
+                .iter()
+                .map(|e: &ConvEncoder| {
+                    [(&e.conv1, 4), (&e.conv2, 2), (&e.conv3, 2)]
+                        .map(|(layer, stride)| Conv::from_layer(layer, stride))
+                })
+                .collect(),
+            image_fcs: net
+                .images
+                .iter()
+                .map(|e| Dense::from_layer(&e.fc))
+                .collect(),
+            vectors: net
+                .vectors
+                .iter()
+                .map(|e: &VectorEncoder| [&e.fc1, &e.fc2].map(Dense::from_layer))
+                .collect(),
+            actor: head(&net.actor),
+            critic: head(&net.critic),
+        })
+    }
+
+    /// Log-probabilities and value for one flat observation (images then
+    /// vectors, [`PolicyLayout::obs_len`] values) and its mask (one byte
+    /// per action, nonzero = allowed).
+    ///
+    /// # Panics
+    /// If the lengths do not match the layout: callers validate first.
+    pub fn forward(&self, observation: &[f32], mask: &[u8]) -> CpuPolicyStep {
+        let layout = &self.layout;
+        assert_eq!(observation.len(), layout.obs_len(), "observation length");
+        assert_eq!(mask.len(), layout.n_actions, "mask length");
+        let side = layout.image_size;
+        let mut features = Vec::new();
+        let mut at = 0;
+        for ((convs, fc), &channels) in self
+            .images
+            .iter()
+            .zip(&self.image_fcs)
+            .zip(&layout.image_channels)
+        {
+            let len = channels * side * side;
+            let mut x = observation[at..at + len].to_vec();
+            let mut size = side;
+            for conv in convs {
+                (x, size) = conv.forward(&x, size);
+            }
+            features.extend(fc.forward(&x, relu));
+            at += len;
+        }
+        for (mlp, &dim) in self.vectors.iter().zip(&layout.vector_dims) {
+            let hidden = mlp[0].forward(&observation[at..at + dim], relu);
+            features.extend(mlp[1].forward(&hidden, relu));
+            at += dim;
+        }
+        let head = |h: &[Dense; 3]| {
+            let x = h[0].forward(&features, f32::tanh);
+            let x = h[1].forward(&x, f32::tanh);
+            h[2].forward(&x, |v| v)
+        };
+        let mut logits = head(&self.actor);
+        for (logit, &allowed) in logits.iter_mut().zip(mask) {
+            if allowed == 0 {
+                *logit = MASKED_LOGIT;
+            }
+        }
+        let max = logits.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        let log_sum = logits.iter().map(|l| (l - max).exp()).sum::<f32>().ln();
+        CpuPolicyStep {
+            log_probs: logits.iter().map(|l| l - max - log_sum).collect(),
+            value: head(&self.critic)[0],
+        }
+    }
+}
+
+fn relu(v: f32) -> f32 {
+    v.max(0.0)
+}
+
+/// A valid (unpadded), strided, square convolution followed by ReLU.
+#[derive(Debug, Clone)]
+struct Conv {
+    inputs: usize,
+    outputs: usize,
+    kernel: usize,
+    stride: usize,
+    /// `[output][input][ky][kx]`, burn's own layout: row-major
+    /// `outputs × (inputs · kernel²)` for the GEMM.
+    weight: Vec<f32>,
+    bias: Vec<f32>,
+}
+
+impl Conv {
+    fn from_layer(layer: &Conv2d, stride: usize) -> Self {
+        let [outputs, inputs, kernel, _] = layer.weight.val().dims();
+        Self {
+            inputs,
+            outputs,
+            kernel,
+            stride,
+            weight: values(&layer.weight),
+            bias: bias_values(&layer.bias, outputs),
+        }
+    }
+
+    /// `[inputs][size][size]` → (`[outputs][out][out]`, `out`).
+    fn forward(&self, x: &[f32], size: usize) -> (Vec<f32>, usize) {
+        let (k, s) = (self.kernel, self.stride);
+        let out = (size - k) / s + 1;
+        let pixels = out * out;
+        // im2col: row (c, ky, kx), column (oy, ox).
+        let mut columns = vec![0.0; self.inputs * k * k * pixels];
+        for c in 0..self.inputs {
+            for ky in 0..k {
+                for kx in 0..k {
+                    let row = &mut columns[((c * k + ky) * k + kx) * pixels..][..pixels];
+                    for oy in 0..out {
+                        let line = &x[(c * size + oy * s + ky) * size + kx..];
+                        for ox in 0..out {
+                            row[oy * out + ox] = line[ox * s];
+                        }
+                    }
+                }
+            }
+        }
+        let mut y: Vec<f32> = self
+            .bias
+            .iter()
+            .flat_map(|&b| std::iter::repeat_n(b, pixels))
+            .collect();
+        matmul(
+            &mut y,
+            pixels,
+            &self.weight,
+            &columns,
+            pixels,
+            (self.outputs, pixels, self.inputs * k * k),
+            true,
+        );
+        for v in &mut y {
+            *v = v.max(0.0);
+        }
+        (y, out)
+    }
+}
+
+/// A linear layer (`y = x W + b`, burn's `[inputs, outputs]` weight).
+#[derive(Debug, Clone)]
+struct Dense {
+    outputs: usize,
+    weight: Vec<f32>,
+    bias: Vec<f32>,
+}
+
+impl Dense {
+    fn from_layer(layer: &Linear) -> Self {
+        let [_, outputs] = layer.weight.val().dims();
+        Self {
+            outputs,
+            weight: values(&layer.weight),
+            bias: bias_values(&layer.bias, outputs),
+        }
+    }
+
+    /// `activation(x W + b)`.
+    fn forward(&self, x: &[f32], activation: impl Fn(f32) -> f32) -> Vec<f32> {
+        let mut y = self.bias.clone();
+        for (&xi, row) in x.iter().zip(self.weight.chunks_exact(self.outputs)) {
+            for (yj, &w) in y.iter_mut().zip(row) {
+                *yj += xi * w;
+            }
+        }
+        for v in &mut y {
+            *v = activation(*v);
+        }
+        y
+    }
+}
+
+/// A parameter's values as `f32`, whatever float type the device keeps.
+fn values<const D: usize>(param: &Param<Tensor<D>>) -> Vec<f32> {
+    param.val().into_data().iter::<f32>().collect()
+}
+
+fn bias_values(bias: &Option<Param<Tensor<1>>>, outputs: usize) -> Vec<f32> {
+    bias.as_ref().map_or_else(|| vec![0.0; outputs], values)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::policy::PolicyInput;
+    use proto::ObsDtype;
+
+    fn layout() -> PolicyLayout {
+        PolicyLayout {
+            image_channels: vec![9, 8, 8],
+            image_size: 64,
+            vector_dims: vec![15, 1],
+            n_actions: 24,
+            obs_dtype: ObsDtype::U8,
+            gru_hidden: None,
+        }
+    }
+
+    #[test]
+    fn gives_what_burn_gives() {
+        let device = Device::flex();
+        let layout = layout();
+        let net = PolicyNet::new(&layout, &device);
+        let cpu = CpuPolicy::from_network(&net, &layout).expect("no GRU");
+        for seed in 0..3u32 {
+            let observation: Vec<f32> = (0..layout.obs_len() as u32)
+                .map(|i| ((i * 7919 + seed * 104_729) % 255) as f32 / 255.0)
+                .collect();
+            let mask: Vec<u8> = (0..24).map(|a| u8::from((a + seed) % 3 != 0)).collect();
+            let input = PolicyInput::from_flat(&layout, &observation, &mask, 1, &device);
+            let expected = net.forward(&input, None);
+            let log_probs: Vec<f32> = expected.log_probs.into_data().try_to_vec().unwrap();
+            let value: Vec<f32> = expected.values.into_data().try_to_vec().unwrap();
+            let got = cpu.forward(&observation, &mask);
+            for (a, (g, e)) in got.log_probs.iter().zip(&log_probs).enumerate() {
+                if mask[a] == 0 {
+                    assert!(*g < -1e8 && *e < -1e8, "masked action {a}: {g} vs {e}");
+                } else {
+                    assert!((g - e).abs() < 1e-5, "action {a}: {g} vs {e}");
+                }
+            }
+            assert!(
+                (got.value - value[0]).abs() < 1e-5,
+                "{} vs {}",
+                got.value,
+                value[0]
+            );
+        }
+    }
+
+    #[test]
+    fn a_policy_with_memory_keeps_burns_pass() {
+        let device = Device::flex();
+        let layout = PolicyLayout {
+            gru_hidden: Some(32),
+            ..layout()
+        };
+        let net = PolicyNet::new(&layout, &device);
+        assert!(CpuPolicy::from_network(&net, &layout).is_none());
+    }
+}
