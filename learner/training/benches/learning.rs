@@ -15,7 +15,7 @@
 use std::time::Instant;
 
 use burn::prelude::*;
-use nets::policy::{ObsDtype, PolicyInput, PolicyLayout, PolicyNet};
+use nets::policy::{CpuPolicy, ObsDtype, PolicyInput, PolicyLayout, PolicyNet};
 use nets::unet::AffordanceUnet;
 use nets::unet_cpu::CpuUnet;
 use rand::rngs::StdRng;
@@ -140,6 +140,18 @@ fn main() {
                 .into_data()
                 .try_to_vec()
                 .unwrap();
+        }),
+    ));
+
+    // The same policy through the actor's CPU path (`nets::policy::CpuPolicy`).
+    let layout = policy_config();
+    let cpu_policy = CpuPolicy::from_network(&policy, &layout).expect("a policy without a GRU");
+    let observation: Vec<f32> = (0..layout.obs_len()).map(|_| rng.random::<f32>()).collect();
+    let mask = vec![1u8; layout.n_actions];
+    results.push((
+        "policy_inference_1step_cpu_path_ms",
+        time(repeats.max(5), || {
+            std::hint::black_box(cpu_policy.forward(&observation, &mask));
         }),
     ));
 
