@@ -42,6 +42,17 @@ fn viewpoints() -> Vec<Isometry3<f32>> {
         .collect()
 }
 
+/// The map of [`scene`] after all of [`viewpoints`].
+fn mapped_scene() -> Map {
+    let shapes = scene();
+    let mut map = Map::new(MapConfig::default());
+    for pose in viewpoints() {
+        map.integrate(&OwnedFrame::capture(&shapes, pose, k128()).frame())
+            .unwrap();
+    }
+    map
+}
+
 /// Per input instance, the set of map ids its pixels got over all frames.
 fn ids_per_instance(frames: &[(OwnedFrame, Vec<u32>)]) -> BTreeMap<u32, BTreeSet<u32>> {
     let mut out: BTreeMap<u32, BTreeSet<u32>> = BTreeMap::new();
@@ -131,11 +142,7 @@ fn a_noise_segment_creates_no_object_and_an_over_segmented_object_keeps_one_id()
 #[test]
 fn an_object_hidden_behind_an_unmapped_surface_is_not_missed() {
     let shapes = scene();
-    let mut map = Map::new(MapConfig::default());
-    for pose in viewpoints() {
-        map.integrate(&OwnedFrame::capture(&shapes, pose, k128()).frame())
-            .unwrap();
-    }
+    let mut map = mapped_scene();
     let ids_before: BTreeSet<_> = map.objects().keys().copied().collect();
     // A screen (background: instance 0) between the camera and the scene
     // hides every object, for more frames than the map lets an object that
@@ -217,12 +224,7 @@ fn ids_rendered_into_a_training_frame_match_ground_truth() {
 fn quarter_ray_rendering_matches_a_ray_through_every_pixel() {
     use mapper::render::{render_layers, Pixels, RenderTarget};
 
-    let shapes = scene();
-    let mut map = Map::new(MapConfig::default());
-    for pose in viewpoints() {
-        map.integrate(&OwnedFrame::capture(&shapes, pose, k128()).frame())
-            .unwrap();
-    }
+    let map = mapped_scene();
     let k = k128();
     let (mut compared, mut id_mismatch, mut depth_errors) = (0, 0, Vec::new());
     for pose in [

@@ -733,14 +733,15 @@ impl Workspace {
 }
 
 /// A parameter's values as `f32`, whatever float type the device keeps.
-fn values(param: &Param<Tensor<4>>) -> Vec<f32> {
+pub(crate) fn values<const D: usize>(param: &Param<Tensor<D>>) -> Vec<f32> {
     param.val().into_data().iter::<f32>().collect()
 }
 
-fn bias_values(bias: &Option<Param<Tensor<1>>>, outputs: usize) -> Vec<f32> {
+/// A layer's bias values, zeros for a layer without one.
+pub(crate) fn bias_values(bias: &Option<Param<Tensor<1>>>, outputs: usize) -> Vec<f32> {
     match bias {
         None => vec![0.0; outputs],
-        Some(param) => param.val().into_data().iter::<f32>().collect(),
+        Some(param) => values(param),
     }
 }
 

@@ -11,13 +11,11 @@
 //! The arithmetic is the network's own: [`CpuPolicy::forward`] equals
 //! [`PolicyNet::forward`] to float rounding (tested below).
 
-use burn::module::Param;
 use burn::nn::conv::Conv2d;
 use burn::nn::Linear;
-use burn::prelude::*;
 
 use super::{ConvEncoder, Head, PolicyLayout, PolicyNet, VectorEncoder, MASKED_LOGIT};
-use crate::unet_cpu::matmul;
+use crate::unet_cpu::{bias_values, matmul, values};
 
 /// The policy's weights, laid out for [`CpuPolicy::forward`].
 #[derive(Debug, Clone)]
@@ -230,19 +228,11 @@ impl Dense {
     }
 }
 
-/// A parameter's values as `f32`, whatever float type the device keeps.
-fn values<const D: usize>(param: &Param<Tensor<D>>) -> Vec<f32> {
-    param.val().into_data().iter::<f32>().collect()
-}
-
-fn bias_values(bias: &Option<Param<Tensor<1>>>, outputs: usize) -> Vec<f32> {
-    bias.as_ref().map_or_else(|| vec![0.0; outputs], values)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::policy::PolicyInput;
+    use burn::prelude::*;
     use proto::ObsDtype;
 
     fn layout() -> PolicyLayout {
