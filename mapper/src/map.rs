@@ -160,6 +160,9 @@ pub struct Map {
     /// Objects the caller said may have moved, with an optional motion guess.
     notified: BTreeMap<ObjectId, Option<Pose>>,
     last_tracking: Vec<TrackingReport>,
+    /// The last residual-triggered tracking failure of each object that
+    /// has triggered ever since, to skip repeating it from the same view.
+    failed_views: BTreeMap<ObjectId, track::FailedView>,
     /// The last frame's pixels prepared for integration; kept so that each
     /// frame refills its buffers instead of allocating them afresh.
     frame_pixels: FramePixels,
@@ -189,6 +192,7 @@ impl Map {
             last_timings: IntegrateTimings::default(),
             notified: BTreeMap::new(),
             last_tracking: Vec::new(),
+            failed_views: BTreeMap::new(),
             frame_pixels: FramePixels::default(),
         }
     }

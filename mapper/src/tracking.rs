@@ -131,6 +131,9 @@ pub struct TrackingReport {
     pub trigger: TrackingTrigger,
     /// What happened.
     pub outcome: TrackingOutcome,
+    /// The outcome is the failure of an earlier frame that showed the object
+    /// from the same camera pose with the same residual; no alignment ran.
+    pub repeated: bool,
 }
 
 /// The measured side of an alignment: a depth image and the pixels of the

@@ -179,6 +179,45 @@ fn a_jump_beyond_the_gate_fails_without_touching_the_model() {
     ));
 }
 
+/// An unannounced jump that tracking cannot follow fails again in every
+/// frame from the same view; once the view settles (the first frames carve
+/// the box's old place and make a new object of it where it landed, which
+/// changes what the box's residual is), those repeats reuse the failure
+/// instead of aligning again, and a camera that moves gets a fresh attempt.
+#[test]
+fn a_failure_seen_again_from_a_still_camera_is_not_recomputed() {
+    let (mut map, [box_id, ..]) = mapped_scene();
+    let jumped = Isometry3::translation(BOX_CENTRE.x + 0.5, BOX_CENTRE.y - 0.1, BOX_CENTRE.z);
+    let shapes = scene(jumped);
+    let still = views()[0];
+    let nudged = Isometry3::translation(0.05, 0.0, 0.0) * still;
+    let mut reports = Vec::new();
+    for pose in [still, still, still, still, nudged] {
+        let frame = OwnedFrame::capture(&shapes, pose, k128());
+        map.integrate(&frame.frame()).unwrap();
+        let report = *map
+            .last_tracking()
+            .iter()
+            .find(|r| r.object == box_id)
+            .expect("the box disagrees with every frame");
+        assert_eq!(report.trigger, mapper::TrackingTrigger::Residual);
+        assert!(
+            matches!(report.outcome, TrackingOutcome::Failed(_)),
+            "{report:?}"
+        );
+        reports.push(report);
+    }
+    let repeated: Vec<bool> = reports.iter().map(|r| r.repeated).collect();
+    assert!(!repeated[0] && !repeated[4], "{reports:?}");
+    assert!(
+        repeated[3],
+        "the settled view was aligned again: {reports:?}"
+    );
+    for pair in reports.windows(2).filter(|pair| pair[1].repeated) {
+        assert_eq!(pair[1].outcome, pair[0].outcome, "{reports:?}");
+    }
+}
+
 /// A picked-up object: while held the map neither expects it where it was
 /// nor forgets it, however long the robot looks at the empty spot; released
 /// elsewhere with the hand's motion, it is drawn where it now stands and

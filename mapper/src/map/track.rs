@@ -28,6 +28,39 @@ fn centroid(
     (n > 0).then(|| Point3::from(sum / n as f32))
 }
 
+/// How many of an object's rendered pixels agree with the measured depth
+/// and how many disagree (see `Map::residual_candidates`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub(super) struct ResidualCounts {
+    agree: usize,
+    disagree: usize,
+}
+
+impl ResidualCounts {
+    /// Whether both counts are within a tenth of the rendered pixels (at
+    /// least two) of `other`'s: depth noise and carving, not a new view.
+    fn close_to(self, other: Self) -> bool {
+        let n = (self.agree + self.disagree).max(other.agree + other.disagree);
+        let tolerance = (n / 10).max(2);
+        self.agree.abs_diff(other.agree) <= tolerance
+            && self.disagree.abs_diff(other.disagree) <= tolerance
+    }
+}
+
+/// A residual-triggered tracking failure and the view it happened in. The
+/// same object seen again from the same camera pose with the same residual
+/// fails the same way, so tracking it again would only cost time (an
+/// object that disagrees with a still camera triggers every frame); the
+/// remembered failure is reported instead until the camera moves, the
+/// residual jumps from one frame to the next, the object stops triggering
+/// or the caller notifies it.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct FailedView {
+    t_world_camera: Pose,
+    counts: ResidualCounts,
+    failure: TrackingFailure,
+}
+
 impl Map {
     /// Objects whose rendered surface disagrees with the frame: among their
     /// rendered pixels that are not hidden by something nearer, too few have
@@ -41,7 +74,7 @@ impl Map {
         matches: &[Option<u32>],
         rendered: &RenderTarget,
         depth_m: &[f32],
-    ) -> BTreeSet<ObjectId> {
+    ) -> BTreeMap<ObjectId, ResidualCounts> {
         let tol = self.config.association.depth_tolerance_m;
         let mut segment_of = vec![usize::MAX; depth_m.len()];
         for (s, segment) in segments.iter().enumerate() {
@@ -61,7 +94,7 @@ impl Map {
                     .or_default() += 1;
             }
         }
-        let mut counts: BTreeMap<u32, [usize; 2]> = BTreeMap::new();
+        let mut counts: BTreeMap<u32, ResidualCounts> = BTreeMap::new();
         for (px, &id) in rendered.ids.iter().enumerate() {
             if id == 0 {
                 continue;
@@ -79,20 +112,43 @@ impl Map {
                 .map(|(s, _)| *s);
             let c = counts.entry(id).or_default();
             if (d - r).abs() <= tol {
-                c[0] += 1;
+                c.agree += 1;
             } else if d > r + tol || best == Some(segment_of[px]) {
-                c[1] += 1;
+                c.disagree += 1;
             }
         }
         let trigger = self.config.tracking.residual_trigger;
         counts
             .into_iter()
-            .filter(|(_, [agree, disagree])| {
-                let n = agree + disagree;
-                n >= self.config.association.min_segment_px && (*agree as f32) < trigger * n as f32
+            .filter(|(_, c)| {
+                let n = c.agree + c.disagree;
+                n >= self.config.association.min_segment_px && (c.agree as f32) < trigger * n as f32
             })
-            .map(|(id, _)| ObjectId(id))
+            .map(|(id, c)| (ObjectId(id), c))
             .collect()
+    }
+
+    /// The failure of the last residual-triggered tracking of `id` when
+    /// this frame shows the object the same way (see [`FailedView`]); the
+    /// remembered residual then follows this frame's, so that the slow
+    /// change of carving does not count as a new view.
+    fn repeat_failure(
+        &mut self,
+        id: ObjectId,
+        t_world_camera: &Pose,
+        counts: ResidualCounts,
+    ) -> Option<TrackingFailure> {
+        let params = self.config.tracking;
+        let seen = self.failed_views.get_mut(&id)?;
+        let (translation_m, rotation_deg) =
+            motion_size(&(seen.t_world_camera.inverse() * t_world_camera));
+        let camera_still =
+            translation_m < params.min_translation_m && rotation_deg < params.min_rotation_deg;
+        let same = camera_still && seen.counts.close_to(counts);
+        if same {
+            seen.counts = counts;
+        }
+        same.then_some(seen.failure)
     }
 
     /// Tracks the objects that may have moved; claims the segment each one
@@ -109,20 +165,51 @@ impl Map {
         matches: &mut [Option<u32>],
         rendered: &RenderTarget,
     ) -> BTreeSet<ObjectId> {
-        let mut candidates: BTreeMap<ObjectId, (TrackingTrigger, Option<Pose>)> = self
-            .residual_candidates(segments, matches, rendered, frame.depth_m)
-            .into_iter()
-            .map(|id| (id, (TrackingTrigger::Residual, None)))
+        let residual = self.residual_candidates(segments, matches, rendered, frame.depth_m);
+        let mut candidates: BTreeMap<ObjectId, (TrackingTrigger, Option<Pose>)> = residual
+            .keys()
+            .map(|&id| (id, (TrackingTrigger::Residual, None)))
             .collect();
         for (id, hint) in std::mem::take(&mut self.notified) {
             if self.objects.contains_key(&id) {
                 candidates.insert(id, (TrackingTrigger::Notified, hint));
             }
         }
+        let objects = &self.objects;
+        self.failed_views
+            .retain(|id, _| objects.contains_key(id) && residual.contains_key(id));
         let mut failed = BTreeSet::new();
         self.last_tracking.clear();
         for (id, (trigger, hint)) in candidates {
-            let outcome = match self.track_one(id, hint, trigger, frame, segments, matches) {
+            let repeated = match trigger {
+                TrackingTrigger::Residual => {
+                    self.repeat_failure(id, &frame.t_world_camera, residual[&id])
+                }
+                TrackingTrigger::Notified => {
+                    self.failed_views.remove(&id);
+                    None
+                }
+            };
+            let tracked = match repeated {
+                Some(failure) => Err(failure),
+                None => self.track_one(id, hint, trigger, frame, segments, matches),
+            };
+            if repeated.is_none() && trigger == TrackingTrigger::Residual {
+                match tracked {
+                    Err(failure) => {
+                        let view = FailedView {
+                            t_world_camera: frame.t_world_camera,
+                            counts: residual[&id],
+                            failure,
+                        };
+                        self.failed_views.insert(id, view);
+                    }
+                    Ok(_) => {
+                        self.failed_views.remove(&id);
+                    }
+                }
+            }
+            let outcome = match tracked {
                 Ok(outcome) => outcome,
                 Err(failure) => {
                     for m in matches.iter_mut().filter(|m| **m == Some(id.0)) {
@@ -138,6 +225,7 @@ impl Map {
                 object: id,
                 trigger,
                 outcome,
+                repeated: repeated.is_some(),
             });
         }
         failed
