@@ -9,14 +9,15 @@
 //!
 //! `cargo bench -p actor --bench env_steps`
 //!
-//! A second table steps several environments in one process in lock-step
-//! (`actor --envs N`: a thread per environment; on a GPU the U-Net over all
-//! their frames in one batch, on the CPU each environment's U-Net pass on its
-//! own thread) through a whole episode, each step with the policy's forward
-//! pass as the actor runs it (the actions themselves stay random), and
-//! reports steps/s per process and per environment, then the episode's end
-//! (labelling, in parallel as the actor does it) and steps/s per process
-//! with that end included.
+//! A second table steps several environments in one process (`actor --envs
+//! N`) through a whole episode, each step with the policy's forward pass as
+//! the actor runs it (the actions themselves stay random): in lock-step (on
+//! a GPU the U-Net over all their frames in one batch, on the CPU each
+//! environment's U-Net pass on its own thread) and, on the CPU, also
+//! free-running as the actor runs them there (`actor::env::threads`: each
+//! environment on its own thread, the policy on the caller's). It reports
+//! steps/s per process and per environment, then the episode's end
+//! (labelling, in parallel) and steps/s per process with that end included.
 //!
 //! `AFX_DEVICE=gpu` runs the U-Net on the GPU (a build with
 //! `--features nets/gpu`); `AFX_DATA` points at the shared data directory
@@ -28,12 +29,15 @@
 //! episode length of both tables (default 120; the paper's is 600: the map,
 //! and with it the map's and the state's time, grows over an episode).
 
+use std::sync::RwLock;
 use std::time::{Duration, Instant};
 
 use actor::env::actions::random_allowed_action;
+use actor::env::actions::ActionSpace;
 use actor::env::affordance_model::AffordanceModel;
 use actor::env::lockstep::{reset_all, step_all, Inference};
 use actor::env::sim_env::{SimEnv, SimEnvConfig, StepTimings};
+use actor::env::threads::{Done, EnvThreads, Task};
 use actor::env::{Environment, Observation, SimEnvironment};
 use burn::prelude::*;
 use mapper::Affordance;
@@ -189,7 +193,7 @@ fn main() {
     for line in map_splits {
         println!("{line}");
     }
-    lockstep_table(&data, &device);
+    several_envs_table(&data, &device);
 }
 
 /// An environment of `method` at `image_size` px in the test rooms.
@@ -215,11 +219,11 @@ fn sim_env(
     SimEnv::new(config, source, profile, renderer)
 }
 
-/// Several environments per process in lock-step (CPU renderer, 64 px),
-/// one whole episode with the policy's forward pass every step: steps/s of
-/// the process and of each environment, the episode's end, and steps/s of
-/// the process with the end included.
-fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
+/// Several environments per process (CPU renderer, 64 px), one whole
+/// episode with the policy's forward pass every step, in lock-step and (on
+/// the CPU) free-running: steps/s of the process and of each environment,
+/// the episode's end, and steps/s of the process with the end included.
+fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
     let counts = std::env::var("AFX_ENVS").unwrap_or_else(|_| "1,2".into());
     if counts.trim() == "none" {
         return;
@@ -232,12 +236,12 @@ fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
                 .expect("AFX_ENVS: environment counts, e.g. 1,2,4")
         })
         .collect();
-    let model = AffordanceModel::new(AFFORDANCES.len(), device);
+    let model = RwLock::new(Some(AffordanceModel::new(AFFORDANCES.len(), device)));
     let inference = Inference::for_device(device);
     println!();
     println!("Several environments per process, U-Net inference {inference:?}:");
-    println!("| method | px | environments | steps/s per process | steps/s per environment | episode end | steps/s per process, end included |");
-    println!("|---|---|---|---|---|---|---|");
+    println!("| method | px | environments | stepped | steps/s per process | steps/s per environment | episode end | steps/s per process, end included |");
+    println!("|---|---|---|---|---|---|---|---|");
     for method in [Method::Ours, Method::NomapSeg] {
         for &n in &counts {
             let task = TaskSpec {
@@ -247,19 +251,18 @@ fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
                 episode_steps: episode_steps(),
                 ..TaskSpec::default()
             };
-            let mut envs: Vec<SimEnvironment> = (0..n)
-                .map(|_| {
-                    let renderer = Renderer::open(RendererChoice::Cpu).expect("CPU renderer");
-                    SimEnvironment::new(sim_env(data, method, 64, renderer), &task)
-                        .expect("the environment fits its task")
-                })
-                .collect();
-            let mut refs: Vec<&mut SimEnvironment> = envs.iter_mut().collect();
-            let seeds: Vec<u64> = (1..=n as u64).collect();
-            let mut observations =
-                reset_all(&mut refs, &seeds, Some(&model), inference).expect("reset");
-            let mut rng = StdRng::seed_from_u64(1);
-            let layout = refs[0].layout().clone();
+            let new_envs = || -> Vec<SimEnvironment> {
+                (0..n)
+                    .map(|_| {
+                        let renderer = Renderer::open(RendererChoice::Cpu).expect("CPU renderer");
+                        SimEnvironment::new(sim_env(data, method, 64, renderer), &task)
+                            .expect("the environment fits its task")
+                    })
+                    .collect()
+            };
+            let envs = new_envs();
+            let layout = envs[0].layout().clone();
+            let space = envs[0].inner().action_space().clone();
             let net = PolicyNet::new(&layout, device);
             let cpu = if nets::device::is_cpu(device) {
                 CpuPolicy::from_network(&net, &layout)
@@ -267,41 +270,147 @@ fn lockstep_table(data: &std::path::Path, device: &burn::prelude::Device) {
                 None
             };
             let policy = (net, cpu);
-            let steps = episode_steps();
+            let bench = SeveralEnvs {
+                layout: &layout,
+                space: &space,
+                policy: &policy,
+                model: &model,
+                device,
+                inference,
+            };
+            let row = |stepped: &str, (stepping, end): (Duration, Duration)| {
+                let steps = episode_steps();
+                let per_process = (n * steps) as f64 / stepping.as_secs_f64();
+                println!(
+                    "| {} | 64 | {n} | {stepped} | {per_process:.1} | {:.1} | {:.0} ms | {:.1} |",
+                    method.as_str(),
+                    per_process / n as f64,
+                    end.as_secs_f64() * 1e3,
+                    (n * steps) as f64 / (stepping + end).as_secs_f64(),
+                );
+            };
+            row("lock-step", bench.lockstep(envs));
+            if inference == Inference::PerEnvironment && n > 1 {
+                row("free-running", bench.free_running(new_envs()));
+            }
+        }
+    }
+}
+
+/// What [`several_envs_table`]'s runs share.
+struct SeveralEnvs<'a> {
+    layout: &'a PolicyLayout,
+    space: &'a ActionSpace,
+    policy: &'a (PolicyNet, Option<CpuPolicy>),
+    model: &'a RwLock<Option<AffordanceModel>>,
+    device: &'a Device,
+    inference: Inference,
+}
+
+impl SeveralEnvs<'_> {
+    /// One episode of `envs` in lock-step: the time of its steps, and of its end.
+    fn lockstep(&self, mut envs: Vec<SimEnvironment>) -> (Duration, Duration) {
+        let model = self.model.read().unwrap();
+        let mut refs: Vec<&mut SimEnvironment> = envs.iter_mut().collect();
+        let seeds: Vec<u64> = (1..=refs.len() as u64).collect();
+        let mut observations =
+            reset_all(&mut refs, &seeds, model.as_ref(), self.inference).expect("reset");
+        let mut rng = StdRng::seed_from_u64(1);
+        let start = Instant::now();
+        for _ in 0..episode_steps() {
+            policy_pass(
+                self.policy,
+                self.layout,
+                &observations,
+                self.device,
+                self.inference,
+            );
+            let actions: Vec<u32> = observations
+                .iter()
+                .map(|o| random_allowed_action(self.space, &o.action_mask, 0.5, &mut rng) as u32)
+                .collect();
+            observations = step_all(&mut refs, &actions, model.as_ref(), self.inference)
+                .expect("step")
+                .into_iter()
+                .map(|(_, o)| o)
+                .collect();
+        }
+        let stepping = start.elapsed();
+        let end_started = Instant::now();
+        refs.par_iter_mut()
+            .enumerate()
+            .map(|(i, env)| env.finish_episode(i as u64))
+            .collect::<anyhow::Result<Vec<_>>>()
+            .expect("the episode's end");
+        (stepping, end_started.elapsed())
+    }
+
+    /// One episode of each of `envs`, free-running as the actor runs them
+    /// on the CPU: the policy on this thread, one observation at a time.
+    fn free_running(&self, envs: Vec<SimEnvironment>) -> (Duration, Duration) {
+        let n = envs.len();
+        std::thread::scope(|scope| {
+            let boxed = envs
+                .into_iter()
+                .map(|env| Box::new(env) as Box<dyn Environment>)
+                .collect();
+            let threads = EnvThreads::start(scope, boxed, self.model);
+            for index in 0..n {
+                threads
+                    .send(index, Task::Reset(index as u64 + 1))
+                    .expect("reset");
+            }
+            let mut rng = StdRng::seed_from_u64(1);
+            let mut act = |index: usize, observation: &Observation| {
+                policy_pass(
+                    self.policy,
+                    self.layout,
+                    std::slice::from_ref(observation),
+                    self.device,
+                    self.inference,
+                );
+                let action =
+                    random_allowed_action(self.space, &observation.action_mask, 0.5, &mut rng);
+                threads
+                    .send(index, Task::Step(action as u32))
+                    .expect("step");
+            };
+            let mut first = Vec::new();
+            for _ in 0..n {
+                match threads.next().expect("reset") {
+                    (index, Done::Reset(observation)) => first.push((index, observation)),
+                    _ => panic!("a reset answered"),
+                }
+            }
             let start = Instant::now();
-            for _ in 0..steps {
-                policy_pass(&policy, &layout, &observations, device, inference);
-                let actions: Vec<u32> = refs
-                    .iter()
-                    .zip(&observations)
-                    .map(|(env, o)| {
-                        let space = env.inner().action_space();
-                        random_allowed_action(space, &o.action_mask, 0.5, &mut rng) as u32
-                    })
-                    .collect();
-                observations = step_all(&mut refs, &actions, Some(&model), inference)
-                    .expect("step")
-                    .into_iter()
-                    .map(|(_, o)| o)
-                    .collect();
+            for (index, observation) in &first {
+                act(*index, observation);
+            }
+            let mut stepped = vec![0; n];
+            let mut running = n;
+            while running > 0 {
+                let (index, Done::Step(_, observation)) = threads.next().expect("step") else {
+                    panic!("a step answered");
+                };
+                stepped[index] += 1;
+                if stepped[index] < episode_steps() {
+                    act(index, &observation);
+                } else {
+                    running -= 1;
+                }
             }
             let stepping = start.elapsed();
             let end_started = Instant::now();
-            refs.par_iter_mut()
-                .enumerate()
-                .map(|(i, env)| env.finish_episode(i as u64))
-                .collect::<anyhow::Result<Vec<_>>>()
-                .expect("the episode's end");
-            let end = end_started.elapsed();
-            let per_process = (n * steps) as f64 / stepping.as_secs_f64();
-            println!(
-                "| {} | 64 | {n} | {per_process:.1} | {:.1} | {:.0} ms | {:.1} |",
-                method.as_str(),
-                per_process / n as f64,
-                end.as_secs_f64() * 1e3,
-                (n * steps) as f64 / (stepping + end).as_secs_f64(),
-            );
-        }
+            for index in 0..n {
+                threads
+                    .send(index, Task::Finish(index as u64))
+                    .expect("the episode's end");
+            }
+            for _ in 0..n {
+                threads.next().expect("the episode's end");
+            }
+            (stepping, end_started.elapsed())
+        })
     }
 }
 
@@ -316,6 +425,10 @@ fn policy_pass(
     device: &Device,
     inference: Inference,
 ) {
+    if let (Some(cpu), [alone]) = (cpu, observations) {
+        std::hint::black_box(cpu.forward(&alone.features, &alone.action_mask));
+        return;
+    }
     if let Some(cpu) = cpu {
         observations.par_iter().for_each(|o| {
             std::hint::black_box(cpu.forward(&o.features, &o.action_mask));

@@ -3,6 +3,7 @@
 //! new weights (policy, and the U-Net when its version changes) between steps.
 
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{PoisonError, RwLock, RwLockReadGuard};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, ensure, Context};
@@ -22,6 +23,8 @@ use rayon::prelude::*;
 
 use crate::env::affordance_model::AffordanceModel;
 use crate::env::{lockstep, Environment, EpisodeEnd, Observation, StepOutcome};
+
+mod free_running;
 
 /// Settings of one actor's loop.
 #[derive(Debug, Clone)]
@@ -423,7 +426,9 @@ struct Actor<'a> {
     transport: &'a TransportConfig,
     settings: &'a LoopSettings,
     device: &'a Device,
-    model: Option<AffordanceModel>,
+    /// The U-Net, shared with the threads of free-running environments
+    /// (`free_running`), which read it while the loop may load new weights.
+    model: &'a RwLock<Option<AffordanceModel>>,
     /// How the networks see the environments' inputs (suited to `device`).
     inference: lockstep::Inference,
     policy: Policy,
@@ -435,7 +440,23 @@ struct Actor<'a> {
     backoff: Backoff,
 }
 
-impl Actor<'_> {
+impl<'a> Actor<'a> {
+    /// What the loop did, with the newest weights' versions.
+    fn summary(&self) -> LoopSummary {
+        LoopSummary {
+            policy_version: self.policy.policy_version,
+            unet_version: self.policy.unet_version,
+            ..self.summary
+        }
+    }
+
+    /// One action for each of `inputs` (observation, recurrent state),
+    /// drawn from the policy with this loop's random numbers.
+    fn act(&mut self, inputs: &[(&Observation, Option<&[f32]>)]) -> anyhow::Result<Vec<Acted>> {
+        let uniforms: Vec<f32> = inputs.iter().map(|_| self.rng.random::<f32>()).collect();
+        act_batch(&self.policy, inputs, &uniforms, self.device, self.inference)
+    }
+
     fn count(&mut self, delivery: Delivery) {
         match delivery {
             Delivery::Delivered(_) => self.summary.delivered += 1,
@@ -452,25 +473,93 @@ impl Actor<'_> {
         Ok(())
     }
 
-    /// Takes the newest weights, if the learner sent any since the last look.
-    fn refresh_weights(&mut self, slots: &mut [Slot]) -> anyhow::Result<()> {
-        if let Some(message) = self.ports.take_latest_weights()? {
-            let layout = self.policy.layout.clone();
-            self.policy = load_weights(
-                &message,
-                self.transport,
-                &layout,
-                self.model.as_mut(),
-                self.device,
-                Some(&self.policy),
-            )?;
-            if let Some(steps) = self.policy.env_steps {
-                for slot in slots.iter_mut() {
-                    slot.env.set_global_steps(steps);
-                }
-            }
+    /// The U-Net (between the loads of new weights).
+    fn read_model(&self) -> RwLockReadGuard<'a, Option<AffordanceModel>> {
+        self.model.read().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Takes the newest weights, if the learner sent any since the last
+    /// look; returns the run's environment steps they came with, which the
+    /// environments must be told.
+    fn refresh_weights(&mut self) -> anyhow::Result<Option<u64>> {
+        let Some(message) = self.ports.take_latest_weights()? else {
+            return Ok(None);
+        };
+        let layout = self.policy.layout.clone();
+        let mut model = self.model.write().unwrap_or_else(PoisonError::into_inner);
+        self.policy = load_weights(
+            &message,
+            self.transport,
+            &layout,
+            model.as_mut(),
+            self.device,
+            Some(&self.policy),
+        )?;
+        Ok(self.policy.env_steps)
+    }
+
+    /// The id of the next episode to start; `None` once `max_episodes` have started.
+    fn next_episode_id(&mut self) -> Option<u64> {
+        if self
+            .settings
+            .max_episodes
+            .is_some_and(|max| self.started >= max)
+        {
+            return None;
         }
-        Ok(())
+        self.started += 1;
+        Some(self.started - 1)
+    }
+
+    /// The reset seed of episode `id`.
+    fn seed_of(&self, id: u64) -> u64 {
+        episode_seed(self.seed, self.settings.actor_id, id)
+    }
+
+    /// The bookkeeping of episode `id`, which starts at `observation`.
+    fn begin_episode(&self, id: u64, observation: Observation) -> RunningEpisode {
+        let layout = &self.policy.layout;
+        RunningEpisode {
+            id,
+            steps: 0,
+            episode_return: 0.0,
+            started: Instant::now(),
+            actor_steps_at_start: self.summary.steps,
+            observation,
+            hidden: None,
+            chunk: new_chunk(id, 0, layout, hidden_values(layout, None)),
+        }
+    }
+
+    /// Adds one step to `episode`: what was `acted` on its observation, the
+    /// `outcome`, and the `observation` that follows. Returns `Some(done)`
+    /// when its chunk must go out now (full, the episode ended, or the loop
+    /// is `stopping`).
+    fn record_step(
+        &mut self,
+        episode: &mut RunningEpisode,
+        acted: Acted,
+        outcome: &StepOutcome,
+        observation: Observation,
+        stopping: bool,
+    ) -> Option<bool> {
+        episode.steps += 1;
+        episode.episode_return += outcome.reward;
+        let chunk = &mut episode.chunk;
+        push_obs(chunk, &episode.observation.features);
+        chunk
+            .masks
+            .extend_from_slice(&episode.observation.action_mask);
+        chunk.actions.push(acted.action);
+        chunk.log_probs.push(acted.log_prob);
+        chunk.values.push(acted.value);
+        chunk.rewards.push(outcome.reward);
+        chunk.dones.push(u8::from(outcome.done));
+        episode.observation = observation;
+        episode.hidden = acted.hidden;
+        self.summary.steps += 1;
+        let full = chunk.actions.len() >= self.settings.chunk_steps;
+        (full || outcome.done || stopping).then_some(outcome.done)
     }
 
     /// Starts the next episode in each of `slots` (resets in parallel, the
@@ -479,41 +568,21 @@ impl Actor<'_> {
     fn start_episodes(&mut self, slots: Vec<&mut Slot>) -> anyhow::Result<()> {
         let mut starting = Vec::new();
         for slot in slots {
-            if self
-                .settings
-                .max_episodes
-                .is_some_and(|max| self.started >= max)
-            {
-                slot.episode = None;
-                continue;
+            match self.next_episode_id() {
+                Some(id) => starting.push((slot, id)),
+                None => slot.episode = None,
             }
-            let id = self.started;
-            self.started += 1;
-            starting.push((slot, id));
         }
         let (mut slots, ids): (Vec<&mut Slot>, Vec<u64>) = starting.into_iter().unzip();
-        let seeds: Vec<u64> = ids
-            .iter()
-            .map(|&id| episode_seed(self.seed, self.settings.actor_id, id))
-            .collect();
+        let seeds: Vec<u64> = ids.iter().map(|&id| self.seed_of(id)).collect();
         let observations = lockstep::reset_all(
             &mut envs_of(&mut slots),
             &seeds,
-            self.model.as_ref(),
+            self.read_model().as_ref(),
             self.inference,
         )?;
-        let layout = &self.policy.layout;
         for ((slot, id), observation) in slots.into_iter().zip(ids).zip(observations) {
-            slot.episode = Some(RunningEpisode {
-                id,
-                steps: 0,
-                episode_return: 0.0,
-                started: Instant::now(),
-                actor_steps_at_start: self.summary.steps,
-                observation,
-                hidden: None,
-                chunk: new_chunk(id, 0, layout, hidden_values(layout, None)),
-            });
+            slot.episode = Some(self.begin_episode(id, observation));
         }
         Ok(())
     }
@@ -536,27 +605,18 @@ impl Actor<'_> {
                 .filter_map(|s| s.episode.as_ref())
                 .map(|e| (&e.observation, e.hidden.as_deref()))
                 .collect();
-            let uniforms: Vec<f32> = inputs.iter().map(|_| self.rng.random::<f32>()).collect();
-            act_batch(
-                &self.policy,
-                &inputs,
-                &uniforms,
-                self.device,
-                self.inference,
-            )?
+            self.act(&inputs)?
         };
         let actions: Vec<u32> = acted.iter().map(|a| a.action).collect();
         let (outcomes, observations): (Vec<StepOutcome>, Vec<Observation>) = lockstep::step_all(
             &mut envs_of(&mut running),
             &actions,
-            self.model.as_ref(),
+            self.read_model().as_ref(),
             self.inference,
         )?
         .into_iter()
         .unzip();
-        let chunk_steps = self.settings.chunk_steps;
-        // Per running slot: whether its chunk goes out now (`Some`), and
-        // whether its episode ended.
+        // The slots whose chunk goes out now, and whether their episode ended.
         let mut closing = Vec::with_capacity(running.len());
         for (((slot, acted), outcome), observation) in running
             .iter_mut()
@@ -565,25 +625,11 @@ impl Actor<'_> {
             .zip(observations)
         {
             let episode = slot.episode.as_mut().context("a running episode")?;
-            episode.steps += 1;
-            episode.episode_return += outcome.reward;
-            let chunk = &mut episode.chunk;
-            push_obs(chunk, &episode.observation.features);
-            chunk
-                .masks
-                .extend_from_slice(&episode.observation.action_mask);
-            chunk.actions.push(acted.action);
-            chunk.log_probs.push(acted.log_prob);
-            chunk.values.push(acted.value);
-            chunk.rewards.push(outcome.reward);
-            chunk.dones.push(u8::from(outcome.done));
-            episode.observation = observation;
-            episode.hidden = acted.hidden;
-            let full = chunk.actions.len() >= chunk_steps;
-            closing.push((full || outcome.done || stopping).then_some(outcome.done));
+            if let Some(done) = self.record_step(episode, acted, outcome, observation, stopping) {
+                closing.push((episode, done));
+            }
         }
-        self.summary.steps += running.len() as u64;
-        self.close_chunks(&mut running, &closing)?;
+        self.close_chunks(closing)?;
         let ended: Vec<&mut Slot> = running
             .into_iter()
             .zip(&outcomes)
@@ -593,19 +639,13 @@ impl Actor<'_> {
         self.finish_episodes(ended)
     }
 
-    /// Sends the chunks of the slots whose `closing` entry is `Some(done)`:
-    /// those cut mid-episode get the critic's value of their next
-    /// observation, in one batch.
+    /// Sends the chunks of `episodes` (each with whether it ended): those
+    /// cut mid-episode get the critic's value of their next observation, in
+    /// one batch.
     fn close_chunks(
         &mut self,
-        running: &mut [&mut Slot],
-        closing: &[Option<bool>],
+        mut episodes: Vec<(&mut RunningEpisode, bool)>,
     ) -> anyhow::Result<()> {
-        let mut episodes: Vec<(&mut RunningEpisode, bool)> = running
-            .iter_mut()
-            .zip(closing)
-            .filter_map(|(s, done)| Some((s.episode.as_mut()?, (*done)?)))
-            .collect();
         let values = {
             let inputs: Vec<_> = episodes
                 .iter()
@@ -652,37 +692,47 @@ impl Actor<'_> {
             .par_iter_mut()
             .map(|(slot, episode)| slot.env.finish_episode(episode.id))
             .collect::<anyhow::Result<_>>()?;
-        let actor_steps = self.summary.steps;
         let mut slots = Vec::new();
         for (((slot, episode), end), scene) in finishing.into_iter().zip(ends).zip(scenes) {
-            let (version, unet) = (self.policy.policy_version, self.policy.unet_version);
-            if let Some(frames) = end.frames.filter(|f| f.n_frames() > 0) {
-                for part in split_frames(frames, self.transport.max_frames_bytes) {
-                    let delivery = self.ports.publish(&part, version, unet)?;
-                    self.count(delivery);
-                }
-            }
-            let seconds = episode.started.elapsed().as_secs_f64().max(1e-9);
-            let mut stats = EpisodeStats::new(episode.id, episode.steps, scene)
-                .with(StatField::EpisodeReturn, episode.episode_return)
-                .with(
-                    StatField::StepsPerSecond,
-                    ((actor_steps - episode.actor_steps_at_start) as f64 / seconds) as f32,
-                );
-            for (field, value) in end.stats {
-                stats = stats.with(field, value);
-            }
-            let delivery = self.ports.publish(&stats, version, unet)?;
-            self.count(delivery);
-            self.summary.episodes += 1;
+            self.publish_end(&episode, end, scene)?;
             slots.push(slot);
         }
         Ok(slots)
     }
+
+    /// Sends an ended episode's labelled frames and stats (`scene`: the
+    /// scene it ran in).
+    fn publish_end(
+        &mut self,
+        episode: &RunningEpisode,
+        end: EpisodeEnd,
+        scene: u32,
+    ) -> anyhow::Result<()> {
+        let (version, unet) = (self.policy.policy_version, self.policy.unet_version);
+        if let Some(frames) = end.frames.filter(|f| f.n_frames() > 0) {
+            for part in split_frames(frames, self.transport.max_frames_bytes) {
+                let delivery = self.ports.publish(&part, version, unet)?;
+                self.count(delivery);
+            }
+        }
+        let seconds = episode.started.elapsed().as_secs_f64().max(1e-9);
+        let steps_per_second = (self.summary.steps - episode.actor_steps_at_start) as f64 / seconds;
+        let mut stats = EpisodeStats::new(episode.id, episode.steps, scene)
+            .with(StatField::EpisodeReturn, episode.episode_return)
+            .with(StatField::StepsPerSecond, steps_per_second as f32);
+        for (field, value) in end.stats {
+            stats = stats.with(field, value);
+        }
+        let delivery = self.ports.publish(&stats, version, unet)?;
+        self.count(delivery);
+        self.summary.episodes += 1;
+        Ok(())
+    }
 }
 
-/// Runs episodes in every environment of `envs`, in lock-step, until
-/// `stop` is set or `max_episodes` are done. `model` is the affordance
+/// Runs episodes in every environment of `envs` until `stop` is set or
+/// `max_episodes` are done: free-running where that pays
+/// (`free_running::suits`), in lock-step otherwise. `model` is the affordance
 /// U-Net for environments with a camera (it takes the learner's new
 /// U-Nets); environments without one need none.
 pub fn run(
@@ -717,6 +767,7 @@ pub fn run(
     };
     let mut model = model;
     let policy = load_weights(&first, transport, &layout, model.as_mut(), device, None)?;
+    let model = RwLock::new(model);
     drop(first);
     eprintln!(
         "actor {}: got policy version {}, U-Net version {}; {} environment(s)",
@@ -741,7 +792,7 @@ pub fn run(
         settings,
         device,
         inference: lockstep::Inference::for_device(device),
-        model,
+        model: &model,
         policy,
         seed,
         rng: SmallRng::seed_from_u64(seed ^ (u64::from(settings.actor_id) << 32)),
@@ -749,21 +800,31 @@ pub fn run(
         started: 0,
         backoff: Backoff::default(),
     };
+    if free_running::suits(&actor, slots.len()) {
+        eprintln!(
+            "actor {}: the environments run free, each on its own thread",
+            settings.actor_id
+        );
+        let envs = slots.into_iter().map(|s| s.env).collect();
+        free_running::run(&mut actor, envs, stop)?;
+        return Ok(actor.summary());
+    }
     if !stop.load(Ordering::Relaxed) {
         actor.start_episodes(slots.iter_mut().collect())?;
     }
     while slots.iter().any(|s| s.episode.is_some()) {
-        actor.refresh_weights(&mut slots)?;
+        if let Some(steps) = actor.refresh_weights()? {
+            for slot in &mut slots {
+                slot.env.set_global_steps(steps);
+            }
+        }
         let stopping = stop.load(Ordering::Relaxed);
         let ended = actor.step_all(&mut slots, stopping)?;
         if !stopping && !stop.load(Ordering::Relaxed) {
             actor.start_episodes(ended)?;
         }
     }
-    let mut summary = actor.summary;
-    summary.policy_version = actor.policy.policy_version;
-    summary.unet_version = actor.policy.unet_version;
-    Ok(summary)
+    Ok(actor.summary())
 }
 
 #[cfg(test)]

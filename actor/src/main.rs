@@ -95,10 +95,12 @@ struct RunArgs {
     /// until SIGINT/SIGTERM).
     #[arg(long)]
     max_episodes: Option<u64>,
-    /// Environments this actor runs side by side, in lock-step: each steps
-    /// on a thread of its own, and the U-Net and the policy see all their
-    /// frames in one batch. On a GPU, batches are how one actor process
-    /// keeps it busy; on a CPU this uses more cores, like more actors would.
+    /// Environments this actor runs side by side, each on a thread of its
+    /// own. On a GPU they step in lock-step and the U-Net and the policy see
+    /// all their frames in one batch: batches are how one actor process
+    /// keeps it busy. On a CPU this uses more cores, like more actors would;
+    /// with a policy without a GRU the environments run free, none waiting
+    /// for the others.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=256))]
     envs: u16,
     /// Seconds to wait for the learner's first weights before giving up.

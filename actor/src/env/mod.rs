@@ -8,6 +8,7 @@ pub mod reward;
 pub mod sim_env;
 mod sim_environment;
 pub mod state;
+pub mod threads;
 
 pub use bandit_fixture::BanditFixture;
 pub use sim_environment::SimEnvironment;

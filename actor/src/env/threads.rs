@@ -1,0 +1,318 @@
+//! Environments on threads of their own, none waiting for the others.
+//!
+//! Why: in lock-step ([`super::lockstep`]) every step of every environment
+//! waits for the slowest one. On the CPU, where each environment runs its
+//! U-Net pass on its own thread anyway, that wait is most of what two
+//! environments lose against two cores: over a 600-step `ours` episode at
+//! 64 px the slower of two environments took 12 % longer per step than
+//! their mean (env bench). [`EnvThreads`] hands each environment its next
+//! reset, step or episode end as soon as its last one is done, and the
+//! caller books whichever finishes first; an episode's end (labelling, tens
+//! of milliseconds) no longer holds up the others either.
+//!
+//! Each environment's thread runs in a rayon pool of one thread, so that the
+//! map's parallel loops inside a step stay on that thread (as they did when
+//! a lock-step environment ran on a worker of the shared pool) instead of
+//! handing work to a pool whose threads compete with the environments.
+
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::mpsc::{channel, Receiver, Sender};
+use std::sync::{PoisonError, RwLock};
+use std::thread::Scope;
+
+use anyhow::{anyhow, Context};
+
+use super::affordance_model::AffordanceModel;
+use super::lockstep::{self, Inference};
+use super::{Environment, EpisodeEnd, Observation, StepOutcome};
+
+/// Work for an environment.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Task {
+    /// Start an episode with this reset seed.
+    Reset(u64),
+    /// Take this action.
+    Step(u32),
+    /// End the episode with this id.
+    Finish(u64),
+}
+
+/// What an environment did for its [`Task`].
+#[derive(Debug)]
+pub enum Done {
+    /// The first observation of the episode.
+    Reset(Observation),
+    /// The step's outcome and the next observation.
+    Step(StepOutcome, Observation),
+    /// The episode's labelled frames and metrics, and the scene it ran in.
+    Finish {
+        /// What the episode left behind.
+        end: EpisodeEnd,
+        /// Index of its scene.
+        scene: u32,
+    },
+}
+
+/// What the caller sends an environment's thread.
+enum Job {
+    Do(Task),
+    GlobalSteps(u64),
+}
+
+/// The environments' threads, within a [`std::thread::scope`]; they end
+/// when this is dropped (after the task each is doing).
+pub struct EnvThreads {
+    jobs: Vec<Sender<Job>>,
+    done: Receiver<(usize, anyhow::Result<Done>)>,
+}
+
+impl EnvThreads {
+    /// Starts a thread for each of `envs` in `scope`; `model` is the U-Net
+    /// for their camera frames, which the caller may replace between tasks
+    /// (a task holds it for reading while it runs).
+    pub fn start<'scope, 'env>(
+        scope: &'scope Scope<'scope, 'env>,
+        envs: Vec<Box<dyn Environment + 'env>>,
+        model: &'env RwLock<Option<AffordanceModel>>,
+    ) -> Self {
+        let (done_tx, done) = channel();
+        let jobs = envs
+            .into_iter()
+            .enumerate()
+            .map(|(index, env)| {
+                let (job_tx, job_rx) = channel();
+                let done_tx = done_tx.clone();
+                scope.spawn(move || serve(index, env, job_rx, done_tx, model));
+                job_tx
+            })
+            .collect();
+        Self { jobs, done }
+    }
+
+    /// How many environments there are.
+    pub fn len(&self) -> usize {
+        self.jobs.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.jobs.is_empty()
+    }
+
+    /// Queues `task` for environment `index`.
+    pub fn send(&self, index: usize, task: Task) -> anyhow::Result<()> {
+        self.job(index, Job::Do(task))
+    }
+
+    /// Tells every environment the run's environment steps (before its next task).
+    pub fn set_global_steps(&self, steps: u64) -> anyhow::Result<()> {
+        (0..self.len()).try_for_each(|index| self.job(index, Job::GlobalSteps(steps)))
+    }
+
+    /// Waits for the next task to finish: which environment, and what it did.
+    pub fn next(&self) -> anyhow::Result<(usize, Done)> {
+        let (index, done) = self
+            .done
+            .recv()
+            .context("every environment's thread ended early")?;
+        Ok((index, done.with_context(|| format!("environment {index}"))?))
+    }
+
+    fn job(&self, index: usize, job: Job) -> anyhow::Result<()> {
+        self.jobs
+            .get(index)
+            .context("no such environment")?
+            .send(job)
+            .map_err(|_| anyhow!("environment {index}'s thread ended early"))
+    }
+}
+
+/// An environment's thread: does its jobs in order until the caller hangs up.
+fn serve(
+    index: usize,
+    mut env: Box<dyn Environment + '_>,
+    jobs: Receiver<Job>,
+    done: Sender<(usize, anyhow::Result<Done>)>,
+    model: &RwLock<Option<AffordanceModel>>,
+) {
+    let pool = match rayon::ThreadPoolBuilder::new().num_threads(1).build() {
+        Ok(pool) => pool,
+        Err(e) => {
+            let _ = done.send((index, Err(anyhow!("starting its thread pool: {e}"))));
+            return;
+        }
+    };
+    pool.install(move || {
+        for job in jobs.iter() {
+            let result = match job {
+                Job::GlobalSteps(steps) => {
+                    env.set_global_steps(steps);
+                    continue;
+                }
+                Job::Do(task) => catch_unwind(AssertUnwindSafe(|| work(env.as_mut(), task, model)))
+                    .unwrap_or_else(|_| Err(anyhow!("the environment panicked"))),
+            };
+            if done.send((index, result)).is_err() {
+                return;
+            }
+        }
+    });
+}
+
+/// One task of an environment.
+fn work(
+    env: &mut dyn Environment,
+    task: Task,
+    model: &RwLock<Option<AffordanceModel>>,
+) -> anyhow::Result<Done> {
+    let model = || model.read().unwrap_or_else(PoisonError::into_inner);
+    let alone = Inference::PerEnvironment;
+    Ok(match task {
+        Task::Reset(seed) => {
+            let mut observed = lockstep::reset_all(&mut [env], &[seed], model().as_ref(), alone)?;
+            Done::Reset(observed.pop().context("a reset observes")?)
+        }
+        Task::Step(action) => {
+            let mut stepped = lockstep::step_all(&mut [env], &[action], model().as_ref(), alone)?;
+            let (outcome, observation) = stepped.pop().context("a step observes")?;
+            Done::Step(outcome, observation)
+        }
+        Task::Finish(id) => {
+            let scene = env.scene_index();
+            Done::Finish {
+                end: env.finish_episode(id)?,
+                scene,
+            }
+        }
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::env::affordance_model::CameraFrame;
+    use crate::env::BanditFixture;
+    use proto::PolicyLayout;
+
+    /// Bandits have no camera, so no U-Net.
+    static NO_MODEL: RwLock<Option<AffordanceModel>> = RwLock::new(None);
+
+    /// Stands for a reset in the lists of outcomes.
+    const RESET: StepOutcome = StepOutcome {
+        reward: 0.0,
+        done: false,
+        success: false,
+    };
+
+    /// The action for step `k` of the environment reset with `seed`.
+    fn action(seed: u64, k: u32) -> u32 {
+        (seed as u32 + 3 * k) % 4
+    }
+
+    #[test]
+    fn each_environment_does_what_it_does_alone_whatever_the_interleaving() {
+        let seeds = [3u64, 5, 8];
+        let model = &NO_MODEL;
+        let mut seen: Vec<Vec<(StepOutcome, Observation)>> = vec![Vec::new(); seeds.len()];
+        let mut ends = vec![None; seeds.len()];
+        std::thread::scope(|scope| {
+            let envs = seeds
+                .iter()
+                .map(|_| Box::new(BanditFixture::new()) as Box<dyn Environment>)
+                .collect();
+            let threads = EnvThreads::start(scope, envs, model);
+            assert_eq!(threads.len(), 3);
+            for (index, &seed) in seeds.iter().enumerate() {
+                threads.send(index, Task::Reset(seed)).unwrap();
+            }
+            let mut finished = 0;
+            while finished < seeds.len() {
+                let (index, done) = threads.next().unwrap();
+                let steps = seen[index].len() as u32;
+                match done {
+                    Done::Reset(observation) => {
+                        seen[index].push((RESET, observation));
+                        threads
+                            .send(index, Task::Step(action(seeds[index], 0)))
+                            .unwrap();
+                    }
+                    Done::Step(outcome, observation) => {
+                        seen[index].push((outcome, observation));
+                        let task = if outcome.done {
+                            Task::Finish(index as u64)
+                        } else {
+                            Task::Step(action(seeds[index], steps))
+                        };
+                        threads.send(index, task).unwrap();
+                    }
+                    Done::Finish { end, scene } => {
+                        assert_eq!(scene, 0);
+                        ends[index] = Some(end);
+                        finished += 1;
+                    }
+                }
+            }
+        });
+        for (index, &seed) in seeds.iter().enumerate() {
+            let mut alone = BanditFixture::new();
+            let mut expected = vec![(RESET, alone.reset(seed, None).unwrap())];
+            for k in 0..64 {
+                expected.push(alone.step(action(seed, k), None).unwrap());
+            }
+            assert_eq!(seen[index], expected, "environment {index}");
+            assert_eq!(
+                ends[index].as_ref(),
+                Some(&alone.finish_episode(index as u64).unwrap())
+            );
+        }
+    }
+
+    /// Steps panic; everything else is a bandit's.
+    struct Panicking(BanditFixture);
+
+    impl Environment for Panicking {
+        fn layout(&self) -> &PolicyLayout {
+            self.0.layout()
+        }
+        fn scene_index(&self) -> u32 {
+            0
+        }
+        fn begin_reset(&mut self, seed: u64) -> anyhow::Result<()> {
+            self.0.begin_reset(seed)
+        }
+        fn begin_step(&mut self, _action: u32) -> anyhow::Result<StepOutcome> {
+            panic!("a bug in the environment")
+        }
+        fn camera_frame(&self) -> Option<CameraFrame<'_>> {
+            None
+        }
+        fn observe(&mut self, affordances: Vec<Vec<f32>>) -> anyhow::Result<Observation> {
+            self.0.observe(affordances)
+        }
+        fn finish_episode(&mut self, id: u64) -> anyhow::Result<EpisodeEnd> {
+            self.0.finish_episode(id)
+        }
+        fn set_global_steps(&mut self, _steps: u64) {}
+    }
+
+    #[test]
+    fn a_panicking_environment_is_an_error_for_the_caller_not_a_hang() {
+        let model = &NO_MODEL;
+        std::thread::scope(|scope| {
+            let envs: Vec<Box<dyn Environment>> = vec![
+                Box::new(BanditFixture::new()),
+                Box::new(Panicking(BanditFixture::new())),
+            ];
+            let threads = EnvThreads::start(scope, envs, model);
+            threads.send(1, Task::Reset(1)).unwrap();
+            assert!(matches!(threads.next().unwrap(), (1, Done::Reset(_))));
+            threads.send(1, Task::Step(0)).unwrap();
+            let error = threads.next().unwrap_err();
+            assert!(
+                format!("{error:#}").contains("environment 1: the environment panicked"),
+                "{error:#}"
+            );
+            assert!(threads.send(7, Task::Step(0)).is_err(), "no environment 7");
+        });
+    }
+}

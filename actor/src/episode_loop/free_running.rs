@@ -1,0 +1,113 @@
+//! The loop over free-running environments ([`EnvThreads`]): this thread
+//! keeps the bookkeeping, the policy and the learner's ports, and gives each
+//! environment its next task as soon as its last one is done.
+//!
+//! Unlike lock-step, which environment starts which episode (and so draws
+//! which random numbers) depends on timing; each episode's reset seed is
+//! still its id's.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use anyhow::Context;
+
+use super::{Acted, Actor, RunningEpisode};
+use crate::env::threads::{Done, EnvThreads, Task};
+use crate::env::{lockstep, Environment};
+
+/// Where an environment is, as the loop sees it.
+enum Phase {
+    /// Nothing to do (no more episodes here).
+    Idle,
+    /// Resetting into episode `id`.
+    Resetting(u64),
+    /// Stepping its episode with an action the policy chose.
+    Stepping(RunningEpisode, Acted),
+    /// Ending its episode.
+    Finishing(RunningEpisode),
+}
+
+/// Whether `envs` environments should run free: several of them, each
+/// with its U-Net pass on its own thread (a CPU device), and a policy whose
+/// pass is cheap enough for this thread to run for all of them (the CPU's
+/// own pass, `nets::policy::CpuPolicy`). With burn's pass (GRU policies) this
+/// thread became the bottleneck: `nomap-seg` with 2 environments went from
+/// 205 steps/s in lock-step to 182 free-running (env bench), while without
+/// any policy pass the two were even, so lock-step stays for them.
+pub(super) fn suits(actor: &Actor<'_>, envs: usize) -> bool {
+    envs > 1 && actor.inference == lockstep::Inference::PerEnvironment && actor.policy.cpu.is_some()
+}
+
+/// Runs `envs` free-running until `stop` is set or `max_episodes` are done.
+pub(super) fn run(
+    actor: &mut Actor<'_>,
+    envs: Vec<Box<dyn Environment>>,
+    stop: &AtomicBool,
+) -> anyhow::Result<()> {
+    let model = actor.model;
+    std::thread::scope(|scope| {
+        let threads = EnvThreads::start(scope, envs, model);
+        drive(actor, &threads, stop)
+        // Dropping `threads` ends them; the scope waits for them.
+    })
+}
+
+/// Hands out tasks and books what comes back.
+fn drive(actor: &mut Actor<'_>, threads: &EnvThreads, stop: &AtomicBool) -> anyhow::Result<()> {
+    let start = |actor: &mut Actor<'_>, index: usize| -> anyhow::Result<Phase> {
+        if stop.load(Ordering::Relaxed) {
+            return Ok(Phase::Idle);
+        }
+        Ok(match actor.next_episode_id() {
+            Some(id) => {
+                threads.send(index, Task::Reset(actor.seed_of(id)))?;
+                Phase::Resetting(id)
+            }
+            None => Phase::Idle,
+        })
+    };
+    let step = |actor: &mut Actor<'_>, index: usize, episode: RunningEpisode| {
+        let acted = actor
+            .act(&[(&episode.observation, episode.hidden.as_deref())])?
+            .pop()
+            .context("the policy acted")?;
+        threads.send(index, Task::Step(acted.action))?;
+        anyhow::Ok(Phase::Stepping(episode, acted))
+    };
+    let mut phases = Vec::with_capacity(threads.len());
+    for index in 0..threads.len() {
+        phases.push(start(actor, index)?);
+    }
+    while phases.iter().any(|p| !matches!(p, Phase::Idle)) {
+        let (index, done) = threads.next()?;
+        if let Some(steps) = actor.refresh_weights()? {
+            threads.set_global_steps(steps)?;
+        }
+        let stopping = stop.load(Ordering::Relaxed);
+        let phase = std::mem::replace(&mut phases[index], Phase::Idle);
+        phases[index] = match (phase, done) {
+            (Phase::Resetting(id), Done::Reset(observation)) => {
+                let episode = actor.begin_episode(id, observation);
+                step(actor, index, episode)?
+            }
+            (Phase::Stepping(mut episode, acted), Done::Step(outcome, observation)) => {
+                let closing =
+                    actor.record_step(&mut episode, acted, &outcome, observation, stopping);
+                if let Some(ended) = closing {
+                    actor.close_chunks(vec![(&mut episode, ended)])?;
+                }
+                if outcome.done || stopping {
+                    threads.send(index, Task::Finish(episode.id))?;
+                    Phase::Finishing(episode)
+                } else {
+                    step(actor, index, episode)?
+                }
+            }
+            (Phase::Finishing(episode), Done::Finish { end, scene }) => {
+                actor.publish_end(&episode, end, scene)?;
+                start(actor, index)?
+            }
+            _ => anyhow::bail!("environment {index} answered a task it was not given"),
+        };
+    }
+    Ok(())
+}
