@@ -426,12 +426,12 @@ fn policy_pass(
     inference: Inference,
 ) {
     if let (Some(cpu), [alone]) = (cpu, observations) {
-        std::hint::black_box(cpu.forward(&alone.features, &alone.action_mask));
+        std::hint::black_box(cpu.forward(&alone.features, &alone.action_mask, None));
         return;
     }
     if let Some(cpu) = cpu {
         observations.par_iter().for_each(|o| {
-            std::hint::black_box(cpu.forward(&o.features, &o.action_mask));
+            std::hint::black_box(cpu.forward(&o.features, &o.action_mask, None));
         });
         return;
     }

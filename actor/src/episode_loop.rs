@@ -64,8 +64,8 @@ pub struct LoopSummary {
 /// The broadcast policy the actor acts with.
 struct Policy {
     net: PolicyNet,
-    /// The same weights for the CPU's own pass (`nets::policy::CpuPolicy`):
-    /// on a CPU device, for policies without a GRU.
+    /// The same weights for the CPU's own pass (`nets::policy::CpuPolicy`),
+    /// on a CPU device.
     cpu: Option<CpuPolicy>,
     layout: PolicyLayout,
     policy_version: u64,
@@ -230,12 +230,12 @@ fn forward(
     if let Some(cpu) = &policy.cpu {
         return Ok(inputs
             .iter()
-            .map(|(observation, _)| {
-                let step = cpu.forward(&observation.features, &observation.action_mask);
+            .map(|(observation, hidden)| {
+                let step = cpu.forward(&observation.features, &observation.action_mask, *hidden);
                 PolicyStep {
                     log_probs: masked(step.log_probs, &observation.action_mask),
                     value: step.value,
-                    hidden: None,
+                    hidden: step.hidden,
                 }
             })
             .collect());
@@ -937,47 +937,60 @@ mod tests {
     #[test]
     fn the_cpu_pass_acts_as_burns_pass_does() {
         let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).unwrap();
-        let layout = PolicyLayout {
-            image_channels: vec![3, 2],
-            image_size: 64,
-            vector_dims: vec![5, 1],
-            n_actions: 6,
-            obs_dtype: ObsDtype::U8,
-            gru_hidden: None,
-        };
-        let net = PolicyNet::new(&layout, &device);
-        let cpu = CpuPolicy::from_network(&net, &layout);
-        assert!(cpu.is_some(), "a policy without memory gets the CPU pass");
-        let policy = |cpu: Option<CpuPolicy>| Policy {
-            net: net.clone(),
-            cpu,
-            layout: layout.clone(),
-            policy_version: 1,
-            unet_version: 0,
-            env_steps: None,
-        };
-        let (with_cpu, burn_only) = (policy(cpu), policy(None));
-        let observations: Vec<Observation> = (0..2)
-            .map(|k| Observation {
-                features: (0..layout.obs_len())
-                    .map(|i| ((i * 11 + k * 5) % 19) as f32 / 19.0)
-                    .collect(),
-                action_mask: (0..6).map(|a| u8::from(a != 2 * k + 1)).collect(),
-            })
-            .collect();
-        let inputs: Vec<_> = observations.iter().map(|o| (o, None)).collect();
-        let fast = forward(&with_cpu, &inputs, &device).unwrap();
-        let reference = forward(&burn_only, &inputs, &device).unwrap();
-        for (k, (f, r)) in fast.iter().zip(&reference).enumerate() {
-            assert_eq!(f.log_probs[2 * k + 1], f32::NEG_INFINITY, "masked action");
-            assert!((f.value - r.value).abs() < 1e-5, "value of {k}");
-            for (a, (x, y)) in f.log_probs.iter().zip(&r.log_probs).enumerate() {
-                assert!(
-                    x == y || (x - y).abs() < 1e-5,
-                    "action {a} of {k}: {x} vs {y}"
-                );
+        for gru_hidden in [None, Some(8)] {
+            let layout = PolicyLayout {
+                image_channels: vec![3, 2],
+                image_size: 64,
+                vector_dims: vec![5, 1],
+                n_actions: 6,
+                obs_dtype: ObsDtype::U8,
+                gru_hidden,
+            };
+            let net = PolicyNet::new(&layout, &device);
+            let cpu = CpuPolicy::from_network(&net, &layout);
+            assert!(
+                cpu.is_some(),
+                "{gru_hidden:?}: the policy gets the CPU pass"
+            );
+            let policy = |cpu: Option<CpuPolicy>| Policy {
+                net: net.clone(),
+                cpu,
+                layout: layout.clone(),
+                policy_version: 1,
+                unet_version: 0,
+                env_steps: None,
+            };
+            let (with_cpu, burn_only) = (policy(cpu), policy(None));
+            let observations: Vec<Observation> = (0..2)
+                .map(|k| Observation {
+                    features: (0..layout.obs_len())
+                        .map(|i| ((i * 11 + k * 5) % 19) as f32 / 19.0)
+                        .collect(),
+                    action_mask: (0..6).map(|a| u8::from(a != 2 * k + 1)).collect(),
+                })
+                .collect();
+            // An episode's start beside a running recurrent state.
+            let running: Vec<f32> = (0..8).map(|i| i as f32 / 8.0 - 0.4).collect();
+            let states = [None, gru_hidden.map(|_| running.as_slice())];
+            let inputs: Vec<_> = observations.iter().zip(states).collect();
+            let fast = forward(&with_cpu, &inputs, &device).unwrap();
+            let reference = forward(&burn_only, &inputs, &device).unwrap();
+            let close = |x: f32, y: f32| x == y || (x - y).abs() < 1e-5;
+            for (k, (f, r)) in fast.iter().zip(&reference).enumerate() {
+                assert_eq!(f.log_probs[2 * k + 1], f32::NEG_INFINITY, "masked action");
+                assert!(close(f.value, r.value), "value of {k}");
+                for (a, (&x, &y)) in f.log_probs.iter().zip(&r.log_probs).enumerate() {
+                    assert!(close(x, y), "action {a} of {k}: {x} vs {y}");
+                }
+                match (&f.hidden, &r.hidden) {
+                    (None, None) => assert!(gru_hidden.is_none()),
+                    (Some(x), Some(y)) => {
+                        assert_eq!(x.len(), 8);
+                        assert!(x.iter().zip(y).all(|(&x, &y)| close(x, y)), "state of {k}");
+                    }
+                    _ => panic!("{gru_hidden:?}: one pass gave a state, the other not"),
+                }
             }
-            assert!(f.hidden.is_none());
         }
     }
 

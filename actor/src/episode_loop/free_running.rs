@@ -29,10 +29,11 @@ enum Phase {
 /// Whether `envs` environments should run free: several of them, each
 /// with its U-Net pass on its own thread (a CPU device), and a policy whose
 /// pass is cheap enough for this thread to run for all of them (the CPU's
-/// own pass, `nets::policy::CpuPolicy`). With burn's pass (GRU policies) this
-/// thread became the bottleneck: `nomap-seg` with 2 environments went from
-/// 205 steps/s in lock-step to 182 free-running (env bench), while without
-/// any policy pass the two were even, so lock-step stays for them.
+/// own pass, `nets::policy::CpuPolicy`, which every policy on a CPU device
+/// has). With burn's pass this thread became the bottleneck: `nomap-seg`
+/// with 2 environments went from 205 steps/s in lock-step to 182
+/// free-running (env bench), while without any policy pass the two were
+/// even.
 pub(super) fn suits(actor: &Actor<'_>, envs: usize) -> bool {
     envs > 1 && actor.inference == lockstep::Inference::PerEnvironment && actor.policy.cpu.is_some()
 }

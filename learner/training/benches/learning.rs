@@ -151,7 +151,7 @@ fn main() {
     results.push((
         "policy_inference_1step_cpu_path_ms",
         time(repeats.max(5), || {
-            std::hint::black_box(cpu_policy.forward(&observation, &mask));
+            std::hint::black_box(cpu_policy.forward(&observation, &mask, None));
         }),
     ));
 

@@ -5,13 +5,14 @@
 //! took 1.2 ms alone and about 2 ms per step in lock-step: the time goes to
 //! per-operation overhead (tensor allocation, layout copies), not to
 //! arithmetic. Here each convolution is one im2col copy and one GEMM, the
-//! rest plain loops over weights copied out once. Policies with a GRU keep
-//! burn's pass (the methods that use one are fast enough without this).
+//! rest (dense layers, the GRU of the methods with memory) plain loops over
+//! weights copied out once.
 //!
 //! The arithmetic is the network's own: [`CpuPolicy::forward`] equals
 //! [`PolicyNet::forward`] to float rounding (tested below).
 
 use burn::nn::conv::Conv2d;
+use burn::nn::gru::Gru;
 use burn::nn::Linear;
 
 use super::{ConvEncoder, Head, PolicyLayout, PolicyNet, VectorEncoder, MASKED_LOGIT};
@@ -24,6 +25,7 @@ pub struct CpuPolicy {
     images: Vec<[Conv; 3]>,
     image_fcs: Vec<Dense>,
     vectors: Vec<[Dense; 2]>,
+    gru: Option<CpuGru>,
     actor: [Dense; 3],
     critic: [Dense; 3],
 }
@@ -36,15 +38,21 @@ pub struct CpuPolicyStep {
     pub log_probs: Vec<f32>,
     /// The critic's value.
     pub value: f32,
+    /// The GRU state after this step (policies with memory).
+    pub hidden: Option<Vec<f32>>,
 }
 
 impl CpuPolicy {
-    /// Copies the weights of `net` (built for `layout`), or `None` for a
-    /// policy with a GRU.
+    /// Copies the weights of `net` (built for `layout`), or `None` where
+    /// the network is not what this pass computes: a GRU other than the one
+    /// [`PolicyNet::new`] builds (gates applied after the reset, no
+    /// clipping), or one that disagrees with the layout.
     pub fn from_network(net: &PolicyNet, layout: &PolicyLayout) -> Option<Self> {
-        if net.gru.is_some() || layout.gru_hidden.is_some() {
-            return None;
-        }
+        let gru = match (&net.gru, layout.gru_hidden) {
+            (None, None) => None,
+            (Some(gru), Some(hidden)) if gru.d_hidden == hidden => Some(CpuGru::from_layer(gru)?),
+            _ => return None,
+        };
         let head = |h: &Head| [&h.fc1, &h.fc2, &h.out].map(Dense::from_layer);
         Some(Self {
             layout: layout.clone(),
@@ -66,6 +74,7 @@ impl CpuPolicy {
                 .iter()
                 .map(|e: &VectorEncoder| [&e.fc1, &e.fc2].map(Dense::from_layer))
                 .collect(),
+            gru,
             actor: head(&net.actor),
             critic: head(&net.critic),
         })
@@ -73,11 +82,17 @@ impl CpuPolicy {
 
     /// Log-probabilities and value for one flat observation (images then
     /// vectors, [`PolicyLayout::obs_len`] values) and its mask (one byte
-    /// per action, nonzero = allowed).
+    /// per action, nonzero = allowed); for a policy with a GRU, `hidden` is
+    /// its state before this step (`None`: zeros, an episode's start).
     ///
     /// # Panics
     /// If the lengths do not match the layout: callers validate first.
-    pub fn forward(&self, observation: &[f32], mask: &[u8]) -> CpuPolicyStep {
+    pub fn forward(
+        &self,
+        observation: &[f32],
+        mask: &[u8],
+        hidden: Option<&[f32]>,
+    ) -> CpuPolicyStep {
         let layout = &self.layout;
         assert_eq!(observation.len(), layout.obs_len(), "observation length");
         assert_eq!(mask.len(), layout.n_actions, "mask length");
@@ -104,8 +119,21 @@ impl CpuPolicy {
             features.extend(mlp[1].forward(&hidden, relu));
             at += dim;
         }
+        let hidden = self.gru.as_ref().map(|gru| {
+            let zeros;
+            let before = match hidden {
+                Some(h) => h,
+                None => {
+                    zeros = vec![0.0; gru.size()];
+                    &zeros
+                }
+            };
+            assert_eq!(before.len(), gru.size(), "GRU state length");
+            gru.step(&features, before)
+        });
+        let trunk = hidden.as_deref().unwrap_or(&features);
         let head = |h: &[Dense; 3]| {
-            let x = h[0].forward(&features, f32::tanh);
+            let x = h[0].forward(trunk, f32::tanh);
             let x = h[1].forward(&x, f32::tanh);
             h[2].forward(&x, |v| v)
         };
@@ -120,12 +148,78 @@ impl CpuPolicy {
         CpuPolicyStep {
             log_probs: logits.iter().map(|l| l - max - log_sum).collect(),
             value: head(&self.critic)[0],
+            hidden,
         }
     }
 }
 
 fn relu(v: f32) -> f32 {
     v.max(0.0)
+}
+
+fn sigmoid(v: f32) -> f32 {
+    1.0 / (1.0 + (-v).exp())
+}
+
+/// burn's GRU with the new gate's reset applied after its hidden product
+/// (`reset_after`, [`PolicyNet::new`]'s choice):
+/// `z = σ(x Wz + h Uz)`, `r = σ(x Wr + h Ur)`, `n = tanh(x Wn + r ⊙ (h Un))`,
+/// `h' = (1 − z) ⊙ n + z ⊙ h` (each product with its bias).
+#[derive(Debug, Clone)]
+struct CpuGru {
+    /// Input and hidden transforms of the update, reset and new gates.
+    gates: [[Dense; 2]; 3],
+}
+
+impl CpuGru {
+    /// `None` for a GRU this pass does not compute (see
+    /// [`CpuPolicy::from_network`]).
+    fn from_layer(gru: &Gru) -> Option<Self> {
+        let standard = gru.reset_after
+            && gru.clip.is_none()
+            && matches!(
+                gru.gate_activation,
+                burn::nn::activation::Activation::Sigmoid(_)
+            )
+            && matches!(
+                gru.hidden_activation,
+                burn::nn::activation::Activation::Tanh(_)
+            );
+        standard.then(|| Self {
+            gates: [&gru.update_gate, &gru.reset_gate, &gru.new_gate].map(|g| {
+                [
+                    Dense::from_layer(&g.input_transform),
+                    Dense::from_layer(&g.hidden_transform),
+                ]
+            }),
+        })
+    }
+
+    /// The state's length.
+    fn size(&self) -> usize {
+        self.gates[0][1].outputs
+    }
+
+    /// The state after input `x`, from state `h`.
+    fn step(&self, x: &[f32], h: &[f32]) -> Vec<f32> {
+        let [update, reset, new] = &self.gates;
+        let gate = |g: &[Dense; 2]| {
+            let mut v = g[0].forward(x, |v| v);
+            for (v, u) in v.iter_mut().zip(g[1].forward(h, |v| v)) {
+                *v = sigmoid(*v + u);
+            }
+            v
+        };
+        let (z, r) = (gate(update), gate(reset));
+        let candidate = new[0].forward(x, |v| v);
+        let recurrent = new[1].forward(h, |v| v);
+        (0..h.len())
+            .map(|i| {
+                let n = (candidate[i] + r[i] * recurrent[i]).tanh();
+                (1.0 - z[i]) * n + z[i] * h[i]
+            })
+            .collect()
+    }
 }
 
 /// A valid (unpadded), strided, square convolution followed by ReLU.
@@ -261,7 +355,8 @@ mod tests {
             let expected = net.forward(&input, None);
             let log_probs: Vec<f32> = expected.log_probs.into_data().try_to_vec().unwrap();
             let value: Vec<f32> = expected.values.into_data().try_to_vec().unwrap();
-            let got = cpu.forward(&observation, &mask);
+            let got = cpu.forward(&observation, &mask, None);
+            assert!(got.hidden.is_none());
             for (a, (g, e)) in got.log_probs.iter().zip(&log_probs).enumerate() {
                 if mask[a] == 0 {
                     assert!(*g < -1e8 && *e < -1e8, "masked action {a}: {g} vs {e}");
@@ -279,13 +374,39 @@ mod tests {
     }
 
     #[test]
-    fn a_policy_with_memory_keeps_burns_pass() {
+    fn a_policy_with_memory_steps_as_burns_does() {
         let device = Device::flex();
         let layout = PolicyLayout {
             gru_hidden: Some(32),
             ..layout()
         };
         let net = PolicyNet::new(&layout, &device);
-        assert!(CpuPolicy::from_network(&net, &layout).is_none());
+        let cpu = CpuPolicy::from_network(&net, &layout).expect("burn's GRU as built");
+        let mask = vec![1u8; layout.n_actions];
+        // Three steps of one episode: each step's state comes from the last,
+        // so a wrong gate shows in the log-probabilities and in the state.
+        let (mut burn_state, mut cpu_state): (Option<Tensor<2>>, Option<Vec<f32>>) = (None, None);
+        for step in 0..3u32 {
+            let observation: Vec<f32> = (0..layout.obs_len() as u32)
+                .map(|i| ((i * 31 + step * 7_001) % 251) as f32 / 251.0)
+                .collect();
+            let input = PolicyInput::from_flat(&layout, &observation, &mask, 1, &device);
+            let expected = net.forward(&input, burn_state);
+            let got = cpu.forward(&observation, &mask, cpu_state.as_deref());
+            let log_probs: Vec<f32> = expected.log_probs.into_data().try_to_vec().unwrap();
+            let hidden = expected.hidden.expect("a GRU state");
+            let state: Vec<f32> = hidden.clone().into_data().try_to_vec().unwrap();
+            let got_state = got.hidden.expect("a GRU state");
+            assert_eq!(got_state.len(), 32);
+            for (g, e) in got_state.iter().zip(&state) {
+                assert!((g - e).abs() < 1e-5, "step {step}: state {g} vs {e}");
+            }
+            for (g, e) in got.log_probs.iter().zip(&log_probs) {
+                assert!((g - e).abs() < 1e-5, "step {step}: {g} vs {e}");
+            }
+            assert!(state.iter().any(|v| v.abs() > 1e-3), "a state that moved");
+            burn_state = Some(hidden);
+            cpu_state = Some(got_state);
+        }
     }
 }
