@@ -98,8 +98,9 @@ struct RunArgs {
     /// Environments this actor runs side by side, each on a thread of its
     /// own. On a GPU they step in lock-step and the U-Net and the policy see
     /// all their frames in one batch: batches are how one actor process
-    /// keeps it busy. On a CPU this uses more cores, like more actors would,
-    /// and the environments run free, none waiting for the others.
+    /// keeps it busy. On a CPU this uses more cores, like more actors would;
+    /// for methods with a map (their steps' times vary) the environments
+    /// run free, none waiting for the others.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=256))]
     envs: u16,
     /// Seconds to wait for the learner's first weights before giving up.

@@ -27,15 +27,20 @@ enum Phase {
 }
 
 /// Whether `envs` environments should run free: several of them, each
-/// with its U-Net pass on its own thread (a CPU device), and a policy whose
-/// pass is cheap enough for this thread to run for all of them (the CPU's
-/// own pass, `nets::policy::CpuPolicy`, which every policy on a CPU device
-/// has). With burn's pass this thread became the bottleneck: `nomap-seg`
-/// with 2 environments went from 205 steps/s in lock-step to 182
-/// free-running (env bench), while without any policy pass the two were
-/// even.
+/// with its U-Net pass on its own thread (a CPU device), a policy pass cheap
+/// enough for this thread to run for all of them (the CPU's own,
+/// `nets::policy::CpuPolicy`), and steps long and uneven enough that waiting
+/// at a barrier costs more than this thread's competing with the
+/// environments for the cores. That is the methods with a map, whose
+/// policies have no GRU (the GRU stands in for the map). Measured with 2
+/// environments (env bench, both with the CPU pass): `ours` 95–107 steps/s
+/// in lock-step, 109–135 free-running; `nomap-seg`, whose short, even steps
+/// lose 3 % at the barrier, 202–203 in lock-step and 184 free-running.
 pub(super) fn suits(actor: &Actor<'_>, envs: usize) -> bool {
-    envs > 1 && actor.inference == lockstep::Inference::PerEnvironment && actor.policy.cpu.is_some()
+    envs > 1
+        && actor.inference == lockstep::Inference::PerEnvironment
+        && actor.policy.cpu.is_some()
+        && actor.policy.layout.gru_hidden.is_none()
 }
 
 /// Runs `envs` free-running until `stop` is set or `max_episodes` are done.

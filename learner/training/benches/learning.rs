@@ -155,6 +155,36 @@ fn main() {
         }),
     ));
 
+    // The methods without a map: the same inputs into a GRU of the default
+    // `task.memory_size`, both passes, from a running state.
+    let memory = 512;
+    let gru_layout = PolicyLayout {
+        gru_hidden: Some(memory),
+        ..policy_config()
+    };
+    let gru_policy = PolicyNet::new(&gru_layout, &device);
+    let state: Vec<f32> = (0..memory).map(|_| rng.random::<f32>() - 0.5).collect();
+    let state_tensor = Tensor::<1>::from_floats(state.as_slice(), &device).reshape([1, memory]);
+    results.push((
+        "policy_gru_inference_1step_ms",
+        time(repeats.max(5), || {
+            let _: Vec<f32> = gru_policy
+                .forward(&step_input, Some(state_tensor.clone()))
+                .log_probs
+                .into_data()
+                .try_to_vec()
+                .unwrap();
+        }),
+    ));
+    let cpu_gru_policy =
+        CpuPolicy::from_network(&gru_policy, &gru_layout).expect("burn's GRU as built");
+    results.push((
+        "policy_gru_inference_1step_cpu_path_ms",
+        time(repeats.max(5), || {
+            std::hint::black_box(cpu_gru_policy.forward(&observation, &mask, Some(&state)));
+        }),
+    ));
+
     // PPO update on envs × 600 steps.
     let envs = if quick { 2 } else { 8 };
     let rows = envs * 600;
