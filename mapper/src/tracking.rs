@@ -204,7 +204,46 @@ impl Fit {
             self.inliers as f32 / self.visible as f32
         }
     }
+
+    /// Whether this fit, of an aligned pose, is evidence that the object
+    /// moved from the pose `before` was measured at (on the same segment):
+    /// the aligned pose matches clearly more of the segment
+    /// ([`MIN_INLIER_GAIN`] times the inliers, and at least
+    /// [`TrackingParams::min_inliers`] more), or about as many points
+    /// [`MIN_TIGHTENING`] times more tightly (a move along the surface's
+    /// normal, within the inlier distance of both poses). The share of
+    /// visible points is no evidence: it changes with what each pose hides.
+    ///
+    /// The bar is high because the two mistakes cost differently: moving a
+    /// still object shifts its model and every label drawn from it, while a
+    /// missed motion costs little (the object is seen where its model was
+    /// not, and triggers again). Partial views of large objects (a painting,
+    /// a shelf, a table top: mostly out of view or occluded, their surfaces
+    /// flat enough for ICP to slide along) fit slightly better somewhere
+    /// else.
+    pub fn shows_motion_from(&self, before: &Fit, params: &TrackingParams) -> bool {
+        let (inliers, inliers_before) = (self.inliers as f32, before.inliers as f32);
+        let more_matched = inliers >= MIN_INLIER_GAIN * inliers_before
+            && self.inliers >= before.inliers + params.min_inliers;
+        let tighter =
+            inliers >= 0.95 * inliers_before && MIN_TIGHTENING * self.rmse_m <= before.rmse_m;
+        more_matched || tighter
+    }
 }
+
+/// Least factor by which an aligned pose must multiply the inliers to count
+/// as evidence of motion ([`Fit::shows_motion_from`]). Over 2 400-step
+/// `ours` episodes, the motions of still objects that weaker tests let
+/// through multiplied them by 0.86 to 1.23, adding at most 8; the real
+/// motions of the mapper's tests and of those episodes, by 1.29 and more,
+/// adding 43 and more (or they fit [`MIN_TIGHTENING`]).
+pub const MIN_INLIER_GAIN: f32 = 1.2;
+
+/// Least factor by which the RMSE must drop, at about the same inliers, to
+/// count as evidence of motion ([`Fit::shows_motion_from`]): the still
+/// objects of [`MIN_INLIER_GAIN`]'s episodes reached at most 1.9, the
+/// tests' real motions that matched no more points 2.7 and more.
+pub const MIN_TIGHTENING: f32 = 2.5;
 
 /// Directions of the normal equations weaker than this fraction of the
 /// strongest are treated as unobservable.
@@ -493,6 +532,52 @@ pub fn motion_size(motion: &Pose) -> (f32, f32) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn fit(inliers: usize, visible: usize, rmse_mm: f32) -> Fit {
+        Fit {
+            inliers,
+            visible,
+            rmse_m: rmse_mm * 1e-3,
+        }
+    }
+
+    /// Fits measured in `ours` episodes and in the mapper's tests: (old
+    /// pose, aligned pose) of objects that had not moved and of objects
+    /// that had.
+    #[test]
+    fn motion_needs_more_matches_or_a_much_tighter_fit() {
+        let params = TrackingParams::for_voxel(0.04);
+        let still = [
+            ("painting", fit(28, 47, 5.7), fit(30, 57, 3.6)),
+            ("dining table", fit(40, 66, 5.3), fit(43, 63, 6.1)),
+            ("dining table again", fit(31, 68, 7.1), fit(38, 74, 8.5)),
+            ("television", fit(61, 133, 8.8), fit(68, 133, 7.1)),
+            ("painting, far", fit(185, 366, 18.3), fit(193, 371, 9.8)),
+            ("shelf", fit(132, 225, 4.4), fit(114, 161, 3.3)),
+            ("cabinet", fit(65, 115, 4.1), fit(70, 96, 4.0)),
+        ];
+        for (what, before, after) in still {
+            assert!(!after.shows_motion_from(&before, &params), "{what}");
+        }
+        let moved = [
+            ("pushed chair", fit(1, 37, 3.3), fit(51, 55, 7.0)),
+            ("box moved 10 cm", fit(50, 136, 8.9), fit(180, 204, 5.9)),
+            ("box sliding sideways", fit(90, 90, 1.8), fit(169, 172, 1.7)),
+            (
+                "box sliding, same matches",
+                fit(191, 199, 11.5),
+                fit(191, 255, 1.3),
+            ),
+            (
+                "box sliding, one match less",
+                fit(188, 190, 8.8),
+                fit(187, 241, 3.3),
+            ),
+        ];
+        for (what, before, after) in moved {
+            assert!(after.shows_motion_from(&before, &params), "{what}");
+        }
+    }
 
     /// Points and normals of the three visible faces of a unit-ish box corner.
     fn corner_model() -> Vec<(Point3<f32>, Vector3<f32>)> {

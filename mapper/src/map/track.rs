@@ -332,25 +332,43 @@ impl Map {
             &params,
         );
         let fit = evaluate(&model, &found, &view, &params);
-        if fit.inliers < params.min_inliers {
-            return Err(TrackingFailure::TooFewInliers {
+        let before = evaluate(&model, &old, &view, &params);
+        let failure = if fit.inliers < params.min_inliers {
+            Some(TrackingFailure::TooFewInliers {
                 inliers: fit.inliers,
-            });
-        }
-        if fit.inlier_ratio() < params.min_inlier_ratio || fit.rmse_m > params.max_rmse_m {
-            return Err(TrackingFailure::PoorFit {
+            })
+        } else if fit.inlier_ratio() < params.min_inlier_ratio || fit.rmse_m > params.max_rmse_m {
+            Some(TrackingFailure::PoorFit {
                 inlier_ratio: fit.inlier_ratio(),
                 rmse_m: fit.rmse_m,
-            });
+            })
+        } else {
+            None
+        };
+        if let Some(failure) = failure {
+            // An object that only disagreed with the frame, whose old pose
+            // fits the segment about as well as anything alignment found, has
+            // not been shown to move: its model is what falls short (a part
+            // never seen before, a ghost not yet carved). It keeps its
+            // segment, so the model learns from it; released, the segment
+            // would become a new object that the old model hides from the
+            // next frame's association, a new one every frame.
+            let stays = trigger == TrackingTrigger::Residual
+                && !fit.shows_motion_from(&before, &params)
+                && before.inliers >= params.min_inliers
+                && before.inlier_ratio() >= 0.5 * params.min_inlier_ratio;
+            if !stays {
+                return Err(failure);
+            }
+            matches[chosen] = Some(id.0);
+            return Ok(TrackingOutcome::Unmoved);
         }
         matches[chosen] = Some(id.0);
-        let before = evaluate(&model, &old, &view, &params);
         let (translation_m, rotation_deg) = motion_size(&(old.inverse() * found));
         let small =
             translation_m < params.min_translation_m && rotation_deg < params.min_rotation_deg;
-        // The old pose explaining the frame as well is no evidence of motion.
-        let no_better =
-            before.inlier_ratio() >= fit.inlier_ratio() - 0.02 && before.rmse_m <= fit.rmse_m * 1.2;
+        // The old pose explaining the frame about as well is no evidence of motion.
+        let no_better = !fit.shows_motion_from(&before, &params);
         if small || no_better {
             return Ok(TrackingOutcome::Unmoved);
         }
