@@ -6,6 +6,14 @@
 //! voxel seen clearly in front of another surface is free space, which clears
 //! ghosts of an object that moved away. Voxels behind the measured surface
 //! (occluded) are never touched.
+//!
+//! Carving goes further than TSDF++'s "free beyond the truncation band":
+//! within the band of the surface seen, a voxel that claims to be inside its
+//! object (negative distance) while the pixel sees past its centre is
+//! contradicted too. Without this, a ghost less than a truncation distance in
+//! front of another surface (the rim of a shelf's opening smeared over it by
+//! grazing views, a panel that is gone) is never cleared, hides what is
+//! behind it from association, and every frame makes a new object of it.
 
 use nalgebra::{Point3, Vector3};
 use rustc_hash::{FxHashMap, FxHashSet};
@@ -29,6 +37,10 @@ pub struct IntegrationParams {
     pub min_depth_m: f32,
     /// Depths above this are ignored.
     pub max_depth_m: f32,
+    /// How far in front of the surface a pixel sees a voxel's centre must be
+    /// for that pixel to contradict the voxel claiming to be inside its
+    /// object (pixel footprint and depth noise); see [`integrate`].
+    pub free_space_margin_m: f32,
 }
 
 impl IntegrationParams {
@@ -295,12 +307,17 @@ pub fn integrate(
                                 };
                             fuse(&mut voxels[o], sdf.min(trunc), w, params.max_weight);
                             block_updates += 1;
-                        } else if carve && exists && rough > trunc && pixel.may_carve {
+                        } else if carve && exists && rough > params.free_space_margin_m {
                             let voxel = &mut voxels[o];
-                            // Carving clears known surface; it never creates
-                            // knowledge.
-                            if voxel.weight > 0.0 {
-                                fuse(voxel, trunc, 1.0, params.max_weight);
+                            // Free beyond the band of the surface seen; within
+                            // it only a voxel inside its object is contradicted
+                            // (a positive one may lie near its own surface,
+                            // beside the ray). Carving clears known surface; it
+                            // never creates knowledge.
+                            let free = (rough > trunc && pixel.may_carve)
+                                || (voxel.sdf < 0.0 && pixel.may_carve_near);
+                            if voxel.weight > 0.0 && free {
+                                fuse(voxel, rough.min(trunc), 1.0, params.max_weight);
                                 block_updates += 1;
                             }
                         }

@@ -84,6 +84,7 @@ impl Default for MapConfig {
                 max_weight: 50.0,
                 min_depth_m: 0.1,
                 max_depth_m: 8.0,
+                free_space_margin_m: voxel_size_m,
             },
             association: AssociationParams {
                 min_segment_px: 20,
@@ -283,7 +284,9 @@ impl Map {
         for (segment, matched_id) in segments.iter().zip(&matches) {
             let id = match matched_id {
                 Some(id) => ObjectId(*id),
-                None if segment.pixels.len() >= self.config.association.new_object_min_px => {
+                None if segment.pixels.len() >= self.config.association.new_object_min_px
+                    && !self.seen_through_the_map(segment, &rendered, frame.depth_m) =>
+                {
                     self.add_object(segment, frame)
                 }
                 None => continue,
@@ -371,6 +374,27 @@ impl Map {
             book_keeping_s: integrated_at.elapsed().as_secs_f64(),
         };
         Ok(owner)
+    }
+
+    /// Whether most of `segment` is seen through a surface the map renders
+    /// in front of it (measured farther by more than the association
+    /// tolerance). Such a surface is a ghost, or an object that moved away:
+    /// carving clears it over the next frames, while a new object made now
+    /// would lie behind it, hidden from the next frame's association, and
+    /// a new one would be made every frame until then. So the segment waits.
+    fn seen_through_the_map(
+        &self,
+        segment: &Segment,
+        rendered: &RenderTarget,
+        depth_m: &[f32],
+    ) -> bool {
+        let tolerance = self.config.association.depth_tolerance_m;
+        let behind = segment
+            .pixels
+            .iter()
+            .filter(|&&px| rendered.ids[px] != 0 && depth_m[px] > rendered.depth_m[px] + tolerance)
+            .count();
+        2 * behind > segment.pixels.len()
     }
 
     fn add_object(&mut self, segment: &Segment, frame: &Frame<'_>) -> ObjectId {

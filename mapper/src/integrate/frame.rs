@@ -16,6 +16,10 @@ pub(super) struct PixelRecord {
     pub(super) cos: f32,
     /// The pixel may carve other surfaces ([`mark_carving_pixels`]).
     pub(super) may_carve: bool,
+    /// The pixel may also contradict voxels within the truncation band of
+    /// its surface: no neighbour is nearer by more than
+    /// [`IntegrationParams::free_space_margin_m`] ([`mark_carving_pixels`]).
+    pub(super) may_carve_near: bool,
     /// Depth may be interpolated between this pixel and its right, lower and
     /// lower-right neighbours: all four usable and on one smooth surface
     /// (within one truncation distance).
@@ -50,6 +54,7 @@ impl FramePixels {
             depth: if params.valid_depth(d) { d } else { f32::NAN },
             cos: 1.0,
             may_carve: false,
+            may_carve_near: false,
             smooth_quad: false,
         }));
         write_normal_cosines(k, &self.points, params, &mut self.records);
@@ -59,6 +64,7 @@ impl FramePixels {
             depth: f32::NAN,
             cos: 1.0,
             may_carve: false,
+            may_carve_near: false,
             smooth_quad: false,
         });
     }
@@ -166,7 +172,8 @@ fn write_normal_cosines(
 }
 
 /// Marks the pixels that may carve other surfaces: those with no neighbour
-/// nearer by more than the truncation distance. A pixel just outside an
+/// nearer by more than the truncation distance (and, to contradict voxels
+/// within the band, by more than the free-space margin). A pixel just outside an
 /// object's silhouette sees the far background through the object's edge
 /// voxels; carving from it would erode every object by up to a pixel per
 /// view.
@@ -207,6 +214,7 @@ fn mark_carving_pixels(
             let d = records[i].depth;
             let nearest = row_min[i].min(row_min[above + u]).min(row_min[below + u]);
             records[i].may_carve = !d.is_nan() && nearest >= d - params.truncation_m;
+            records[i].may_carve_near = !d.is_nan() && nearest >= d - params.free_space_margin_m;
         }
     }
 }

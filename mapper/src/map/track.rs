@@ -152,9 +152,10 @@ impl Map {
     }
 
     /// Tracks the objects that may have moved; claims the segment each one
-    /// was found on (`matches`). When tracking fails, the object gives up
-    /// the segments association gave it (they may become new objects, but
-    /// never smear into its model). Returns the notified objects whose
+    /// was found on (`matches`). When tracking fails, a notified object
+    /// gives up the segments association gave it (they may become new
+    /// objects, but never smear into its model); an object that only
+    /// disagreed keeps them. Returns the notified objects whose
     /// tracking failed: they are not integrated at all this frame, so the
     /// model survives a bad report intact; the others are still carved,
     /// which clears ghosts.
@@ -212,10 +213,16 @@ impl Map {
             let outcome = match tracked {
                 Ok(outcome) => outcome,
                 Err(failure) => {
-                    for m in matches.iter_mut().filter(|m| **m == Some(id.0)) {
-                        *m = None;
-                    }
+                    // A notified object moved, so what association matched to
+                    // its old pose is stale. An object that only disagreed
+                    // keeps it: association counts only pixels where the
+                    // model at its old pose has the measured depth, evidence
+                    // that it is still there; released, those segments would
+                    // become copies of it.
                     if trigger == TrackingTrigger::Notified {
+                        for m in matches.iter_mut().filter(|m| **m == Some(id.0)) {
+                            *m = None;
+                        }
                         failed.insert(id);
                     }
                     TrackingOutcome::Failed(failure)
