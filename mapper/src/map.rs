@@ -4,7 +4,7 @@
 
 mod track;
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 
 use nalgebra::{Point3, Translation3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
@@ -99,6 +99,17 @@ impl Default for MapConfig {
             miss_min_rendered_px: 50,
         }
     }
+}
+
+/// What becomes of a segment association matched to no object
+/// (`Map::place_unmatched`).
+enum Placement {
+    /// A new object.
+    New,
+    /// The object already holding most of it.
+    Existing(ObjectId),
+    /// Nothing this frame.
+    Wait,
 }
 
 /// One object of the map.
@@ -284,10 +295,12 @@ impl Map {
         for (segment, matched_id) in segments.iter().zip(&matches) {
             let id = match matched_id {
                 Some(id) => ObjectId(*id),
-                None if segment.pixels.len() >= self.config.association.new_object_min_px
-                    && !self.seen_through_the_map(segment, &rendered, frame.depth_m) =>
-                {
-                    self.add_object(segment, frame)
+                None if segment.pixels.len() >= self.config.association.new_object_min_px => {
+                    match self.place_unmatched(segment, &rendered, frame.depth_m, &failed) {
+                        Placement::New => self.add_object(segment, frame),
+                        Placement::Existing(id) => id,
+                        Placement::Wait => continue,
+                    }
                 }
                 None => continue,
             };
@@ -376,25 +389,55 @@ impl Map {
         Ok(owner)
     }
 
-    /// Whether most of `segment` is seen through a surface the map renders
-    /// in front of it (measured farther by more than the association
-    /// tolerance). Such a surface is a ghost, or an object that moved away:
-    /// carving clears it over the next frames, while a new object made now
-    /// would lie behind it, hidden from the next frame's association, and
-    /// a new one would be made every frame until then. So the segment waits.
-    fn seen_through_the_map(
+    /// Where an unmatched segment goes ([`Placement`]). Mostly seen
+    /// through a surface the map renders in front of it (measured farther by
+    /// more than the association tolerance), it waits: that surface is a
+    /// ghost or an object that moved away, which carving clears over the
+    /// next frames, while a new object made now would lie behind it, hidden
+    /// from the next frame's association, and a new one would be made every
+    /// frame until then. Mostly on surfaces of the map with the measured
+    /// depth, spread over objects none of which it matches alone, it goes to
+    /// the one holding most of it: the map already has it, in pieces, and a
+    /// new object would be one more piece, every frame. Notified objects
+    /// whose tracking failed (`failed`) hold nothing: their segments were
+    /// taken from them on purpose.
+    fn place_unmatched(
         &self,
         segment: &Segment,
         rendered: &RenderTarget,
         depth_m: &[f32],
-    ) -> bool {
+        failed: &BTreeSet<ObjectId>,
+    ) -> Placement {
         let tolerance = self.config.association.depth_tolerance_m;
-        let behind = segment
-            .pixels
-            .iter()
-            .filter(|&&px| rendered.ids[px] != 0 && depth_m[px] > rendered.depth_m[px] + tolerance)
-            .count();
-        2 * behind > segment.pixels.len()
+        let (mut behind, mut on_map) = (0, 0);
+        let mut holders: BTreeMap<u32, usize> = BTreeMap::new();
+        for &px in &segment.pixels {
+            let id = rendered.ids[px];
+            if id == 0 || failed.contains(&ObjectId(id)) {
+                continue;
+            }
+            let (d, r) = (depth_m[px], rendered.depth_m[px]);
+            if d > r + tolerance {
+                behind += 1;
+            } else if (d - r).abs() <= tolerance {
+                on_map += 1;
+                *holders.entry(id).or_default() += 1;
+            }
+        }
+        let n = segment.pixels.len();
+        if 2 * behind > n {
+            return Placement::Wait;
+        }
+        if 2 * on_map >= n {
+            let holder = holders
+                .into_iter()
+                .max_by_key(|&(id, count)| (count, std::cmp::Reverse(id)))
+                .map(|(id, _)| ObjectId(id));
+            if let Some(id) = holder {
+                return Placement::Existing(id);
+            }
+        }
+        Placement::New
     }
 
     fn add_object(&mut self, segment: &Segment, frame: &Frame<'_>) -> ObjectId {

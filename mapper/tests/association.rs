@@ -368,3 +368,60 @@ fn ids_stay_consistent_with_geometric_segmentation() {
         "spurious objects from the background"
     );
 }
+
+/// A segment that the map already holds in pieces, none of which it matches
+/// alone (here four boxes under one instance id, as a mask that merges them
+/// gives; in a room, an object whose model was split over several map
+/// objects), goes to the piece holding most of it instead of becoming a new
+/// object. As a new object it was one more piece, hidden behind the others
+/// in the next frame's rendering, and a new one was made every frame.
+#[test]
+fn a_segment_the_map_holds_in_pieces_makes_no_new_object() {
+    let boxes: Vec<Shape> = (0..4)
+        .map(|i| Shape::Box {
+            t_world_box: Isometry3::translation(0.0, -0.6 + 0.4 * i as f32, 0.15),
+            half: Vector3::new(0.15, 0.15, 0.15),
+            id: 21 + i,
+        })
+        .collect();
+    let eye = Point3::new(2.0, 0.0, 1.2);
+    let target = Point3::new(0.0, 0.0, 0.15);
+    let mut map = Map::new(MapConfig::default());
+    for dy in [-0.3, 0.0, 0.3] {
+        let pose = look_at(Point3::new(eye.x, dy, eye.z), target);
+        map.integrate(&OwnedFrame::capture(&boxes, pose, k128()).frame())
+            .unwrap();
+    }
+    assert_eq!(map.objects().len(), 4, "four boxes mapped");
+    let merged: Vec<Shape> = boxes
+        .iter()
+        .map(|shape| match *shape {
+            Shape::Box {
+                t_world_box, half, ..
+            } => Shape::Box {
+                t_world_box,
+                half,
+                id: 21,
+            },
+            other => other,
+        })
+        .collect();
+    let frame = OwnedFrame::capture(&merged, look_at(eye, target), k128());
+    for _ in 0..5 {
+        let owner = map.integrate(&frame.frame()).unwrap();
+        assert!(
+            frame
+                .ids
+                .iter()
+                .zip(&owner)
+                .all(|(&i, &o)| i == 0 || o != 0),
+            "every pixel of the merged segment has an owner"
+        );
+    }
+    assert_eq!(
+        map.objects().len(),
+        4,
+        "{:?}",
+        map.objects().keys().collect::<Vec<_>>()
+    );
+}
