@@ -354,12 +354,12 @@ impl Map {
         };
         if let Some(failure) = failure {
             // An object that only disagreed with the frame, whose old pose
-            // fits the segment about as well as anything alignment found, has
-            // not been shown to move: its model is what falls short (a part
-            // never seen before, a ghost not yet carved). It keeps its
-            // segment, so the model learns from it; released, the segment
-            // would become a new object that the old model hides from the
-            // next frame's association, a new one every frame.
+            // fits the segment about as well as anything alignment found
+            // (and at least half as well as acceptance asks), has not been
+            // shown to move: its model is what falls short (a part never
+            // seen before, a ghost not yet carved). It stays and claims the
+            // segment it was aligned to, so the model learns from it; left
+            // unclaimed, that segment would become a copy of the object.
             let stays = trigger == TrackingTrigger::Residual
                 && !fit.shows_motion_from(&before, &params)
                 && before.inliers >= params.min_inliers
