@@ -115,19 +115,13 @@ impl CpuPolicy {
             at += len;
         }
         for (mlp, &dim) in self.vectors.iter().zip(&layout.vector_dims) {
-            let hidden = mlp[0].forward(&observation[at..at + dim], relu);
-            features.extend(mlp[1].forward(&hidden, relu));
+            let inner = mlp[0].forward(&observation[at..at + dim], relu);
+            features.extend(mlp[1].forward(&inner, relu));
             at += dim;
         }
         let hidden = self.gru.as_ref().map(|gru| {
-            let zeros;
-            let before = match hidden {
-                Some(h) => h,
-                None => {
-                    zeros = vec![0.0; gru.size()];
-                    &zeros
-                }
-            };
+            let zeros = vec![0.0; gru.size()];
+            let before = hidden.unwrap_or(&zeros);
             assert_eq!(before.len(), gru.size(), "GRU state length");
             gru.step(&features, before)
         });
