@@ -425,14 +425,15 @@ fn policy_pass(
     device: &Device,
     inference: Inference,
 ) {
-    if let (Some(cpu), [alone]) = (cpu, observations) {
-        std::hint::black_box(cpu.forward(&alone.features, &alone.action_mask, None));
-        return;
-    }
     if let Some(cpu) = cpu {
-        observations.par_iter().for_each(|o| {
+        let pass = |o: &Observation| {
             std::hint::black_box(cpu.forward(&o.features, &o.action_mask, None));
-        });
+        };
+        // One observation stays on this thread, as in the actor's `forward_batch`.
+        match observations {
+            [alone] => pass(alone),
+            several => several.par_iter().for_each(pass),
+        }
         return;
     }
     let pass = |batch: &[&Observation]| {

@@ -352,6 +352,8 @@ impl Map {
         } else {
             None
         };
+        // The old pose explaining the frame about as well is no evidence of motion.
+        let shows_motion = fit.shows_motion_from(&before, &params);
         if let Some(failure) = failure {
             // An object that only disagreed with the frame, whose old pose
             // fits the segment about as well as anything alignment found
@@ -361,22 +363,18 @@ impl Map {
             // segment it was aligned to, so the model learns from it; left
             // unclaimed, that segment would become a copy of the object.
             let stays = trigger == TrackingTrigger::Residual
-                && !fit.shows_motion_from(&before, &params)
+                && !shows_motion
                 && before.inliers >= params.min_inliers
                 && before.inlier_ratio() >= 0.5 * params.min_inlier_ratio;
             if !stays {
                 return Err(failure);
             }
-            matches[chosen] = Some(id.0);
-            return Ok(TrackingOutcome::Unmoved);
         }
         matches[chosen] = Some(id.0);
         let (translation_m, rotation_deg) = motion_size(&(old.inverse() * found));
         let small =
             translation_m < params.min_translation_m && rotation_deg < params.min_rotation_deg;
-        // The old pose explaining the frame about as well is no evidence of motion.
-        let no_better = !fit.shows_motion_from(&before, &params);
-        if small || no_better {
+        if small || !shows_motion {
             return Ok(TrackingOutcome::Unmoved);
         }
         let t_world_object = frame.t_world_camera * found;
