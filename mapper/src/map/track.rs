@@ -10,8 +10,8 @@ use crate::association::Segment;
 use crate::camera::{Frame, Intrinsics};
 use crate::render::{raycast_layer, Pixels, RenderTarget};
 use crate::tracking::{
-    align, evaluate, measured_normals, motion_size, refine_against_sdf, SegmentView,
-    TrackingFailure, TrackingOutcome, TrackingReport, TrackingTrigger,
+    align, evaluate, measured_normals, motion_size, refine_against_sdf, Fit, MotionModel,
+    SegmentView, TrackingFailure, TrackingOutcome, TrackingParams, TrackingReport, TrackingTrigger,
 };
 use crate::Pose;
 
@@ -26,6 +26,23 @@ fn centroid(
         (sum + p.coords, n + 1)
     });
     (n > 0).then(|| Point3::from(sum / n as f32))
+}
+
+/// Why the fit of an aligned pose is not accepted, if it is not: too few
+/// inliers, too small a share of the visible model, or too large an RMSE.
+fn acceptance_failure(fit: &Fit, params: &TrackingParams) -> Option<TrackingFailure> {
+    if fit.inliers < params.min_inliers {
+        Some(TrackingFailure::TooFewInliers {
+            inliers: fit.inliers,
+        })
+    } else if fit.inlier_ratio() < params.min_inlier_ratio || fit.rmse_m > params.max_rmse_m {
+        Some(TrackingFailure::PoorFit {
+            inlier_ratio: fit.inlier_ratio(),
+            rmse_m: fit.rmse_m,
+        })
+    } else {
+        None
+    }
 }
 
 /// How many of an object's rendered pixels agree with the measured depth
@@ -329,29 +346,43 @@ impl Map {
             mask: &mask,
             normals: &normals,
         };
-        let guess = Translation3::from(shift) * predicted;
-        let coarse = align(&model, &guess, &view, &params);
-        let found = refine_against_sdf(
-            &object.volume,
-            &coarse,
-            &view,
-            self.config.integration.truncation_m,
-            &params,
-        );
-        let fit = evaluate(&model, &found, &view, &params);
-        let before = evaluate(&model, &old, &view, &params);
-        let failure = if fit.inliers < params.min_inliers {
-            Some(TrackingFailure::TooFewInliers {
-                inliers: fit.inliers,
-            })
-        } else if fit.inlier_ratio() < params.min_inlier_ratio || fit.rmse_m > params.max_rmse_m {
-            Some(TrackingFailure::PoorFit {
-                inlier_ratio: fit.inlier_ratio(),
-                rmse_m: fit.rmse_m,
-            })
-        } else {
-            None
+        let align_within = |motion, guess: &Pose| {
+            let coarse = align(&model, guess, &view, &params, motion);
+            let found = refine_against_sdf(
+                &object.volume,
+                &coarse,
+                &view,
+                self.config.integration.truncation_m,
+                &params,
+                motion,
+            );
+            (found, evaluate(&model, &found, &view, &params))
         };
+        // A motion on a horizontal support first, from the centroids'
+        // horizontal offset (a segment's centroid lies off its model's where
+        // the views differ, which must not lift a sliding object). Any
+        // motion only where none fits and the robot moved the object (it
+        // may have tipped over or fallen), or where no up direction is
+        // known. An object that only disagreed with the frame was not
+        // touched: its fit stays planar, which spares a second alignment
+        // in most tracking runs and gives still objects one freedom less to
+        // slide into a better-looking fit.
+        let planar = params.world_up.map(|up| {
+            let up = t_camera_world.rotation * up.normalize();
+            let level = Translation3::from(shift - up * up.dot(&shift)) * predicted;
+            align_within(MotionModel::Planar { up }, &level)
+        });
+        let (found, fit) = match planar {
+            Some(planar)
+                if trigger == TrackingTrigger::Residual
+                    || acceptance_failure(&planar.1, &params).is_none() =>
+            {
+                planar
+            }
+            _ => align_within(MotionModel::Free, &(Translation3::from(shift) * predicted)),
+        };
+        let before = evaluate(&model, &old, &view, &params);
+        let failure = acceptance_failure(&fit, &params);
         // The old pose explaining the frame about as well is no evidence of motion.
         let shows_motion = fit.shows_motion_from(&before, &params);
         if let Some(failure) = failure {
