@@ -51,8 +51,8 @@ pub struct TrackingParams {
     /// that slides and turns the object on a horizontal support
     /// ([`MotionModel::Planar`]); for an object the caller said it moved
     /// ([`crate::Map::notify_moved`]) it allows any motion when no such
-    /// motion fits (it tipped over or fell). `None` always allows any
-    /// motion.
+    /// motion fits (it tipped over or fell). `None` (or a vector of about
+    /// zero length, which names no direction) always allows any motion.
     pub world_up: Option<Vector3<f32>>,
 }
 
