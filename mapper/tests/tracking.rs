@@ -5,7 +5,9 @@
 mod common;
 
 use common::{k128, look_at, orbit, OwnedFrame, Shape};
-use mapper::{Intrinsics, Map, MapConfig, ObjectId, Pose, TrackingFailure, TrackingOutcome};
+use mapper::{
+    Intrinsics, Map, MapConfig, ObjectId, Pose, TrackingFailure, TrackingOutcome, TrackingReport,
+};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 
 const BOX_CENTRE: Point3<f32> = Point3::new(0.0, 0.0, 0.15);
@@ -70,6 +72,11 @@ fn mapped_scene() -> (Map, [ObjectId; 3]) {
         assert!(map.last_tracking().is_empty(), "nothing moved yet");
     }
     (map, ids.map(|i| i.expect("every object mapped")))
+}
+
+/// What tracking did with object `id` in the map's last frame, if it ran.
+fn tracking_of(map: &Map, id: ObjectId) -> Option<TrackingReport> {
+    map.last_tracking().iter().find(|r| r.object == id).copied()
 }
 
 /// Rotation angle (degrees) and translation (metres) between two poses.
@@ -154,11 +161,7 @@ fn a_jump_beyond_the_gate_fails_without_touching_the_model() {
     let jumped = Isometry3::translation(BOX_CENTRE.x + 0.5, BOX_CENTRE.y - 0.1, BOX_CENTRE.z);
     let frame = OwnedFrame::capture(&scene(jumped), views()[0], k128());
     map.integrate(&frame.frame()).unwrap();
-    let report = map
-        .last_tracking()
-        .iter()
-        .find(|r| r.object == box_id)
-        .expect("the notified box was tracked");
+    let report = tracking_of(&map, box_id).expect("the notified box was tracked");
     assert!(
         matches!(
             report.outcome,
@@ -195,11 +198,7 @@ fn a_failure_seen_again_from_a_still_camera_is_not_recomputed() {
     for pose in [still, still, still, still, nudged] {
         let frame = OwnedFrame::capture(&shapes, pose, k128());
         map.integrate(&frame.frame()).unwrap();
-        let report = *map
-            .last_tracking()
-            .iter()
-            .find(|r| r.object == box_id)
-            .expect("the box disagrees with every frame");
+        let report = tracking_of(&map, box_id).expect("the box disagrees with every frame");
         assert_eq!(report.trigger, mapper::TrackingTrigger::Residual);
         assert!(
             matches!(report.outcome, TrackingOutcome::Failed(_)),
@@ -416,7 +415,8 @@ fn a_pushed_chair_seen_from_the_front_slides_on_the_floor() {
             frame.ids.iter().filter(|&&i| i == 1).count(),
             map.last_tracking()
         );
-        (map.last_tracking()[0].outcome, centre_error, rotation_deg)
+        let report = tracking_of(&map, id).expect("the notified chair was tracked");
+        (report.outcome, centre_error, rotation_deg)
     };
     let mut free = MapConfig::default();
     free.tracking.world_up = None;
@@ -449,11 +449,7 @@ fn a_pushed_box_that_tipped_is_followed_by_a_free_alignment() {
     map.notify_moved(box_id, None).unwrap();
     let frame = OwnedFrame::capture(&scene(tipped), views()[9], k128());
     map.integrate(&frame.frame()).unwrap();
-    let report = map
-        .last_tracking()
-        .iter()
-        .find(|r| r.object == box_id)
-        .copied();
+    let report = tracking_of(&map, box_id);
     let after = map.object(box_id).unwrap().t_world_object;
     let (rotation_deg, translation_m) = pose_error(&(Isometry3::from(tip) * before), &after);
     eprintln!("{report:?}: error {translation_m:.4} m, {rotation_deg:.2} deg");
