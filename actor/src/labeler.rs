@@ -22,7 +22,7 @@
 
 use std::collections::BTreeMap;
 
-use mapper::{Affordance, Intrinsics, Map, MapError, ObjectId, ObjectLabels, Pose};
+use mapper::{Affordance, Intrinsics, Map, MapError, ObjectId, Pose};
 use nalgebra::Point3;
 use proto::{FrameBatch, LABEL_NEGATIVE, LABEL_POSITIVE, LABEL_UNKNOWN};
 
@@ -88,6 +88,7 @@ pub fn confidence_labels(
     for (frame, plane) in frames.iter().zip(probabilities) {
         let mut values: BTreeMap<u32, Vec<f32>> = BTreeMap::new();
         for (&id, &p) in frame.map_ids.iter().zip(plane) {
+            let id = map.current_id(ObjectId(id)).0;
             if extremes.contains_key(&id) {
                 values.entry(id).or_default().push(p);
             }
@@ -128,18 +129,12 @@ pub fn apply_confidence_labels(
 /// Per frame, `affordances.len()` label planes from the labels stored on
 /// the map's objects (interaction outcomes, else confidence labels): each
 /// labelled object's mask in each frame gets its label; everything else is
-/// [`LABEL_UNKNOWN`]. `remembered` holds the records of objects the map
-/// has since deleted (an object carried away stops being seen).
-pub fn map_labels(
-    map: &Map,
-    remembered: &BTreeMap<u32, ObjectLabels>,
-    frames: &[EpisodeFrame],
-    affordances: &[Affordance],
-) -> Vec<Vec<u8>> {
+/// [`LABEL_UNKNOWN`]. A frame's ids reach their objects through
+/// [`Map::labels_of`]: also objects merged into another since, and objects
+/// deleted since (an object carried away stops being seen).
+pub fn map_labels(map: &Map, frames: &[EpisodeFrame], affordances: &[Affordance]) -> Vec<Vec<u8>> {
     let label_of = |id: u32, affordance: Affordance| {
-        map.object(ObjectId(id))
-            .map(|o| &o.labels)
-            .or_else(|| remembered.get(&id))
+        map.labels_of(ObjectId(id))
             .and_then(|labels| labels.label(affordance))
             .map_or(LABEL_UNKNOWN, |l| {
                 if l {

@@ -119,12 +119,7 @@ fn scripted_episode() -> Episode {
 #[test]
 fn the_picked_object_is_labelled_positive_with_its_full_mask_in_every_frame_it_is_visible() {
     let e = scripted_episode();
-    let labels = map_labels(
-        &e.map,
-        &Default::default(),
-        &e.frames,
-        &[Affordance::PickUp, Affordance::Push],
-    );
+    let labels = map_labels(&e.map, &e.frames, &[Affordance::PickUp, Affordance::Push]);
     let pixels = e.frames[0].depth_m.len();
     let mut checked = 0;
     for (f, (planes, truth)) in labels.iter().zip(&e.truth).enumerate() {

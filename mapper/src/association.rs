@@ -55,7 +55,18 @@ pub fn extract_segments(
     segments
 }
 
-/// For each segment, the map object id it shows, or `None`.
+/// What association found for a frame's segments.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Association {
+    /// For each segment, the map object id it shows, or `None`.
+    pub matches: Vec<Option<u32>>,
+    /// For each segment, every object that passes the test on it on its
+    /// own, best IoU first (the match, when there is one, is among them).
+    pub candidates: Vec<Vec<u32>>,
+}
+
+/// For each segment, the map object id it shows ([`Association::matches`]),
+/// and every object that could have been it ([`Association::candidates`]).
 ///
 /// Candidate pairs pass on IoU or on coverage; the best IoU is taken first.
 /// A segment gets at most one object; an object may take several segments
@@ -65,14 +76,14 @@ pub fn associate(
     rendered: &RenderTarget,
     depth_m: &[f32],
     params: &AssociationParams,
-) -> Vec<Option<u32>> {
+) -> Association {
     let mut rendered_px: FxHashMap<u32, usize> = FxHashMap::default();
     for &id in &rendered.ids {
         if id != 0 {
             *rendered_px.entry(id).or_default() += 1;
         }
     }
-    let mut candidates = Vec::new();
+    let mut pairs = Vec::new();
     for (s, segment) in segments.iter().enumerate() {
         let mut overlap: FxHashMap<u32, usize> = FxHashMap::default();
         for &px in &segment.pixels {
@@ -86,16 +97,21 @@ pub fn associate(
             let iou = inter as f32 / union as f32;
             let coverage = inter as f32 / segment.pixels.len() as f32;
             if iou >= params.min_iou || coverage >= params.min_coverage {
-                candidates.push((iou, s, id));
+                pairs.push((iou, s, id));
             }
         }
     }
-    candidates.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+    pairs.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
     let mut matches = vec![None; segments.len()];
-    for (_, s, id) in candidates {
+    let mut candidates = vec![Vec::new(); segments.len()];
+    for (_, s, id) in pairs {
         if matches[s].is_none() {
             matches[s] = Some(id);
         }
+        candidates[s].push(id);
     }
-    matches
+    Association {
+        matches,
+        candidates,
+    }
 }

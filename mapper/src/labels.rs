@@ -43,6 +43,18 @@ impl ObjectLabels {
         r.last = Some(outcome);
     }
 
+    /// Adds another record of the same object (a copy merged into it): the
+    /// attempts add up; this record's last outcome and confidence label
+    /// stay, the other's fill in where this has none.
+    pub fn absorb(&mut self, other: &ObjectLabels) {
+        for (mine, theirs) in self.records.iter_mut().zip(&other.records) {
+            mine.successes += theirs.successes;
+            mine.failures += theirs.failures;
+            mine.last = mine.last.or(theirs.last);
+            mine.confidence_label = mine.confidence_label.or(theirs.confidence_label);
+        }
+    }
+
     /// Sets (or clears) the label from annotation by confidence.
     pub fn set_confidence_label(&mut self, affordance: Affordance, label: Option<bool>) {
         self.records[affordance as usize].confidence_label = label;

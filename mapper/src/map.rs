@@ -2,6 +2,7 @@
 //! and the per-frame pipeline (segments → render → associate → integrate →
 //! book-keeping).
 
+mod merge;
 mod track;
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -9,7 +10,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use nalgebra::{Point3, Translation3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
-use crate::association::{associate, extract_segments, AssociationParams, Segment};
+use crate::association::{associate, extract_segments, Association, AssociationParams, Segment};
 use crate::camera::{Frame, Intrinsics};
 use crate::integrate::{
     integrate, pixels_by_label, DepthView, FramePixels, IntegrationParams, Owned,
@@ -178,6 +179,10 @@ pub struct Map {
     /// The last frame's pixels prepared for integration; kept so that each
     /// frame refills its buffers instead of allocating them afresh.
     frame_pixels: FramePixels,
+    /// Copies merged into another object: copy → the object it became.
+    merged_into: BTreeMap<ObjectId, ObjectId>,
+    /// The labels of deleted objects that had any.
+    retired: BTreeMap<ObjectId, ObjectLabels>,
 }
 
 fn check_len(what: &'static str, got: usize, k: &Intrinsics) -> Result<(), MapError> {
@@ -206,6 +211,8 @@ impl Map {
             last_tracking: Vec::new(),
             failed_views: BTreeMap::new(),
             frame_pixels: FramePixels::default(),
+            merged_into: BTreeMap::new(),
+            retired: BTreeMap::new(),
         }
     }
 
@@ -279,7 +286,10 @@ impl Map {
         let far_m = self.visible_depth_limits(frame);
         let rendered = self.render_objects(&frame.t_world_camera, &k, Some(&far_m));
         let rendered_at = std::time::Instant::now();
-        let mut matches = associate(
+        let Association {
+            mut matches,
+            candidates,
+        } = associate(
             &segments,
             &rendered,
             frame.depth_m,
@@ -289,6 +299,7 @@ impl Map {
         let associated_at = std::time::Instant::now();
         let failed = self.track_objects(frame, &segments, &mut matches, &rendered);
         let tracked_at = std::time::Instant::now();
+        let merged = self.merge_copies(&candidates, &matches, &failed);
 
         let mut owner = vec![0u32; k.pixels()];
         let mut matched: BTreeMap<ObjectId, usize> = BTreeMap::new();
@@ -316,15 +327,14 @@ impl Map {
         }
 
         let new_objects_at = std::time::Instant::now();
-        let visible: BTreeMap<u32, usize> =
-            rendered
-                .ids
-                .iter()
-                .filter(|&&i| i != 0)
-                .fold(BTreeMap::new(), |mut m, &i| {
-                    *m.entry(i).or_default() += 1;
-                    m
-                });
+        let visible: BTreeMap<u32, usize> = rendered
+            .ids
+            .iter()
+            .filter(|&&i| i != 0 && !merged.contains(&ObjectId(i)))
+            .fold(BTreeMap::new(), |mut m, &i| {
+                *m.entry(i).or_default() += 1;
+                m
+            });
         self.frame_pixels.prepare(&k, frame.depth_m, &params);
         let pixels = &self.frame_pixels;
         let by_owner = pixels_by_label(&owner);
@@ -485,7 +495,17 @@ impl Map {
                 object.misses += 1;
             }
         }
-        self.objects.retain(|_, o| o.misses <= max_misses);
+        let deleted: Vec<ObjectId> = self
+            .objects
+            .values()
+            .filter(|o| o.misses > max_misses)
+            .map(|o| o.id)
+            .collect();
+        for id in deleted {
+            if let Some(object) = self.objects.remove(&id) {
+                self.retire(id, object.labels);
+            }
+        }
     }
 
     /// The objects not held, placed in a camera, front to back (rendered in

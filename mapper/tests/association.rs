@@ -425,3 +425,84 @@ fn a_segment_the_map_holds_in_pieces_makes_no_new_object() {
         map.objects().keys().collect::<Vec<_>>()
     );
 }
+
+/// The map id instance `instance` got in a frame (the one most of its
+/// pixels got).
+fn id_of(frame: &OwnedFrame, map_ids: &[u32], instance: u32) -> mapper::ObjectId {
+    let mut counts: BTreeMap<u32, usize> = BTreeMap::new();
+    for (&i, &id) in frame.ids.iter().zip(map_ids) {
+        if i == instance && id != 0 {
+            *counts.entry(id).or_default() += 1;
+        }
+    }
+    let (&id, _) = counts
+        .iter()
+        .max_by_key(|(_, &n)| n)
+        .expect("the instance has map ids");
+    mapper::ObjectId(id)
+}
+
+#[test]
+fn two_copies_of_one_object_become_one_that_keeps_both_labels() {
+    use mapper::{Affordance, Outcome};
+    let shapes = scene();
+    let mut map = mapped_scene();
+    let pose = viewpoints()[1];
+    let frame = OwnedFrame::capture(&shapes, pose, k128());
+    let first = id_of(&frame, &map.integrate(&frame.frame()).unwrap(), 13);
+    let at = map.object(first).unwrap().t_world_object;
+    // The first model lifted out of view (a tracking failure's stale copy):
+    // the box's next views make a second object of it.
+    map.set_object_pose(first, Isometry3::translation(0.0, 0.0, 5.0) * at)
+        .unwrap();
+    let mut second = first;
+    for _ in 0..3 {
+        second = id_of(&frame, &map.integrate(&frame.frame()).unwrap(), 13);
+    }
+    assert_ne!(second, first, "the box was mapped a second time");
+    map.record_interaction(first, Affordance::PickUp, Outcome::Success)
+        .unwrap();
+    map.record_interaction(second, Affordance::Push, Outcome::Failure)
+        .unwrap();
+    // Both copies back on the box: the next frame shows one object.
+    map.set_object_pose(first, at).unwrap();
+    map.integrate(&frame.frame()).unwrap();
+    assert_eq!(map.objects().len(), 3, "one copy is merged into the other");
+    let kept = map.current_id(first);
+    assert_eq!(map.current_id(second), kept);
+    for id in [first, second] {
+        let labels = map.labels_of(id).expect("labels of a merged copy");
+        assert_eq!(labels.label(Affordance::PickUp), Some(true));
+        assert_eq!(labels.label(Affordance::Push), Some(false));
+    }
+    for pose in viewpoints() {
+        let frame = OwnedFrame::capture(&shapes, pose, k128());
+        let map_ids = map.integrate(&frame.frame()).unwrap();
+        if frame.ids.iter().filter(|&&i| i == 13).count() >= 50 {
+            assert_eq!(id_of(&frame, &map_ids, 13), kept);
+        }
+    }
+}
+
+#[test]
+fn a_deleted_object_keeps_its_labels_for_the_frames_that_showed_it() {
+    use mapper::{Affordance, Outcome};
+    let shapes = scene();
+    let mut map = mapped_scene();
+    let pose = viewpoints()[1];
+    let frame = OwnedFrame::capture(&shapes, pose, k128());
+    let id = id_of(&frame, &map.integrate(&frame.frame()).unwrap(), 13);
+    map.record_interaction(id, Affordance::PickUp, Outcome::Failure)
+        .unwrap();
+    // The box is gone (carried away unseen); the map sees it missing.
+    let without: Vec<Shape> = shapes.into_iter().filter(|s| s.id() != 13).collect();
+    let empty = OwnedFrame::capture(&without, pose, k128());
+    for _ in 0..=MapConfig::default().max_misses + 1 {
+        map.integrate(&empty.frame()).unwrap();
+    }
+    assert!(map.object(id).is_none(), "the missing box was deleted");
+    assert_eq!(
+        map.labels_of(id).and_then(|l| l.label(Affordance::PickUp)),
+        Some(false)
+    );
+}

@@ -13,11 +13,10 @@
 //! labels come from those points (the whole segment under the point for
 //! `nomap-seg`, a 0.2 m sphere for `nomap-noseg` and `intexp`).
 
-use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use mapper::{Affordance, Map, MapConfig, ObjectId, ObjectLabels, Outcome as MapOutcome, Pose};
+use mapper::{Affordance, Map, MapConfig, ObjectId, Outcome as MapOutcome, Pose};
 use nalgebra::Point2;
 use proto::{FrameBatch, Method, StatField};
 use rand::rngs::StdRng;
@@ -167,8 +166,6 @@ struct Episode {
     visited: Vec<Point2<f32>>,
     frames: Vec<EpisodeFrame>,
     targets: CellTargets,
-    /// Interaction records, kept here too: the map forgets objects it stops seeing.
-    remembered: BTreeMap<u32, ObjectLabels>,
     /// Methods without a map: every interaction as a point on its object.
     points: Vec<InteractionPoint>,
     /// Methods without a map: every scene object's pose in every frame.
@@ -390,7 +387,6 @@ impl SimEnv {
             history: ActionHistory::default(),
             frames: Vec::new(),
             targets: CellTargets::default(),
-            remembered: BTreeMap::new(),
             points: Vec::new(),
             object_poses: Vec::new(),
             steps: 0,
@@ -474,17 +470,9 @@ impl SimEnv {
             } else {
                 MapOutcome::Failure
             };
-            if episode
-                .map
-                .record_interaction(id, affordance, result)
-                .is_ok()
-            {
-                episode
-                    .remembered
-                    .entry(object)
-                    .or_default()
-                    .record(affordance, result);
-            }
+            // Only ids of the frame's objects are selectable, so the object
+            // exists; labels of objects the map deletes later stay with it.
+            let _ = episode.map.record_interaction(id, affordance, result);
             if outcome.success && affordance == Affordance::Push {
                 // The map tracks the pushed object from the next frame on.
                 let _ = episode.map.notify_moved(id, None);
@@ -715,7 +703,7 @@ impl SimEnv {
     }
 
     /// Ends the episode: its labelled frames for the learner (interaction
-    /// labels through the map, remembered for objects the map dropped, or
+    /// labels through the map, also for objects it merged or dropped, or
     /// point labels without a map) and its metrics against the simulator's
     /// ground truth; recorded too, if asked.
     pub fn finish_episode(&mut self, episode_id: u64) -> anyhow::Result<EpisodeSummary> {
@@ -778,12 +766,7 @@ impl SimEnv {
         let poses = &episode.object_poses;
         let pose_of = |frame: usize, object: usize| poses[frame][object];
         match self.config.method {
-            Method::Ours => map_labels(
-                &episode.map,
-                &episode.remembered,
-                &episode.frames,
-                &self.config.affordances,
-            ),
+            Method::Ours => map_labels(&episode.map, &episode.frames, &self.config.affordances),
             Method::NomapSeg => segment_labels(
                 &episode.frames,
                 k,

@@ -1,0 +1,144 @@
+//! Copies of one object merged into one.
+//!
+//! With provided instance masks a segment shows exactly one object, so two
+//! map objects that each pass association's test on the same segment are
+//! two copies of it: one made from a view that association could not match
+//! to the first (a tracking failure, a part never seen before), living on
+//! beside it. Left alone, the copies take the segment in turns from frame
+//! to frame (neither is ever missed long enough to be deleted) and split
+//! the object's interaction labels between two ids, so labels reach only
+//! the frames where the object carried the id it was interacted under.
+
+use std::collections::BTreeSet;
+
+use super::{Map, ObjectId};
+use crate::labels::ObjectLabels;
+use crate::layer::CachedReader;
+use crate::render::sdf_at;
+use crate::segmentation::Segmentation;
+use crate::tracking::TrackingOutcome;
+
+impl Map {
+    /// Merges into each segment's match the other objects that passed
+    /// association on that segment (`candidates`), when no segment is
+    /// matched to them after tracking (`matches`), tracking neither failed
+    /// for them (`failed`) nor moved them this frame (their rendering is
+    /// stale), and masks are provided (a geometric segment may hold two
+    /// touching objects). Returns the merged copies.
+    pub(super) fn merge_copies(
+        &mut self,
+        candidates: &[Vec<u32>],
+        matches: &[Option<u32>],
+        failed: &BTreeSet<ObjectId>,
+    ) -> BTreeSet<ObjectId> {
+        let mut merged = BTreeSet::new();
+        if !matches!(self.config.segmentation, Segmentation::Provided) {
+            return merged;
+        }
+        let matched: BTreeSet<u32> = matches.iter().flatten().copied().collect();
+        let moved: BTreeSet<ObjectId> = self
+            .last_tracking
+            .iter()
+            .filter(|r| matches!(r.outcome, TrackingOutcome::Moved { .. }))
+            .map(|r| r.object)
+            .collect();
+        for (found, keep) in candidates.iter().zip(matches) {
+            let Some(keep) = *keep else { continue };
+            for &copy in found {
+                let id = ObjectId(copy);
+                if copy == keep
+                    || matched.contains(&copy)
+                    || failed.contains(&id)
+                    || moved.contains(&id)
+                    || merged.contains(&id)
+                    || !self.surfaces_coincide(ObjectId(keep), id)
+                {
+                    continue;
+                }
+                self.merge(ObjectId(keep), id);
+                merged.insert(id);
+            }
+        }
+        merged
+    }
+
+    /// Whether `copy`'s surface lies on `keep`'s where `keep` knows the
+    /// space: most of `copy`'s voxels at its surface, placed in `keep`'s
+    /// frame, read about the same distance from `keep`'s volume (within a
+    /// voxel), and enough of them to tell. Two models of one object
+    /// coincide; a ghost of another object just in front of it (within
+    /// association's depth tolerance, a few centimetres off its surface)
+    /// does not.
+    fn surfaces_coincide(&self, keep: ObjectId, copy: ObjectId) -> bool {
+        const MIN_COMPARED: usize = 10;
+        const MIN_AGREEING: f32 = 0.6;
+        let (Some(kept), Some(copied)) = (self.objects.get(&keep), self.objects.get(&copy)) else {
+            return false;
+        };
+        let voxel = self.config.voxel_size_m;
+        let t_keep_copy = kept.t_world_object.inverse() * copied.t_world_object;
+        let mut reader = CachedReader::new(&kept.volume);
+        let (mut compared, mut agreeing) = (0usize, 0usize);
+        for (p, sdf) in copied.volume.near_surface_voxels(0.5 * voxel) {
+            if let Some(kept_sdf) = sdf_at(&mut reader, &(t_keep_copy * p)) {
+                compared += 1;
+                agreeing += usize::from((kept_sdf - sdf).abs() <= voxel);
+            }
+        }
+        compared >= MIN_COMPARED && agreeing as f32 >= MIN_AGREEING * compared as f32
+    }
+
+    /// Merges object `copy` into `keep`: `keep` takes its labels, class
+    /// votes and observation count, and `copy`'s id redirects to `keep`
+    /// ([`Map::current_id`]). The copy's volume is dropped, not fused: it
+    /// may lie at a pose the object has left (the copy a failed tracking
+    /// left behind), and `keep` matched this frame best.
+    fn merge(&mut self, keep: ObjectId, copy: ObjectId) {
+        let (Some(copied), true) = (self.objects.remove(&copy), self.objects.contains_key(&keep))
+        else {
+            return;
+        };
+        let kept = self.objects.get_mut(&keep).expect("checked above");
+        kept.labels.absorb(&copied.labels);
+        for (class, votes) in copied.class_histogram {
+            *kept.class_histogram.entry(class).or_default() += votes;
+        }
+        kept.observations += copied.observations;
+        self.merged_into.insert(copy, keep);
+        self.failed_views.remove(&copy);
+        self.notified.remove(&copy);
+    }
+
+    /// Keeps the labels of an object about to be deleted, so that frames
+    /// that showed it can still be labelled ([`Map::labels_of`]).
+    pub(super) fn retire(&mut self, id: ObjectId, labels: ObjectLabels) {
+        if labels != ObjectLabels::default() {
+            self.retired.insert(id, labels);
+        }
+    }
+
+    /// The id an object is known by now: its own, or, if it was merged into
+    /// another (a copy of the same object), that one's.
+    pub fn current_id(&self, id: ObjectId) -> ObjectId {
+        let mut id = id;
+        // Ids are never reused and a copy is merged into an object alive at
+        // the time, so the chain ends.
+        while let Some(&next) = self.merged_into.get(&id) {
+            id = next;
+        }
+        id
+    }
+
+    /// The labels of the object an id returned by [`Map::integrate`] stood
+    /// for: of the object it is now ([`Map::current_id`]), also after that
+    /// object was deleted (an object carried away stops being seen, but the
+    /// frames that showed it still need its labels). `None` for ids never
+    /// issued, or deleted without labels.
+    pub fn labels_of(&self, id: ObjectId) -> Option<&ObjectLabels> {
+        let id = self.current_id(id);
+        self.objects
+            .get(&id)
+            .map(|o| &o.labels)
+            .or_else(|| self.retired.get(&id))
+    }
+}
