@@ -171,7 +171,7 @@ pub struct Map {
     next_id: u32,
     last_timings: IntegrateTimings,
     /// Objects the caller said may have moved, with an optional motion guess.
-    notified: BTreeMap<ObjectId, Option<Pose>>,
+    notified: BTreeMap<ObjectId, track::Notice>,
     last_tracking: Vec<TrackingReport>,
     /// The last residual-triggered tracking failure of each object that
     /// has triggered ever since, to skip repeating it from the same view.
@@ -250,7 +250,35 @@ impl Map {
         if !self.objects.contains_key(&id) {
             return Err(MapError::UnknownObject(id));
         }
-        self.notified.insert(id, motion);
+        self.notified
+            .insert(id, track::Notice { motion, push: None });
+        Ok(())
+    }
+
+    /// Says that the robot pushed an object along `direction` (world frame;
+    /// its horizontal part counts): the next frame tracks it, looking for it
+    /// up to [`TrackingParams::max_push_m`] ahead along the push, where a
+    /// push can slide it, but no further sideways or back than any other
+    /// motion ([`TrackingParams::max_motion_m`]). A direction of about zero
+    /// length is no direction: then this is [`Map::notify_moved`] without a
+    /// motion guess.
+    pub fn notify_pushed(&mut self, id: ObjectId, direction: Vector3<f32>) -> Result<(), MapError> {
+        if !self.objects.contains_key(&id) {
+            return Err(MapError::UnknownObject(id));
+        }
+        let up = self
+            .config
+            .tracking
+            .world_up
+            .and_then(|u| u.try_normalize(1e-6));
+        let level = up.map_or(direction, |up| direction - up * up.dot(&direction));
+        self.notified.insert(
+            id,
+            track::Notice {
+                motion: None,
+                push: nalgebra::Unit::try_new(level, 1e-6),
+            },
+        );
         Ok(())
     }
 

@@ -26,6 +26,11 @@ pub struct TrackingParams {
     /// Largest motion between two frames that tracking will follow, metres
     /// (from the initial guess to the segment's centroid).
     pub max_motion_m: f32,
+    /// How far ahead along the push a pushed object is followed
+    /// ([`crate::Map::notify_pushed`]), metres: a push slides an object
+    /// much further than anything moves unannounced between two frames
+    /// (0.7 to 1.5 m in the simulator's rooms).
+    pub max_push_m: f32,
     /// Correspondence gate at the first iteration, metres.
     pub initial_gate_m: f32,
     /// Correspondences closer than this are inliers (and the gate never gets tighter).
@@ -61,6 +66,7 @@ impl TrackingParams {
     pub fn for_voxel(voxel_size_m: f32) -> Self {
         Self {
             max_motion_m: 0.3,
+            max_push_m: 2.0,
             initial_gate_m: 0.15,
             inlier_distance_m: 1.5 * voxel_size_m,
             huber_m: 0.25 * voxel_size_m,

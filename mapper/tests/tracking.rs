@@ -465,3 +465,56 @@ fn a_pushed_box_that_tipped_is_followed_by_a_free_alignment() {
         "error {translation_m} m, {rotation_deg} deg"
     );
 }
+
+/// A push slides an object far (0.7 to 1.5 m in the simulator's rooms),
+/// beyond the gate of unannounced motion. Told the push's direction, the
+/// map follows a box pushed a metre away from the camera and turned 10°;
+/// told only that it moved, it reports the motion beyond its gate, and told
+/// a direction across the motion, that no segment lies within its reach;
+/// both leave the model alone.
+#[test]
+fn a_box_pushed_a_metre_is_followed_along_the_push() {
+    let view = views()[3];
+    let forward = view.rotation * Vector3::z();
+    let push = Vector3::new(forward.x, forward.y, 0.0).normalize();
+    let pushed = Isometry3::from_parts(
+        Translation3::from(BOX_CENTRE.coords + push),
+        UnitQuaternion::from_euler_angles(0.0, 0.0, 10f32.to_radians()),
+    );
+    let frame = OwnedFrame::capture(&scene(pushed), view, k128());
+    let across = Vector3::z().cross(&push);
+    for (told, along_push) in [(Some(push), true), (None, false), (Some(across), false)] {
+        let (mut map, [box_id, ..]) = mapped_scene();
+        let before = map.object(box_id).unwrap().t_world_object;
+        match told {
+            Some(direction) => map.notify_pushed(box_id, direction).unwrap(),
+            None => map.notify_moved(box_id, None).unwrap(),
+        }
+        map.integrate(&frame.frame()).unwrap();
+        let report = tracking_of(&map, box_id).expect("the pushed box was tracked");
+        let after = map.object(box_id).unwrap().t_world_object;
+        if along_push {
+            assert!(
+                matches!(report.outcome, TrackingOutcome::Moved { .. }),
+                "{report:?}"
+            );
+            // The model's frame moved as the box did.
+            let truth =
+                pushed * Isometry3::translation(-BOX_CENTRE.x, -BOX_CENTRE.y, -BOX_CENTRE.z);
+            let (deg, m) = pose_error(&(truth * before), &after);
+            eprintln!("pushed a metre: {m} m, {deg} deg off");
+            assert!(m < 0.02 && deg < 2.0, "{m} m, {deg} deg off");
+        } else {
+            assert!(
+                matches!(
+                    report.outcome,
+                    TrackingOutcome::Failed(
+                        TrackingFailure::BeyondGate { .. } | TrackingFailure::NoSegment
+                    )
+                ),
+                "told {told:?}: {report:?}"
+            );
+            assert_eq!(after, before);
+        }
+    }
+}

@@ -3,7 +3,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use nalgebra::{Point3, Translation3, Vector3};
+use nalgebra::{Point3, Translation3, Unit, Vector3};
 
 use super::{Map, ObjectId};
 use crate::association::Segment;
@@ -43,6 +43,45 @@ fn acceptance_failure(fit: &Fit, params: &TrackingParams) -> Option<TrackingFail
     } else {
         None
     }
+}
+
+/// What the caller said about an object that may have moved
+/// ([`Map::notify_moved`], [`Map::notify_pushed`]).
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct Notice {
+    /// A world-frame motion guess.
+    pub(super) motion: Option<Pose>,
+    /// The world-frame direction the robot pushed it along.
+    pub(super) push: Option<Unit<Vector3<f32>>>,
+}
+
+/// Whether an object's `shift` (camera frame, from where it was predicted
+/// to the segment's centroid) is a motion tracking follows: within
+/// [`TrackingParams::max_motion_m`], or, for an object pushed along `push`
+/// (camera frame), up to [`TrackingParams::max_push_m`] ahead along it.
+/// Returns the gate that applies when it is not.
+fn beyond_gate(
+    shift: &Vector3<f32>,
+    push: Option<&Unit<Vector3<f32>>>,
+    params: &TrackingParams,
+) -> Option<TrackingFailure> {
+    let within = match push {
+        Some(d) => {
+            let along = shift.dot(d);
+            let sideways = (shift - d.into_inner() * along).norm();
+            (-params.max_motion_m..=params.max_push_m).contains(&along)
+                && sideways <= params.max_motion_m
+        }
+        None => shift.norm() <= params.max_motion_m,
+    };
+    (!within).then(|| TrackingFailure::BeyondGate {
+        distance_m: shift.norm(),
+        gate_m: if push.is_some() {
+            params.max_push_m
+        } else {
+            params.max_motion_m
+        },
+    })
 }
 
 /// How many of an object's rendered pixels agree with the measured depth
@@ -184,13 +223,13 @@ impl Map {
         rendered: &RenderTarget,
     ) -> BTreeSet<ObjectId> {
         let residual = self.residual_candidates(segments, matches, rendered, frame.depth_m);
-        let mut candidates: BTreeMap<ObjectId, (TrackingTrigger, Option<Pose>)> = residual
+        let mut candidates: BTreeMap<ObjectId, (TrackingTrigger, Notice)> = residual
             .keys()
-            .map(|&id| (id, (TrackingTrigger::Residual, None)))
+            .map(|&id| (id, (TrackingTrigger::Residual, Notice::default())))
             .collect();
-        for (id, hint) in std::mem::take(&mut self.notified) {
+        for (id, notice) in std::mem::take(&mut self.notified) {
             if self.objects.contains_key(&id) {
-                candidates.insert(id, (TrackingTrigger::Notified, hint));
+                candidates.insert(id, (TrackingTrigger::Notified, notice));
             }
         }
         let objects = &self.objects;
@@ -198,7 +237,7 @@ impl Map {
             .retain(|id, _| objects.contains_key(id) && residual.contains_key(id));
         let mut failed = BTreeSet::new();
         self.last_tracking.clear();
-        for (id, (trigger, hint)) in candidates {
+        for (id, (trigger, notice)) in candidates {
             let repeated = match trigger {
                 TrackingTrigger::Residual => {
                     self.repeat_failure(id, &frame.t_world_camera, residual[&id])
@@ -210,7 +249,7 @@ impl Map {
             };
             let tracked = match repeated {
                 Some(failure) => Err(failure),
-                None => self.track_one(id, hint, trigger, frame, segments, matches),
+                None => self.track_one(id, notice, trigger, frame, segments, matches),
             };
             if repeated.is_none() && trigger == TrackingTrigger::Residual {
                 match tracked {
@@ -258,7 +297,7 @@ impl Map {
     fn track_one(
         &mut self,
         id: ObjectId,
-        hint: Option<Pose>,
+        notice: Notice,
         trigger: TrackingTrigger,
         frame: &Frame<'_>,
         segments: &[Segment],
@@ -270,7 +309,10 @@ impl Map {
         let t_camera_world = frame.t_world_camera.inverse();
         let old = t_camera_world * object.t_world_object;
         let predicted =
-            t_camera_world * hint.unwrap_or_else(Pose::identity) * object.t_world_object;
+            t_camera_world * notice.motion.unwrap_or_else(Pose::identity) * object.t_world_object;
+        let push = notice
+            .push
+            .map(|d| Unit::new_unchecked(t_camera_world.rotation * d.into_inner()));
 
         let mut silhouette = RenderTarget::new(&k);
         raycast_layer(
@@ -285,8 +327,26 @@ impl Map {
         let rendered_px: Vec<usize> = (0..k.pixels())
             .filter(|&px| silhouette.ids[px] != 0)
             .collect();
+        let predicted_centre = centroid(&k, &silhouette.depth_m, rendered_px.iter().copied())
+            .unwrap_or_else(|| {
+                predicted
+                    * object
+                        .volume
+                        .block_bounds()
+                        .map_or(Point3::origin(), |(lo, hi)| nalgebra::center(&lo, &hi))
+            });
+        let segment_centre =
+            |s: usize| centroid(&k, frame.depth_m, segments[s].pixels.iter().copied());
+        // A pushed object may have slid far along the push, past other
+        // segments: only those it can have reached are considered.
         let free: Vec<usize> = (0..segments.len())
             .filter(|&s| matches[s].is_none_or(|m| m == id.0))
+            .filter(|&s| {
+                push.is_none()
+                    || segment_centre(s).is_some_and(|c| {
+                        beyond_gate(&(c - predicted_centre), push.as_ref(), &params).is_none()
+                    })
+            })
             .collect();
         // The segment that overlaps the predicted silhouette most; for a
         // notified object with no overlap, the one whose centroid is nearest.
@@ -303,16 +363,6 @@ impl Map {
             .filter(|(n, _)| *n > 0)
             .max_by_key(|(n, s)| (*n, std::cmp::Reverse(*s)))
             .map(|(_, s)| s);
-        let predicted_centre = centroid(&k, &silhouette.depth_m, rendered_px.iter().copied())
-            .unwrap_or_else(|| {
-                predicted
-                    * object
-                        .volume
-                        .block_bounds()
-                        .map_or(Point3::origin(), |(lo, hi)| nalgebra::center(&lo, &hi))
-            });
-        let segment_centre =
-            |s: usize| centroid(&k, frame.depth_m, segments[s].pixels.iter().copied());
         let chosen = match by_overlap {
             Some(s) => s,
             None if trigger == TrackingTrigger::Notified => free
@@ -325,11 +375,8 @@ impl Map {
         };
         let observed_centre = segment_centre(chosen).ok_or(TrackingFailure::NoSegment)?;
         let shift = observed_centre - predicted_centre;
-        if shift.norm() > params.max_motion_m {
-            return Err(TrackingFailure::BeyondGate {
-                distance_m: shift.norm(),
-                gate_m: params.max_motion_m,
-            });
+        if let Some(failure) = beyond_gate(&shift, push.as_ref(), &params) {
+            return Err(failure);
         }
 
         let model = object
