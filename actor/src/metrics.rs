@@ -69,10 +69,55 @@ pub fn annotation_rates(
     (positive as f32 / n, negative as f32 / n)
 }
 
+/// How consistently the map re-identified the scene's objects over an
+/// episode ([`proto::StatField::MapIdConsistency`]). `frames` yields each
+/// frame's ground-truth instance image and the map ids the frame got;
+/// `current` maps an id to the one it stands for now (copies merged since).
+/// Per scene object (instance ≠ 0), its pixels that got a map id are
+/// counted per id; the result is the share of all of them that carry their
+/// object's most common id. `None` when no object pixel got an id.
+pub fn map_id_consistency<'a>(
+    frames: impl IntoIterator<Item = (&'a [u32], &'a [u32])>,
+    current: impl Fn(u32) -> u32,
+) -> Option<f32> {
+    let mut counts: BTreeMap<(u32, u32), u64> = BTreeMap::new();
+    for (instances, map_ids) in frames {
+        for (&instance, &id) in instances.iter().zip(map_ids) {
+            if instance != 0 && id != 0 {
+                *counts.entry((instance, current(id))).or_default() += 1;
+            }
+        }
+    }
+    let mut most: BTreeMap<u32, u64> = BTreeMap::new();
+    let mut total = 0u64;
+    for (&(instance, _), &n) in &counts {
+        let m = most.entry(instance).or_default();
+        *m = (*m).max(n);
+        total += n;
+    }
+    (total > 0).then(|| most.values().sum::<u64>() as f32 / total as f32)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use proto::LABEL_UNKNOWN;
+
+    #[test]
+    fn map_id_consistency_counts_each_object_under_its_most_common_id() {
+        // Object 1: 3 px as map 7, then 1 px as map 8 (a second copy);
+        // object 2: 2 px as map 9 and 2 px as map 10, which was merged into 9.
+        let truth: [&[u32]; 2] = [&[1, 1, 1, 2, 2, 0], &[1, 2, 2, 0, 0, 0]];
+        let ids: [&[u32]; 2] = [&[7, 7, 7, 9, 9, 0], &[8, 10, 10, 5, 0, 0]];
+        let current = |id: u32| if id == 10 { 9 } else { id };
+        let frames = truth.iter().copied().zip(ids.iter().copied());
+        assert_eq!(map_id_consistency(frames, current), Some(7.0 / 8.0));
+        let unmerged = truth.iter().copied().zip(ids.iter().copied());
+        assert_eq!(map_id_consistency(unmerged, |id| id), Some(5.0 / 8.0));
+        let none: [&[u32]; 1] = [&[0, 0, 0, 0, 0, 0]];
+        let frames = truth[..1].iter().copied().zip(none.iter().copied());
+        assert_eq!(map_id_consistency(frames, |id| id), None);
+    }
 
     #[test]
     fn iou_and_object_accuracy_on_a_crafted_frame() {

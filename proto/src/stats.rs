@@ -31,11 +31,17 @@ pub enum StatField {
     ObjectAccuracy = 6,
     /// Environment steps per second of the actor over the episode.
     StepsPerSecond = 7,
+    /// Of the scene objects' pixels that got a map object id, the share
+    /// carrying the id most of that object's pixels got over the episode
+    /// (ids of copies merged since count as the id they became): 1 when
+    /// the map re-identifies every object in every frame. Methods with a
+    /// map only.
+    MapIdConsistency = 8,
 }
 
 impl StatField {
     /// Number of fields.
-    pub const COUNT: usize = 8;
+    pub const COUNT: usize = 9;
     /// All fields in wire order.
     pub const ALL: [StatField; Self::COUNT] = [
         StatField::EpisodeReturn,
@@ -46,6 +52,7 @@ impl StatField {
         StatField::AffordanceIou,
         StatField::ObjectAccuracy,
         StatField::StepsPerSecond,
+        StatField::MapIdConsistency,
     ];
 
     /// snake_case name used in metrics and JSON.
@@ -59,6 +66,7 @@ impl StatField {
             StatField::AffordanceIou => "affordance_iou",
             StatField::ObjectAccuracy => "object_accuracy",
             StatField::StepsPerSecond => "steps_per_second",
+            StatField::MapIdConsistency => "map_id_consistency",
         }
     }
 
@@ -120,7 +128,7 @@ impl EpisodeStats {
             return Err(ProtoError::OutOfRange {
                 field: "present",
                 value: present.into(),
-                allowed: "bits 0..8",
+                allowed: "bits 0..9",
             });
         }
         let reserved = read_u32(payload, 20);

@@ -139,6 +139,7 @@ fn closed_loop(method: &str) {
         "object_accuracy",
         "interaction_success_rate",
         "non_interactable_annotation_rate",
+        "map_id_consistency",
     ] {
         let v = episode[field].as_f64();
         assert!(

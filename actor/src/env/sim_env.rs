@@ -42,7 +42,7 @@ use crate::labeler::{
     sphere_labels, ConfidenceRule, EpisodeFrame, InteractionPoint, SphereRule,
 };
 use crate::mapping::{intrinsics, map_frame};
-use crate::metrics::{annotation_rates, score_frame};
+use crate::metrics::{annotation_rates, map_id_consistency, score_frame};
 use crate::recording::{write_episode, FrameRecord, StepRecord};
 
 /// Settings of the environment.
@@ -474,8 +474,11 @@ impl SimEnv {
             // exists; labels of objects the map deletes later stay with it.
             let _ = episode.map.record_interaction(id, affordance, result);
             if outcome.success && affordance == Affordance::Push {
-                // The map tracks the pushed object from the next frame on.
-                let _ = episode.map.notify_moved(id, None);
+                // The map tracks the pushed object from the next frame on,
+                // looking along the push (the camera's heading) for it.
+                let yaw = episode.sim.agent().yaw_deg.to_radians();
+                let along = nalgebra::Vector3::new(yaw.cos(), yaw.sin(), 0.0);
+                let _ = episode.map.notify_pushed(id, along);
             }
             if outcome.success && affordance == Affordance::PickUp {
                 // The map keeps the object, unseen, until it is put down.
@@ -720,7 +723,7 @@ impl SimEnv {
                 .with_context(|| format!("recording the episode (--record {})", dir.display()))?;
         }
         Ok(EpisodeSummary {
-            stats: episode_stats(&episode, &labels, k.pixels()),
+            stats: episode_stats(&episode, &labels, k.pixels(), self.config.uses_map()),
             frames: frame_batch(
                 episode_id,
                 &k,
@@ -823,9 +826,16 @@ impl SimEnv {
 
 /// The paper's per-episode metrics against the simulator's ground truth:
 /// return, interaction success rate, interacted object rate, both
-/// annotation rates of `labels`, and the U-Net's mean IoU and object
-/// accuracy over the episode's frames (means over affordances).
-fn episode_stats(episode: &Episode, labels: &[Vec<u8>], pixels: usize) -> Vec<(StatField, f32)> {
+/// annotation rates of `labels`, the U-Net's mean IoU and object
+/// accuracy over the episode's frames (means over affordances), and, for
+/// methods with a map (`uses_map`), how consistently it re-identified the
+/// scene's objects.
+fn episode_stats(
+    episode: &Episode,
+    labels: &[Vec<u8>],
+    pixels: usize,
+    uses_map: bool,
+) -> Vec<(StatField, f32)> {
     let planes = episode.scores.len();
     // Annotation rates of the labels over every frame of the episode.
     let (mut positive, mut negative) = (0.0f64, 0.0f64);
@@ -881,6 +891,17 @@ fn episode_stats(episode: &Episode, labels: &[Vec<u8>], pixels: usize) -> Vec<(S
     }
     if let Some(accuracy) = mean(|s| (s.accuracy, s.accuracy_frames)) {
         stats.push((StatField::ObjectAccuracy, accuracy));
+    }
+    if uses_map {
+        let frames = episode
+            .truth_ids
+            .iter()
+            .zip(&episode.frames)
+            .map(|(truth, frame)| (truth.as_slice(), frame.map_ids.as_slice()));
+        let current = |id: u32| episode.map.current_id(ObjectId(id)).0;
+        if let Some(consistency) = map_id_consistency(frames, current) {
+            stats.push((StatField::MapIdConsistency, consistency));
+        }
     }
     stats
 }
