@@ -21,7 +21,18 @@ pub struct AssociationParams {
     pub min_coverage: f32,
     /// Measured and rendered depth agree within this many metres.
     pub depth_tolerance_m: f32,
+    /// A segment no object matches on IoU or coverage goes to an object
+    /// with at least this fraction of its rendered pixels on the segment
+    /// (and at least [`MIN_CONTAINED_PX`] of them): the object is all of
+    /// what the map knows of the segment (an object seen from a new side,
+    /// where most of the segment is surface the map never saw; a small
+    /// object whose coarse model renders on few of its pixels).
+    pub min_containment: f32,
 }
+
+/// Fewest rendered pixels on a segment for [`AssociationParams::min_containment`]
+/// to count: fewer say little about where an object is.
+pub const MIN_CONTAINED_PX: usize = 5;
 
 /// The pixels of one instance id in a frame.
 #[derive(Debug, Clone, PartialEq)]
@@ -69,8 +80,12 @@ pub struct Association {
 /// and every object that could have been it ([`Association::candidates`]).
 ///
 /// Candidate pairs pass on IoU or on coverage; the best IoU is taken first.
-/// A segment gets at most one object; an object may take several segments
-/// (an over-segmented object keeps one id).
+/// A segment no pair matches goes to the object lying most within it
+/// ([`AssociationParams::min_containment`]); such objects are not
+/// candidates (a thin object lying on a larger one lies within its
+/// segment, too, and is no copy of it). A segment gets at most one object;
+/// an object may take several segments (an over-segmented object keeps one
+/// id).
 pub fn associate(
     segments: &[Segment],
     rendered: &RenderTarget,
@@ -84,6 +99,9 @@ pub fn associate(
         }
     }
     let mut pairs = Vec::new();
+    // Per segment, the objects that lie within it (best containment
+    // first), for segments that no pair matches.
+    let mut contained: Vec<Vec<(f32, u32)>> = vec![Vec::new(); segments.len()];
     for (s, segment) in segments.iter().enumerate() {
         let mut overlap: FxHashMap<u32, usize> = FxHashMap::default();
         for &px in &segment.pixels {
@@ -99,6 +117,10 @@ pub fn associate(
             if iou >= params.min_iou || coverage >= params.min_coverage {
                 pairs.push((iou, s, id));
             }
+            let containment = inter as f32 / rendered_px[&id] as f32;
+            if inter >= MIN_CONTAINED_PX && containment >= params.min_containment {
+                contained[s].push((containment, id));
+            }
         }
     }
     pairs.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
@@ -109,6 +131,12 @@ pub fn associate(
             matches[s] = Some(id);
         }
         candidates[s].push(id);
+    }
+    for (m, mut within) in matches.iter_mut().zip(contained) {
+        within.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        if m.is_none() {
+            *m = within.first().map(|&(_, id)| id);
+        }
     }
     Association {
         matches,

@@ -93,6 +93,7 @@ impl Default for MapConfig {
                 min_iou: 0.3,
                 min_coverage: 0.5,
                 depth_tolerance_m: (2.0 * voxel_size_m).max(0.03),
+                min_containment: 0.8,
             },
             tracking: TrackingParams::for_voxel(voxel_size_m),
             segmentation: Segmentation::Provided,

@@ -506,3 +506,48 @@ fn a_deleted_object_keeps_its_labels_for_the_frames_that_showed_it() {
         Some(false)
     );
 }
+
+/// An object seen from a side the map never saw: most of its segment is
+/// new surface, so it matches its object on neither IoU nor coverage, but
+/// the object's model lies within the segment, and the segment keeps its id
+/// rather than becoming a second object.
+#[test]
+fn an_object_seen_from_a_new_side_keeps_its_id() {
+    let known = Shape::Box {
+        t_world_box: Isometry3::translation(0.0, 0.0, 0.2),
+        half: Vector3::new(0.2, 0.2, 0.2),
+        id: 5,
+    };
+    // The rest of the same object, hidden until now (an L-shaped sofa's
+    // other wing, behind the first from where the map looked).
+    let hidden = Shape::Box {
+        t_world_box: Isometry3::translation(-0.2, 0.8, 0.2),
+        half: Vector3::new(0.4, 0.6, 0.2),
+        id: 5,
+    };
+    let target = Point3::new(0.0, 0.0, 0.2);
+    let mut map = Map::new(MapConfig::default());
+    let first = look_at(Point3::new(1.8, -0.3, 1.0), target);
+    let seen = OwnedFrame::capture(&[known], first, k128());
+    let first_ids = map.integrate(&seen.frame()).unwrap();
+    let id = id_of(&seen, &first_ids, 5);
+    let whole = OwnedFrame::capture(
+        &[known, hidden],
+        look_at(Point3::new(0.6, -1.6, 1.2), Point3::new(-0.1, 0.4, 0.2)),
+        k128(),
+    );
+    let rendered = map.render_ids(&whole.pose, &k128());
+    let segment = whole.ids.iter().filter(|&&i| i == 5).count();
+    let on_model = rendered.ids.iter().filter(|&&i| i == id.0).count();
+    assert!(
+        (on_model as f32) < 0.3 * segment as f32,
+        "the known part is {on_model} of {segment} px: too much to test a new side"
+    );
+    let ids = map.integrate(&whole.frame()).unwrap();
+    assert_eq!(map.objects().len(), 1, "no second object for the new side");
+    assert!(whole
+        .ids
+        .iter()
+        .zip(&ids)
+        .all(|(&i, &o)| i != 5 || o == id.0));
+}
