@@ -94,8 +94,10 @@ impl Map {
     /// may lie at a pose the object has left (the copy a failed tracking
     /// left behind), and `keep` matched this frame best.
     fn merge(&mut self, keep: ObjectId, copy: ObjectId) {
-        let (Some(copied), true) = (self.objects.remove(&copy), self.objects.contains_key(&keep))
-        else {
+        if !self.objects.contains_key(&keep) {
+            return;
+        }
+        let Some(copied) = self.objects.remove(&copy) else {
             return;
         };
         let kept = self.objects.get_mut(&keep).expect("checked above");
