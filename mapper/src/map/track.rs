@@ -59,7 +59,7 @@ pub(super) struct Notice {
 /// to the segment's centroid) is a motion tracking follows: within
 /// [`TrackingParams::max_motion_m`], or, for an object pushed along `push`
 /// (camera frame), up to [`TrackingParams::max_push_m`] ahead along it.
-/// Returns the gate that applies when it is not.
+/// Returns the failure, naming the gate that applies, when it is not.
 fn beyond_gate(
     shift: &Vector3<f32>,
     push: Option<&Unit<Vector3<f32>>>,
