@@ -1,10 +1,13 @@
 //! Copies of one object merged into one.
 //!
-//! With provided instance masks a segment shows exactly one object, so two
-//! map objects that each pass association's test on the same segment are
-//! two copies of it: one made from a view that association could not match
-//! to the first (a tracking failure, a part never seen before), living on
-//! beside it. Left alone, the copies take the segment in turns from frame
+//! With provided instance masks a segment shows one object (or part of one,
+//! where a mask over-segments), so two map objects that each pass
+//! association's test on the same segment, and whose surfaces coincide,
+//! are two copies of it: one made from a view that association could not
+//! match to the first (a tracking failure, a part never seen before),
+//! living on beside it. (Objects that merely share a segment, where a mask
+//! under-segments, lie side by side: their surfaces do not coincide.) Left
+//! alone, the copies take the segment in turns from frame
 //! to frame (neither is ever missed long enough to be deleted) and split
 //! the object's interaction labels between two ids, so labels reach only
 //! the frames where the object carried the id it was interacted under.
