@@ -103,6 +103,10 @@ impl Default for MapConfig {
     }
 }
 
+/// Rendered pixels an object must be glimpsed on to escape a miss
+/// (`Map::book_keeping`).
+const MIN_GLIMPSED_PX: usize = 5;
+
 /// What becomes of a segment association matched to no object
 /// (`Map::place_unmatched`).
 enum Placement {
@@ -415,7 +419,8 @@ impl Map {
         );
 
         let integrated_at = std::time::Instant::now();
-        self.book_keeping(&matched, &visible);
+        let glimpsed = self.glimpsed(&rendered, frame.depth_m, instance, &owner);
+        self.book_keeping(&matched, &visible, &glimpsed);
         self.last_timings = IntegrateTimings {
             render_s: (rendered_at - started).as_secs_f64(),
             associate_s: (associated_at - rendered_at).as_secs_f64()
@@ -509,18 +514,53 @@ impl Map {
         id
     }
 
+    /// Per object, its rendered pixels where the frame sees some object's
+    /// surface at the rendered depth but no map object took the pixel (its
+    /// segment too small to count, or waiting): a glimpse of the object
+    /// where it should be, not evidence that it is gone.
+    fn glimpsed(
+        &self,
+        rendered: &RenderTarget,
+        depth_m: &[f32],
+        instance: &[u32],
+        owner: &[u32],
+    ) -> BTreeMap<u32, usize> {
+        let tolerance = self.config.association.depth_tolerance_m;
+        let mut glimpsed = BTreeMap::new();
+        for (px, &id) in rendered.ids.iter().enumerate() {
+            if id != 0
+                && owner[px] == 0
+                && instance[px] != 0
+                && (depth_m[px] - rendered.depth_m[px]).abs() <= tolerance
+            {
+                *glimpsed.entry(id).or_default() += 1;
+            }
+        }
+        glimpsed
+    }
+
+    /// Counts observations and misses, and deletes objects missed too
+    /// often. An object predicted visible but matched to no segment is
+    /// missed, unless it was glimpsed on at least [`MIN_GLIMPSED_PX`]
+    /// pixels ([`Map::glimpsed`]): seen as a sliver too thin to segment
+    /// while its model (with parts not yet carved) renders wider, it was
+    /// deleted after a few still frames and made anew when seen properly.
     fn book_keeping(
         &mut self,
         matched: &BTreeMap<ObjectId, usize>,
         visible: &BTreeMap<u32, usize>,
+        glimpsed: &BTreeMap<u32, usize>,
     ) {
         let max_misses = self.config.max_misses;
         let min_px = self.config.miss_min_rendered_px;
         for object in self.objects.values_mut() {
+            let id = object.id.0;
             if matched.contains_key(&object.id) {
                 object.observations += 1;
                 object.misses = 0;
-            } else if visible.get(&object.id.0).is_some_and(|&n| n >= min_px) {
+            } else if visible.get(&id).is_some_and(|&n| n >= min_px)
+                && glimpsed.get(&id).is_none_or(|&n| n < MIN_GLIMPSED_PX)
+            {
                 object.misses += 1;
             }
         }

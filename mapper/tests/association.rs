@@ -551,3 +551,49 @@ fn an_object_seen_from_a_new_side_keeps_its_id() {
         .zip(&ids)
         .all(|(&i, &o)| i != 5 || o == id.0));
 }
+
+/// An object mostly gone from where its model stands (the rest of it not
+/// yet carved) whose remaining part shows as a sliver too small to be a
+/// segment is glimpsed, not missed: a still camera looking at it for longer
+/// than the map's miss budget does not delete it.
+#[test]
+fn an_object_glimpsed_as_a_sliver_is_not_deleted() {
+    let floor = Shape::Box {
+        t_world_box: Isometry3::translation(0.0, 0.0, -0.05),
+        half: Vector3::new(3.0, 3.0, 0.05),
+        id: 0,
+    };
+    let long = Shape::Box {
+        t_world_box: Isometry3::translation(0.0, 0.0, 0.1),
+        half: Vector3::new(0.4, 0.1, 0.1),
+        id: 7,
+    };
+    let target = Point3::new(0.0, 0.0, 0.1);
+    let mut map = Map::new(MapConfig::default());
+    for pose in common::orbit(target, 1.6, 1.0, 8) {
+        map.integrate(&OwnedFrame::capture(&[floor, long], pose, k128()).frame())
+            .unwrap();
+    }
+    assert_eq!(map.objects().len(), 1);
+    let id = *map.objects().keys().next().unwrap();
+    // All but one end of it is gone; from this view the end is a sliver.
+    let end = Shape::Box {
+        t_world_box: Isometry3::translation(0.36, 0.0, 0.1),
+        half: Vector3::new(0.04, 0.06, 0.06),
+        id: 7,
+    };
+    let view = look_at(Point3::new(-1.2, -1.6, 1.6), target);
+    let frame = OwnedFrame::capture(&[floor, end], view, k128());
+    let sliver = frame.ids.iter().filter(|&&i| i == 7).count();
+    let model = map.render_ids(&view, &k128());
+    let rendered = model.ids.iter().filter(|&&i| i == id.0).count();
+    eprintln!("sliver {sliver} px, model rendered on {rendered} px");
+    assert!(
+        (10..20).contains(&sliver) && rendered >= 50,
+        "sliver {sliver} px, model {rendered} px: not the case tested"
+    );
+    for _ in 0..=MapConfig::default().max_misses + 2 {
+        map.integrate(&frame.frame()).unwrap();
+    }
+    assert!(map.object(id).is_some(), "the glimpsed object was deleted");
+}
