@@ -99,8 +99,8 @@ pub fn associate(
         }
     }
     let mut pairs = Vec::new();
-    // Per segment, the objects that lie within it (best containment
-    // first), for segments that no pair matches.
+    // Per segment, the objects that lie within it, for segments that no
+    // pair matches.
     let mut contained: Vec<Vec<(f32, u32)>> = vec![Vec::new(); segments.len()];
     for (s, segment) in segments.iter().enumerate() {
         let mut overlap: FxHashMap<u32, usize> = FxHashMap::default();
@@ -132,10 +132,12 @@ pub fn associate(
         }
         candidates[s].push(id);
     }
-    for (m, mut within) in matches.iter_mut().zip(contained) {
-        within.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    for (m, within) in matches.iter_mut().zip(contained) {
         if m.is_none() {
-            *m = within.first().map(|&(_, id)| id);
+            *m = within
+                .into_iter()
+                .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)))
+                .map(|(_, id)| id);
         }
     }
     Association {

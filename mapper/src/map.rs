@@ -271,11 +271,7 @@ impl Map {
         if !self.objects.contains_key(&id) {
             return Err(MapError::UnknownObject(id));
         }
-        let up = self
-            .config
-            .tracking
-            .world_up
-            .and_then(|u| u.try_normalize(1e-6));
+        let up = self.config.tracking.unit_up();
         let level = up.map_or(direction, |up| direction - up * up.dot(&direction));
         self.notified.insert(
             id,

@@ -62,6 +62,12 @@ pub struct TrackingParams {
 }
 
 impl TrackingParams {
+    /// [`TrackingParams::world_up`] as a unit vector; `None` where it names
+    /// no direction.
+    pub fn unit_up(&self) -> Option<Vector3<f32>> {
+        self.world_up.and_then(|up| up.try_normalize(1e-6))
+    }
+
     /// Defaults for a given voxel size.
     pub fn for_voxel(voxel_size_m: f32) -> Self {
         Self {

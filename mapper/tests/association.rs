@@ -442,14 +442,20 @@ fn id_of(frame: &OwnedFrame, map_ids: &[u32], instance: u32) -> mapper::ObjectId
     mapper::ObjectId(id)
 }
 
+/// [`scene`], its map, a frame from the second viewpoint (integrated) and
+/// the map id of the small box (instance 13) in it.
+fn small_box_in_view() -> (Vec<Shape>, Map, OwnedFrame, mapper::ObjectId) {
+    let shapes = scene();
+    let mut map = mapped_scene();
+    let frame = OwnedFrame::capture(&shapes, viewpoints()[1], k128());
+    let id = id_of(&frame, &map.integrate(&frame.frame()).unwrap(), 13);
+    (shapes, map, frame, id)
+}
+
 #[test]
 fn two_copies_of_one_object_become_one_that_keeps_both_labels() {
     use mapper::{Affordance, Outcome};
-    let shapes = scene();
-    let mut map = mapped_scene();
-    let pose = viewpoints()[1];
-    let frame = OwnedFrame::capture(&shapes, pose, k128());
-    let first = id_of(&frame, &map.integrate(&frame.frame()).unwrap(), 13);
+    let (shapes, mut map, frame, first) = small_box_in_view();
     let at = map.object(first).unwrap().t_world_object;
     // The first model lifted out of view (a tracking failure's stale copy):
     // the box's next views make a second object of it.
@@ -487,11 +493,8 @@ fn two_copies_of_one_object_become_one_that_keeps_both_labels() {
 #[test]
 fn a_deleted_object_keeps_its_labels_for_the_frames_that_showed_it() {
     use mapper::{Affordance, Outcome};
-    let shapes = scene();
-    let mut map = mapped_scene();
-    let pose = viewpoints()[1];
-    let frame = OwnedFrame::capture(&shapes, pose, k128());
-    let id = id_of(&frame, &map.integrate(&frame.frame()).unwrap(), 13);
+    let (shapes, mut map, frame, id) = small_box_in_view();
+    let pose = frame.pose;
     map.record_interaction(id, Affordance::PickUp, Outcome::Failure)
         .unwrap();
     // The box is gone (carried away unseen); the map sees it missing.

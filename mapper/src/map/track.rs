@@ -414,14 +414,11 @@ impl Map {
         // touched: its fit stays planar, which spares a second alignment
         // in most tracking runs and gives still objects one freedom less to
         // slide into a better-looking fit.
-        let planar = params
-            .world_up
-            .and_then(|up| up.try_normalize(1e-6))
-            .map(|up| {
-                let up = t_camera_world.rotation * up;
-                let level = Translation3::from(shift - up * up.dot(&shift)) * predicted;
-                align_within(MotionModel::Planar { up }, &level)
-            });
+        let planar = params.unit_up().map(|up| {
+            let up = t_camera_world.rotation * up;
+            let level = Translation3::from(shift - up * up.dot(&shift)) * predicted;
+            align_within(MotionModel::Planar { up }, &level)
+        });
         let (found, fit) = match planar {
             Some(planar)
                 if trigger == TrackingTrigger::Residual
