@@ -265,8 +265,8 @@ impl Map {
     /// up to [`TrackingParams::max_push_m`] ahead along the push, where a
     /// push can slide it, but no further sideways or back than any other
     /// motion ([`TrackingParams::max_motion_m`]). A direction of about zero
-    /// length is no direction: then this is [`Map::notify_moved`] without a
-    /// motion guess.
+    /// length, or not finite, is no direction: then this is
+    /// [`Map::notify_moved`] without a motion guess.
     pub fn notify_pushed(&mut self, id: ObjectId, direction: Vector3<f32>) -> Result<(), MapError> {
         if !self.objects.contains_key(&id) {
             return Err(MapError::UnknownObject(id));
@@ -277,6 +277,7 @@ impl Map {
             id,
             track::Notice {
                 motion: None,
+                // `try_new` also refuses a NaN norm.
                 push: nalgebra::Unit::try_new(level, 1e-6),
             },
         );

@@ -471,7 +471,8 @@ fn a_pushed_box_that_tipped_is_followed_by_a_free_alignment() {
 /// map follows a box pushed a metre away from the camera and turned 10°;
 /// told only that it moved, it reports the motion beyond its gate, and told
 /// a direction across the motion, that no segment lies within its reach;
-/// both leave the model alone.
+/// told a direction that is not a number, it acts as if told none; all
+/// leave the model alone.
 #[test]
 fn a_box_pushed_a_metre_is_followed_along_the_push() {
     let view = views()[3];
@@ -517,4 +518,18 @@ fn a_box_pushed_a_metre_is_followed_along_the_push() {
             assert_eq!(after, before);
         }
     }
+    // A direction that is not a number is no direction.
+    let outcome_when_told = |direction: Option<Vector3<f32>>| {
+        let (mut map, [box_id, ..]) = mapped_scene();
+        match direction {
+            Some(direction) => map.notify_pushed(box_id, direction).unwrap(),
+            None => map.notify_moved(box_id, None).unwrap(),
+        }
+        map.integrate(&frame.frame()).unwrap();
+        tracking_of(&map, box_id).expect("tracked").outcome
+    };
+    assert_eq!(
+        outcome_when_told(Some(Vector3::new(f32::NAN, 1.0, 0.0))),
+        outcome_when_told(None)
+    );
 }
