@@ -26,7 +26,7 @@ pub mod tracking;
 pub use camera::{Frame, Intrinsics};
 pub use labels::{Affordance, ObjectLabels, Outcome};
 pub use layer::{BlockIndex, Layer, Voxel, VoxelIndex};
-pub use map::{IntegrateTimings, Map, MapConfig, MapError, MapObject, ObjectId};
+pub use map::{IntegrateTimings, Map, MapConfig, MapError, MapObject, ObjectId, Whereabouts};
 pub use mesh::Mesh;
 pub use projection::{GridSpec, ProjectionKind};
 pub use segmentation::{GeometricParams, Segmentation};

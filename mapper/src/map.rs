@@ -3,6 +3,7 @@
 //! book-keeping).
 
 mod merge;
+mod reidentify;
 mod track;
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -135,12 +136,30 @@ pub struct MapObject {
     pub misses: u32,
     /// Interaction outcomes and confidence labels.
     pub labels: ObjectLabels,
-    /// In the robot's hand: not rendered, associated, integrated or
-    /// projected, and never counted as missed, until released.
-    pub held: bool,
+    /// Where the map believes the object is.
+    pub whereabouts: Whereabouts,
+}
+
+/// Where the map believes an object is. Only a [`Whereabouts::Placed`]
+/// object is rendered, associated, integrated, projected or counted as
+/// missed; the others keep their volume and labels unchanged.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Whereabouts {
+    /// At its pose in the world.
+    Placed,
+    /// In the robot's hand ([`Map::hold`]) until released.
+    Held,
+    /// The robot moved it and tracking did not find it: somewhere unknown
+    /// until a new segment turns out to be it (see `Map::reidentify`).
+    Lost,
 }
 
 impl MapObject {
+    /// Whether the map knows where the object is ([`Whereabouts::Placed`]).
+    pub fn is_placed(&self) -> bool {
+        self.whereabouts == Whereabouts::Placed
+    }
+
     /// The most voted class, if any.
     pub fn class(&self) -> Option<u16> {
         self.class_histogram
@@ -338,7 +357,10 @@ impl Map {
                 Some(id) => ObjectId(*id),
                 None if segment.pixels.len() >= self.config.association.new_object_min_px => {
                     match self.place_unmatched(segment, &rendered, frame.depth_m, &failed) {
-                        Placement::New => self.add_object(segment, frame),
+                        Placement::New => match self.reidentify(segment, frame) {
+                            Some(id) => id,
+                            None => self.add_object(segment, frame),
+                        },
                         Placement::Existing(id) => id,
                         Placement::Wait => continue,
                     }
@@ -505,7 +527,7 @@ impl Map {
             observations: 0,
             misses: 0,
             labels: ObjectLabels::default(),
-            held: false,
+            whereabouts: Whereabouts::Placed,
         };
         self.objects.insert(id, object);
         id
@@ -574,14 +596,14 @@ impl Map {
         }
     }
 
-    /// The objects not held, placed in a camera, front to back (rendered in
+    /// The objects placed ([`MapObject::is_placed`]) in a camera, front to back (rendered in
     /// this order, the z-buffer cuts the rays of occluded objects short).
     pub fn objects_in_camera(&self, t_world_camera: &Pose) -> Vec<PlacedLayer<'_>> {
         let t_camera_world = t_world_camera.inverse();
         let mut layers: Vec<(ObjectId, PlacedLayer<'_>)> = self
             .objects
             .values()
-            .filter(|o| !o.held)
+            .filter(|o| o.is_placed())
             .map(|o| {
                 let placed = PlacedLayer {
                     layer: &o.volume,
@@ -714,20 +736,23 @@ impl Map {
         self.objects
             .get_mut(&id)
             .ok_or(MapError::UnknownObject(id))?
-            .held = true;
+            .whereabouts = Whereabouts::Held;
         Ok(())
     }
 
     /// The robot let go of a held object, which moved rigidly by `motion`
-    /// (world frame) between pick-up and release.
+    /// (world frame) between pick-up and release. The next frame tracks it
+    /// from there, as after [`Map::notify_moved`]: a model seen from one
+    /// side may not match its new view well enough for association alone.
     pub fn release(&mut self, id: ObjectId, motion: Pose) -> Result<(), MapError> {
         let object = self
             .objects
             .get_mut(&id)
             .ok_or(MapError::UnknownObject(id))?;
-        object.held = false;
+        object.whereabouts = Whereabouts::Placed;
         object.t_world_object = motion * object.t_world_object;
         object.misses = 0;
+        self.notified.insert(id, track::Notice::default());
         Ok(())
     }
 

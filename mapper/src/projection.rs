@@ -109,8 +109,8 @@ impl Map {
         self.surface_points().project(kind, grid)
     }
 
-    /// World-frame surface points of the background and of every object not
-    /// held (observed voxels within one voxel of the surface). Each block's
+    /// World-frame surface points of the background and of every placed
+    /// object ([`crate::MapObject::is_placed`]; observed voxels within one voxel of the surface). Each block's
     /// points are kept by the block until its voxels change, and the
     /// background's (whose frame is the world's) are borrowed, not copied.
     pub fn surface_points(&self) -> SurfacePoints<'_> {
@@ -121,7 +121,7 @@ impl Map {
                 groups.push(PointGroup::new(None, Cow::Borrowed(points)));
             }
         }
-        for object in self.objects().values().filter(|o| !o.held) {
+        for object in self.objects().values().filter(|o| o.is_placed()) {
             let volume = &object.volume;
             let mut points = Vec::new();
             for b in volume.block_indices() {

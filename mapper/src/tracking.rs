@@ -28,9 +28,14 @@ pub struct TrackingParams {
     pub max_motion_m: f32,
     /// How far ahead along the push a pushed object is followed
     /// ([`crate::Map::notify_pushed`]), metres: a push slides an object
-    /// much further than anything moves unannounced between two frames
-    /// (0.7 to 1.5 m in the simulator's rooms).
+    /// much further than anything moves unannounced between two frames.
+    /// One pushed further, or out of view, is lost and found again later
+    /// ([`TrackingParams::max_reidentify_m`]).
     pub max_push_m: f32,
+    /// How far from where it was lost a lost object may be found again
+    /// (`Map::reidentify`), metres: pushes in the simulator's rooms slide
+    /// objects up to 4.5 m, bouncing off walls and furniture.
+    pub max_reidentify_m: f32,
     /// Correspondence gate at the first iteration, metres.
     pub initial_gate_m: f32,
     /// Correspondences closer than this are inliers (and the gate never gets tighter).
@@ -73,6 +78,7 @@ impl TrackingParams {
         Self {
             max_motion_m: 0.3,
             max_push_m: 2.0,
+            max_reidentify_m: 5.0,
             initial_gate_m: 0.15,
             inlier_distance_m: 1.5 * voxel_size_m,
             huber_m: 0.25 * voxel_size_m,

@@ -124,7 +124,7 @@ fn reference(map: &Map, kind: ProjectionKind, grid: &GridSpec) -> Vec<f32> {
             mark(p);
         }
     }
-    for object in map.objects().values().filter(|o| !o.held) {
+    for object in map.objects().values().filter(|o| o.is_placed()) {
         let labels = &object.labels;
         let shown = match kind {
             ProjectionKind::Occupancy { .. } => true,

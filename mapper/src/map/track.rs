@@ -5,7 +5,7 @@ use std::collections::{BTreeMap, BTreeSet};
 
 use nalgebra::{Point3, Translation3, Unit, Vector3};
 
-use super::{Map, ObjectId};
+use super::{Map, ObjectId, Whereabouts};
 use crate::association::Segment;
 use crate::camera::{Frame, Intrinsics};
 use crate::render::{raycast_layer, Pixels, RenderTarget};
@@ -16,7 +16,7 @@ use crate::tracking::{
 use crate::Pose;
 
 /// Camera-frame centroid of the pixels `pixels` at their depths.
-fn centroid(
+pub(super) fn centroid(
     k: &Intrinsics,
     depth: &[f32],
     pixels: impl Iterator<Item = usize>,
@@ -30,7 +30,7 @@ fn centroid(
 
 /// Why the fit of an aligned pose is not accepted, if it is not: too few
 /// inliers, too small a share of the visible model, or too large an RMSE.
-fn acceptance_failure(fit: &Fit, params: &TrackingParams) -> Option<TrackingFailure> {
+pub(super) fn acceptance_failure(fit: &Fit, params: &TrackingParams) -> Option<TrackingFailure> {
     if fit.inliers < params.min_inliers {
         Some(TrackingFailure::TooFewInliers {
             inliers: fit.inliers,
@@ -228,7 +228,8 @@ impl Map {
             .map(|&id| (id, (TrackingTrigger::Residual, Notice::default())))
             .collect();
         for (id, notice) in std::mem::take(&mut self.notified) {
-            if self.objects.contains_key(&id) {
+            let in_hand = |o: &super::MapObject| o.whereabouts == Whereabouts::Held;
+            if self.objects.get(&id).is_some_and(|o| !in_hand(o)) {
                 candidates.insert(id, (TrackingTrigger::Notified, notice));
             }
         }
@@ -267,7 +268,12 @@ impl Map {
                 }
             }
             let outcome = match tracked {
-                Ok(outcome) => outcome,
+                Ok(outcome) => {
+                    if let Some(object) = self.objects.get_mut(&id) {
+                        object.whereabouts = Whereabouts::Placed;
+                    }
+                    outcome
+                }
                 Err(failure) => {
                     // A notified object moved, so what association matched to
                     // its old pose is stale. An object that only disagreed
@@ -275,11 +281,16 @@ impl Map {
                     // model at its old pose has the measured depth, evidence
                     // that it is still there; released, those segments would
                     // become copies of it.
+                    // It is no longer where the map has it: lost, until a
+                    // new segment turns out to be it (`Map::reidentify`).
                     if trigger == TrackingTrigger::Notified {
                         for m in matches.iter_mut().filter(|m| **m == Some(id.0)) {
                             *m = None;
                         }
                         failed.insert(id);
+                        if let Some(object) = self.objects.get_mut(&id) {
+                            object.whereabouts = Whereabouts::Lost;
+                        }
                     }
                     TrackingOutcome::Failed(failure)
                 }
