@@ -292,6 +292,12 @@ pub enum MotionModel {
         /// The world's up direction in the camera frame (unit length).
         up: Vector3<f32>,
     },
+    /// Standing as before wherever it is: any translation, rotation about
+    /// `up` only (an object that fell off its support without tipping).
+    Upright {
+        /// The world's up direction in the camera frame (unit length).
+        up: Vector3<f32>,
+    },
 }
 
 /// Directions of the normal equations weaker than this fraction of the
@@ -432,7 +438,7 @@ impl NormalEquations {
     ///
     /// Within `motion`: for [`MotionModel::Planar`] the twist is
     /// `(θ·up, v)` with `v ⊥ up`, solved for θ and `v`'s two components in
-    /// the same way.
+    /// the same way; for [`MotionModel::Upright`], for θ and all of `v`.
     fn solve(&self, motion: MotionModel) -> Option<(Pose, f32)> {
         if self.rows < 6 {
             return None;
@@ -443,18 +449,22 @@ impl NormalEquations {
                 let jtr = DVector::from_column_slice(self.jtr.as_slice());
                 Vector6::from_column_slice(well_constrained_step(jtj, &jtr)?.as_slice())
             }
-            MotionModel::Planar { up } => {
+            MotionModel::Planar { up } | MotionModel::Upright { up } => {
                 // Columns: the rotation about `up`, then translations along
-                // two directions perpendicular to it.
+                // two directions perpendicular to it, then (upright) along it.
+                let lifts = matches!(motion, MotionModel::Upright { .. });
                 let up = up.cast::<f64>();
                 let across = up.cross(&Vector3::x()).try_normalize(1e-6);
                 let across = across.unwrap_or_else(|| up.cross(&Vector3::y()).normalize());
                 let along = up.cross(&across);
-                let mut basis = DMatrix::<f64>::zeros(6, 3);
+                let mut basis = DMatrix::<f64>::zeros(6, if lifts { 4 } else { 3 });
                 for a in 0..3 {
                     basis[(a, 0)] = up[a];
                     basis[(3 + a, 1)] = across[a];
                     basis[(3 + a, 2)] = along[a];
+                    if lifts {
+                        basis[(3 + a, 3)] = up[a];
+                    }
                 }
                 let jtj = basis.transpose() * self.jtj * &basis;
                 let jtr = basis.transpose() * self.jtr;
