@@ -5,7 +5,7 @@ use actor::labeler::{
     confidence_labels, frame_batch, map_labels, segment_labels, sphere_labels, ConfidenceRule,
     EpisodeFrame, InteractionPoint, SphereRule,
 };
-use actor::mapping::{intrinsics, map_frame};
+use actor::mapping::{class_image, instance_classes, intrinsics, map_frame};
 use mapper::{Affordance, Map, MapConfig, ObjectId, Outcome, Pose};
 use nalgebra::{Point3, Translation3};
 use proto::{LABEL_NEGATIVE, LABEL_POSITIVE, LABEL_UNKNOWN};
@@ -79,7 +79,9 @@ fn scripted_episode() -> Episode {
     let observe = |sim: &Simulator, map: &mut Map, episode: &mut Episode| {
         let camera = sim.camera();
         let frame = sim.render_cpu();
-        let map_ids = map.integrate(&map_frame(&camera, &frame)).unwrap();
+        let classes = instance_classes(sim.scene().objects.iter().map(|o| o.object_type.as_str()));
+        let class = class_image(&frame.ids, &classes);
+        let map_ids = map.integrate(&map_frame(&camera, &frame, &class)).unwrap();
         episode.truth.push(frame.ids.clone());
         episode.frames.push(EpisodeFrame {
             rgb: frame.rgb,

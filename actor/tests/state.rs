@@ -4,7 +4,7 @@
 
 use actor::env::actions::{ActionSpace, Selection};
 use actor::env::state::{build_state, ActionHistory, State, StateConfig, StateInputs};
-use actor::mapping::{intrinsics, map_frame};
+use actor::mapping::{class_image, instance_classes, intrinsics, map_frame};
 use mapper::{Affordance, Map, MapConfig, ObjectId, Outcome};
 use nalgebra::Point2;
 use proto::Method;
@@ -40,7 +40,9 @@ fn observe(
 ) -> (State, Vec<u32>) {
     let camera = sim.camera();
     let frame = sim.render_cpu();
-    let map_ids = map.integrate(&map_frame(&camera, &frame)).unwrap();
+    let classes = instance_classes(sim.scene().objects.iter().map(|o| o.object_type.as_str()));
+    let class = class_image(&frame.ids, &classes);
+    let map_ids = map.integrate(&map_frame(&camera, &frame, &class)).unwrap();
     let a = sim.agent();
     let probabilities = vec![vec![0.25; frame.ids.len()]; AFFORDANCES.len()];
     let inputs = StateInputs {

@@ -372,8 +372,14 @@ impl Map {
                 owner[px] = id.0;
             }
             if let (Some(class), Some(object)) = (frame.class, self.objects.get_mut(&id)) {
-                for &px in &segment.pixels {
-                    *object.class_histogram.entry(class[px]).or_default() += 1;
+                // One histogram update per run of pixels of one class.
+                let mut runs = segment.pixels.iter().map(|&px| class[px]).peekable();
+                while let Some(c) = runs.next() {
+                    let mut n = 1;
+                    while runs.next_if_eq(&c).is_some() {
+                        n += 1;
+                    }
+                    *object.class_histogram.entry(c).or_default() += n;
                 }
             }
         }

@@ -7,8 +7,8 @@ mod common;
 
 use common::{k128, look_at, orbit, OwnedFrame, Shape};
 use mapper::{
-    Intrinsics, Map, MapConfig, ObjectId, Pose, TrackingFailure, TrackingOutcome, TrackingReport,
-    Whereabouts,
+    Frame, Intrinsics, Map, MapConfig, ObjectId, Pose, TrackingFailure, TrackingOutcome,
+    TrackingReport, Whereabouts,
 };
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 
@@ -723,4 +723,62 @@ fn a_segment_two_lost_objects_fit_becomes_a_new_object() {
     let seen_as = seen_as.expect("the box became an object");
     assert!(!ids.contains(&seen_as), "taken for one of the lost twins");
     assert_eq!(lost(&map), [Some(Whereabouts::Lost); 2]);
+}
+
+/// Where frames carry classes, a lost object is looked for only in
+/// segments of its class: a box of its shape but another class becomes a
+/// new object; the lost box, seen again, is found.
+#[test]
+fn a_lost_object_is_found_only_in_its_own_class() {
+    const BOX_CLASS: u16 = 7;
+    let classes = |frame: &OwnedFrame, of: &dyn Fn(u32) -> u16| -> Vec<u16> {
+        frame.ids.iter().map(|&i| of(i)).collect()
+    };
+    let start = Isometry3::translation(BOX_CENTRE.x, BOX_CENTRE.y, BOX_CENTRE.z);
+    let mut map = Map::new(MapConfig::default());
+    let mut box_id = None;
+    for pose in views() {
+        let frame = OwnedFrame::capture(&scene(start), pose, k128());
+        let class = classes(&frame, &|i| if i == 1 { BOX_CLASS } else { i as u16 });
+        let owner = map
+            .integrate(&Frame {
+                class: Some(&class),
+                ..frame.frame()
+            })
+            .unwrap();
+        let px = frame.ids.iter().position(|&i| i == 1).unwrap();
+        box_id.get_or_insert(ObjectId(owner[px]));
+    }
+    let box_id = box_id.unwrap();
+    assert_eq!(map.object(box_id).unwrap().class(), Some(BOX_CLASS));
+    map.notify_moved(box_id, None).unwrap();
+    let landed = Isometry3::translation(0.0, -1.0, BOX_CENTRE.z);
+    let views = views();
+    let mut ids_seen = Vec::new();
+    // The same shape, first of another class, then of the box's.
+    for class_of_box in [BOX_CLASS + 1, BOX_CLASS] {
+        let frame = OwnedFrame::capture(&scene(landed), views[0], k128());
+        let class = classes(&frame, &|i| if i == 1 { class_of_box } else { i as u16 });
+        let owner = map
+            .integrate(&Frame {
+                class: Some(&class),
+                ..frame.frame()
+            })
+            .unwrap();
+        let px = frame.ids.iter().position(|&i| i == 1).unwrap();
+        ids_seen.push(ObjectId(owner[px]));
+        if class_of_box != BOX_CLASS {
+            // Gone again, so that the next frame sees a segment no object matches.
+            let empty: Vec<Shape> = std::iter::once(floor()).chain(statics()).collect();
+            let frame = OwnedFrame::capture(&empty, views[0], k128());
+            for _ in 0..=MapConfig::default().max_misses {
+                map.integrate(&frame.frame()).unwrap();
+            }
+        }
+    }
+    assert_ne!(
+        ids_seen[0], box_id,
+        "taken for the lost box of another class"
+    );
+    assert_eq!(ids_seen[1], box_id, "the box of its class is found");
 }

@@ -41,7 +41,7 @@ use crate::labeler::{
     apply_confidence_labels, confidence_labels, frame_batch, map_labels, segment_labels,
     sphere_labels, ConfidenceRule, EpisodeFrame, InteractionPoint, SphereRule,
 };
-use crate::mapping::{intrinsics, map_frame};
+use crate::mapping::{class_image, instance_classes, intrinsics, map_frame};
 use crate::metrics::{annotation_rates, map_id_consistency, score_frame};
 use crate::recording::{write_episode, FrameRecord, StepRecord};
 
@@ -178,6 +178,8 @@ struct Episode {
     truth: Vec<Vec<bool>>,
     /// The simulator's instance ids of every frame (object index + 1).
     truth_ids: Vec<Vec<u32>>,
+    /// The class of every instance id ([`instance_classes`]), for the map.
+    classes: Vec<u16>,
     /// Wall-clock time of every frame, nanoseconds since the Unix epoch.
     stamps: Vec<u64>,
     /// What every step did, for recordings.
@@ -368,9 +370,11 @@ impl SimEnv {
                     .collect()
             })
             .collect();
+        let classes = instance_classes(sim.scene().objects.iter().map(|o| o.object_type.as_str()));
         self.episode = Some(Episode {
             pending: None,
             truth,
+            classes,
             truth_ids: Vec::new(),
             probabilities: Vec::new(),
             stamps: Vec::new(),
@@ -563,7 +567,11 @@ impl SimEnv {
         let map_ids = if self.config.uses_map() {
             episode
                 .map
-                .integrate(&map_frame(&camera, &frame))
+                .integrate(&map_frame(
+                    &camera,
+                    &frame,
+                    &class_image(&frame.ids, &episode.classes),
+                ))
                 .context("integrating the frame into the map")?
         } else {
             episode.object_poses.push(

@@ -11,6 +11,7 @@
 //! while this search tries every lost object within metres, turned every
 //! way, and a partial view of one piece of furniture often fits another.
 
+use std::collections::BTreeMap;
 use std::f32::consts::TAU;
 
 use nalgebra::{Point3, Translation3, Unit, UnitQuaternion, Vector3};
@@ -49,8 +50,8 @@ const MIN_SEGMENT_EXPLAINED: f32 = 0.5;
 type Alignment = (usize, Pose);
 
 impl Map {
-    /// The lost object that `segment` shows, if exactly one fits it:
-    /// within [`crate::TrackingParams::max_reidentify_m`] of where it was
+    /// The lost object that `segment` shows, if exactly one fits it: of the
+    /// segment's class where the frame has classes, within [`crate::TrackingParams::max_reidentify_m`] of where it was
     /// lost, no smaller than half the segment's spread, and aligned to it
     /// from [`HEADINGS`] headings, sliding and turning on a horizontal
     /// support (or, where the segment lies higher or lower, standing
@@ -92,6 +93,9 @@ impl Map {
             .values()
             .filter(|o| o.whereabouts == Whereabouts::Lost)
         {
+            if seen.class.is_some() && object.class().is_some_and(|c| Some(c) != seen.class) {
+                continue;
+            }
             let model = object
                 .volume
                 .surface_samples(2.0 * self.config.voxel_size_m);
@@ -178,11 +182,13 @@ impl Map {
 }
 
 /// A segment as re-identification looks at it: its pixels, the camera-frame
-/// centroid of their points and how far the farthest lies from it.
+/// centroid of their points, how far the farthest lies from it, and its
+/// most common class where the frame has classes.
 struct SeenSegment<'a> {
     pixels: &'a [usize],
     centre: Point3<f32>,
     spread: f32,
+    class: Option<u16>,
 }
 
 impl<'a> SeenSegment<'a> {
@@ -194,10 +200,21 @@ impl<'a> SeenSegment<'a> {
             .iter()
             .map(|&px| (point(frame, px) - centre).norm())
             .fold(0.0f32, f32::max);
+        let class = frame.class.and_then(|class| {
+            let mut votes: BTreeMap<u16, usize> = BTreeMap::new();
+            for &px in &segment.pixels {
+                *votes.entry(class[px]).or_default() += 1;
+            }
+            votes
+                .into_iter()
+                .max_by_key(|&(c, n)| (n, std::cmp::Reverse(c)))
+                .map(|(c, _)| c)
+        });
         Some(Self {
             pixels: &segment.pixels,
             centre,
             spread,
+            class,
         })
     }
 
