@@ -1,6 +1,6 @@
 //! The map: objects with their own volumes and poses, a background volume,
-//! and the per-frame pipeline (segments → render → associate → integrate →
-//! book-keeping).
+//! and the per-frame pipeline (segments → render → associate → track →
+//! re-identify lost objects or add new ones → integrate → book-keeping).
 
 mod merge;
 mod reidentify;
