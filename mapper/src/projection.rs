@@ -110,9 +110,10 @@ impl Map {
     }
 
     /// World-frame surface points of the background and of every placed
-    /// object ([`crate::MapObject::is_placed`]; observed voxels within one voxel of the surface). Each block's
-    /// points are kept by the block until its voxels change, and the
-    /// background's (whose frame is the world's) are borrowed, not copied.
+    /// object ([`crate::MapObject::is_placed`]; observed voxels within one
+    /// voxel of the surface). Each block's points are kept by the block
+    /// until its voxels change, and the background's (whose frame is the
+    /// world's) are borrowed, not copied.
     pub fn surface_points(&self) -> SurfacePoints<'_> {
         let mut groups = Vec::new();
         let background = self.background();

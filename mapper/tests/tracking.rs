@@ -61,10 +61,16 @@ fn views() -> Vec<Pose> {
 /// A map of the scene with the box at its start pose, and the map id of each instance.
 fn mapped_scene() -> (Map, [ObjectId; 3]) {
     let start = Isometry3::translation(BOX_CENTRE.x, BOX_CENTRE.y, BOX_CENTRE.z);
+    mapped(&scene(start))
+}
+
+/// A map of still `shapes` seen from every view, and the map id of each of
+/// their `N` instances (ids 1 to `N`).
+fn mapped<const N: usize>(shapes: &[Shape]) -> (Map, [ObjectId; N]) {
     let mut map = Map::new(MapConfig::default());
-    let mut ids = [None; 3];
+    let mut ids = [None; N];
     for pose in views() {
-        let frame = OwnedFrame::capture(&scene(start), pose, k128());
+        let frame = OwnedFrame::capture(shapes, pose, k128());
         let owner = map.integrate(&frame.frame()).unwrap();
         for (px, &instance) in frame.ids.iter().enumerate() {
             if instance != 0 && owner[px] != 0 {
@@ -87,16 +93,24 @@ fn pose_error(a: &Pose, b: &Pose) -> (f32, f32) {
     (d.rotation.angle().to_degrees(), d.translation.vector.norm())
 }
 
-/// How far a found pose of the box's model is from the truth, the box
-/// looking the same turned half a turn: the angle between them modulo a
-/// half turn (degrees) and the distance between where each puts the box's
-/// centre (`centre`, in the model's frame; metres).
-fn box_pose_error(truth: &Pose, found: &Pose, centre: &Point3<f32>) -> (f32, f32) {
+/// Asserts that the box's model, mapped at the start pose with model pose
+/// `before`, now stands (model pose `found`) where the box stands at
+/// `landed`: its centre within 2 cm and its heading within 2° (modulo a
+/// half turn: the box looks the same turned half a turn). `what` names the
+/// case in the printout.
+fn assert_box_found_at(landed: &Pose, before: &Pose, found: &Pose, what: &str) {
+    let start = Isometry3::translation(BOX_CENTRE.x, BOX_CENTRE.y, BOX_CENTRE.z);
+    let truth = landed * start.inverse() * before;
+    let centre = before.inverse() * BOX_CENTRE;
     let angle = (truth.rotation.inverse() * found.rotation)
         .angle()
         .to_degrees();
-    let metres = (truth * centre - found * centre).norm();
-    (angle.min(180.0 - angle), metres)
+    let (deg, m) = (
+        angle.min(180.0 - angle),
+        (truth * centre - found * centre).norm(),
+    );
+    eprintln!("{what}: {m} m, {deg} deg off");
+    assert!(m < 0.02 && deg < 2.0, "{what}: {m} m, {deg} deg off");
 }
 
 #[test]
@@ -192,12 +206,12 @@ fn a_jump_beyond_the_gate_fails_without_touching_the_model() {
     // Lost to tracking, the box is found again where it landed: its segment
     // does not become a new object.
     assert_eq!(after.whereabouts, Whereabouts::Placed);
-    let start = Isometry3::translation(BOX_CENTRE.x, BOX_CENTRE.y, BOX_CENTRE.z);
-    let truth = jumped * start.inverse() * before.t_world_object;
-    let centre = before.t_world_object.inverse() * BOX_CENTRE;
-    let (deg, m) = box_pose_error(&truth, &after.t_world_object, &centre);
-    eprintln!("found again after a 50 cm jump: {m} m, {deg} deg off");
-    assert!(m < 0.02 && deg < 2.0, "{m} m, {deg} deg off");
+    assert_box_found_at(
+        &jumped,
+        &before.t_world_object,
+        &after.t_world_object,
+        "found again after a 50 cm jump",
+    );
     assert_eq!(map.objects().len(), 3, "no new object for the box");
     assert!(matches!(
         map.notify_moved(ObjectId(999), None),
@@ -519,11 +533,8 @@ fn a_box_pushed_a_metre_is_followed_along_the_push() {
         let after = map.object(box_id).unwrap().t_world_object;
         // The model's frame moved as the box did: followed along the push,
         // or lost to tracking and found again where it landed.
-        let truth = pushed * Isometry3::translation(-BOX_CENTRE.x, -BOX_CENTRE.y, -BOX_CENTRE.z);
-        let centre = before.inverse() * BOX_CENTRE;
-        let (deg, m) = box_pose_error(&(truth * before), &after, &centre);
-        eprintln!("pushed a metre, told {told:?}: {m} m, {deg} deg off");
-        assert!(m < 0.02 && deg < 2.0, "{m} m, {deg} deg off");
+        let what = format!("pushed a metre, told {told:?}");
+        assert_box_found_at(&pushed, &before, &after, &what);
         assert_eq!(map.objects().len(), 3, "no new object for the box");
         if along_push {
             assert!(
@@ -596,7 +607,6 @@ fn a_box_pushed_out_of_view_is_found_again_and_nothing_else_is_taken_for_it() {
         Some(Whereabouts::Lost)
     );
 
-    let start = Isometry3::translation(BOX_CENTRE.x, BOX_CENTRE.y, BOX_CENTRE.z);
     let landed = Isometry3::from_parts(
         Translation3::new(0.0, -1.2, BOX_CENTRE.z),
         UnitQuaternion::from_euler_angles(0.0, 0.0, std::f32::consts::FRAC_PI_2),
@@ -617,11 +627,12 @@ fn a_box_pushed_out_of_view_is_found_again_and_nothing_else_is_taken_for_it() {
     let found = map.object(box_id).expect("the box keeps its id");
     assert_eq!(found.whereabouts, Whereabouts::Placed);
     assert!(seen > 100, "{seen} pixels of the box got its id");
-    let truth = landed * start.inverse() * before.t_world_object;
-    let centre = before.t_world_object.inverse() * BOX_CENTRE;
-    let (deg, m) = box_pose_error(&truth, &found.t_world_object, &centre);
-    eprintln!("found again 1.2 m away, turned 90°: {m} m, {deg} deg off");
-    assert!(m < 0.02 && deg < 2.0, "{m} m, {deg} deg off");
+    assert_box_found_at(
+        &landed,
+        &before.t_world_object,
+        &found.t_world_object,
+        "found again 1.2 m away, turned 90°",
+    );
     assert_ne!(found.labels, labels, "the box keeps its labels");
     assert_eq!(found.labels, before.labels);
     assert_eq!(map.objects().len(), 4, "box, sphere, static box and cube");
@@ -648,7 +659,6 @@ fn a_lost_box_is_found_again_at_another_height() {
         map.object(box_id).map(|o| o.whereabouts),
         Some(Whereabouts::Lost)
     );
-    let start = Isometry3::translation(BOX_CENTRE.x, BOX_CENTRE.y, BOX_CENTRE.z);
     let landed = Isometry3::from_parts(
         Translation3::new(0.0, -0.9, 0.3 + BOX_CENTRE.z),
         UnitQuaternion::from_euler_angles(0.0, 0.0, std::f32::consts::FRAC_PI_4),
@@ -661,11 +671,12 @@ fn a_lost_box_is_found_again_at_another_height() {
     }
     let found = map.object(box_id).expect("the box keeps its id");
     assert_eq!(found.whereabouts, Whereabouts::Placed);
-    let truth = landed * start.inverse() * before.t_world_object;
-    let centre = before.t_world_object.inverse() * BOX_CENTRE;
-    let (deg, m) = box_pose_error(&truth, &found.t_world_object, &centre);
-    eprintln!("found again 30 cm higher, turned 45°: {m} m, {deg} deg off");
-    assert!(m < 0.02 && deg < 2.0, "{m} m, {deg} deg off");
+    assert_box_found_at(
+        &landed,
+        &before.t_world_object,
+        &found.t_world_object,
+        "found again 30 cm higher, turned 45°",
+    );
     assert_eq!(map.objects().len(), 4, "box, sphere, static box and block");
 }
 
@@ -679,19 +690,7 @@ fn a_segment_two_lost_objects_fit_becomes_a_new_object() {
         half: Vector3::new(0.2, 0.15, 0.15),
         id,
     };
-    let mut map = Map::new(MapConfig::default());
-    let both = [floor(), twin(1, -0.35), twin(2, 0.35)];
-    let mut ids = [None; 2];
-    for pose in views() {
-        let frame = OwnedFrame::capture(&both, pose, k128());
-        let owner = map.integrate(&frame.frame()).unwrap();
-        for (px, &instance) in frame.ids.iter().enumerate() {
-            if instance != 0 && owner[px] != 0 {
-                ids[instance as usize - 1].get_or_insert(ObjectId(owner[px]));
-            }
-        }
-    }
-    let ids = ids.map(|id| id.expect("both boxes mapped"));
+    let (mut map, ids) = mapped::<2>(&[floor(), twin(1, -0.35), twin(2, 0.35)]);
     for id in ids {
         map.notify_moved(id, None).unwrap();
     }

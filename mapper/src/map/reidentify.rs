@@ -16,15 +16,13 @@ use std::f32::consts::TAU;
 
 use nalgebra::{Point3, Translation3, Unit, UnitQuaternion, Vector3};
 
-use super::track::{acceptance_failure, centroid};
+use super::track::{acceptance_failure, centroid, mask_and_normals};
 use super::{Map, MapObject, ObjectId, Whereabouts};
 use crate::association::Segment;
 use crate::camera::Frame;
 use crate::layer::CachedReader;
 use crate::render::sdf_at;
-use crate::tracking::{
-    align, evaluate, measured_normals, refine_against_sdf, Fit, MotionModel, SegmentView,
-};
+use crate::tracking::{align, evaluate, refine_against_sdf, Fit, MotionModel, SegmentView};
 use crate::Pose;
 
 /// Headings (turns about the world's up direction) each alignment starts
@@ -51,9 +49,10 @@ type Alignment = (usize, Pose);
 
 impl Map {
     /// The lost object that `segment` shows, if exactly one fits it: of the
-    /// segment's class where the frame has classes, within [`crate::TrackingParams::max_reidentify_m`] of where it was
-    /// lost, no smaller than half the segment's spread, and aligned to it
-    /// from [`HEADINGS`] headings, sliding and turning on a horizontal
+    /// segment's class where the frame has classes, within
+    /// [`crate::TrackingParams::max_reidentify_m`] of where it was lost, no
+    /// smaller than half the segment's spread, and aligned to it from
+    /// [`HEADINGS`] headings, sliding and turning on a horizontal
     /// support (or, where the segment lies higher or lower, standing
     /// upright at any height), well enough for tracking's acceptance tests,
     /// [`MIN_INLIER_RATIO`] and [`MIN_SEGMENT_EXPLAINED`]. When two lost
@@ -73,11 +72,7 @@ impl Map {
         }
         let k = frame.intrinsics;
         let seen = SeenSegment::new(segment, frame)?;
-        let mut mask = vec![false; k.pixels()];
-        for &px in &segment.pixels {
-            mask[px] = true;
-        }
-        let normals = measured_normals(&k, frame.depth_m, &mask);
+        let (mask, normals) = mask_and_normals(&k, frame.depth_m, &segment.pixels);
         let view = SegmentView {
             k: &k,
             depth_m: frame.depth_m,

@@ -28,6 +28,21 @@ pub(super) fn centroid(
     (n > 0).then(|| Point3::from(sum / n as f32))
 }
 
+/// The mask of a segment's `pixels` and the normals measured on it: what a
+/// [`SegmentView`] of the segment borrows.
+pub(super) fn mask_and_normals(
+    k: &Intrinsics,
+    depth_m: &[f32],
+    pixels: &[usize],
+) -> (Vec<bool>, Vec<Option<Vector3<f32>>>) {
+    let mut mask = vec![false; k.pixels()];
+    for &px in pixels {
+        mask[px] = true;
+    }
+    let normals = measured_normals(k, depth_m, &mask);
+    (mask, normals)
+}
+
 /// Why the fit of an aligned pose is not accepted, if it is not: too few
 /// inliers, too small a share of the visible model, or too large an RMSE.
 pub(super) fn acceptance_failure(fit: &Fit, params: &TrackingParams) -> Option<TrackingFailure> {
@@ -228,8 +243,11 @@ impl Map {
             .map(|&id| (id, (TrackingTrigger::Residual, Notice::default())))
             .collect();
         for (id, notice) in std::mem::take(&mut self.notified) {
-            let in_hand = |o: &super::MapObject| o.whereabouts == Whereabouts::Held;
-            if self.objects.get(&id).is_some_and(|o| !in_hand(o)) {
+            if self
+                .objects
+                .get(&id)
+                .is_some_and(|o| o.whereabouts != Whereabouts::Held)
+            {
                 candidates.insert(id, (TrackingTrigger::Notified, notice));
             }
         }
@@ -280,9 +298,9 @@ impl Map {
                     // keeps it: association counts only pixels where the
                     // model at its old pose has the measured depth, evidence
                     // that it is still there; released, those segments would
-                    // become copies of it.
-                    // It is no longer where the map has it: lost, until a
-                    // new segment turns out to be it (`Map::reidentify`).
+                    // become copies of it. The notified object is no longer
+                    // where the map has it: lost, until a new segment turns
+                    // out to be it (`Map::reidentify`).
                     if trigger == TrackingTrigger::Notified {
                         for m in matches.iter_mut().filter(|m| **m == Some(id.0)) {
                             *m = None;
@@ -393,11 +411,7 @@ impl Map {
         let model = object
             .volume
             .surface_samples(2.0 * self.config.voxel_size_m);
-        let mut mask = vec![false; k.pixels()];
-        for &px in &segments[chosen].pixels {
-            mask[px] = true;
-        }
-        let normals = measured_normals(&k, frame.depth_m, &mask);
+        let (mask, normals) = mask_and_normals(&k, frame.depth_m, &segments[chosen].pixels);
         let view = SegmentView {
             k: &k,
             depth_m: frame.depth_m,
