@@ -138,6 +138,14 @@ pub struct MapObject {
     pub labels: ObjectLabels,
     /// Where the map believes the object is.
     pub whereabouts: Whereabouts,
+    /// While lost: the first id issued after it was lost. Objects from this
+    /// id on appeared while it was away, so one of them may be it, seen
+    /// again too little to be recognised (see `Map::reidentify`).
+    lost_before: ObjectId,
+    /// The largest segment it was compared with lost objects on
+    /// (`Map::reidentify`); a later segment is compared again only when
+    /// clearly larger, a better view.
+    reidentify_tried_px: usize,
 }
 
 /// Where the map believes an object is. Only a [`Whereabouts::Placed`]
@@ -354,10 +362,13 @@ impl Map {
         let mut matched: BTreeMap<ObjectId, usize> = BTreeMap::new();
         for (segment, matched_id) in segments.iter().zip(&matches) {
             let id = match matched_id {
-                Some(id) => ObjectId(*id),
+                Some(id) => {
+                    let id = self.current_id(ObjectId(*id));
+                    self.reidentify_later(id, segment, frame).unwrap_or(id)
+                }
                 None if segment.pixels.len() >= self.config.association.new_object_min_px => {
                     match self.place_unmatched(segment, &rendered, frame.depth_m, &failed) {
-                        Placement::New => match self.reidentify(segment, frame) {
+                        Placement::New => match self.reidentify(segment, frame, None) {
                             Some(id) => id,
                             None => self.add_object(segment, frame),
                         },
@@ -534,6 +545,8 @@ impl Map {
             misses: 0,
             labels: ObjectLabels::default(),
             whereabouts: Whereabouts::Placed,
+            lost_before: id,
+            reidentify_tried_px: segment.pixels.len(),
         };
         self.objects.insert(id, object);
         id

@@ -10,6 +10,8 @@ use mapper::{
     Frame, Intrinsics, Map, MapConfig, ObjectId, Pose, TrackingFailure, TrackingOutcome,
     TrackingReport, Whereabouts,
 };
+use std::collections::BTreeSet;
+
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 
 const BOX_CENTRE: Point3<f32> = Point3::new(0.0, 0.0, 0.15);
@@ -393,6 +395,16 @@ fn a_still_object_that_disagrees_keeps_its_pixels_and_spawns_nothing() {
     assert!(deg < 1.0 && m < 0.01, "the still box moved {m} m, {deg}°");
 }
 
+/// `shapes` on the floor.
+fn with_floor(mut shapes: Vec<Shape>) -> Vec<Shape> {
+    shapes.push(floor());
+    shapes
+}
+
+fn k64() -> Intrinsics {
+    Intrinsics::from_fov(64, 64, 90.0)
+}
+
 /// A chair of boxes (seat, back, four legs; one instance) standing at
 /// `t_world_chair` (origin on the floor under the seat's centre).
 fn chair(t_world_chair: Pose) -> Vec<Shape> {
@@ -426,11 +438,7 @@ fn a_pushed_chair_seen_from_the_front_slides_on_the_floor() {
     );
     let track = |config: MapConfig| {
         let mut map = Map::new(config);
-        let k = Intrinsics::from_fov(64, 64, 90.0);
-        let with_floor = |mut shapes: Vec<Shape>| {
-            shapes.push(floor());
-            shapes
-        };
+        let k = k64();
         let standing = with_floor(chair(Isometry3::identity()));
         for pose in orbit(Point3::new(0.0, 0.0, 0.4), 1.8, 1.2, 36) {
             map.integrate(&OwnedFrame::capture(&standing, pose, k).frame())
@@ -636,6 +644,121 @@ fn a_box_pushed_out_of_view_is_found_again_and_nothing_else_is_taken_for_it() {
     assert_ne!(found.labels, labels, "the box keeps its labels");
     assert_eq!(found.labels, before.labels);
     assert_eq!(map.objects().len(), 4, "box, sphere, static box and cube");
+}
+
+/// A chair mapped from the front only (five views at 64 px), its
+/// interaction recorded, then pushed and lost: the map, the chair's id and
+/// the chair as the map had it before the push.
+fn chair_mapped_from_the_front_and_lost() -> (Map, ObjectId, mapper::MapObject) {
+    let mut map = Map::new(MapConfig::default());
+    let standing = with_floor(chair(Isometry3::identity()));
+    for angle in [-120.0f32, -105.0, -90.0, -75.0, -60.0] {
+        let a = angle.to_radians();
+        let eye = Point3::new(1.6 * a.cos(), 1.6 * a.sin(), 1.2);
+        let pose = look_at(eye, Point3::new(0.0, 0.0, 0.4));
+        map.integrate(&OwnedFrame::capture(&standing, pose, k64()).frame())
+            .unwrap();
+    }
+    assert_eq!(map.objects().len(), 1, "one chair");
+    let chair_id = *map.objects().keys().next().unwrap();
+    map.record_interaction(chair_id, mapper::Affordance::Push, mapper::Outcome::Success)
+        .unwrap();
+    let before = map.object(chair_id).unwrap().clone();
+    map.notify_pushed(chair_id, Vector3::new(1.0, 0.0, 0.0))
+        .unwrap();
+    let away = look_at(Point3::new(0.0, -1.6, 1.2), Point3::new(-1.0, -3.0, 0.4));
+    map.integrate(&OwnedFrame::capture(&with_floor(vec![]), away, k64()).frame())
+        .unwrap();
+    assert_eq!(
+        map.object(chair_id).map(|o| o.whereabouts),
+        Some(Whereabouts::Lost)
+    );
+    (map, chair_id, before)
+}
+
+/// Where the lost chair of [`chair_mapped_from_the_front_and_lost`] lands:
+/// 1.5 m along the push.
+const CHAIR_LANDED: Translation3<f32> = Translation3::new(1.5, 0.0, 0.0);
+
+/// Looking at the landed chair's seat from `eye`.
+fn at_landed_chair(eye: Point3<f32>) -> Pose {
+    look_at(eye, Point3::new(1.5, 0.0, 0.4))
+}
+
+/// Integrates a view of the landed chair and returns the map id its pixels
+/// got (0: none), after checking they all got one id.
+fn chair_seen_from(map: &mut Map, pose: Pose) -> ObjectId {
+    let frame = OwnedFrame::capture(&with_floor(chair(CHAIR_LANDED.into())), pose, k64());
+    let owner = map.integrate(&frame.frame()).unwrap();
+    let ids: BTreeSet<u32> = (0..owner.len())
+        .filter(|&px| frame.ids[px] == 1)
+        .map(|px| owner[px])
+        .collect();
+    eprintln!(
+        "{} px of the chair seen, map ids {ids:?}",
+        frame.ids.iter().filter(|&&i| i == 1).count()
+    );
+    assert_eq!(ids.len(), 1, "{ids:?}");
+    ObjectId(ids.into_iter().next().unwrap())
+}
+
+/// Asserts that the lost chair (`before`) was found where it landed, with
+/// its labels, and that `newcomer` was merged into it.
+fn assert_chair_found(map: &Map, before: &mapper::MapObject, newcomer: ObjectId) {
+    assert_eq!(map.current_id(newcomer), before.id, "merged into the chair");
+    assert!(map.object(newcomer).is_none());
+    let found = map.object(before.id).expect("the chair keeps its id");
+    assert_eq!(found.whereabouts, Whereabouts::Placed);
+    let truth = Isometry3::from(CHAIR_LANDED) * before.t_world_object;
+    let (deg, m) = pose_error(&truth, &found.t_world_object);
+    eprintln!("found {m} m, {deg} deg off");
+    assert!(m < 0.03 && deg < 2.0, "found {m} m, {deg} deg off");
+    assert_eq!(found.labels, before.labels);
+    assert_eq!(map.objects().len(), 1, "one chair");
+}
+
+/// A lost chair first seen again far away (60 pixels, 2.5 m) fits too
+/// poorly to be recognised and becomes a new object. Seen nearer, that
+/// object's segment grows; at 1.6 m (132 pixels, more than 1.5 times the
+/// first) it is compared with the lost chair again, fits, and is merged
+/// into it: its id now stands for the chair's, and the chair stands where
+/// it landed, with its labels.
+#[test]
+fn a_lost_chair_first_seen_far_away_is_recognised_nearer() {
+    let (mut map, chair_id, before) = chair_mapped_from_the_front_and_lost();
+    let front = |distance: f32| at_landed_chair(Point3::new(1.5, -distance, 1.0));
+    let newcomer = chair_seen_from(&mut map, front(2.5));
+    assert!(
+        newcomer.0 != 0 && newcomer != chair_id,
+        "seen far away, the chair became an object of its own"
+    );
+    assert_eq!(
+        chair_seen_from(&mut map, front(2.0)),
+        newcomer,
+        "not yet a better view"
+    );
+    for distance in [1.6, 1.3] {
+        assert_eq!(chair_seen_from(&mut map, front(distance)), chair_id);
+    }
+    assert_chair_found(&map, &before, newcomer);
+}
+
+/// A lost chair first seen again from behind, which its model never saw,
+/// cannot be recognised and becomes a new object. Seen from the front, it
+/// is found again; the object made from behind lies on its surface, a copy
+/// of it, and is merged into it.
+#[test]
+fn a_copy_made_while_an_object_was_lost_is_merged_into_it_when_found() {
+    let (mut map, chair_id, before) = chair_mapped_from_the_front_and_lost();
+    let newcomer = chair_seen_from(&mut map, at_landed_chair(Point3::new(1.9, 1.8, 1.0)));
+    assert!(
+        newcomer.0 != 0 && newcomer != chair_id,
+        "seen from behind, the chair became an object of its own"
+    );
+    for eye in [Point3::new(1.8, -1.1, 1.1), Point3::new(1.3, -1.0, 1.0)] {
+        assert_eq!(chair_seen_from(&mut map, at_landed_chair(eye)), chair_id);
+    }
+    assert_chair_found(&map, &before, newcomer);
 }
 
 /// A lost box may come to rest higher or lower than it stood (off a table,

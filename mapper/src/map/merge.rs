@@ -65,6 +65,28 @@ impl Map {
         merged
     }
 
+    /// Merges into `found`, a lost object just found again
+    /// (`Map::reidentify`), the objects that appeared while it was lost and
+    /// whose surfaces coincide with its own where it stands now: copies of
+    /// it, made from views it could not be recognised in (from a side its
+    /// model never saw, say), which would otherwise live on beside it and
+    /// keep the frames that showed them from its labels.
+    pub(super) fn absorb_copies(&mut self, found: ObjectId) {
+        let Some(since) = self.objects.get(&found).map(|o| o.lost_before) else {
+            return;
+        };
+        let copies: Vec<ObjectId> = self
+            .objects
+            .values()
+            .filter(|o| o.id >= since && o.id != found && o.is_placed())
+            .map(|o| o.id)
+            .filter(|&id| self.surfaces_coincide(found, id))
+            .collect();
+        for copy in copies {
+            self.merge(found, copy);
+        }
+    }
+
     /// Whether `copy`'s surface lies on `keep`'s where `keep` knows the
     /// space: most of `copy`'s voxels at its surface, placed in `keep`'s
     /// frame, read about the same distance from `keep`'s volume (within a
@@ -96,7 +118,7 @@ impl Map {
     /// ([`Map::current_id`]). The copy's volume is dropped, not fused: it
     /// may lie at a pose the object has left (the copy a failed tracking
     /// left behind), and `keep` matched this frame best.
-    fn merge(&mut self, keep: ObjectId, copy: ObjectId) {
+    pub(super) fn merge(&mut self, keep: ObjectId, copy: ObjectId) {
         if !self.objects.contains_key(&keep) {
             return;
         }

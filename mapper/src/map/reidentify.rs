@@ -4,7 +4,10 @@
 //! a segment that would become a new object appears later, each lost object
 //! near enough is aligned to it from several headings; one that fits takes
 //! the segment back, with its id, volume and labels, instead of a copy
-//! without them.
+//! without them. Seen first far away or in part, a lost object often fits
+//! too poorly and becomes a new object all the same; that object is
+//! compared with the lost ones again on each clearly better view and, once
+//! one fits, merged into it, as are copies made of it while it was lost.
 //!
 //! A wrong guess hands one object's labels to another, so the tests are
 //! stricter than tracking's: tracking starts from where the object was,
@@ -44,6 +47,10 @@ const MIN_INLIER_RATIO: f32 = 0.7;
 /// pass, and three of the eight right ones.
 const MIN_SEGMENT_EXPLAINED: f32 = 0.5;
 
+/// How much larger than any tried before a new object's segment must be for
+/// [`Map::reidentify_later`] to compare it with the lost objects again.
+const BETTER_VIEW: f32 = 1.5;
+
 /// The best alignment of one lost object: its inliers and camera-frame pose.
 type Alignment = (usize, Pose);
 
@@ -60,14 +67,21 @@ impl Map {
     /// become a new object. The one found is placed at its best alignment
     /// (most inliers) and its id returned. Needs the world's up direction;
     /// without one, nothing is found.
-    pub(super) fn reidentify(&mut self, segment: &Segment, frame: &Frame<'_>) -> Option<ObjectId> {
+    ///
+    /// A segment already matched to an object `seen_as` is compared only
+    /// with objects lost before that one appeared.
+    pub(super) fn reidentify(
+        &mut self,
+        segment: &Segment,
+        frame: &Frame<'_>,
+        seen_as: Option<ObjectId>,
+    ) -> Option<ObjectId> {
         let params = self.config.tracking;
         let up = Unit::new_normalize(params.unit_up()?);
-        if !self
-            .objects
-            .values()
-            .any(|o| o.whereabouts == Whereabouts::Lost)
-        {
+        let lost = |o: &&MapObject| {
+            o.whereabouts == Whereabouts::Lost && seen_as.is_none_or(|id| o.lost_before <= id)
+        };
+        if !self.objects.values().any(|o| lost(&o)) {
             return None;
         }
         let k = frame.intrinsics;
@@ -83,11 +97,7 @@ impl Map {
         let up_in_camera = t_camera_world.rotation * up.into_inner();
         let seen_at_world = frame.t_world_camera * seen.centre;
         let mut fitting: Vec<(ObjectId, Alignment)> = Vec::new();
-        for object in self
-            .objects
-            .values()
-            .filter(|o| o.whereabouts == Whereabouts::Lost)
-        {
+        for object in self.objects.values().filter(lost) {
             if seen.class.is_some() && object.class().is_some_and(|c| Some(c) != seen.class) {
                 continue;
             }
@@ -165,7 +175,35 @@ impl Map {
         object.t_world_object = frame.t_world_camera * t_camera_object;
         object.whereabouts = Whereabouts::Placed;
         object.misses = 0;
+        self.absorb_copies(id);
         Some(id)
+    }
+
+    /// The lost object that `id`, an object that appeared while it was
+    /// away, turns out to be, found by [`Map::reidentify`] on `segment`
+    /// (matched to `id`), which is then merged into it (`Map::merge`).
+    /// Seen again far away or in part, a lost object often fails
+    /// re-identification's tests and becomes a new object; as the robot
+    /// comes closer, the new object's segments grow, and each one at least
+    /// [`BETTER_VIEW`] times the size of any tried before is compared with
+    /// the lost objects again. Merged, the new object's id stands for the
+    /// lost one's ([`Map::current_id`]): every frame of either is labelled
+    /// with the labels of both.
+    pub(super) fn reidentify_later(
+        &mut self,
+        id: ObjectId,
+        segment: &Segment,
+        frame: &Frame<'_>,
+    ) -> Option<ObjectId> {
+        let size = segment.pixels.len();
+        let object = self.objects.get_mut(&id)?;
+        if !object.is_placed() || (size as f32) < BETTER_VIEW * object.reidentify_tried_px as f32 {
+            return None;
+        }
+        object.reidentify_tried_px = size;
+        let found = self.reidentify(segment, frame, Some(id))?;
+        self.merge(found, id);
+        Some(found)
     }
 
     /// Whether an alignment's fit passes tracking's acceptance tests and

@@ -306,8 +306,10 @@ impl Map {
                             *m = None;
                         }
                         failed.insert(id);
+                        let next_id = ObjectId(self.next_id);
                         if let Some(object) = self.objects.get_mut(&id) {
                             object.whereabouts = Whereabouts::Lost;
+                            object.lost_before = next_id;
                         }
                     }
                     TrackingOutcome::Failed(failure)
