@@ -282,8 +282,13 @@ impl Map {
         if !self.objects.contains_key(&id) {
             return Err(MapError::UnknownObject(id));
         }
-        self.notified
-            .insert(id, track::Notice { motion, push: None });
+        self.notified.insert(
+            id,
+            track::Notice {
+                motion,
+                ..Default::default()
+            },
+        );
         Ok(())
     }
 
@@ -306,6 +311,7 @@ impl Map {
                 motion: None,
                 // `try_new` also refuses a NaN norm.
                 push: nalgebra::Unit::try_new(level, 1e-6),
+                ..Default::default()
             },
         );
         Ok(())
@@ -764,6 +770,9 @@ impl Map {
     /// (world frame) between pick-up and release. The next frame tracks it
     /// from there, as after [`Map::notify_moved`]: a model seen from one
     /// side may not match its new view well enough for association alone.
+    /// Where tracking finds nothing there (put down out of view or behind
+    /// something), it stays where the motion put it; where a segment there
+    /// fits it poorly, it is lost, as a pushed object would be.
     pub fn release(&mut self, id: ObjectId, motion: Pose) -> Result<(), MapError> {
         let object = self
             .objects
@@ -772,7 +781,11 @@ impl Map {
         object.whereabouts = Whereabouts::Placed;
         object.t_world_object = motion * object.t_world_object;
         object.misses = 0;
-        self.notified.insert(id, track::Notice::default());
+        let notice = track::Notice {
+            released: true,
+            ..Default::default()
+        };
+        self.notified.insert(id, notice);
         Ok(())
     }
 

@@ -325,6 +325,51 @@ fn a_held_object_survives_being_out_of_sight_and_returns_where_it_was_put() {
     );
 }
 
+/// A held box put down out of view, with the hand's motion: tracking finds
+/// nothing where it was put, which says nothing against the motion, so it
+/// stays there, drawn where it stands, and keeps its id when seen.
+#[test]
+fn an_object_put_down_out_of_view_stays_where_it_was_put() {
+    let (mut map, [box_id, ..]) = mapped_scene();
+    map.hold(box_id).unwrap();
+    let start = Isometry3::translation(BOX_CENTRE.x, BOX_CENTRE.y, BOX_CENTRE.z);
+    let put = Isometry3::translation(0.0, -0.6, BOX_CENTRE.z);
+    map.release(box_id, put * start.inverse()).unwrap();
+    let mut shapes = vec![floor(), moving_box(put)];
+    shapes.extend(statics());
+    let away = look_at(Point3::new(0.0, 1.5, 1.1), Point3::new(0.0, 3.0, 0.2));
+    let frame = OwnedFrame::capture(&shapes, away, k128());
+    assert!(!frame.ids.contains(&1), "the box is out of view");
+    map.integrate(&frame.frame()).unwrap();
+    let report = tracking_of(&map, box_id).expect("tracked after release");
+    assert!(
+        matches!(
+            report.outcome,
+            TrackingOutcome::Failed(TrackingFailure::NoSegment)
+        ),
+        "{report:?}"
+    );
+    assert_eq!(
+        map.object(box_id).map(|o| o.whereabouts),
+        Some(Whereabouts::Placed)
+    );
+    let views = views();
+    let frame = OwnedFrame::capture(&shapes, views[9], k128());
+    let rendered = map.render_ids(&views[9], &k128()).ids;
+    let owner = map.integrate(&frame.frame()).unwrap();
+    let (mut mask, mut drawn, mut seen) = (0, 0, 0);
+    for (px, &instance) in frame.ids.iter().enumerate() {
+        if instance == 1 {
+            mask += 1;
+            drawn += usize::from(rendered[px] == box_id.0);
+            seen += usize::from(owner[px] == box_id.0);
+        }
+    }
+    eprintln!("put down out of view: {drawn} of {mask} px drawn, {seen} seen with its id");
+    assert!(mask > 100 && drawn as f32 >= 0.9 * mask as f32);
+    assert!(seen as f32 >= 0.9 * mask as f32);
+}
+
 /// A still object whose model shows more than the frame does (here a panel
 /// in front of the box, part of the same instance while it was mapped, then
 /// gone; in a room, the rim of an opening seen through, a part never seen

@@ -68,6 +68,20 @@ pub(super) struct Notice {
     pub(super) motion: Option<Pose>,
     /// The world-frame direction the robot pushed it along.
     pub(super) push: Option<Unit<Vector3<f32>>>,
+    /// The robot put it down where it is, by a motion it knows
+    /// ([`Map::release`]).
+    pub(super) released: bool,
+}
+
+/// Whether a tracking failure means that nothing was seen where the object
+/// was predicted: no segment overlaps it there or lies near (out of view,
+/// or hidden). For an object the robot put down by a motion it knows, that
+/// says nothing against the motion, so it stays where it was put.
+fn nothing_seen_there(failure: TrackingFailure) -> bool {
+    matches!(
+        failure,
+        TrackingFailure::NoSegment | TrackingFailure::BeyondGate { .. }
+    )
 }
 
 /// Whether an object's `shift` (camera frame, from where it was predicted
@@ -300,12 +314,17 @@ impl Map {
                     // that it is still there; released, those segments would
                     // become copies of it. The notified object is no longer
                     // where the map has it: lost, until a new segment turns
-                    // out to be it (`Map::reidentify`).
+                    // out to be it (`Map::reidentify`); unless the robot put
+                    // it down by a motion it knows and nothing contradicts it.
                     if trigger == TrackingTrigger::Notified {
                         for m in matches.iter_mut().filter(|m| **m == Some(id.0)) {
                             *m = None;
                         }
                         failed.insert(id);
+                    }
+                    if trigger == TrackingTrigger::Notified
+                        && !(notice.released && nothing_seen_there(failure))
+                    {
                         let next_id = ObjectId(self.next_id);
                         if let Some(object) = self.objects.get_mut(&id) {
                             object.whereabouts = Whereabouts::Lost;
