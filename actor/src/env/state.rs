@@ -237,8 +237,10 @@ fn camera_planes(config: &StateConfig, input: &StateInputs<'_>, map: Option<&Map
     for &affordance in &config.affordances {
         for wanted in [true, false] {
             out.extend(input.map_ids.iter().map(|&id| {
+                // A frame's id may be of an object merged into another
+                // since (`Map::current_id`), in this very frame even.
                 let label = map
-                    .object(ObjectId(id))
+                    .object(map.current_id(ObjectId(id)))
                     .filter(|o| o.labels.interacted(affordance))
                     .and_then(|o| o.labels.label(affordance));
                 f32::from(u8::from(id != 0 && label == Some(wanted)))
