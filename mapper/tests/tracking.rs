@@ -898,15 +898,14 @@ fn a_segment_two_lost_objects_fit_becomes_a_new_object() {
 #[test]
 fn a_lost_object_is_found_only_in_its_own_class() {
     const BOX_CLASS: u16 = 7;
-    let classes = |frame: &OwnedFrame, of: &dyn Fn(u32) -> u16| -> Vec<u16> {
-        frame.ids.iter().map(|&i| of(i)).collect()
-    };
-    let start = Isometry3::translation(BOX_CENTRE.x, BOX_CENTRE.y, BOX_CENTRE.z);
-    let mut map = Map::new(MapConfig::default());
-    let mut box_id = None;
-    for pose in views() {
-        let frame = OwnedFrame::capture(&scene(start), pose, k128());
-        let class = classes(&frame, &|i| if i == 1 { BOX_CLASS } else { i as u16 });
+    // Integrates `frame` with the box's pixels of class `class_of_box`
+    // (the others of their instance's), and returns the box's map id.
+    let integrate_classed = |map: &mut Map, frame: &OwnedFrame, class_of_box: u16| {
+        let class: Vec<u16> = frame
+            .ids
+            .iter()
+            .map(|&i| if i == 1 { class_of_box } else { i as u16 })
+            .collect();
         let owner = map
             .integrate(&Frame {
                 class: Some(&class),
@@ -914,7 +913,15 @@ fn a_lost_object_is_found_only_in_its_own_class() {
             })
             .unwrap();
         let px = frame.ids.iter().position(|&i| i == 1).unwrap();
-        box_id.get_or_insert(ObjectId(owner[px]));
+        ObjectId(owner[px])
+    };
+    let start = Isometry3::translation(BOX_CENTRE.x, BOX_CENTRE.y, BOX_CENTRE.z);
+    let mut map = Map::new(MapConfig::default());
+    let mut box_id = None;
+    for pose in views() {
+        let frame = OwnedFrame::capture(&scene(start), pose, k128());
+        let seen_as = integrate_classed(&mut map, &frame, BOX_CLASS);
+        box_id.get_or_insert(seen_as);
     }
     let box_id = box_id.unwrap();
     assert_eq!(map.object(box_id).unwrap().class(), Some(BOX_CLASS));
@@ -925,15 +932,7 @@ fn a_lost_object_is_found_only_in_its_own_class() {
     // The same shape, first of another class, then of the box's.
     for class_of_box in [BOX_CLASS + 1, BOX_CLASS] {
         let frame = OwnedFrame::capture(&scene(landed), views[0], k128());
-        let class = classes(&frame, &|i| if i == 1 { class_of_box } else { i as u16 });
-        let owner = map
-            .integrate(&Frame {
-                class: Some(&class),
-                ..frame.frame()
-            })
-            .unwrap();
-        let px = frame.ids.iter().position(|&i| i == 1).unwrap();
-        ids_seen.push(ObjectId(owner[px]));
+        ids_seen.push(integrate_classed(&mut map, &frame, class_of_box));
         if class_of_box != BOX_CLASS {
             // Gone again, so that the next frame sees a segment no object matches.
             let empty: Vec<Shape> = std::iter::once(floor()).chain(statics()).collect();

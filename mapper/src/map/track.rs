@@ -321,12 +321,9 @@ impl Map {
                             *m = None;
                         }
                         failed.insert(id);
-                    }
-                    if trigger == TrackingTrigger::Notified
-                        && !(notice.released && nothing_seen_there(failure))
-                    {
                         let next_id = ObjectId(self.next_id);
-                        if let Some(object) = self.objects.get_mut(&id) {
+                        let stays = notice.released && nothing_seen_there(failure);
+                        if let Some(object) = self.objects.get_mut(&id).filter(|_| !stays) {
                             object.whereabouts = Whereabouts::Lost;
                             object.lost_before = next_id;
                         }
