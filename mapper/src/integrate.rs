@@ -23,8 +23,11 @@ use crate::layer::{BlockIndex, Layer, Voxel, VoxelIndex, BLOCK_EDGE};
 use crate::Pose;
 
 mod frame;
+#[cfg(target_arch = "x86_64")]
+mod row_avx2;
 
 pub use frame::FramePixels;
+use frame::{MAY_CARVE, MAY_CARVE_NEAR};
 
 /// Settings of the integrator.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -234,6 +237,19 @@ pub fn integrate(
     params: &IntegrationParams,
     carve: bool,
 ) -> usize {
+    let kernel = RowKernel::for_frame(owned, view.pixels);
+    integrate_with(kernel, layer, view, owned, params, carve)
+}
+
+/// [`integrate`] with block rows updated by `kernel`.
+fn integrate_with(
+    kernel: RowKernel,
+    layer: &mut Layer,
+    view: &DepthView<'_>,
+    owned: Owned<'_>,
+    params: &IntegrationParams,
+    carve: bool,
+) -> usize {
     let DepthView {
         t_layer_camera,
         k,
@@ -246,7 +262,6 @@ pub fn integrate(
     }
     let mut blocks: Vec<BlockIndex> = blocks.into_iter().collect();
     blocks.sort_unstable();
-    let trunc = params.truncation_m;
     let mut updated = 0;
     let voxel = layer.voxel_size_m;
     let edge = BLOCK_EDGE as usize;
@@ -257,72 +272,24 @@ pub fn integrate(
         e[a] = voxel;
         t_camera_layer.rotation * e
     });
-    let off_image = pixels.off_image();
     for b in blocks {
         let origin = t_camera_layer * layer.voxel_center(VoxelIndex::join(b, 0));
         let exists = layer.block(b).is_some();
+        let inputs = RowInputs {
+            k,
+            pixels,
+            owned,
+            params,
+            carve: carve && exists,
+        };
         // Updated in place, which tells the block its cached surface is
         // stale; a block allocated here and never updated is freed again.
         let block_updates = layer.block_mut_or_insert(b).update(|voxels| {
             let mut block_updates = 0;
-            for zi in 0..edge {
-                for yi in 0..edge {
-                    let row = origin.coords + steps[1] * yi as f32 + steps[2] * zi as f32;
-                    let landing = project_row(&row, &steps[0], k, off_image);
-                    for xi in 0..edge {
-                        let (px, u, v, z) =
-                            (landing.px[xi], landing.u[xi], landing.v[xi], landing.z[xi]);
-                        let pixel = pixels.records[px as usize];
-                        let rough = pixel.depth - z;
-                        // Off the image, no usable depth (NaN), or so far behind
-                        // the surface that even interpolation keeps it occluded.
-                        if rough.is_nan() || rough < -2.0 * trunc {
-                            continue;
-                        }
-                        let o = xi + edge * (yi + edge * zi);
-                        if owned.contains(px as usize) {
-                            // The interpolated depth is within one truncation of
-                            // the nearest pixel's: voxels this far in front need
-                            // no interpolation.
-                            let d = if rough < 2.0 * trunc {
-                                pixels.depth_at(u, v, pixel.depth)
-                            } else {
-                                pixel.depth
-                            };
-                            let projective = d - z;
-                            if projective < -trunc {
-                                continue; // occluded: behind the observed surface
-                            }
-                            let cos = pixel.cos;
-                            let sdf = projective * cos;
-                            // Full weight in front of the surface, dropping
-                            // quadratically behind it (behind a surface, the ray's
-                            // distance says least about the voxel's: corners and
-                            // edges); grazing views count less.
-                            let w = cos
-                                * if sdf >= 0.0 {
-                                    1.0
-                                } else {
-                                    (1.0 + sdf / trunc).powi(2).max(0.05)
-                                };
-                            fuse(&mut voxels[o], sdf.min(trunc), w, params.max_weight);
-                            block_updates += 1;
-                        } else if carve && exists && rough > params.free_space_margin_m {
-                            let voxel = &mut voxels[o];
-                            // Free beyond the band of the surface seen; within
-                            // it only a voxel inside its object is contradicted
-                            // (a positive one may lie near its own surface,
-                            // beside the ray). Carving clears known surface; it
-                            // never creates knowledge.
-                            let free = (rough > trunc && pixel.may_carve)
-                                || (voxel.sdf < 0.0 && pixel.may_carve_near);
-                            if voxel.weight > 0.0 && free {
-                                fuse(voxel, rough.min(trunc), 1.0, params.max_weight);
-                                block_updates += 1;
-                            }
-                        }
-                    }
-                }
+            for (r, row_voxels) in voxels.chunks_exact_mut(edge).enumerate() {
+                let (yi, zi) = (r % edge, r / edge);
+                let row = origin.coords + steps[1] * yi as f32 + steps[2] * zi as f32;
+                block_updates += kernel.update_row(row_voxels, &row, &steps[0], &inputs);
             }
             block_updates
         });
@@ -334,10 +301,259 @@ pub fn integrate(
     updated
 }
 
+/// What every voxel row of one block reads.
+struct RowInputs<'a> {
+    k: &'a Intrinsics,
+    pixels: &'a FramePixels,
+    owned: Owned<'a>,
+    params: &'a IntegrationParams,
+    /// Voxels on other surfaces' pixels may be carved: carving is on and
+    /// the block existed before this frame.
+    carve: bool,
+}
+
+/// How a block row is updated: eight voxels at a time where the processor
+/// has AVX2 ([`row_avx2`]), else one at a time. Both give the same voxels to
+/// the bit (tested).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum RowKernel {
+    /// [`update_row`].
+    Scalar,
+    /// [`row_avx2::update_row`]; made only where it is safe to call.
+    #[cfg(target_arch = "x86_64")]
+    Avx2,
+}
+
+impl RowKernel {
+    /// The fastest kernel this processor runs for a frame whose pixels
+    /// `owned` labels.
+    fn for_frame(owned: Owned<'_>, pixels: &FramePixels) -> Self {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2")
+            && owned.labels.len() + 1 == pixels.records.len()
+        {
+            return Self::Avx2;
+        }
+        let _ = (owned, pixels);
+        Self::Scalar
+    }
+
+    /// Updates one block row of `BLOCK_EDGE` voxels, the first at
+    /// camera-frame point `row`, the next ones `step` apart; returns how
+    /// many changed.
+    #[inline]
+    fn update_row(
+        self,
+        voxels: &mut [Voxel],
+        row: &Vector3<f32>,
+        step: &Vector3<f32>,
+        inputs: &RowInputs<'_>,
+    ) -> usize {
+        match self {
+            Self::Scalar => update_row(voxels, row, step, inputs),
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `for_frame` made this kernel only where the
+            // processor has AVX2 and the labels cover the frame's pixels;
+            // a block row has BLOCK_EDGE voxels.
+            Self::Avx2 => unsafe { row_avx2::update_row(voxels, row, step, inputs) },
+        }
+    }
+}
+
+/// [`RowKernel::update_row`], one voxel at a time.
+fn update_row(
+    voxels: &mut [Voxel],
+    row: &Vector3<f32>,
+    step: &Vector3<f32>,
+    inputs: &RowInputs<'_>,
+) -> usize {
+    let RowInputs {
+        k,
+        pixels,
+        owned,
+        params,
+        carve,
+    } = *inputs;
+    let trunc = params.truncation_m;
+    let landing = project_row(row, step, k, pixels.off_image());
+    let mut updates = 0;
+    for (xi, voxel) in voxels.iter_mut().enumerate() {
+        let (px, u, v, z) = (landing.px[xi], landing.u[xi], landing.v[xi], landing.z[xi]);
+        let pixel = pixels.records[px as usize];
+        let rough = pixel.depth - z;
+        // Off the image, no usable depth (NaN), or so far behind the
+        // surface that even interpolation keeps it occluded.
+        if rough.is_nan() || rough < -2.0 * trunc {
+            continue;
+        }
+        if owned.contains(px as usize) {
+            // The interpolated depth is within one truncation of the
+            // nearest pixel's: voxels this far in front need no
+            // interpolation.
+            let d = if rough < 2.0 * trunc {
+                pixels.depth_at(u, v, pixel.depth)
+            } else {
+                pixel.depth
+            };
+            let projective = d - z;
+            if projective < -trunc {
+                continue; // occluded: behind the observed surface
+            }
+            let cos = pixel.cos;
+            let sdf = projective * cos;
+            // Full weight in front of the surface, dropping quadratically
+            // behind it (behind a surface, the ray's distance says least
+            // about the voxel's: corners and edges); grazing views count
+            // less.
+            let w = cos
+                * if sdf >= 0.0 {
+                    1.0
+                } else {
+                    (1.0 + sdf / trunc).powi(2).max(BEHIND_WEIGHT_FLOOR)
+                };
+            fuse(voxel, sdf.min(trunc), w, params.max_weight);
+            updates += 1;
+        } else if carve && rough > params.free_space_margin_m {
+            // Free beyond the band of the surface seen; within it only a
+            // voxel inside its object is contradicted (a positive one may
+            // lie near its own surface, beside the ray). Carving clears
+            // known surface; it never creates knowledge.
+            let free = (rough > trunc && pixel.has(MAY_CARVE))
+                || (voxel.sdf < 0.0 && pixel.has(MAY_CARVE_NEAR));
+            if voxel.weight > 0.0 && free {
+                fuse(voxel, rough.min(trunc), 1.0, params.max_weight);
+                updates += 1;
+            }
+        }
+    }
+    updates
+}
+
+/// The least weight of a measurement behind the surface, as a fraction of
+/// one in front of it.
+const BEHIND_WEIGHT_FLOOR: f32 = 0.05;
+
 /// Folds one measurement (`sdf`, weight `w`) into a voxel's weighted mean.
 #[inline]
 fn fuse(voxel: &mut Voxel, sdf: f32, w: f32, max_weight: f32) {
     let total = voxel.weight + w;
     voxel.sdf = (voxel.sdf * voxel.weight + sdf * w) / total;
     voxel.weight = total.min(max_weight);
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    use super::*;
+
+    const PARAMS: IntegrationParams = IntegrationParams {
+        truncation_m: 0.12,
+        max_weight: 50.0,
+        min_depth_m: 0.1,
+        max_depth_m: 8.0,
+        free_space_margin_m: 0.04,
+    };
+
+    /// Depth (z) and labels of a ball of radius 0.4 m at camera-frame
+    /// `centre` (label 1) in front of a wall at z = 3 m (label 2), with a
+    /// band of pixels that measured nothing (label 0).
+    fn ball_before_wall(k: &Intrinsics, centre: Vector3<f32>) -> (Vec<f32>, Vec<u32>) {
+        let mut depth = vec![3.0; k.pixels()];
+        let mut labels = vec![2; k.pixels()];
+        for v in 0..k.height {
+            for u in 0..k.width {
+                let i = v * k.width + u;
+                if (40..44).contains(&v) {
+                    (depth[i], labels[i]) = (f32::NAN, 0);
+                    continue;
+                }
+                let ray = k.ray(u as f32, v as f32);
+                let (a, b) = (ray.norm_squared(), ray.dot(&centre));
+                let disc = b * b - a * (centre.norm_squared() - 0.16);
+                if disc >= 0.0 {
+                    // Ray points are ray · t with z = t.
+                    (depth[i], labels[i]) = ((b - disc.sqrt()) / a, 1);
+                }
+            }
+        }
+        (depth, labels)
+    }
+
+    /// Integrates a ball that moves and a wall seen from moving cameras
+    /// with `kernel`; returns both layers' voxels in block order and the
+    /// update counts.
+    fn integrate_moving_ball(kernel: RowKernel) -> (Vec<(BlockIndex, Vec<Voxel>)>, Vec<usize>) {
+        let k = Intrinsics::from_fov(128, 128, 90.0);
+        let mut ball = Layer::new(0.04);
+        let mut wall = Layer::new(0.08);
+        let mut pixels = FramePixels::default();
+        let mut counts = Vec::new();
+        for step in 0..6 {
+            let s = step as f32;
+            // The ball moves 8 cm a frame; the camera turns and slides.
+            let (depth, labels) = ball_before_wall(&k, Vector3::new(0.08 * s - 0.2, 0.1, 2.0));
+            let t_layer_camera = Pose::from_parts(
+                Translation3::new(0.03 * s, -0.02 * s, 0.01 * s),
+                UnitQuaternion::from_euler_angles(0.01 * s, 0.03 * s, 0.02 * s),
+            );
+            pixels.prepare(&k, &depth, &PARAMS);
+            let view = DepthView {
+                t_layer_camera: &t_layer_camera,
+                k: &k,
+                pixels: &pixels,
+            };
+            let by_label = pixels_by_label(&labels);
+            for (layer, id, carve) in [(&mut ball, 1, true), (&mut wall, 2, false)] {
+                let owned = Owned {
+                    labels: &labels,
+                    id,
+                    pixels: by_label.get(&id).map_or(&[], Vec::as_slice),
+                };
+                counts.push(integrate_with(kernel, layer, &view, owned, &PARAMS, carve));
+            }
+        }
+        let mut voxels = Vec::new();
+        for layer in [&ball, &wall] {
+            let mut blocks = layer.block_indices();
+            blocks.sort_unstable();
+            for b in blocks {
+                voxels.push((b, layer.block(b).unwrap().voxels().to_vec()));
+            }
+        }
+        (voxels, counts)
+    }
+
+    #[test]
+    fn vector_rows_update_voxels_exactly_as_scalar_rows() {
+        let k = Intrinsics::from_fov(128, 128, 90.0);
+        let (_, labels) = ball_before_wall(&k, Vector3::new(0.0, 0.1, 2.0));
+        let mut pixels = FramePixels::default();
+        pixels.prepare(&k, &vec![1.0; k.pixels()], &PARAMS);
+        let owned = Owned {
+            labels: &labels,
+            id: 1,
+            pixels: &[],
+        };
+        let fastest = RowKernel::for_frame(owned, &pixels);
+        if fastest == RowKernel::Scalar {
+            eprintln!("this processor has no AVX2: only the scalar rows run here");
+            return;
+        }
+        let (scalar, scalar_counts) = integrate_moving_ball(RowKernel::Scalar);
+        let (vector, vector_counts) = integrate_moving_ball(fastest);
+        assert_eq!(scalar_counts, vector_counts);
+        assert!(scalar_counts.iter().all(|&c| c > 1000), "{scalar_counts:?}");
+        assert_eq!(scalar.len(), vector.len());
+        for ((b, s), (c, v)) in scalar.iter().zip(&vector) {
+            assert_eq!(b, c);
+            for (i, (s, v)) in s.iter().zip(v).enumerate() {
+                assert_eq!(
+                    (s.sdf.to_bits(), s.weight.to_bits()),
+                    (v.sdf.to_bits(), v.weight.to_bits()),
+                    "block {b:?} voxel {i}: scalar {s:?}, vector {v:?}"
+                );
+            }
+        }
+    }
 }

@@ -26,8 +26,10 @@ pub fn floor_to_i32(x: f32) -> i32 {
     }
 }
 
-/// One TSDF sample.
+/// One TSDF sample. `repr(C)`: integration's vector code reads a block row
+/// as interleaved `sdf, weight` pairs.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[repr(C)]
 pub struct Voxel {
     /// Truncated signed distance in metres (positive in front of the surface).
     pub sdf: f32,

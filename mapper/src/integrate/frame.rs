@@ -7,23 +7,56 @@ use super::IntegrationParams;
 use crate::camera::Intrinsics;
 
 /// What integration reads of one pixel, gathered once per frame into one
-/// record, so each voxel reads one record instead of four images.
+/// record, so each voxel reads one record instead of four images. Three
+/// 32-bit words without padding (`repr(C)`), so that vector code can gather
+/// each word by index.
 #[derive(Debug, Clone, Copy)]
+#[repr(C)]
 pub(super) struct PixelRecord {
     /// Z-depth in metres; NaN where unusable (and for the off-image sentinel).
     pub(super) depth: f32,
     /// The factor from [`write_normal_cosines`].
     pub(super) cos: f32,
-    /// The pixel may carve other surfaces ([`mark_carving_pixels`]).
-    pub(super) may_carve: bool,
-    /// The pixel may also contradict voxels within the truncation band of
-    /// its surface: no neighbour is nearer by more than
-    /// [`IntegrationParams::free_space_margin_m`] ([`mark_carving_pixels`]).
-    pub(super) may_carve_near: bool,
-    /// Depth may be interpolated between this pixel and its right, lower and
-    /// lower-right neighbours: all four usable and on one smooth surface
-    /// (within one truncation distance).
-    smooth_quad: bool,
+    /// Bits [`MAY_CARVE`], [`MAY_CARVE_NEAR`] and [`SMOOTH_QUAD`].
+    pub(super) flags: u32,
+}
+
+/// [`PixelRecord::flags`] bit: the pixel may carve other surfaces
+/// ([`mark_carving_pixels`]).
+pub(super) const MAY_CARVE: u32 = 1;
+/// [`PixelRecord::flags`] bit: the pixel may also contradict voxels within
+/// the truncation band of its surface: no neighbour is nearer by more than
+/// [`IntegrationParams::free_space_margin_m`] ([`mark_carving_pixels`]).
+pub(super) const MAY_CARVE_NEAR: u32 = 2;
+/// [`PixelRecord::flags`] bit: depth may be interpolated between this pixel
+/// and its right, lower and lower-right neighbours: all four usable and on
+/// one smooth surface (within one truncation distance).
+pub(super) const SMOOTH_QUAD: u32 = 4;
+
+impl PixelRecord {
+    /// A record with depth `depth`, head-on, and no flag set.
+    fn new(depth: f32) -> Self {
+        Self {
+            depth,
+            cos: 1.0,
+            flags: 0,
+        }
+    }
+
+    /// True if flag bit `bit` is set.
+    #[inline]
+    pub(super) fn has(&self, bit: u32) -> bool {
+        self.flags & bit != 0
+    }
+
+    /// Sets flag bit `bit` to `on`.
+    fn set(&mut self, bit: u32, on: bool) {
+        if on {
+            self.flags |= bit;
+        } else {
+            self.flags &= !bit;
+        }
+    }
 }
 
 /// One depth frame prepared for integration into any number of layers: per
@@ -50,23 +83,15 @@ impl FramePixels {
         self.width = k.width;
         fill_camera_points(k, depth_m, params, &mut self.points);
         self.records.clear();
-        self.records.extend(depth_m.iter().map(|&d| PixelRecord {
-            depth: if params.valid_depth(d) { d } else { f32::NAN },
-            cos: 1.0,
-            may_carve: false,
-            may_carve_near: false,
-            smooth_quad: false,
-        }));
+        self.records.extend(
+            depth_m
+                .iter()
+                .map(|&d| PixelRecord::new(if params.valid_depth(d) { d } else { f32::NAN })),
+        );
         write_normal_cosines(k, &self.points, params, &mut self.records);
         mark_carving_pixels(k, params, &mut self.records, &mut self.row_min);
         mark_smooth_quads(k, params, &mut self.records);
-        self.records.push(PixelRecord {
-            depth: f32::NAN,
-            cos: 1.0,
-            may_carve: false,
-            may_carve_near: false,
-            smooth_quad: false,
-        });
+        self.records.push(PixelRecord::new(f32::NAN));
     }
 
     /// The index voxels landing outside the image read.
@@ -86,7 +111,7 @@ impl FramePixels {
         }
         let (u0, v0) = ((u as usize) as f32, (v as usize) as f32);
         let i = v0 as usize * self.width + u0 as usize;
-        if !self.records[i].smooth_quad {
+        if !self.records[i].has(SMOOTH_QUAD) {
             return nearest;
         }
         let w = self.width;
@@ -213,14 +238,17 @@ fn mark_carving_pixels(
             let i = v * w + u;
             let d = records[i].depth;
             let nearest = row_min[i].min(row_min[above + u]).min(row_min[below + u]);
-            records[i].may_carve = !d.is_nan() && nearest >= d - params.truncation_m;
-            records[i].may_carve_near = !d.is_nan() && nearest >= d - params.free_space_margin_m;
+            records[i].set(MAY_CARVE, !d.is_nan() && nearest >= d - params.truncation_m);
+            records[i].set(
+                MAY_CARVE_NEAR,
+                !d.is_nan() && nearest >= d - params.free_space_margin_m,
+            );
         }
     }
 }
 
 /// Marks the pixels where bilinear depth interpolation may start
-/// ([`PixelRecord::smooth_quad`]).
+/// ([`SMOOTH_QUAD`]).
 fn mark_smooth_quads(k: &Intrinsics, params: &IntegrationParams, records: &mut [PixelRecord]) {
     let (w, h) = (k.width, k.height);
     for v in 0..h.saturating_sub(1) {
@@ -233,8 +261,10 @@ fn mark_smooth_quads(k: &Intrinsics, params: &IntegrationParams, records: &mut [
                 .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &d| {
                     (lo.min(d), hi.max(d))
                 });
-            records[i].smooth_quad =
-                q.iter().all(|d| !d.is_nan()) && hi - lo <= params.truncation_m;
+            records[i].set(
+                SMOOTH_QUAD,
+                q.iter().all(|d| !d.is_nan()) && hi - lo <= params.truncation_m,
+            );
         }
     }
 }
