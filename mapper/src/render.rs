@@ -59,7 +59,11 @@ pub(crate) fn sdf_at(reader: &mut CachedReader<'_>, p: &Point3<f32>) -> Option<f
 /// (which a ray may leap) from the one voxel lookup.
 fn sample(reader: &mut CachedReader<'_>, p: &Point3<f32>) -> Sample {
     let layer = reader.layer();
-    let (block_index, offset) = layer.voxel_of(p).split();
+    // In voxel units; a multiplication, as a division here would sit on
+    // every ray's chain of dependent steps.
+    let s = layer.voxel_size_m;
+    let q = p.coords * (1.0 / s);
+    let (block_index, offset) = VoxelIndex(q.map(crate::layer::floor_to_i32).into()).split();
     let Some(block) = reader.block(block_index) else {
         return Sample::Unallocated(block_index);
     };
@@ -68,8 +72,7 @@ fn sample(reader: &mut CachedReader<'_>, p: &Point3<f32>) -> Sample {
         return Sample::Unobserved;
     }
     let nearest = voxel.sdf;
-    let s = layer.voxel_size_m;
-    let g = [p.x / s - 0.5, p.y / s - 0.5, p.z / s - 0.5];
+    let g = [q.x - 0.5, q.y - 0.5, q.z - 0.5];
     let base = g.map(crate::layer::floor_to_i32);
     let f = [0, 1, 2].map(|a| g[a] - base[a] as f32);
     let weight = |corner: usize| -> f32 {
@@ -301,6 +304,9 @@ impl Marcher<'_> {
         let (z0, z1) = slab(&origin, dir, &self.lo, &self.hi)?;
         let z_end = z1.min(z_limit);
         let metres_per_z = dir.norm();
+        // Steps along the ray in z: a voxel, half a voxel, per metre.
+        let (voxel_z, half_voxel_z) = (voxel / metres_per_z, 0.5 * voxel / metres_per_z);
+        let z_per_metre = 1.0 / metres_per_z;
         let mut z = z0.max(self.min_depth_m);
         let mut previous: Option<(f32, f32)> = None;
         while z <= z_end {
@@ -315,10 +321,10 @@ impl Marcher<'_> {
             // Sphere-trace through known free space; half voxels near the
             // surface; unobserved space holds no crossing, so leap it: to
             // the exit of an unallocated block, else a whole voxel.
-            let next = z + voxel / metres_per_z;
+            let next = z + voxel_z;
             (previous, z) = match here {
-                Sample::Known(s) if s > voxel => (Some((z, s)), z + 0.8 * s / metres_per_z),
-                Sample::Known(s) => (Some((z, s)), z + 0.5 * voxel / metres_per_z),
+                Sample::Known(s) if s > voxel => (Some((z, s)), z + 0.8 * s * z_per_metre),
+                Sample::Known(s) => (Some((z, s)), z + half_voxel_z),
                 Sample::Unobserved => (None, next),
                 Sample::Unallocated(block) => {
                     (None, block_exit(layer, block, &origin, dir).max(next))
