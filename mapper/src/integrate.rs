@@ -19,7 +19,7 @@ use nalgebra::{Point3, Vector3};
 use rustc_hash::{FxHashMap, FxHashSet};
 
 use crate::camera::Intrinsics;
-use crate::layer::{BlockIndex, Layer, Voxel, VoxelIndex, BLOCK_EDGE};
+use crate::layer::{BlockIndex, Layer, Voxel, VoxelIndex, BLOCK_EDGE, BLOCK_VOXELS};
 use crate::Pose;
 
 mod frame;
@@ -264,7 +264,6 @@ fn integrate_with(
     blocks.sort_unstable();
     let mut updated = 0;
     let voxel = layer.voxel_size_m;
-    let edge = BLOCK_EDGE as usize;
     // Camera-frame steps between neighbouring voxels: positions are walked
     // incrementally instead of transforming every voxel centre.
     let steps = [0, 1, 2].map(|a| {
@@ -284,15 +283,9 @@ fn integrate_with(
         };
         // Updated in place, which tells the block its cached surface is
         // stale; a block allocated here and never updated is freed again.
-        let block_updates = layer.block_mut_or_insert(b).update(|voxels| {
-            let mut block_updates = 0;
-            for (r, row_voxels) in voxels.chunks_exact_mut(edge).enumerate() {
-                let (yi, zi) = (r % edge, r / edge);
-                let row = origin.coords + steps[1] * yi as f32 + steps[2] * zi as f32;
-                block_updates += kernel.update_row(row_voxels, &row, &steps[0], &inputs);
-            }
-            block_updates
-        });
+        let block_updates = layer
+            .block_mut_or_insert(b)
+            .update(|voxels| kernel.update_block(voxels, &origin.coords, &steps, &inputs));
         if !exists && block_updates == 0 {
             layer.remove_block(b);
         }
@@ -338,29 +331,39 @@ impl RowKernel {
         Self::Scalar
     }
 
-    /// Updates one block row of `BLOCK_EDGE` voxels, the first at
-    /// camera-frame point `row`, the next ones `step` apart; returns how
-    /// many changed.
+    /// Updates the voxels of one block, whose first voxel's centre is at
+    /// camera-frame point `origin` and whose neighbouring voxels lie
+    /// `steps[axis]` apart; returns how many changed.
     #[inline]
-    fn update_row(
+    fn update_block(
         self,
-        voxels: &mut [Voxel],
-        row: &Vector3<f32>,
-        step: &Vector3<f32>,
+        voxels: &mut [Voxel; BLOCK_VOXELS],
+        origin: &Vector3<f32>,
+        steps: &[Vector3<f32>; 3],
         inputs: &RowInputs<'_>,
     ) -> usize {
         match self {
-            Self::Scalar => update_row(voxels, row, step, inputs),
+            Self::Scalar => {
+                let edge = BLOCK_EDGE as usize;
+                let mut updates = 0;
+                for (r, row_voxels) in voxels.chunks_exact_mut(edge).enumerate() {
+                    let (yi, zi) = (r % edge, r / edge);
+                    let row = origin + steps[1] * yi as f32 + steps[2] * zi as f32;
+                    updates += update_row(row_voxels, &row, &steps[0], inputs);
+                }
+                updates
+            }
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `for_frame` made this kernel only where the
-            // processor has AVX2 and the labels cover the frame's pixels;
-            // a block row has BLOCK_EDGE voxels.
-            Self::Avx2 => unsafe { row_avx2::update_row(voxels, row, step, inputs) },
+            // processor has AVX2 and the labels cover the frame's pixels.
+            Self::Avx2 => unsafe { row_avx2::update_block(voxels, origin, steps, inputs) },
         }
     }
 }
 
-/// [`RowKernel::update_row`], one voxel at a time.
+/// One block row of `BLOCK_EDGE` voxels, the first at camera-frame point
+/// `row`, the next ones `step` apart, one voxel at a time; returns how
+/// many changed.
 fn update_row(
     voxels: &mut [Voxel],
     row: &Vector3<f32>,

@@ -14,19 +14,42 @@ use nalgebra::Vector3;
 use super::frame::{MAY_CARVE, MAY_CARVE_NEAR, SMOOTH_QUAD};
 use super::{RowInputs, BEHIND_WEIGHT_FLOOR};
 use crate::camera::Intrinsics;
-use crate::layer::{Voxel, BLOCK_EDGE};
+use crate::layer::{Voxel, BLOCK_EDGE, BLOCK_VOXELS};
 
 const _: () = assert!(BLOCK_EDGE == 8, "a block row must fill one AVX2 vector");
 
-/// [`super::UpdateRow`] with AVX2.
+/// [`super::RowKernel::update_block`] with AVX2, a row at a time.
 ///
 /// # Safety
-/// The processor must support AVX2, `voxels` must hold `BLOCK_EDGE` voxels,
-/// and `inputs.owned.labels` one label per pixel of `inputs.pixels`
-/// ([`super::RowKernel::for_frame`] checks the first and last, the
-/// caller the second).
+/// The processor must support AVX2, and `inputs.owned.labels` must hold one
+/// label per pixel of `inputs.pixels` ([`super::RowKernel::for_frame`]
+/// checks both).
 #[target_feature(enable = "avx2")]
-pub(super) unsafe fn update_row(
+pub(super) unsafe fn update_block(
+    voxels: &mut [Voxel; BLOCK_VOXELS],
+    origin: &Vector3<f32>,
+    steps: &[Vector3<f32>; 3],
+    inputs: &RowInputs<'_>,
+) -> usize {
+    let edge = BLOCK_EDGE as usize;
+    let mut updates = 0;
+    for (r, row_voxels) in voxels.chunks_exact_mut(edge).enumerate() {
+        let (yi, zi) = (r % edge, r / edge);
+        let row = origin + steps[1] * yi as f32 + steps[2] * zi as f32;
+        updates += update_row(row_voxels, &row, &steps[0], inputs);
+    }
+    updates
+}
+
+/// One block row of `BLOCK_EDGE` voxels, the first at camera-frame point
+/// `row`, the next ones `step` apart: the scalar [`super::update_row`]
+/// eight lanes wide.
+///
+/// # Safety
+/// As [`update_block`]; `voxels` must hold `BLOCK_EDGE` voxels.
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn update_row(
     voxels: &mut [Voxel],
     row: &Vector3<f32>,
     step: &Vector3<f32>,
