@@ -66,10 +66,11 @@ fn blocks_near_points(
     let t = params.truncation_m;
     let size = layer.block_size_m();
     // Per block holding points, which of its 27 neighbours (itself included)
-    // are needed, as bits: one map update per change of block or band
-    // instead of one set insertion per needed block.
+    // are needed, as bits, gathered over a run of points in one block: one
+    // map update per change of block instead of one set insertion per
+    // needed block.
     let mut needed: FxHashMap<[i32; 3], u32> = FxHashMap::default();
-    let mut previous: Option<([i32; 3], [i32; 3], [i32; 3])> = None;
+    let mut run: Option<([i32; 3], u32)> = None;
     // A matrix rotates a point in half the operations of a quaternion.
     let rotation = t_layer_camera.rotation.to_rotation_matrix();
     let translation = t_layer_camera.translation.vector;
@@ -79,26 +80,23 @@ fn blocks_near_points(
         };
         let p = rotation * point + translation;
         let mut block = [0i32; 3];
-        let mut below = [0i32; 3];
-        let mut above = [0i32; 3];
+        let mut bits = u32::MAX;
         for a in 0..3 {
             block[a] = crate::layer::floor_to_i32(p[a] / size);
             let within = p[a] - block[a] as f32 * size;
-            below[a] = i32::from(within < t);
-            above[a] = i32::from(within > size - t);
+            let band = usize::from(within < t) | usize::from(within > size - t) << 1;
+            bits &= NEIGHBOURS_BY_BAND[a][band];
         }
-        if previous == Some((block, below, above)) {
-            continue;
-        }
-        previous = Some((block, below, above));
-        let mut bits = 0u32;
-        for x in -below[0]..=above[0] {
-            for y in -below[1]..=above[1] {
-                for z in -below[2]..=above[2] {
-                    bits |= 1 << neighbour_bit([x, y, z]);
+        match &mut run {
+            Some((current, run_bits)) if *current == block => *run_bits |= bits,
+            _ => {
+                if let Some((block, bits)) = run.replace((block, bits)) {
+                    *needed.entry(block).or_default() |= bits;
                 }
             }
         }
+    }
+    if let Some((block, bits)) = run {
         *needed.entry(block).or_default() |= bits;
     }
     let mut blocks = FxHashSet::default();
@@ -115,6 +113,34 @@ fn blocks_near_points(
     }
     blocks
 }
+
+/// Per axis and band (bit 0: the point lies within the truncation distance
+/// of the block's lower face on that axis, bit 1: of its upper face), the
+/// neighbour bits whose offset along that axis the band needs: the block's
+/// own layer, plus the neighbour across each near face. A point needs the
+/// intersection of its three axes' sets.
+const NEIGHBOURS_BY_BAND: [[u32; 4]; 3] = {
+    let mut table = [[0u32; 4]; 3];
+    let mut axis = 0;
+    while axis < 3 {
+        let mut band = 0;
+        while band < 4 {
+            let mut bit = 0;
+            while bit < 27 {
+                let offset = [bit / 9, (bit / 3) % 3, bit % 3][axis] as i32 - 1;
+                let lowest = if band & 1 != 0 { -1 } else { 0 };
+                let highest = if band & 2 != 0 { 1 } else { 0 };
+                if offset >= lowest && offset <= highest {
+                    table[axis][band] |= 1 << bit;
+                }
+                bit += 1;
+            }
+            band += 1;
+        }
+        axis += 1;
+    }
+    table
+};
 
 /// The bit of a neighbour at offset `[-1..=1; 3]` in [`blocks_near_points`]'
 /// masks.
