@@ -127,7 +127,7 @@ const NEIGHBOURS_BY_BAND: [[u32; 4]; 3] = {
         while band < 4 {
             let mut bit = 0;
             while bit < 27 {
-                let offset = [bit / 9, (bit / 3) % 3, bit % 3][axis] as i32 - 1;
+                let offset = [bit / 9, (bit / 3) % 3, bit % 3][axis] - 1;
                 let lowest = if band & 1 != 0 { -1 } else { 0 };
                 let highest = if band & 2 != 0 { 1 } else { 0 };
                 if offset >= lowest && offset <= highest {
