@@ -65,6 +65,10 @@ fn blocks_near_points(
 ) -> FxHashSet<BlockIndex> {
     let t = params.truncation_m;
     let size = layer.block_size_m();
+    // A multiplication instead of a division per axis and point. Where the
+    // two disagree, the point lies on a face, within the truncation distance
+    // of both blocks: either way both are needed.
+    let per_block = 1.0 / size;
     // Per block holding points, which of its 27 neighbours (itself included)
     // are needed, as bits, gathered over a run of points in one block: one
     // map update per change of block instead of one set insertion per
@@ -82,7 +86,7 @@ fn blocks_near_points(
         let mut block = [0i32; 3];
         let mut bits = u32::MAX;
         for a in 0..3 {
-            block[a] = crate::layer::floor_to_i32(p[a] / size);
+            block[a] = crate::layer::floor_to_i32(p[a] * per_block);
             let within = p[a] - block[a] as f32 * size;
             let band = usize::from(within < t) | usize::from(within > size - t) << 1;
             bits &= NEIGHBOURS_BY_BAND[a][band];
