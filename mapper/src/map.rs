@@ -402,14 +402,14 @@ impl Map {
         }
 
         let new_objects_at = std::time::Instant::now();
-        let visible: BTreeMap<u32, usize> = rendered
-            .ids
-            .iter()
-            .filter(|&&i| i != 0 && !merged.contains(&ObjectId(i)))
-            .fold(BTreeMap::new(), |mut m, &i| {
-                *m.entry(i).or_default() += 1;
-                m
-            });
+        // Pixels per rendered object, counted a run of one id at a time.
+        let mut visible: BTreeMap<u32, usize> = BTreeMap::new();
+        for run in rendered.ids.chunk_by(|a, b| a == b) {
+            let id = run[0];
+            if id != 0 && !merged.contains(&ObjectId(id)) {
+                *visible.entry(id).or_default() += run.len();
+            }
+        }
         self.frame_pixels.prepare(&k, frame.depth_m, &params);
         let pixels = &self.frame_pixels;
         let by_owner = pixels_by_label(&owner);
