@@ -73,7 +73,7 @@ pub struct FramePixels {
     /// Each pixel's camera-frame point, where its depth is usable.
     pub(super) points: Vec<Option<Point3<f32>>>,
     /// Scratch for [`mark_carving_pixels`].
-    row_min: Vec<f32>,
+    carving: CarvingScratch,
 }
 
 impl FramePixels {
@@ -89,7 +89,7 @@ impl FramePixels {
                 .map(|&d| PixelRecord::new(if params.valid_depth(d) { d } else { f32::NAN })),
         );
         write_normal_cosines(k, &self.points, params, &mut self.records);
-        mark_carving_pixels(k, params, &mut self.records, &mut self.row_min);
+        mark_carving_pixels(k, params, &mut self.records, &mut self.carving);
         mark_smooth_quads(k, params, &mut self.records);
         self.records.push(PixelRecord::new(f32::NAN));
     }
@@ -206,45 +206,54 @@ fn mark_carving_pixels(
     k: &Intrinsics,
     params: &IntegrationParams,
     records: &mut [PixelRecord],
-    row_min: &mut Vec<f32>,
+    scratch: &mut CarvingScratch,
 ) {
     let (w, h) = (k.width, k.height);
-    let near = |r: &PixelRecord| {
+    let CarvingScratch { near, row_min } = scratch;
+    // Plain arrays, so that the minima below vectorise: each pixel's depth
+    // (+∞ where unusable), then the nearest in each pixel's 3 × 3
+    // neighbourhood, as a minimum along rows and then along columns.
+    near.clear();
+    near.extend(records[..w * h].iter().map(|r| {
         if r.depth.is_nan() {
             f32::INFINITY
         } else {
             r.depth
         }
-    };
-    // The nearest usable depth in each pixel's 3 × 3 neighbourhood, as a
-    // minimum along rows and then along columns.
+    }));
     row_min.clear();
-    for row in records.chunks_exact(w).take(h) {
-        for u in 0..w {
-            let mut m = near(&row[u]);
-            if u > 0 {
-                m = m.min(near(&row[u - 1]));
-            }
-            if u + 1 < w {
-                m = m.min(near(&row[u + 1]));
-            }
-            row_min.push(m);
+    for row in near.chunks_exact(w) {
+        row_min.push(row[0].min(row[1.min(w - 1)]));
+        row_min.extend(row.windows(3).map(|t| t[0].min(t[1]).min(t[2])));
+        if w > 1 {
+            row_min.push(row[w - 2].min(row[w - 1]));
         }
     }
     for v in 0..h {
-        let above = v.saturating_sub(1) * w;
-        let below = (v + 1).min(h - 1) * w;
+        let above = &row_min[v.saturating_sub(1) * w..][..w];
+        let here = &row_min[v * w..][..w];
+        let below = &row_min[(v + 1).min(h - 1) * w..][..w];
+        let records = &mut records[v * w..][..w];
         for u in 0..w {
-            let i = v * w + u;
-            let d = records[i].depth;
-            let nearest = row_min[i].min(row_min[above + u]).min(row_min[below + u]);
-            records[i].set(MAY_CARVE, !d.is_nan() && nearest >= d - params.truncation_m);
-            records[i].set(
-                MAY_CARVE_NEAR,
-                !d.is_nan() && nearest >= d - params.free_space_margin_m,
-            );
+            let d = records[u].depth;
+            let nearest = here[u].min(above[u]).min(below[u]);
+            let usable = !d.is_nan();
+            let far = usable && nearest >= d - params.truncation_m;
+            let far_near = usable && nearest >= d - params.free_space_margin_m;
+            records[u].flags = (records[u].flags & !(MAY_CARVE | MAY_CARVE_NEAR))
+                | u32::from(far) * MAY_CARVE
+                | u32::from(far_near) * MAY_CARVE_NEAR;
         }
     }
+}
+
+/// Scratch arrays for [`mark_carving_pixels`], kept between frames.
+#[derive(Debug, Clone, Default)]
+struct CarvingScratch {
+    /// Per pixel its usable depth, +∞ where there is none.
+    near: Vec<f32>,
+    /// Per pixel the nearest of `near` in its row's three pixels around it.
+    row_min: Vec<f32>,
 }
 
 /// Marks the pixels where bilinear depth interpolation may start
