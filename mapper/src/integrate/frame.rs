@@ -241,8 +241,8 @@ fn mark_carving_pixels(
             let far = usable && nearest >= d - params.truncation_m;
             let far_near = usable && nearest >= d - params.free_space_margin_m;
             records[u].flags = (records[u].flags & !(MAY_CARVE | MAY_CARVE_NEAR))
-                | u32::from(far) * MAY_CARVE
-                | u32::from(far_near) * MAY_CARVE_NEAR;
+                | (u32::from(far) * MAY_CARVE)
+                | (u32::from(far_near) * MAY_CARVE_NEAR);
         }
     }
 }
