@@ -186,12 +186,13 @@ fn write_normal_cosines(
                 continue;
             };
             let n = along_u.cross(&along_v);
-            let norm = n.norm();
-            if norm < 1e-12 {
+            let n_squared = n.norm_squared();
+            if n_squared < 1e-24 {
                 continue;
             }
-            let ray = c.coords / c.coords.norm();
-            records[v * w + u].cos = (n.dot(&ray) / norm).abs().max(0.2);
+            // |cos| = |n · c| / (|n| |c|), with one root and one division.
+            let lengths = (n_squared * c.coords.norm_squared()).sqrt();
+            records[v * w + u].cos = (n.dot(&c.coords).abs() / lengths).max(0.2);
         }
     }
 }
