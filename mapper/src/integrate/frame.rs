@@ -49,13 +49,10 @@ impl PixelRecord {
         self.flags & bit != 0
     }
 
-    /// Sets flag bit `bit` to `on`.
+    /// Sets flag bit `bit` to `on` (without branches: set for every pixel).
+    #[inline]
     fn set(&mut self, bit: u32, on: bool) {
-        if on {
-            self.flags |= bit;
-        } else {
-            self.flags &= !bit;
-        }
+        self.flags = (self.flags & !bit) | (u32::from(on) * bit);
     }
 }
 
@@ -90,7 +87,7 @@ impl FramePixels {
         );
         write_normal_cosines(k, &self.points, params, &mut self.records);
         mark_carving_pixels(k, params, &mut self.records, &mut self.carving);
-        mark_smooth_quads(k, params, &mut self.records);
+        mark_smooth_quads(k, params, &self.carving.near, &mut self.records);
         self.records.push(PixelRecord::new(f32::NAN));
     }
 
@@ -241,9 +238,8 @@ fn mark_carving_pixels(
             let usable = !d.is_nan();
             let far = usable && nearest >= d - params.truncation_m;
             let far_near = usable && nearest >= d - params.free_space_margin_m;
-            records[u].flags = (records[u].flags & !(MAY_CARVE | MAY_CARVE_NEAR))
-                | (u32::from(far) * MAY_CARVE)
-                | (u32::from(far_near) * MAY_CARVE_NEAR);
+            records[u].set(MAY_CARVE, far);
+            records[u].set(MAY_CARVE_NEAR, far_near);
         }
     }
 }
@@ -251,7 +247,8 @@ fn mark_carving_pixels(
 /// Scratch arrays for [`mark_carving_pixels`], kept between frames.
 #[derive(Debug, Clone, Default)]
 struct CarvingScratch {
-    /// Per pixel its usable depth, +∞ where there is none.
+    /// Per pixel its usable depth, +∞ where there is none (read by
+    /// [`mark_smooth_quads`] too).
     near: Vec<f32>,
     /// Per pixel the nearest of `near` in its row's three pixels around it.
     row_min: Vec<f32>,
@@ -259,22 +256,23 @@ struct CarvingScratch {
 
 /// Marks the pixels where bilinear depth interpolation may start
 /// ([`SMOOTH_QUAD`]).
-fn mark_smooth_quads(k: &Intrinsics, params: &IntegrationParams, records: &mut [PixelRecord]) {
+fn mark_smooth_quads(
+    k: &Intrinsics,
+    params: &IntegrationParams,
+    near: &[f32],
+    records: &mut [PixelRecord],
+) {
     let (w, h) = (k.width, k.height);
     for v in 0..h.saturating_sub(1) {
+        let (top, bottom) = (&near[v * w..][..w], &near[(v + 1) * w..][..w]);
+        let records = &mut records[v * w..][..w];
         for u in 0..w.saturating_sub(1) {
-            let i = v * w + u;
-            let q = [i, i + 1, i + w, i + w + 1].map(|j| records[j].depth);
-            // NaN fails both comparisons, so unusable corners never pass.
-            let (lo, hi) = q
-                .iter()
-                .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &d| {
-                    (lo.min(d), hi.max(d))
-                });
-            records[i].set(
-                SMOOTH_QUAD,
-                q.iter().all(|d| !d.is_nan()) && hi - lo <= params.truncation_m,
-            );
+            let lo = top[u].min(top[u + 1]).min(bottom[u]).min(bottom[u + 1]);
+            let hi = top[u].max(top[u + 1]).max(bottom[u]).max(bottom[u + 1]);
+            // An unusable corner (+∞) makes the spread +∞ or NaN: not smooth.
+            let smooth = hi - lo <= params.truncation_m;
+            records[u].flags =
+                (records[u].flags & !SMOOTH_QUAD) | (u32::from(smooth) * SMOOTH_QUAD);
         }
     }
 }
