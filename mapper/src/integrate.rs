@@ -16,7 +16,7 @@
 //! behind it from association, and every frame makes a new object of it.
 
 use nalgebra::{Point3, Vector3};
-use rustc_hash::{FxHashMap, FxHashSet};
+use rustc_hash::FxHashMap;
 
 use crate::camera::Intrinsics;
 use crate::layer::{BlockIndex, Layer, Voxel, VoxelIndex, BLOCK_EDGE, BLOCK_VOXELS};
@@ -25,6 +25,9 @@ use crate::Pose;
 mod frame;
 #[cfg(target_arch = "x86_64")]
 mod row_avx2;
+mod search;
+#[cfg(target_arch = "x86_64")]
+mod search_avx2;
 
 pub use frame::FramePixels;
 use frame::{MAY_CARVE, MAY_CARVE_NEAR};
@@ -51,106 +54,6 @@ impl IntegrationParams {
     pub fn valid_depth(&self, d: f32) -> bool {
         d.is_finite() && d >= self.min_depth_m && d <= self.max_depth_m
     }
-}
-
-/// Blocks within the truncation band of the owned pixels' surface points:
-/// each point's block, plus the neighbour across every face it is closer to
-/// than the truncation distance.
-fn blocks_near_points(
-    layer: &Layer,
-    t_layer_camera: &Pose,
-    pixels: &FramePixels,
-    owned: Owned<'_>,
-    params: &IntegrationParams,
-) -> FxHashSet<BlockIndex> {
-    let t = params.truncation_m;
-    let size = layer.block_size_m();
-    // A multiplication instead of a division per axis and point. Where the
-    // two disagree, the point lies on a face, within the truncation distance
-    // of both blocks: either way both are needed.
-    let per_block = 1.0 / size;
-    // Per block holding points, which of its 27 neighbours (itself included)
-    // are needed, as bits, gathered over a run of points in one block: one
-    // map update per change of block instead of one set insertion per
-    // needed block.
-    let mut needed: FxHashMap<[i32; 3], u32> = FxHashMap::default();
-    let mut run: Option<([i32; 3], u32)> = None;
-    // A matrix rotates a point in half the operations of a quaternion.
-    let rotation = t_layer_camera.rotation.to_rotation_matrix();
-    let translation = t_layer_camera.translation.vector;
-    for &i in owned.pixels {
-        let Some(point) = pixels.points[i as usize] else {
-            continue;
-        };
-        let p = rotation * point + translation;
-        let mut block = [0i32; 3];
-        let mut bits = u32::MAX;
-        for a in 0..3 {
-            block[a] = crate::layer::floor_to_i32(p[a] * per_block);
-            let within = p[a] - block[a] as f32 * size;
-            let band = usize::from(within < t) | usize::from(within > size - t) << 1;
-            bits &= NEIGHBOURS_BY_BAND[a][band];
-        }
-        match &mut run {
-            Some((current, run_bits)) if *current == block => *run_bits |= bits,
-            _ => {
-                if let Some((block, bits)) = run.replace((block, bits)) {
-                    *needed.entry(block).or_default() |= bits;
-                }
-            }
-        }
-    }
-    if let Some((block, bits)) = run {
-        *needed.entry(block).or_default() |= bits;
-    }
-    let mut blocks = FxHashSet::default();
-    for (block, bits) in needed {
-        for x in -1..=1 {
-            for y in -1..=1 {
-                for z in -1..=1 {
-                    if bits & (1 << neighbour_bit([x, y, z])) != 0 {
-                        blocks.insert(BlockIndex([block[0] + x, block[1] + y, block[2] + z]));
-                    }
-                }
-            }
-        }
-    }
-    blocks
-}
-
-/// Per axis and band (bit 0: the point lies within the truncation distance
-/// of the block's lower face on that axis, bit 1: of its upper face), the
-/// neighbour bits whose offset along that axis the band needs: the block's
-/// own layer, plus the neighbour across each near face. A point needs the
-/// intersection of its three axes' sets.
-const NEIGHBOURS_BY_BAND: [[u32; 4]; 3] = {
-    let mut table = [[0u32; 4]; 3];
-    let mut axis = 0;
-    while axis < 3 {
-        let mut band = 0;
-        while band < 4 {
-            let mut bit = 0;
-            while bit < 27 {
-                let offset = [bit / 9, (bit / 3) % 3, bit % 3][axis] - 1;
-                let lowest = if band & 1 != 0 { -1 } else { 0 };
-                let highest = if band & 2 != 0 { 1 } else { 0 };
-                if offset >= lowest && offset <= highest {
-                    table[axis][band] |= 1 << bit;
-                }
-                bit += 1;
-            }
-            band += 1;
-        }
-        axis += 1;
-    }
-    table
-};
-
-/// The bit of a neighbour at offset `[-1..=1; 3]` in [`blocks_near_points`]'
-/// masks.
-#[inline]
-fn neighbour_bit(offset: [i32; 3]) -> u32 {
-    ((offset[0] + 1) * 9 + (offset[1] + 1) * 3 + offset[2] + 1) as u32
 }
 
 /// Existing blocks whose centre lies in the view frustum (carving candidates).
@@ -267,13 +170,13 @@ pub fn integrate(
     params: &IntegrationParams,
     carve: bool,
 ) -> usize {
-    let kernel = RowKernel::for_frame(owned, view.pixels);
-    integrate_with(kernel, layer, view, owned, params, carve)
+    let simd = Simd::for_frame(owned, view.pixels);
+    integrate_with(simd, layer, view, owned, params, carve)
 }
 
-/// [`integrate`] with block rows updated by `kernel`.
+/// [`integrate`] with the loops over points and voxels in `simd`.
 fn integrate_with(
-    kernel: RowKernel,
+    simd: Simd,
     layer: &mut Layer,
     view: &DepthView<'_>,
     owned: Owned<'_>,
@@ -286,7 +189,7 @@ fn integrate_with(
         pixels,
     } = *view;
     let t_camera_layer = t_layer_camera.inverse();
-    let mut blocks = blocks_near_points(layer, t_layer_camera, pixels, owned, params);
+    let mut blocks = search::blocks_near_points(simd, layer, t_layer_camera, pixels, owned, params);
     if carve {
         blocks.extend(blocks_in_view(layer, &t_camera_layer, k));
     }
@@ -315,7 +218,7 @@ fn integrate_with(
         // stale; a block allocated here and never updated is freed again.
         let block_updates = layer
             .block_mut_or_insert(b)
-            .update(|voxels| kernel.update_block(voxels, &origin.coords, &steps, &inputs));
+            .update(|voxels| simd.update_block(voxels, &origin.coords, &steps, &inputs));
         if !exists && block_updates == 0 {
             layer.remove_block(b);
         }
@@ -335,20 +238,21 @@ struct RowInputs<'a> {
     carve: bool,
 }
 
-/// How a block row is updated: eight voxels at a time where the processor
-/// has AVX2 ([`row_avx2`]), else one at a time. Both give the same voxels to
-/// the bit (tested).
+/// How integration's hot loops run: eight voxels of a block row (and eight
+/// surface points in the block search) at a time where the processor has
+/// AVX2 ([`row_avx2`], [`search_avx2`]), else one at a time. Both give the
+/// same blocks and voxels to the bit (tested).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum RowKernel {
-    /// [`update_row`].
+enum Simd {
+    /// One at a time.
     Scalar,
-    /// [`row_avx2::update_row`]; made only where it is safe to call.
+    /// AVX2; made only where it is safe to use.
     #[cfg(target_arch = "x86_64")]
     Avx2,
 }
 
-impl RowKernel {
-    /// The fastest kernel this processor runs for a frame whose pixels
+impl Simd {
+    /// The fastest loops this processor runs for a frame whose pixels
     /// `owned` labels.
     fn for_frame(owned: Owned<'_>, pixels: &FramePixels) -> Self {
         #[cfg(target_arch = "x86_64")]
@@ -516,7 +420,7 @@ mod tests {
     /// Integrates a ball that moves and a wall seen from moving cameras
     /// with `kernel`; returns both layers' voxels in block order and the
     /// update counts.
-    fn integrate_moving_ball(kernel: RowKernel) -> (Vec<(BlockIndex, Vec<Voxel>)>, Vec<usize>) {
+    fn integrate_moving_ball(kernel: Simd) -> (Vec<(BlockIndex, Vec<Voxel>)>, Vec<usize>) {
         let k = Intrinsics::from_fov(128, 128, 90.0);
         let mut ball = Layer::new(0.04);
         let mut wall = Layer::new(0.08);
@@ -558,7 +462,7 @@ mod tests {
     }
 
     #[test]
-    fn vector_rows_update_voxels_exactly_as_scalar_rows() {
+    fn vector_loops_find_the_same_blocks_and_voxels_as_scalar_loops() {
         let k = Intrinsics::from_fov(128, 128, 90.0);
         let (_, labels) = ball_before_wall(&k, Vector3::new(0.0, 0.1, 2.0));
         let mut pixels = FramePixels::default();
@@ -568,12 +472,12 @@ mod tests {
             id: 1,
             pixels: &[],
         };
-        let fastest = RowKernel::for_frame(owned, &pixels);
-        if fastest == RowKernel::Scalar {
+        let fastest = Simd::for_frame(owned, &pixels);
+        if fastest == Simd::Scalar {
             eprintln!("this processor has no AVX2: only the scalar rows run here");
             return;
         }
-        let (scalar, scalar_counts) = integrate_moving_ball(RowKernel::Scalar);
+        let (scalar, scalar_counts) = integrate_moving_ball(Simd::Scalar);
         let (vector, vector_counts) = integrate_moving_ball(fastest);
         assert_eq!(scalar_counts, vector_counts);
         assert!(scalar_counts.iter().all(|&c| c > 1000), "{scalar_counts:?}");

@@ -68,7 +68,8 @@ pub struct FramePixels {
     /// landing outside the image read.
     pub(super) records: Vec<PixelRecord>,
     /// Each pixel's camera-frame point, where its depth is usable.
-    pub(super) points: Vec<Option<Point3<f32>>>,
+    /// NaN where unusable; plain words, so that vector code can gather them.
+    pub(super) points: Vec<[f32; 3]>,
     /// Scratch for [`mark_carving_pixels`].
     carving: CarvingScratch,
 }
@@ -118,6 +119,12 @@ impl FramePixels {
     }
 }
 
+/// A pixel's camera-frame point from [`FramePixels::points`], if usable.
+#[inline]
+pub(super) fn usable_point(point: [f32; 3]) -> Option<Point3<f32>> {
+    (!point[2].is_nan()).then(|| Point3::from(point))
+}
+
 /// Each pixel's camera-frame point where its depth is usable, back-projected
 /// once per frame (a pixel is the neighbour of four others, and the point of
 /// every layer's search for blocks).
@@ -125,7 +132,7 @@ fn fill_camera_points(
     k: &Intrinsics,
     depth_m: &[f32],
     params: &IntegrationParams,
-    points: &mut Vec<Option<Point3<f32>>>,
+    points: &mut Vec<[f32; 3]>,
 ) {
     // The rays' x and y per column and row: the same values as
     // `Intrinsics::back_project`, without two divisions per pixel.
@@ -135,7 +142,11 @@ fn fill_camera_points(
     for (v, &y) in row_y.iter().enumerate() {
         for (u, &x) in column_x.iter().enumerate() {
             let d = depth_m[v * k.width + u];
-            points.push(params.valid_depth(d).then(|| Point3::new(x * d, y * d, d)));
+            points.push(if params.valid_depth(d) {
+                [x * d, y * d, d]
+            } else {
+                [f32::NAN; 3]
+            });
         }
     }
 }
@@ -150,7 +161,7 @@ fn fill_camera_points(
 /// views). This is a departure from TSDF++/voxblox, which leave the bias in.
 fn write_normal_cosines(
     k: &Intrinsics,
-    points: &[Option<Point3<f32>>],
+    points: &[[f32; 3]],
     params: &IntegrationParams,
     records: &mut [PixelRecord],
 ) {
@@ -158,13 +169,15 @@ fn write_normal_cosines(
     let max_jump = 4.0 * params.truncation_m;
     for v in 0..h {
         for u in 0..w {
-            let Some(c) = points[v * w + u] else { continue };
+            let Some(c) = usable_point(points[v * w + u]) else {
+                continue;
+            };
             let neighbour = |du: isize, dv: isize| {
                 let (x, y) = (u.checked_add_signed(du)?, v.checked_add_signed(dv)?);
                 if x >= w || y >= h {
                     return None;
                 }
-                points[y * w + x].filter(|p| (p.z - c.z).abs() < max_jump)
+                usable_point(points[y * w + x]).filter(|p| (p.z - c.z).abs() < max_jump)
             };
             // Central differences where both neighbours lie on this surface,
             // one-sided at its edges: silhouettes are where views graze the
