@@ -14,6 +14,11 @@
 //! front of another surface (the rim of a shelf's opening smeared over it by
 //! grazing views, a panel that is gone) is never cleared, hides what is
 //! behind it from association, and every frame makes a new object of it.
+//!
+//! The two hot loops, the search for blocks near the surface points and the
+//! update of a block's voxels, run eight lanes at a time with AVX2 where the
+//! processor has it (decided at run time, so one binary runs on any x86-64),
+//! with the same results to the bit as their scalar forms.
 
 use nalgebra::{Point3, Vector3};
 use rustc_hash::FxHashMap;
