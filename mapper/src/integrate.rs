@@ -175,7 +175,7 @@ pub fn integrate(
     params: &IntegrationParams,
     carve: bool,
 ) -> usize {
-    let simd = Simd::for_frame(owned, view.pixels);
+    let simd = Simd::for_frame(owned, view.pixels, view.k);
     integrate_with(simd, layer, view, owned, params, carve)
 }
 
@@ -257,16 +257,20 @@ enum Simd {
 }
 
 impl Simd {
-    /// The fastest loops this processor runs for a frame whose pixels
-    /// `owned` labels.
-    fn for_frame(owned: Owned<'_>, pixels: &FramePixels) -> Self {
+    /// The fastest loops this processor runs for `pixels`, a frame from
+    /// camera `k` whose pixels `owned` labels. The vector loops read
+    /// without bounds checks, so they run only where the frame was prepared
+    /// for `k` and the labels cover it (elsewhere the scalar loops' checks
+    /// catch the mismatch).
+    fn for_frame(owned: Owned<'_>, pixels: &FramePixels, k: &Intrinsics) -> Self {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2")
-            && owned.labels.len() + 1 == pixels.records.len()
+            && pixels.prepared_for(k)
+            && owned.labels.len() == k.pixels()
         {
             return Self::Avx2;
         }
-        let _ = (owned, pixels);
+        let _ = (owned, pixels, k);
         Self::Scalar
     }
 
@@ -294,7 +298,8 @@ impl Simd {
             }
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `for_frame` made this kernel only where the
-            // processor has AVX2 and the labels cover the frame's pixels.
+            // processor has AVX2, the frame was prepared for this camera and
+            // the labels cover its pixels.
             Self::Avx2 => unsafe { row_avx2::update_block(voxels, origin, steps, inputs) },
         }
     }
@@ -477,7 +482,7 @@ mod tests {
             id: 1,
             pixels: &[],
         };
-        let fastest = Simd::for_frame(owned, &pixels);
+        let fastest = Simd::for_frame(owned, &pixels, &k);
         if fastest == Simd::Scalar {
             eprintln!("this processor has no AVX2: only the scalar rows run here");
             return;
@@ -497,5 +502,30 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn vector_loops_are_not_used_on_a_frame_prepared_for_another_camera() {
+        let (k, other) = (
+            Intrinsics::from_fov(128, 128, 90.0),
+            Intrinsics::from_fov(64, 256, 90.0),
+        );
+        let labels = vec![1; k.pixels()];
+        let mut pixels = FramePixels::default();
+        pixels.prepare(&other, &vec![1.0; other.pixels()], &PARAMS);
+        let owned = Owned {
+            labels: &labels,
+            id: 1,
+            pixels: &[],
+        };
+        // Same pixel count, other width: the vector loops would read the
+        // records with the wrong row length, unchecked.
+        assert_eq!(Simd::for_frame(owned, &pixels, &k), Simd::Scalar);
+        let short = Owned {
+            labels: &labels[1..],
+            ..owned
+        };
+        pixels.prepare(&k, &vec![1.0; k.pixels()], &PARAMS);
+        assert_eq!(Simd::for_frame(short, &pixels, &k), Simd::Scalar);
     }
 }

@@ -92,6 +92,11 @@ impl FramePixels {
         self.records.push(PixelRecord::new(f32::NAN));
     }
 
+    /// True if these pixels were prepared for a camera of `k`'s size.
+    pub(super) fn prepared_for(&self, k: &Intrinsics) -> bool {
+        self.width == k.width && self.records.len() == k.pixels() + 1
+    }
+
     /// The index voxels landing outside the image read.
     pub(super) fn off_image(&self) -> u32 {
         (self.records.len() - 1) as u32

@@ -18,12 +18,12 @@ use crate::layer::{Voxel, BLOCK_EDGE, BLOCK_VOXELS};
 
 const _: () = assert!(BLOCK_EDGE == 8, "a block row must fill one AVX2 vector");
 
-/// [`super::RowKernel::update_block`] with AVX2, a row at a time.
+/// [`super::Simd::update_block`] with AVX2, a row at a time.
 ///
 /// # Safety
-/// The processor must support AVX2, and `inputs.owned.labels` must hold one
-/// label per pixel of `inputs.pixels` ([`super::RowKernel::for_frame`]
-/// checks both).
+/// The processor must support AVX2, `inputs.pixels` must have been prepared
+/// for camera `inputs.k`, and `inputs.owned.labels` must hold one label per
+/// pixel ([`super::Simd::for_frame`] checks all three).
 #[target_feature(enable = "avx2")]
 pub(super) unsafe fn update_block(
     voxels: &mut [Voxel; BLOCK_VOXELS],
