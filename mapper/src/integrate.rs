@@ -151,8 +151,15 @@ pub struct Owned<'a> {
 /// image serves every layer's [`Owned::pixels`].
 pub fn pixels_by_label(labels: &[u32]) -> FxHashMap<u32, Vec<u32>> {
     let mut groups: FxHashMap<u32, Vec<u32>> = FxHashMap::default();
-    for (i, &label) in labels.iter().enumerate() {
-        groups.entry(label).or_default().push(i as u32);
+    // One map lookup per run of equal labels, not per pixel.
+    let mut start = 0;
+    for run in labels.chunk_by(|a, b| a == b) {
+        let end = start + run.len();
+        groups
+            .entry(run[0])
+            .or_default()
+            .extend(start as u32..end as u32);
+        start = end;
     }
     groups
 }
