@@ -297,9 +297,8 @@ impl Simd {
                 let edge = BLOCK_EDGE as usize;
                 let mut updates = 0;
                 for (r, row_voxels) in voxels.chunks_exact_mut(edge).enumerate() {
-                    let (yi, zi) = (r % edge, r / edge);
-                    let row = origin + steps[1] * yi as f32 + steps[2] * zi as f32;
-                    updates += update_row(row_voxels, &row, &steps[0], inputs);
+                    updates +=
+                        update_row(row_voxels, &row_start(origin, steps, r), &steps[0], inputs);
                 }
                 updates
             }
@@ -310,6 +309,16 @@ impl Simd {
             Self::Avx2 => unsafe { row_avx2::update_block(voxels, origin, steps, inputs) },
         }
     }
+}
+
+/// Camera-frame centre of the first voxel of row `r` (voxels are stored x
+/// fastest, so row `r` is `y = r % BLOCK_EDGE`, `z = r / BLOCK_EDGE`) of a
+/// block whose first voxel is at `origin`, voxels `steps[axis]` apart.
+#[inline]
+fn row_start(origin: &Vector3<f32>, steps: &[Vector3<f32>; 3], r: usize) -> Vector3<f32> {
+    let edge = BLOCK_EDGE as usize;
+    let (yi, zi) = (r % edge, r / edge);
+    origin + steps[1] * yi as f32 + steps[2] * zi as f32
 }
 
 /// One block row of `BLOCK_EDGE` voxels, the first at camera-frame point

@@ -70,8 +70,8 @@ pub struct FramePixels {
     /// Each pixel's camera-frame point, where its depth is usable.
     /// NaN where unusable; plain words, so that vector code can gather them.
     pub(super) points: Vec<[f32; 3]>,
-    /// Scratch for [`mark_carving_pixels`].
-    carving: CarvingScratch,
+    /// Scratch for [`mark_carving_pixels`] and [`mark_smooth_quads`].
+    scratch: DepthScratch,
 }
 
 impl FramePixels {
@@ -87,8 +87,8 @@ impl FramePixels {
                 .map(|&d| PixelRecord::new(if params.valid_depth(d) { d } else { f32::NAN })),
         );
         write_normal_cosines(k, &self.points, params, &mut self.records);
-        mark_carving_pixels(k, params, &mut self.records, &mut self.carving);
-        mark_smooth_quads(k, params, &self.carving.near, &mut self.records);
+        mark_carving_pixels(k, params, &mut self.records, &mut self.scratch);
+        mark_smooth_quads(k, params, &self.scratch.near, &mut self.records);
         self.records.push(PixelRecord::new(f32::NAN));
     }
 
@@ -222,10 +222,10 @@ fn mark_carving_pixels(
     k: &Intrinsics,
     params: &IntegrationParams,
     records: &mut [PixelRecord],
-    scratch: &mut CarvingScratch,
+    scratch: &mut DepthScratch,
 ) {
     let (w, h) = (k.width, k.height);
-    let CarvingScratch { near, row_min } = scratch;
+    let DepthScratch { near, row_min } = scratch;
     // Plain arrays, so that the minima below vectorise: each pixel's depth
     // (+∞ where unusable), then the nearest in each pixel's 3 × 3
     // neighbourhood, as a minimum along rows and then along columns.
@@ -262,9 +262,10 @@ fn mark_carving_pixels(
     }
 }
 
-/// Scratch arrays for [`mark_carving_pixels`], kept between frames.
+/// Scratch arrays for [`mark_carving_pixels`] and [`mark_smooth_quads`],
+/// kept between frames.
 #[derive(Debug, Clone, Default)]
-struct CarvingScratch {
+struct DepthScratch {
     /// Per pixel its usable depth, +∞ where there is none (read by
     /// [`mark_smooth_quads`] too).
     near: Vec<f32>,

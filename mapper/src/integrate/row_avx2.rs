@@ -12,7 +12,7 @@ use std::arch::x86_64::*;
 use nalgebra::Vector3;
 
 use super::frame::{MAY_CARVE, MAY_CARVE_NEAR, SMOOTH_QUAD};
-use super::{RowInputs, BEHIND_WEIGHT_FLOOR};
+use super::{row_start, RowInputs, BEHIND_WEIGHT_FLOOR};
 use crate::camera::Intrinsics;
 use crate::layer::{Voxel, BLOCK_EDGE, BLOCK_VOXELS};
 
@@ -34,9 +34,7 @@ pub(super) unsafe fn update_block(
     let edge = BLOCK_EDGE as usize;
     let mut updates = 0;
     for (r, row_voxels) in voxels.chunks_exact_mut(edge).enumerate() {
-        let (yi, zi) = (r % edge, r / edge);
-        let row = origin + steps[1] * yi as f32 + steps[2] * zi as f32;
-        updates += update_row(row_voxels, &row, &steps[0], inputs);
+        updates += update_row(row_voxels, &row_start(origin, steps, r), &steps[0], inputs);
     }
     updates
 }
