@@ -82,6 +82,12 @@ struct BlockData {
     /// whole map's surface every step, while a step changes only the blocks
     /// in view (about a third of them over an episode).
     surface: OnceLock<Vec<Point3<f32>>>,
+    /// The least and greatest offsets (per axis) of the observed voxels at
+    /// or behind the surface (`sdf <= 0`), `None` if there are none: where
+    /// rays can find a zero crossing ([`Layer::crossing_bounds`]). Worked
+    /// out on first request and forgotten when a voxel changes, like
+    /// `surface`.
+    behind: OnceLock<Option<[[i32; 3]; 2]>>,
 }
 
 impl Default for BlockData {
@@ -89,6 +95,7 @@ impl Default for BlockData {
         Self {
             voxels: [Voxel::default(); BLOCK_VOXELS],
             surface: OnceLock::new(),
+            behind: OnceLock::new(),
         }
     }
 }
@@ -108,8 +115,39 @@ impl Block {
         let changed = f(&mut self.data.voxels);
         if changed > 0 {
             self.data.surface.take();
+            self.data.behind.take();
         }
         changed
+    }
+
+    /// The least and greatest offsets, per axis, of the observed voxels at
+    /// or behind the surface; `None` if there are none. Kept until a voxel
+    /// changes.
+    fn behind_offsets(&self) -> Option<[[i32; 3]; 2]> {
+        *self.data.behind.get_or_init(|| {
+            let edge = BLOCK_EDGE as usize;
+            let mut bounds: Option<[[i32; 3]; 2]> = None;
+            for (row, voxels) in self.voxels().chunks_exact(edge).enumerate() {
+                let mut mask = 0u32;
+                for (i, v) in voxels.iter().enumerate() {
+                    mask |= u32::from((v.weight > 0.0) & (v.sdf <= 0.0)) << i;
+                }
+                if mask == 0 {
+                    continue;
+                }
+                let (y, z) = ((row % edge) as i32, (row / edge) as i32);
+                let row_lo = [mask.trailing_zeros() as i32, y, z];
+                let row_hi = [31 - mask.leading_zeros() as i32, y, z];
+                bounds = Some(match bounds {
+                    None => [row_lo, row_hi],
+                    Some([lo, hi]) => [
+                        [0, 1, 2].map(|a| lo[a].min(row_lo[a])),
+                        [0, 1, 2].map(|a| hi[a].max(row_hi[a])),
+                    ],
+                });
+            }
+            bounds
+        })
     }
 
     /// Calls `f(offset, sdf)` for every observed voxel within `band_m` of
@@ -353,6 +391,45 @@ impl Layer {
         out
     }
 
+    /// Axis-aligned bounds (layer frame) of every point where a ray marched
+    /// through this layer can find its zero crossing, or `None` where it
+    /// can find none. A crossing is found at a sample whose distance is not
+    /// positive, and such a sample interpolates (or is) an observed voxel
+    /// at or behind the surface whose centre is less than a voxel away per
+    /// axis: so the bounds are those voxels' centres, a voxel wider on
+    /// every side. Rays that miss this box, and the parts of rays beyond
+    /// it, need no marching.
+    pub fn crossing_bounds(&self) -> Option<(Point3<f32>, Point3<f32>)> {
+        let mut bounds: Option<[[i32; 3]; 2]> = None;
+        for (b, block) in &self.blocks {
+            let Some([lo, hi]) = block.behind_offsets() else {
+                continue;
+            };
+            let first = b.0.map(|i| i * BLOCK_EDGE);
+            let (lo, hi) = (
+                [0, 1, 2].map(|a| first[a] + lo[a]),
+                [0, 1, 2].map(|a| first[a] + hi[a]),
+            );
+            bounds = Some(match bounds {
+                None => [lo, hi],
+                Some([l, h]) => [
+                    [0, 1, 2].map(|a| l[a].min(lo[a])),
+                    [0, 1, 2].map(|a| h[a].max(hi[a])),
+                ],
+            });
+        }
+        let [lo, hi] = bounds?;
+        // Voxel centres are at (i + 1/2)·s: one voxel beyond the lowest
+        // centre is (lo - 1/2)·s, beyond the highest (hi + 3/2)·s; a
+        // hundredth of a voxel more covers rounding along the ray.
+        let s = self.voxel_size_m;
+        let slack = 0.01;
+        Some((
+            Point3::from(lo.map(|i| (i as f32 - 0.5 - slack) * s)),
+            Point3::from(hi.map(|i| (i as f32 + 1.5 + slack) * s)),
+        ))
+    }
+
     /// Axis-aligned bounds (layer frame) of all allocated blocks, or `None` when empty.
     pub fn block_bounds(&self) -> Option<(Point3<f32>, Point3<f32>)> {
         let s = self.block_size_m();
@@ -407,6 +484,41 @@ mod tests {
         );
         let c = layer.voxel_center(VoxelIndex([-1, 0, 2]));
         assert_eq!(layer.voxel_of(&c), VoxelIndex([-1, 0, 2]));
+    }
+
+    #[test]
+    fn crossing_bounds_follow_the_voxels_behind_surfaces_as_they_change() {
+        let s = 0.04;
+        let mut layer = Layer::new(s);
+        let set = |layer: &mut Layer, v: [i32; 3], sdf: f32| {
+            let (b, o) = VoxelIndex(v).split();
+            layer.block_mut_or_insert(b).update(|voxels| {
+                voxels[o] = Voxel { sdf, weight: 1.0 };
+                1
+            });
+        };
+        // Observed free space only: no crossing anywhere.
+        set(&mut layer, [3, 4, 5], 0.05);
+        assert_eq!(layer.crossing_bounds(), None);
+        // One voxel behind a surface: a voxel's reach around its centre.
+        set(&mut layer, [3, 4, 5], -0.01);
+        let (lo, hi) = layer.crossing_bounds().expect("a voxel behind the surface");
+        let centre = layer.voxel_center(VoxelIndex([3, 4, 5]));
+        for a in 0..3 {
+            assert!((centre[a] - s - lo[a]).abs() < 0.02 * s, "{lo} vs {centre}");
+            assert!((centre[a] + s - hi[a]).abs() < 0.02 * s, "{hi} vs {centre}");
+        }
+        // A second one in another block widens the bounds...
+        set(&mut layer, [-9, 4, 20], 0.0);
+        let (lo, hi) = layer.crossing_bounds().unwrap();
+        assert!(
+            lo.x < -9.0 * s && hi.z > 21.0 * s && lo.z < 5.0 * s,
+            "{lo} – {hi}"
+        );
+        // ...and carving both away (positive again) leaves none.
+        set(&mut layer, [3, 4, 5], 0.02);
+        set(&mut layer, [-9, 4, 20], 0.02);
+        assert_eq!(layer.crossing_bounds(), None);
     }
 
     #[test]

@@ -304,11 +304,17 @@ pub fn raycast_layer(
     target: &mut RenderTarget,
     pixels: Pixels<'_>,
 ) -> usize {
-    let Some((lo, hi)) = layer.block_bounds() else {
+    let (Some((lo, hi)), Some(crossings)) = (layer.block_bounds(), layer.crossing_bounds()) else {
         return 0;
     };
-    let Some((u0, u1, v0, v1)) = projected_rect(&lo, &hi, t_camera_layer, k, min_depth_m.max(1e-4))
-    else {
+    // Only pixels whose rays meet the box of possible crossings can win.
+    let Some((u0, u1, v0, v1)) = projected_rect(
+        &crossings.0,
+        &crossings.1,
+        t_camera_layer,
+        k,
+        min_depth_m.max(1e-4),
+    ) else {
         return 0;
     };
     let t_layer_camera = t_camera_layer.inverse();
@@ -317,6 +323,7 @@ pub fn raycast_layer(
         origin: t_layer_camera * Point3::origin(),
         lo,
         hi,
+        crossings,
         min_depth_m,
     };
     let mut reader = CachedReader::new(layer);
@@ -354,6 +361,8 @@ struct Marcher<'a> {
     /// The layer's allocated bounds.
     lo: Point3<f32>,
     hi: Point3<f32>,
+    /// Where zero crossings can lie ([`Layer::crossing_bounds`]).
+    crossings: (Point3<f32>, Point3<f32>),
     min_depth_m: f32,
 }
 
@@ -368,8 +377,12 @@ impl Marcher<'_> {
     ) -> Option<f32> {
         let (origin, layer) = (self.origin, self.layer);
         let voxel = layer.voxel_size_m;
+        // Marching starts where the ray enters the allocated blocks (the
+        // same samples, so the same hits, as a march of the whole ray) and
+        // ends where it leaves the box of possible crossings.
+        let (_, crossings_end) = slab(&origin, dir, &self.crossings.0, &self.crossings.1)?;
         let (z0, z1) = slab(&origin, dir, &self.lo, &self.hi)?;
-        let z_end = z1.min(z_limit);
+        let z_end = z1.min(crossings_end).min(z_limit);
         let metres_per_z = dir.norm();
         // Steps along the ray in z: a voxel, half a voxel, per metre.
         let (voxel_z, half_voxel_z) = (voxel / metres_per_z, 0.5 * voxel / metres_per_z);
@@ -606,6 +619,79 @@ mod tests {
             }
         }
         assert!(checked > 2000, "only {checked} observed samples");
+    }
+
+    #[test]
+    fn rays_cut_to_the_box_of_possible_crossings_find_what_whole_rays_find() {
+        // A ball's TSDF with gaps: unobserved voxels deep inside, in front
+        // beyond the band on one side, and scattered through the band (the
+        // nearest-voxel fallback).
+        let (s, trunc) = (0.04f32, 0.12f32);
+        let (centre, radius) = (Point3::new(0.13f32, -0.05, 0.9), 0.22f32);
+        let mut layer = Layer::new(s);
+        let reach = radius + 2.0 * trunc;
+        let first = (centre - Vector3::repeat(reach)).map(|c| (c / (8.0 * s)).floor() as i32);
+        let last = (centre + Vector3::repeat(reach)).map(|c| (c / (8.0 * s)).floor() as i32);
+        for bx in first.x..=last.x {
+            for by in first.y..=last.y {
+                for bz in first.z..=last.z {
+                    let block_index = BlockIndex([bx, by, bz]);
+                    layer.block_mut_or_insert(block_index).update(|voxels| {
+                        for (o, voxel) in voxels.iter_mut().enumerate() {
+                            let v = VoxelIndex::join(block_index, o);
+                            let p = Point3::from(v.0.map(|i| (i as f32 + 0.5) * s));
+                            let d = (p - centre).norm() - radius;
+                            let gap = v.0.iter().sum::<i32>().rem_euclid(7) == 0;
+                            let unseen_front = d > trunc && p.x > centre.x;
+                            if d < -trunc || unseen_front || gap {
+                                continue;
+                            }
+                            *voxel = Voxel {
+                                sdf: d.min(trunc),
+                                weight: 1.0,
+                            };
+                        }
+                        BLOCK_VOXELS
+                    });
+                }
+            }
+        }
+        let (lo, hi) = layer.block_bounds().unwrap();
+        let crossings = layer.crossing_bounds().unwrap();
+        assert!(
+            (0..3).all(|a| crossings.0[a] > lo[a] && crossings.1[a] < hi[a]),
+            "the crossing box {crossings:?} should be tighter than the blocks {lo} – {hi}"
+        );
+        let k = Intrinsics::from_fov(64, 48, 60.0);
+        let t_camera_layer = Pose::new(
+            Vector3::new(0.02, 0.03, 0.1),
+            Vector3::new(0.05, -0.1, 0.02),
+        );
+        let mut cut = RenderTarget::new(&k);
+        raycast_layer(&layer, &t_camera_layer, &k, 7, 0.1, &mut cut, Pixels::All);
+        // The same rays marched through the whole allocated box.
+        let t_layer_camera = t_camera_layer.inverse();
+        let whole = Marcher {
+            layer: &layer,
+            origin: t_layer_camera * Point3::origin(),
+            lo,
+            hi,
+            crossings: (lo, hi),
+            min_depth_m: 0.1,
+        };
+        let mut reader = CachedReader::new(&layer);
+        let mut hits = 0;
+        for v in 0..k.height {
+            for u in 0..k.width {
+                let dir = t_layer_camera.rotation * k.ray(u as f32, v as f32);
+                let expected = whole.march(&mut reader, &dir, f32::INFINITY);
+                let px = v * k.width + u;
+                let got = (cut.ids[px] == 7).then_some(cut.depth_m[px]);
+                assert_eq!(got, expected, "pixel ({u}, {v})");
+                hits += usize::from(expected.is_some());
+            }
+        }
+        assert!(hits > 300, "only {hits} pixels see the ball");
     }
 
     #[test]
