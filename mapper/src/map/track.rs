@@ -179,6 +179,14 @@ impl Map {
                     .or_default() += 1;
             }
         }
+        // Per object: the segment it overlaps most (ties: the first).
+        let best_segment: BTreeMap<u32, usize> = overlap
+            .iter()
+            .filter_map(|(&id, m)| {
+                let best = m.iter().max_by_key(|(s, n)| (**n, std::cmp::Reverse(**s)));
+                best.map(|(s, _)| (id, *s))
+            })
+            .collect();
         let mut counts: BTreeMap<u32, ResidualCounts> = BTreeMap::new();
         for (px, &id) in rendered.ids.iter().enumerate() {
             if id == 0 {
@@ -191,10 +199,7 @@ impl Map {
             }
             let d = if nothing_seen { f32::INFINITY } else { d };
             let r = rendered.depth_m[px];
-            let best = overlap
-                .get(&id)
-                .and_then(|m| m.iter().max_by_key(|(s, n)| (**n, std::cmp::Reverse(**s))))
-                .map(|(s, _)| *s);
+            let best = best_segment.get(&id).copied();
             let c = counts.entry(id).or_default();
             if (d - r).abs() <= tol {
                 c.agree += 1;
