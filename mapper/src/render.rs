@@ -324,6 +324,7 @@ pub fn raycast_layer(
         lo,
         hi,
         crossings,
+        lead_in_voxels: LEAD_IN_VOXELS,
         min_depth_m,
     };
     let mut reader = CachedReader::new(layer);
@@ -353,6 +354,17 @@ pub fn raycast_layer(
     won
 }
 
+/// How far before the box of possible crossings ([`Layer::crossing_bounds`])
+/// a ray starts marching, in voxels along the ray. Samples before the box
+/// find no crossing; they only give the first sample in it a predecessor,
+/// the known distance in front of the surface that a crossing is detected
+/// against, and the free space in front of a surface is observed over the
+/// truncation band (three voxels at the default settings). Marching the
+/// whole ray from the camera instead finds the same surfaces (the
+/// samples fall elsewhere along the ray, which moves a hit by a fraction
+/// of the step) at twice the samples.
+const LEAD_IN_VOXELS: f32 = 3.0;
+
 /// Ray marching into one layer: what all its rays share.
 struct Marcher<'a> {
     layer: &'a Layer,
@@ -363,6 +375,8 @@ struct Marcher<'a> {
     hi: Point3<f32>,
     /// Where zero crossings can lie ([`Layer::crossing_bounds`]).
     crossings: (Point3<f32>, Point3<f32>),
+    /// Voxels marched before the box of crossings ([`LEAD_IN_VOXELS`]).
+    lead_in_voxels: f32,
     min_depth_m: f32,
 }
 
@@ -377,17 +391,19 @@ impl Marcher<'_> {
     ) -> Option<f32> {
         let (origin, layer) = (self.origin, self.layer);
         let voxel = layer.voxel_size_m;
-        // Marching starts where the ray enters the allocated blocks (the
-        // same samples, so the same hits, as a march of the whole ray) and
-        // ends where it leaves the box of possible crossings.
-        let (_, crossings_end) = slab(&origin, dir, &self.crossings.0, &self.crossings.1)?;
+        // Marching covers the ray's part in the box of possible crossings
+        // and a lead-in before it, within the allocated blocks.
+        let (crossings_start, crossings_end) =
+            slab(&origin, dir, &self.crossings.0, &self.crossings.1)?;
         let (z0, z1) = slab(&origin, dir, &self.lo, &self.hi)?;
         let z_end = z1.min(crossings_end).min(z_limit);
         let metres_per_z = dir.norm();
         // Steps along the ray in z: a voxel, half a voxel, per metre.
         let (voxel_z, half_voxel_z) = (voxel / metres_per_z, 0.5 * voxel / metres_per_z);
         let z_per_metre = 1.0 / metres_per_z;
-        let mut z = z0.max(self.min_depth_m);
+        let mut z = z0
+            .max(self.min_depth_m)
+            .max(crossings_start - self.lead_in_voxels * voxel_z);
         let mut previous: Option<(f32, f32)> = None;
         while z <= z_end {
             let p = origin + dir * z;
@@ -621,15 +637,14 @@ mod tests {
         assert!(checked > 2000, "only {checked} observed samples");
     }
 
-    #[test]
-    fn rays_cut_to_the_box_of_possible_crossings_find_what_whole_rays_find() {
-        // A ball's TSDF with gaps: unobserved voxels deep inside, in front
-        // beyond the band on one side, and scattered through the band (the
-        // nearest-voxel fallback).
+    /// A ball's TSDF (centre, radius) in blocks reaching well beyond it:
+    /// unobserved deep inside and, on one side, in front beyond the band;
+    /// with `gaps`, also at scattered voxels through the band (the
+    /// nearest-voxel fallback).
+    fn ball_layer(centre: Point3<f32>, radius: f32, gaps: bool) -> Layer {
         let (s, trunc) = (0.04f32, 0.12f32);
-        let (centre, radius) = (Point3::new(0.13f32, -0.05, 0.9), 0.22f32);
         let mut layer = Layer::new(s);
-        let reach = radius + 2.0 * trunc;
+        let reach = radius + 4.0 * trunc;
         let first = (centre - Vector3::repeat(reach)).map(|c| (c / (8.0 * s)).floor() as i32);
         let last = (centre + Vector3::repeat(reach)).map(|c| (c / (8.0 * s)).floor() as i32);
         for bx in first.x..=last.x {
@@ -641,9 +656,8 @@ mod tests {
                             let v = VoxelIndex::join(block_index, o);
                             let p = Point3::from(v.0.map(|i| (i as f32 + 0.5) * s));
                             let d = (p - centre).norm() - radius;
-                            let gap = v.0.iter().sum::<i32>().rem_euclid(7) == 0;
-                            let unseen_front = d > trunc && p.x > centre.x;
-                            if d < -trunc || unseen_front || gap {
+                            let gap = gaps && v.0.iter().sum::<i32>().rem_euclid(7) == 0;
+                            if d < -trunc || (d > trunc && p.x > centre.x) || gap {
                                 continue;
                             }
                             *voxel = Voxel {
@@ -656,42 +670,122 @@ mod tests {
                 }
             }
         }
-        let (lo, hi) = layer.block_bounds().unwrap();
-        let crossings = layer.crossing_bounds().unwrap();
-        assert!(
-            (0..3).all(|a| crossings.0[a] > lo[a] && crossings.1[a] < hi[a]),
-            "the crossing box {crossings:?} should be tighter than the blocks {lo} – {hi}"
-        );
+        layer
+    }
+
+    /// The camera the ball tests look through, and where it sits in the
+    /// ball's layer.
+    fn ball_camera() -> (Intrinsics, Pose) {
         let k = Intrinsics::from_fov(64, 48, 60.0);
         let t_camera_layer = Pose::new(
             Vector3::new(0.02, 0.03, 0.1),
             Vector3::new(0.05, -0.1, 0.02),
         );
-        let mut cut = RenderTarget::new(&k);
-        raycast_layer(&layer, &t_camera_layer, &k, 7, 0.1, &mut cut, Pixels::All);
-        // The same rays marched through the whole allocated box.
+        (k, t_camera_layer)
+    }
+
+    /// A ray's hit per pixel of `k` by `marcher`.
+    fn march_every_pixel(
+        marcher: &Marcher<'_>,
+        k: &Intrinsics,
+        t_layer_camera: &Pose,
+    ) -> Vec<Option<f32>> {
+        let mut reader = CachedReader::new(marcher.layer);
+        (0..k.pixels())
+            .map(|px| {
+                let ray = k.ray((px % k.width) as f32, (px / k.width) as f32);
+                marcher.march(&mut reader, &(t_layer_camera.rotation * ray), f32::INFINITY)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn rays_cut_at_the_box_of_possible_crossings_find_what_whole_rays_find() {
+        let layer = ball_layer(Point3::new(0.13, -0.05, 0.9), 0.22, true);
+        let (lo, hi) = layer.block_bounds().unwrap();
+        let crossings = layer.crossing_bounds().unwrap();
+        assert!(
+            (0..3).all(|a| crossings.0[a] > lo[a] + 0.1 && crossings.1[a] < hi[a] - 0.1),
+            "the crossing box {crossings:?} should be well inside the blocks {lo} – {hi}"
+        );
+        let (k, t_camera_layer) = ball_camera();
         let t_layer_camera = t_camera_layer.inverse();
+        // Both march from where the rays enter the blocks; one stops where
+        // they leave the box of crossings, the other where they leave the
+        // blocks.
+        let marcher = |crossings| Marcher {
+            layer: &layer,
+            origin: t_layer_camera * Point3::origin(),
+            lo,
+            hi,
+            crossings,
+            lead_in_voxels: f32::INFINITY,
+            min_depth_m: 0.1,
+        };
+        let cut = march_every_pixel(&marcher(crossings), &k, &t_layer_camera);
+        let whole = march_every_pixel(&marcher((lo, hi)), &k, &t_layer_camera);
+        assert_eq!(cut, whole);
+        let hits = whole.iter().flatten().count();
+        assert!(hits > 300, "only {hits} pixels see the ball");
+    }
+
+    #[test]
+    fn rays_marched_from_near_the_box_of_possible_crossings_find_what_whole_rays_find() {
+        let s = 0.04;
+        let layer = ball_layer(Point3::new(0.13, -0.05, 0.9), 0.22, false);
+        let (k, t_camera_layer) = ball_camera();
+        let mut near_box = RenderTarget::new(&k);
+        raycast_layer(
+            &layer,
+            &t_camera_layer,
+            &k,
+            7,
+            0.1,
+            &mut near_box,
+            Pixels::All,
+        );
+        // The same rays marched from the camera.
+        let t_layer_camera = t_camera_layer.inverse();
+        let (lo, hi) = layer.block_bounds().unwrap();
         let whole = Marcher {
             layer: &layer,
             origin: t_layer_camera * Point3::origin(),
             lo,
             hi,
             crossings: (lo, hi),
+            lead_in_voxels: f32::INFINITY,
             min_depth_m: 0.1,
         };
-        let mut reader = CachedReader::new(&layer);
-        let mut hits = 0;
-        for v in 0..k.height {
-            for u in 0..k.width {
-                let dir = t_layer_camera.rotation * k.ray(u as f32, v as f32);
-                let expected = whole.march(&mut reader, &dir, f32::INFINITY);
-                let px = v * k.width + u;
-                let got = (cut.ids[px] == 7).then_some(cut.depth_m[px]);
-                assert_eq!(got, expected, "pixel ({u}, {v})");
-                hits += usize::from(expected.is_some());
+        let whole_hits = march_every_pixel(&whole, &k, &t_layer_camera);
+        let (mut hits, mut disagreements, mut largest_gap) = (0, 0, 0.0f32);
+        for (px, expected) in whole_hits.iter().enumerate() {
+            let got = (near_box.ids[px] == 7).then_some(near_box.depth_m[px]);
+            let (u, v) = (px % k.width, px / k.width);
+            match (got, expected) {
+                (Some(a), Some(b)) => largest_gap = largest_gap.max((a - b).abs()),
+                (None, None) => {}
+                _ => {
+                    // Samples elsewhere along a ray grazing the ball may
+                    // touch it or not: only at its silhouette.
+                    let silhouette = [(0, 1), (2, 1), (1, 0), (1, 2)].iter().any(|&(du, dv)| {
+                        let (nu, nv) = ((u + du).wrapping_sub(1), (v + dv).wrapping_sub(1));
+                        nu < k.width && nv < k.height && whole_hits[nv * k.width + nu].is_none()
+                    });
+                    assert!(
+                        silhouette,
+                        "pixel ({u}, {v}): {got:?} near the box, {expected:?} whole"
+                    );
+                    disagreements += 1;
+                }
             }
+            hits += usize::from(expected.is_some());
         }
-        assert!(hits > 300, "only {hits} pixels see the ball");
+        assert!(hits > 400, "only {hits} pixels see the ball");
+        assert!(
+            disagreements * 100 < hits,
+            "{disagreements} of {hits} silhouette pixels differ"
+        );
+        assert!(largest_gap < 0.3 * s, "hits {largest_gap} m apart");
     }
 
     #[test]
