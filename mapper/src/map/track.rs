@@ -167,16 +167,17 @@ impl Map {
                 segment_of[px] = s;
             }
         }
-        // Per object: rendered pixels per overlapping segment.
+        // Per object: rendered pixels per overlapping segment, counted one
+        // run of pixels with the same object and segment at a time.
         let mut overlap: BTreeMap<u32, BTreeMap<usize, usize>> = BTreeMap::new();
-        for (px, &id) in rendered.ids.iter().enumerate() {
-            let s = segment_of[px];
+        let mut px = 0;
+        while px < segment_of.len() {
+            let (id, s, first) = (rendered.ids[px], segment_of[px], px);
+            while px < segment_of.len() && (rendered.ids[px], segment_of[px]) == (id, s) {
+                px += 1;
+            }
             if id != 0 && s != usize::MAX && matches[s].is_none_or(|m| m == id) {
-                *overlap
-                    .entry(id)
-                    .or_default()
-                    .entry(segment_of[px])
-                    .or_default() += 1;
+                *overlap.entry(id).or_default().entry(s).or_default() += px - first;
             }
         }
         // Per object: the segment it overlaps most (ties: the first).
@@ -187,25 +188,35 @@ impl Map {
                 best.map(|(s, _)| (id, *s))
             })
             .collect();
+        // Agreement per object, counted one run of pixels of one object at
+        // a time.
         let mut counts: BTreeMap<u32, ResidualCounts> = BTreeMap::new();
-        for (px, &id) in rendered.ids.iter().enumerate() {
+        let mut first = 0;
+        for run in rendered.ids.chunk_by(|a, b| a == b) {
+            let (id, pixels) = (run[0], first..first + run.len());
+            first = pixels.end;
             if id == 0 {
                 continue;
             }
-            let d = depth_m[px];
-            let nothing_seen = !(d.is_finite() && d > 0.0);
-            if !nothing_seen && !self.config.integration.valid_depth(d) {
-                continue;
-            }
-            let d = if nothing_seen { f32::INFINITY } else { d };
-            let r = rendered.depth_m[px];
             let best = best_segment.get(&id).copied();
-            let c = counts.entry(id).or_default();
-            if (d - r).abs() <= tol {
-                c.agree += 1;
-            } else if d > r + tol || best == Some(segment_of[px]) {
-                c.disagree += 1;
+            let mut c = ResidualCounts::default();
+            for px in pixels {
+                let d = depth_m[px];
+                let nothing_seen = !(d.is_finite() && d > 0.0);
+                if !nothing_seen && !self.config.integration.valid_depth(d) {
+                    continue;
+                }
+                let d = if nothing_seen { f32::INFINITY } else { d };
+                let r = rendered.depth_m[px];
+                if (d - r).abs() <= tol {
+                    c.agree += 1;
+                } else if d > r + tol || best == Some(segment_of[px]) {
+                    c.disagree += 1;
+                }
             }
+            let total = counts.entry(id).or_default();
+            total.agree += c.agree;
+            total.disagree += c.disagree;
         }
         let trigger = self.config.tracking.residual_trigger;
         counts
