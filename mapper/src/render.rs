@@ -7,6 +7,10 @@
 //! (silhouettes, depth edges) exactly. mapper.md allows ray marching or
 //! projection; this keeps marching's exact silhouettes, which splatting
 //! voxels would dilate, at half its cost (measured in `cargo bench -p mapper`).
+//!
+//! Each ray is marched only near where its layer can show a surface: from
+//! a few voxels before the box of possible zero crossings
+//! ([`Layer::crossing_bounds`]) to where it leaves that box.
 
 use nalgebra::{Point3, Vector3};
 use rustc_hash::FxHashMap;
