@@ -848,6 +848,44 @@ fn a_lost_box_is_found_again_at_another_height() {
     assert_eq!(map.objects().len(), 4, "box, sphere, static box and block");
 }
 
+/// A box pushed over out of view lies on its side when seen again: its long
+/// edge now stands upright. It is found with its id, not made anew.
+#[test]
+fn a_lost_box_that_tipped_over_is_found_again() {
+    let (mut map, [box_id, ..]) = mapped_scene();
+    let before = map.object(box_id).unwrap().clone();
+    map.notify_moved(box_id, None).unwrap();
+    let views = views();
+    let without_box: Vec<Shape> = [floor()].into_iter().chain(statics()).collect();
+    let frame = OwnedFrame::capture(&without_box, views[0], k128());
+    map.integrate(&frame.frame()).unwrap();
+    assert_eq!(
+        map.object(box_id).map(|o| o.whereabouts),
+        Some(Whereabouts::Lost)
+    );
+    // Turned 30° and tipped onto an end: 0.4 m tall instead of 0.3 m.
+    let landed = Isometry3::from_parts(
+        Translation3::new(0.1, -0.9, 0.2),
+        UnitQuaternion::from_euler_angles(0.0, 0.0, 30f32.to_radians())
+            * UnitQuaternion::from_euler_angles(0.0, std::f32::consts::FRAC_PI_2, 0.0),
+    );
+    let mut shapes = vec![floor(), moving_box(landed)];
+    shapes.extend(statics());
+    for pose in &views[..4] {
+        let frame = OwnedFrame::capture(&shapes, *pose, k128());
+        map.integrate(&frame.frame()).unwrap();
+    }
+    let found = map.object(box_id).expect("the box keeps its id");
+    assert_eq!(found.whereabouts, Whereabouts::Placed);
+    assert_box_found_at(
+        &landed,
+        &before.t_world_object,
+        &found.t_world_object,
+        "found again tipped onto an end, turned 30°",
+    );
+    assert_eq!(map.objects().len(), 3, "box, sphere and static box");
+}
+
 /// Two lost boxes of one size and shape both fit a box seen later: which
 /// one it is cannot be told, so it becomes a new object rather than take
 /// one of their labels, and both stay lost.
