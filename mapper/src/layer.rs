@@ -125,28 +125,29 @@ impl Block {
     /// changes.
     fn behind_offsets(&self) -> Option<[[i32; 3]; 2]> {
         *self.data.behind.get_or_init(|| {
+            // One bit per voxel of a row, then which x, y and z hold any.
             let edge = BLOCK_EDGE as usize;
-            let mut bounds: Option<[[i32; 3]; 2]> = None;
+            let (mut xs, mut ys, mut zs) = (0u32, 0u32, 0u32);
             for (row, voxels) in self.voxels().chunks_exact(edge).enumerate() {
                 let mut mask = 0u32;
                 for (i, v) in voxels.iter().enumerate() {
                     mask |= u32::from((v.weight > 0.0) & (v.sdf <= 0.0)) << i;
                 }
-                if mask == 0 {
-                    continue;
-                }
-                let (y, z) = ((row % edge) as i32, (row / edge) as i32);
-                let row_lo = [mask.trailing_zeros() as i32, y, z];
-                let row_hi = [31 - mask.leading_zeros() as i32, y, z];
-                bounds = Some(match bounds {
-                    None => [row_lo, row_hi],
-                    Some([lo, hi]) => [
-                        [0, 1, 2].map(|a| lo[a].min(row_lo[a])),
-                        [0, 1, 2].map(|a| hi[a].max(row_hi[a])),
-                    ],
-                });
+                let any = u32::from(mask != 0);
+                xs |= mask;
+                ys |= any << (row % edge);
+                zs |= any << (row / edge);
             }
-            bounds
+            let range = |bits: u32| {
+                [
+                    bits.trailing_zeros() as i32,
+                    31 - bits.leading_zeros() as i32,
+                ]
+            };
+            (xs != 0).then(|| {
+                let [x, y, z] = [range(xs), range(ys), range(zs)];
+                [[x[0], y[0], z[0]], [x[1], y[1], z[1]]]
+            })
         })
     }
 
@@ -519,6 +520,53 @@ mod tests {
         set(&mut layer, [3, 4, 5], 0.02);
         set(&mut layer, [-9, 4, 20], 0.02);
         assert_eq!(layer.crossing_bounds(), None);
+    }
+
+    #[test]
+    fn behind_offsets_bound_exactly_the_voxels_behind_surfaces() {
+        for seed in 0..50u32 {
+            let mut block = Block::default();
+            // A pseudo-random handful of voxels behind a surface, among
+            // observed free ones and unobserved ones with negative values.
+            let mut state = seed.wrapping_mul(2_654_435_761).wrapping_add(1);
+            let mut next = || {
+                state ^= state << 13;
+                state ^= state >> 17;
+                state ^= state << 5;
+                state
+            };
+            let count = 1 + next() % 6;
+            block.update(|voxels| {
+                for voxel in voxels.iter_mut() {
+                    *voxel = match next() % 3 {
+                        0 => Voxel {
+                            sdf: 0.05,
+                            weight: 1.0,
+                        },
+                        1 => Voxel {
+                            sdf: -0.05,
+                            weight: 0.0,
+                        },
+                        _ => Voxel::default(),
+                    };
+                }
+                for _ in 0..count {
+                    voxels[next() as usize % BLOCK_VOXELS] = Voxel {
+                        sdf: -0.01,
+                        weight: 2.0,
+                    };
+                }
+                BLOCK_VOXELS
+            });
+            let behind: Vec<[i32; 3]> = (0..BLOCK_VOXELS)
+                .filter(|&o| block.voxels()[o].weight > 0.0 && block.voxels()[o].sdf <= 0.0)
+                .map(|o| VoxelIndex::join(BlockIndex([0, 0, 0]), o).0)
+                .collect();
+            let lo = [0, 1, 2].map(|a| behind.iter().map(|v| v[a]).min().unwrap());
+            let hi = [0, 1, 2].map(|a| behind.iter().map(|v| v[a]).max().unwrap());
+            assert_eq!(block.behind_offsets(), Some([lo, hi]), "seed {seed}");
+        }
+        assert_eq!(Block::default().behind_offsets(), None);
     }
 
     #[test]
