@@ -811,79 +811,67 @@ fn a_copy_made_while_an_object_was_lost_is_merged_into_it_when_found() {
 /// there before, turned 45°.
 #[test]
 fn a_lost_box_is_found_again_at_another_height() {
-    let (mut map, [box_id, ..]) = mapped_scene();
-    let before = map.object(box_id).unwrap().clone();
-    map.notify_moved(box_id, None).unwrap();
     let block = Shape::Box {
         t_world_box: Isometry3::translation(0.0, -0.9, 0.15),
         half: Vector3::new(0.4, 0.4, 0.15),
         id: 4,
     };
-    let views = views();
-    let without_box: Vec<Shape> = [floor(), block].into_iter().chain(statics()).collect();
-    let frame = OwnedFrame::capture(&without_box, views[0], k128());
-    map.integrate(&frame.frame()).unwrap();
-    assert_eq!(
-        map.object(box_id).map(|o| o.whereabouts),
-        Some(Whereabouts::Lost)
-    );
     let landed = Isometry3::from_parts(
         Translation3::new(0.0, -0.9, 0.3 + BOX_CENTRE.z),
         UnitQuaternion::from_euler_angles(0.0, 0.0, std::f32::consts::FRAC_PI_4),
     );
-    let mut shapes = vec![floor(), moving_box(landed), block];
-    shapes.extend(statics());
-    for pose in &views[..4] {
-        let frame = OwnedFrame::capture(&shapes, *pose, k128());
-        map.integrate(&frame.frame()).unwrap();
-    }
-    let found = map.object(box_id).expect("the box keeps its id");
-    assert_eq!(found.whereabouts, Whereabouts::Placed);
-    assert_box_found_at(
-        &landed,
-        &before.t_world_object,
-        &found.t_world_object,
-        "found again 30 cm higher, turned 45°",
-    );
-    assert_eq!(map.objects().len(), 4, "box, sphere, static box and block");
+    assert_lost_box_found_again(landed, &[block], "found again 30 cm higher, turned 45°");
 }
 
 /// A box pushed over out of view lies on its side when seen again: its long
 /// edge now stands upright. It is found with its id, not made anew.
 #[test]
 fn a_lost_box_that_tipped_over_is_found_again() {
-    let (mut map, [box_id, ..]) = mapped_scene();
-    let before = map.object(box_id).unwrap().clone();
-    map.notify_moved(box_id, None).unwrap();
-    let views = views();
-    let without_box: Vec<Shape> = [floor()].into_iter().chain(statics()).collect();
-    let frame = OwnedFrame::capture(&without_box, views[0], k128());
-    map.integrate(&frame.frame()).unwrap();
-    assert_eq!(
-        map.object(box_id).map(|o| o.whereabouts),
-        Some(Whereabouts::Lost)
-    );
     // Turned 30° and tipped onto an end: 0.4 m tall instead of 0.3 m.
     let landed = Isometry3::from_parts(
         Translation3::new(0.1, -0.9, 0.2),
         UnitQuaternion::from_euler_angles(0.0, 0.0, 30f32.to_radians())
             * UnitQuaternion::from_euler_angles(0.0, std::f32::consts::FRAC_PI_2, 0.0),
     );
-    let mut shapes = vec![floor(), moving_box(landed)];
-    shapes.extend(statics());
+    assert_lost_box_found_again(landed, &[], "found again tipped onto an end, turned 30°");
+}
+
+/// Maps the scene, moves the box away unannounced (lost: a frame without
+/// it), then shows it standing at `landed` among `extra` shapes (present
+/// since it was lost) from four views: it must be found with its id where
+/// it stands, and no object made anew.
+fn assert_lost_box_found_again(landed: Pose, extra: &[Shape], what: &str) {
+    let (mut map, [box_id, ..]) = mapped_scene();
+    let before = map.object(box_id).unwrap().clone();
+    map.notify_moved(box_id, None).unwrap();
+    let views = views();
+    let without_box: Vec<Shape> = [floor()]
+        .into_iter()
+        .chain(extra.iter().copied())
+        .chain(statics())
+        .collect();
+    let frame = OwnedFrame::capture(&without_box, views[0], k128());
+    map.integrate(&frame.frame()).unwrap();
+    assert_eq!(
+        map.object(box_id).map(|o| o.whereabouts),
+        Some(Whereabouts::Lost)
+    );
+    let shapes: Vec<Shape> = [moving_box(landed)]
+        .into_iter()
+        .chain(without_box)
+        .collect();
     for pose in &views[..4] {
         let frame = OwnedFrame::capture(&shapes, *pose, k128());
         map.integrate(&frame.frame()).unwrap();
     }
     let found = map.object(box_id).expect("the box keeps its id");
     assert_eq!(found.whereabouts, Whereabouts::Placed);
-    assert_box_found_at(
-        &landed,
-        &before.t_world_object,
-        &found.t_world_object,
-        "found again tipped onto an end, turned 30°",
+    assert_box_found_at(&landed, &before.t_world_object, &found.t_world_object, what);
+    assert_eq!(
+        map.objects().len(),
+        3 + extra.len(),
+        "box, sphere, static box and the extra shapes"
     );
-    assert_eq!(map.objects().len(), 3, "box, sphere and static box");
 }
 
 /// Two lost boxes of one size and shape both fit a box seen later: which
