@@ -10,6 +10,7 @@ use burn::tensor::activation::{relu, tanh};
 use burn::tensor::Bool;
 pub use proto::{ObsDtype, PolicyLayout};
 
+mod conv_matmul;
 mod cpu;
 
 pub use cpu::{CpuPolicy, CpuPolicyStep};
@@ -117,11 +118,15 @@ impl ConvEncoder {
     }
 
     /// `[batch, channels, size, size]` → `[batch, 64]`.
+    /// The convolutions run channels-last as matrix products
+    /// ([`conv_matmul`]); the features are flattened channels first, as
+    /// burn's convolutions would give them.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<2> {
-        let x = relu(self.conv1.forward(x));
-        let x = relu(self.conv2.forward(x));
-        let x = relu(self.conv3.forward(x));
-        relu(self.fc.forward(x.flatten(1, 3)))
+        let x = x.permute([0, 2, 3, 1]);
+        let x = relu(conv_matmul::conv_nhwc(x, &self.conv1));
+        let x = relu(conv_matmul::conv_nhwc(x, &self.conv2));
+        let x = relu(conv_matmul::conv_nhwc(x, &self.conv3));
+        relu(self.fc.forward(x.permute([0, 3, 1, 2]).flatten(1, 3)))
     }
 }
 

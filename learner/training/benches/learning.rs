@@ -5,12 +5,15 @@
 //! - U-Net training step, batch 8 of 128 × 128 RGB-D, and single-frame
 //!   inference, with burn and through the actor's CPU path (`nets::unet_cpu`,
 //!   one thread, against PyTorch on one thread);
-//! - one PPO update on 8 × 600 steps (4 epochs × 2 minibatches);
+//! - one PPO update on 8 × 600 steps (4 epochs × 2 minibatches), and one at
+//!   the learner's defaults: 128 steps of 64 × 64 observations;
 //! - policy inference for one step.
 //!
 //! Medians over a few repeats (these steps take seconds on a CPU, so this is
 //! a plain timing harness rather than criterion). `AFX_BENCH_QUICK=1` runs
-//! one repeat and a 2 × 600-step PPO batch, for a smoke test.
+//! one repeat and a 2 × 600-step PPO batch, for a smoke test;
+//! `AFX_BENCH_ONLY=ppo-default` runs only the PPO update at the learner's
+//! defaults (128 steps of 64 × 64 observations).
 
 use std::time::Instant;
 
@@ -27,9 +30,14 @@ use training::ppo::{Ppo, PpoBatch, PpoConfig};
 /// map projection, 2 affordance maps), an action history of 5 × (8 + 2) and an
 /// inventory flag; 8 actions.
 fn policy_config() -> PolicyLayout {
+    policy_config_at(128)
+}
+
+/// [`policy_config`] with images of `side` × `side`.
+fn policy_config_at(side: usize) -> PolicyLayout {
     PolicyLayout {
         image_channels: vec![4, 4, 2],
-        image_size: 128,
+        image_size: side,
         vector_dims: vec![50, 1],
         n_actions: 8,
         obs_dtype: ObsDtype::F32,
@@ -56,15 +64,24 @@ fn time(repeats: usize, mut f: impl FnMut()) -> f64 {
 }
 
 fn random_input(rows: usize, rng: &mut StdRng, device: &Device) -> PolicyInput {
-    let c = policy_config();
+    random_input_at(&policy_config(), rows, rng, device)
+}
+
+fn random_input_at(
+    c: &PolicyLayout,
+    rows: usize,
+    rng: &mut StdRng,
+    device: &Device,
+) -> PolicyInput {
+    let side = c.image_size;
     let mut floats = |n: usize| -> Vec<f32> { (0..n).map(|_| rng.random::<f32>()).collect() };
     PolicyInput {
         images: c
             .image_channels
             .iter()
             .map(|&ch| {
-                Tensor::<1>::from_floats(floats(rows * ch * 128 * 128).as_slice(), device)
-                    .reshape([rows, ch, 128, 128])
+                Tensor::<1>::from_floats(floats(rows * ch * side * side).as_slice(), device)
+                    .reshape([rows, ch, side, side])
             })
             .collect(),
         vectors: c
@@ -78,6 +95,36 @@ fn random_input(rows: usize, rng: &mut StdRng, device: &Device) -> PolicyInput {
     }
 }
 
+/// `rows` steps of random observations, actions and returns.
+fn ppo_batch(layout: &PolicyLayout, rows: usize, rng: &mut StdRng, device: &Device) -> PpoBatch {
+    PpoBatch {
+        input: random_input_at(layout, rows, rng, device),
+        actions: (0..rows).map(|_| rng.random_range(0..8)).collect(),
+        behaviour_log_probs: vec![-(8f32.ln()); rows],
+        values: (0..rows).map(|_| rng.random::<f32>()).collect(),
+        advantages: (0..rows).map(|_| rng.random::<f32>() - 0.5).collect(),
+        returns: (0..rows).map(|_| rng.random::<f32>()).collect(),
+        policy_versions: vec![0; rows],
+        sequences: None,
+    }
+}
+
+/// One PPO update at the learner's defaults (`[policy]`: 128 steps an
+/// update, 4 epochs × 2 minibatches) on 64 × 64 images, the size a 2-core
+/// machine trains at (`deploy/local.sh --image-size 64`).
+fn ppo_update_at_learner_defaults(repeats: usize, rng: &mut StdRng, device: &Device) -> f64 {
+    let layout = policy_config_at(64);
+    let batch = ppo_batch(&layout, 128, rng, device);
+    let mut ppo = Ppo::new(
+        PolicyNet::new(&layout, device),
+        PpoConfig::default(),
+        device,
+    );
+    time(repeats, || {
+        ppo.update(&batch, rng);
+    })
+}
+
 fn main() {
     if std::env::args().any(|a| a == "--list") {
         return; // `cargo test --benches` asks benches to list themselves
@@ -87,6 +134,18 @@ fn main() {
     let device = Device::flex();
     let mut rng = StdRng::seed_from_u64(1);
     let mut results: Vec<(&str, f64)> = Vec::new();
+
+    results.push((
+        "ppo_update_128steps_64px_ms",
+        ppo_update_at_learner_defaults(repeats.max(5), &mut rng, &device),
+    ));
+    if std::env::var("AFX_BENCH_ONLY").is_ok_and(|only| only == "ppo-default") {
+        println!(
+            "  ppo_update_128steps_64px_ms: median {:.1} ms",
+            results[0].1
+        );
+        return;
+    }
 
     // U-Net.
     let frames: Vec<LabelledFrame> = (0..8)
@@ -188,16 +247,7 @@ fn main() {
     // PPO update on envs × 600 steps.
     let envs = if quick { 2 } else { 8 };
     let rows = envs * 600;
-    let batch = PpoBatch {
-        input: random_input(rows, &mut rng, &device),
-        actions: (0..rows).map(|_| rng.random_range(0..8)).collect(),
-        behaviour_log_probs: vec![-(8f32.ln()); rows],
-        values: (0..rows).map(|_| rng.random::<f32>()).collect(),
-        advantages: (0..rows).map(|_| rng.random::<f32>() - 0.5).collect(),
-        returns: (0..rows).map(|_| rng.random::<f32>()).collect(),
-        policy_versions: vec![0; rows],
-        sequences: None,
-    };
+    let batch = ppo_batch(&policy_config(), rows, &mut rng, &device);
     let mut ppo = Ppo::new(policy, PpoConfig::default(), &device);
     let ppo_repeats = 1; // one warm-up, one timed: an update takes minutes on a CPU
     let name = if quick {
