@@ -13,7 +13,8 @@
 //! a plain timing harness rather than criterion). `AFX_BENCH_QUICK=1` runs
 //! one repeat and a 2 × 600-step PPO batch, for a smoke test;
 //! `AFX_BENCH_ONLY=ppo-default` runs only the PPO update at the learner's
-//! defaults (128 steps of 64 × 64 observations).
+//! defaults (128 steps of 64 × 64 observations), `AFX_BENCH_ONLY=unet-train`
+//! only the U-Net training step.
 
 use std::time::Instant;
 
@@ -135,15 +136,22 @@ fn main() {
     let mut rng = StdRng::seed_from_u64(1);
     let mut results: Vec<(&str, f64)> = Vec::new();
 
-    results.push((
-        "ppo_update_128steps_64px_ms",
-        ppo_update_at_learner_defaults(repeats.max(5), &mut rng, &device),
-    ));
-    if std::env::var("AFX_BENCH_ONLY").is_ok_and(|only| only == "ppo-default") {
-        println!(
-            "  ppo_update_128steps_64px_ms: median {:.1} ms",
-            results[0].1
-        );
+    let only = std::env::var("AFX_BENCH_ONLY").ok();
+    if only
+        .as_deref()
+        .is_some_and(|o| o != "ppo-default" && o != "unet-train")
+    {
+        eprintln!("AFX_BENCH_ONLY takes ppo-default or unet-train");
+        std::process::exit(2);
+    }
+    if only.as_deref() != Some("unet-train") {
+        results.push((
+            "ppo_update_128steps_64px_ms",
+            ppo_update_at_learner_defaults(repeats.max(5), &mut rng, &device),
+        ));
+    }
+    if only.as_deref() == Some("ppo-default") {
+        print_results(&results);
         return;
     }
 
@@ -169,6 +177,10 @@ fn main() {
             trainer.step(&refs);
         }),
     ));
+    if only.is_some() {
+        print_results(&results);
+        return;
+    }
     let unet = trainer.inference_net(&device);
     let one =
         Tensor::<1>::from_floats(frames[0].rgbd.as_slice(), &device).reshape([1, 4, 128, 128]);
@@ -262,14 +274,19 @@ fn main() {
         }),
     ));
 
+    print_results(&results);
+    compare_with_torch(&results, envs, repeats);
+}
+
+/// Prints each measurement's median.
+fn print_results(results: &[(&str, f64)]) {
     println!(
         "burn 0.22.1 flex (CPU, {} threads available):",
         std::thread::available_parallelism().map_or(1, |n| n.get())
     );
-    for (name, ms) in &results {
+    for (name, ms) in results {
         println!("  {name}: median {ms:.1} ms");
     }
-    compare_with_torch(&results, envs, repeats);
 }
 
 /// Runs the PyTorch reference and prints ours / theirs per measurement.
