@@ -119,7 +119,7 @@ impl ConvEncoder {
 
     /// `[batch, channels, size, size]` → `[batch, 64]`.
     /// The convolutions run channels-last as matrix products
-    /// ([`conv_matmul`]); the features are flattened channels first, as
+    /// (`policy::conv_matmul`); the features are flattened channels first, as
     /// burn's convolutions would give them.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<2> {
         let x = x.permute([0, 2, 3, 1]);
