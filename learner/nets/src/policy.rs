@@ -118,6 +118,7 @@ impl ConvEncoder {
     }
 
     /// `[batch, channels, size, size]` → `[batch, 64]`.
+    ///
     /// The convolutions run channels-last as matrix products
     /// (`policy::conv_matmul`); the features are flattened channels first, as
     /// burn's convolutions would give them.
