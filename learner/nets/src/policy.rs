@@ -119,14 +119,14 @@ impl ConvEncoder {
 
     /// `[batch, channels, size, size]` → `[batch, 64]`.
     ///
-    /// The convolutions run channels-last as matrix products
+    /// The convolutions run as matrix products, channels-last after the first
     /// (`policy::conv_matmul`); the features are flattened channels first, as
     /// burn's convolutions would give them.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<2> {
-        let x = x.permute([0, 2, 3, 1]);
-        let x = relu(conv_matmul::conv_nhwc(x, &self.conv1));
-        let x = relu(conv_matmul::conv_nhwc(x, &self.conv2));
-        let x = relu(conv_matmul::conv_nhwc(x, &self.conv3));
+        use conv_matmul::{conv, Layout};
+        let x = relu(conv(x, Layout::ChannelsFirst, &self.conv1));
+        let x = relu(conv(x, Layout::ChannelsLast, &self.conv2));
+        let x = relu(conv(x, Layout::ChannelsLast, &self.conv3));
         relu(self.fc.forward(x.permute([0, 3, 1, 2]).flatten(1, 3)))
     }
 }

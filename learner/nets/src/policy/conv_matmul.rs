@@ -13,13 +13,27 @@ use burn::nn::conv::Conv2d;
 use burn::prelude::*;
 use burn::tensor::ops::PadMode;
 
+/// How an input's axes are ordered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Layout {
+    /// `[batch, channels, height, width]`, as observations arrive.
+    ChannelsFirst,
+    /// `[batch, height, width, channels]`, as [`conv`] returns its output.
+    ChannelsLast,
+}
+
 /// `conv`'s valid convolution (square kernel and stride, no dilation or
-/// groups, as [`super::ConvEncoder`] builds them) of a channels-last
-/// `[batch, height, width, channels]` input; the output is channels-last too.
-pub(super) fn conv_nhwc(x: Tensor<4>, conv: &Conv2d) -> Tensor<4> {
+/// groups, as [`super::ConvEncoder`] builds them) of `x`, laid out as
+/// `layout` says; the output is channels-last. Taking the first layer's
+/// input channels first saves a copy of the largest input.
+pub(super) fn conv(x: Tensor<4>, layout: Layout, conv: &Conv2d) -> Tensor<4> {
     let [out_channels, in_channels, kernel, _] = conv.weight.dims();
     let stride = conv.stride[0];
-    let [batch, height, width, channels] = x.dims();
+    let [batch, height, width, channels] = match (layout, x.dims()) {
+        (Layout::ChannelsFirst, [n, c, h, w]) | (Layout::ChannelsLast, [n, h, w, c]) => {
+            [n, h, w, c]
+        }
+    };
     debug_assert_eq!(channels, in_channels, "input channels");
     let out_h = (height - kernel) / stride + 1;
     let out_w = (width - kernel) / stride + 1;
@@ -32,32 +46,39 @@ pub(super) fn conv_nhwc(x: Tensor<4>, conv: &Conv2d) -> Tensor<4> {
     // are zeros (they meet the kernel's zero padding).
     let rows = stride * (out_h + taps - 1);
     let cols = stride * (out_w + taps - 1);
-    let x = x.slice([
-        0..batch,
-        0..rows.min(height),
-        0..cols.min(width),
-        0..channels,
-    ]);
-    let x = if rows > height || cols > width {
-        x.pad(
-            [
-                (0, rows.saturating_sub(height)),
-                (0, cols.saturating_sub(width)),
-                (0, 0),
-            ],
-            PadMode::Constant(0.0),
-        )
-    } else {
-        x
-    };
+    let (kept_rows, kept_cols) = (0..rows.min(height), 0..cols.min(width));
+    let (pad_rows, pad_cols) = (
+        (0, rows.saturating_sub(height)),
+        (0, cols.saturating_sub(width)),
+    );
+    let padding = rows > height || cols > width;
     // Space to depth: element (n, by, bx, (a·s + b)·C + c) is input
-    // (n, by·s + a, bx·s + b, c).
+    // (n, by·s + a, bx·s + b, c), whichever the input's layout.
     let (blocks_h, blocks_w) = (rows / stride, cols / stride);
     let block = stride * stride * channels;
-    let blocks = x
-        .reshape([batch, blocks_h, stride, blocks_w, stride, channels])
-        .permute([0, 1, 3, 2, 4, 5])
-        .reshape([batch * blocks_h * blocks_w, block]);
+    let blocks = match layout {
+        Layout::ChannelsFirst => {
+            let x = x.slice([0..batch, 0..channels, kept_rows, kept_cols]);
+            let x = if padding {
+                x.pad([pad_rows, pad_cols], PadMode::Constant(0.0))
+            } else {
+                x
+            };
+            x.reshape([batch, channels, blocks_h, stride, blocks_w, stride])
+                .permute([0, 2, 4, 3, 5, 1])
+        }
+        Layout::ChannelsLast => {
+            let x = x.slice([0..batch, kept_rows, kept_cols, 0..channels]);
+            let x = if padding {
+                x.pad([pad_rows, pad_cols, (0, 0)], PadMode::Constant(0.0))
+            } else {
+                x
+            };
+            x.reshape([batch, blocks_h, stride, blocks_w, stride, channels])
+                .permute([0, 1, 3, 2, 4, 5])
+        }
+    }
+    .reshape([batch * blocks_h * blocks_w, block]);
 
     // Every block times every tap (i, j) of the block kernel, in one product
     // whose columns are (i, j, output channel): as large as the input, where
@@ -113,6 +134,20 @@ mod tests {
     /// Forward values and all three gradients (input, weight, bias) of the
     /// matrix-product form against burn's convolution, for one shape.
     fn check(channels: usize, out: usize, kernel: usize, stride: usize, h: usize, w: usize) {
+        for layout in [Layout::ChannelsFirst, Layout::ChannelsLast] {
+            check_layout(layout, channels, out, kernel, stride, h, w);
+        }
+    }
+
+    fn check_layout(
+        layout: Layout,
+        channels: usize,
+        out: usize,
+        kernel: usize,
+        stride: usize,
+        h: usize,
+        w: usize,
+    ) {
         let device = Device::flex().autodiff();
         let conv = Conv2dConfig::new([channels, out], [kernel, kernel])
             .with_stride([stride, stride])
@@ -130,7 +165,13 @@ mod tests {
         );
 
         let x_ours = input.clone().detach().require_grad();
-        let ours = conv_nhwc(x_ours.clone().permute([0, 2, 3, 1]), &conv).permute([0, 3, 1, 2]);
+        let ours = match layout {
+            Layout::ChannelsFirst => super::conv(x_ours.clone(), layout, &conv),
+            Layout::ChannelsLast => {
+                super::conv(x_ours.clone().permute([0, 2, 3, 1]), layout, &conv)
+            }
+        }
+        .permute([0, 3, 1, 2]);
         let ours_grads = (ours.clone() * weights.clone()).sum().backward();
         let x_burn = input.detach().require_grad();
         let burn = conv.forward(x_burn.clone());
@@ -139,7 +180,7 @@ mod tests {
         let scale = burn.clone().abs().max().into_scalar::<f32>();
         assert!(
             largest_difference(ours, burn) <= 1e-5 * scale,
-            "outputs differ ({channels}→{out}, k{kernel}/s{stride}, {h}×{w})"
+            "outputs differ ({layout:?}, {channels}→{out}, k{kernel}/s{stride}, {h}×{w})"
         );
         let pairs = [
             (x_ours.grad(&ours_grads), x_burn.grad(&burn_grads)),
@@ -150,7 +191,7 @@ mod tests {
             let scale = b.clone().abs().max().into_scalar::<f32>();
             assert!(
                 largest_difference(a, b) <= 1e-5 * scale,
-                "{name} gradients differ ({channels}→{out}, k{kernel}/s{stride}, {h}×{w})"
+                "{name} gradients differ ({layout:?}, {channels}→{out}, k{kernel}/s{stride}, {h}×{w})"
             );
         }
         let bias = conv.bias.as_ref().expect("bias");
