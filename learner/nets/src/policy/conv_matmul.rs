@@ -5,16 +5,16 @@
 //! update those two took 87 % of the learner's training thread. A valid
 //! convolution with kernel `k` and stride `s` is the same as cutting the
 //! input into `s × s` blocks (space to depth) and convolving the blocks with
-//! a `⌈k/s⌉ × ⌈k/s⌉` kernel at stride 1: one matrix product of the blocks with every tap, and a sum of shifted
-//! views. Its gradients are matrix products, copies and slices, which every
-//! backend does well.
+//! a `⌈k/s⌉ × ⌈k/s⌉` kernel at stride 1: one matrix product of the blocks
+//! with every tap, then a sum of shifted slices. Its gradients are matrix
+//! products, copies and slices, which every backend does well.
 
 use burn::nn::conv::Conv2d;
 use burn::prelude::*;
 use burn::tensor::ops::PadMode;
 
 /// How an input's axes are ordered.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy)]
 pub(super) enum Layout {
     /// `[batch, channels, height, width]`, as observations arrive.
     ChannelsFirst,
@@ -126,9 +126,14 @@ mod tests {
     use burn::nn::conv::Conv2dConfig;
     use burn::tensor::Distribution;
 
-    /// Largest absolute difference between two tensors' values.
-    fn largest_difference<const D: usize>(a: Tensor<D>, b: Tensor<D>) -> f32 {
-        (a - b).abs().max().into_scalar::<f32>()
+    /// Asserts that `ours` is within 1e-5 of `burns`' largest value.
+    fn assert_close<const D: usize>(ours: Tensor<D>, burns: Tensor<D>, what: &str) {
+        let scale = burns.clone().abs().max().into_scalar::<f32>();
+        let difference = (ours - burns).abs().max().into_scalar::<f32>();
+        assert!(
+            difference <= 1e-5 * scale,
+            "{what} differ: {difference} of {scale}"
+        );
     }
 
     /// Forward values and all three gradients (input, weight, bias) of the
@@ -177,32 +182,23 @@ mod tests {
         let burn = conv.forward(x_burn.clone());
         let burn_grads = (burn.clone() * weights).sum().backward();
 
-        let scale = burn.clone().abs().max().into_scalar::<f32>();
-        assert!(
-            largest_difference(ours, burn) <= 1e-5 * scale,
-            "outputs differ ({layout:?}, {channels}→{out}, k{kernel}/s{stride}, {h}×{w})"
+        let shape = format!("({layout:?}, {channels}→{out}, k{kernel}/s{stride}, {h}×{w})");
+        assert_close(ours, burn, &format!("outputs {shape}"));
+        assert_close(
+            x_ours.grad(&ours_grads).expect("gradient"),
+            x_burn.grad(&burn_grads).expect("gradient"),
+            &format!("input gradients {shape}"),
         );
-        let pairs = [
-            (x_ours.grad(&ours_grads), x_burn.grad(&burn_grads)),
-            (conv.weight.grad(&ours_grads), conv.weight.grad(&burn_grads)),
-        ];
-        for (name, (a, b)) in ["input", "weight"].iter().zip(pairs) {
-            let (a, b) = (a.expect("gradient"), b.expect("gradient"));
-            let scale = b.clone().abs().max().into_scalar::<f32>();
-            assert!(
-                largest_difference(a, b) <= 1e-5 * scale,
-                "{name} gradients differ ({layout:?}, {channels}→{out}, k{kernel}/s{stride}, {h}×{w})"
-            );
-        }
+        assert_close(
+            conv.weight.grad(&ours_grads).expect("gradient"),
+            conv.weight.grad(&burn_grads).expect("gradient"),
+            &format!("weight gradients {shape}"),
+        );
         let bias = conv.bias.as_ref().expect("bias");
-        let (a, b) = (
-            bias.grad(&ours_grads).unwrap(),
-            bias.grad(&burn_grads).unwrap(),
-        );
-        let scale = b.clone().abs().max().into_scalar::<f32>();
-        assert!(
-            largest_difference(a, b) <= 1e-5 * scale,
-            "bias gradients differ"
+        assert_close(
+            bias.grad(&ours_grads).expect("gradient"),
+            bias.grad(&burn_grads).expect("gradient"),
+            &format!("bias gradients {shape}"),
         );
     }
 
