@@ -9,6 +9,8 @@
 //! - [`unet`]: the affordance U-Net and its labelled-pixels-only loss;
 //! - [`unet_cpu`]: the same U-Net's forward pass for CPU inference, without
 //!   burn's copies, with Winograd convolutions (the actor's per-frame pass);
+//! - `unet_conv_cpu`: the U-Net's 3 × 3 convolutions with their ReLU as
+//!   one differentiable operation on the CPU (its training step);
 //! - [`unet_inference`]: which of the two a device gets;
 //! - [`weights`]: either network to and from safetensors bytes;
 //! - [`device`]: `--device cpu|gpu` at run time;
@@ -18,6 +20,7 @@ pub mod device;
 mod masked_categorical;
 pub mod policy;
 pub mod unet;
+mod unet_conv_cpu;
 pub mod unet_cpu;
 pub mod unet_inference;
 pub mod weights;

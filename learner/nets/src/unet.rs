@@ -10,7 +10,8 @@ use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfi
 use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
 use burn::nn::PaddingConfig2d;
 use burn::prelude::*;
-use burn::tensor::activation::relu;
+
+use crate::unet_conv_cpu::conv3x3_relu;
 
 /// Encoder channels per level, shallow to deep (the paper's).
 pub const UNET_CHANNELS: [usize; 4] = [24, 48, 92, 164];
@@ -36,7 +37,7 @@ impl DoubleConv {
     }
 
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        relu(self.second.forward(relu(self.first.forward(x))))
+        conv3x3_relu(&self.second, conv3x3_relu(&self.first, x))
     }
 }
 

@@ -166,18 +166,18 @@ impl CpuUnet {
 }
 
 /// Floats of one padded plane of an `h × w` image.
-fn plane_len(h: usize, w: usize) -> usize {
+pub(crate) fn plane_len(h: usize, w: usize) -> usize {
     (h + 2) * (w + 2)
 }
 
 /// Columns of a wide output: `h` rows of `w + 2`, less the last row's two
 /// border columns (so that every shifted read stays inside the plane).
-fn wide_len(h: usize, w: usize) -> usize {
+pub(crate) fn wide_len(h: usize, w: usize) -> usize {
     h * (w + 2) - 2
 }
 
 /// Copies a channels-first image into the interiors of padded planes.
-fn fill_padded(padded: &mut [f32], image: &[f32], h: usize, w: usize) {
+pub(crate) fn fill_padded(padded: &mut [f32], image: &[f32], h: usize, w: usize) {
     let row = w + 2;
     for (plane, channel) in padded
         .chunks_exact_mut(plane_len(h, w))
@@ -265,23 +265,43 @@ pub(crate) fn matmul(
     }
 }
 
-/// A same-padded 3 × 3 convolution followed by ReLU.
+/// A same-padded 3 × 3 convolution followed by ReLU (or, with a floor of
+/// −∞, by nothing: the training path's input gradient).
 #[derive(Debug)]
-struct Conv3x3 {
-    inputs: usize,
-    outputs: usize,
+pub(crate) struct Conv3x3 {
+    pub(crate) inputs: usize,
+    pub(crate) outputs: usize,
     /// `[tap][output][input]`, tap = 3 · row + column of the kernel.
     taps: Vec<f32>,
     /// The kernels in Winograd's domain, `[16][output][input]` (`G g Gᵀ`).
     winograd: Vec<f32>,
     bias: Vec<f32>,
+    /// Each output is `max(value, floor)`: 0 for ReLU, −∞ for none.
+    floor: f32,
 }
 
 impl Conv3x3 {
     fn from_layer(layer: &burn::nn::conv::Conv2d) -> Self {
         let [outputs, inputs, kh, kw] = layer.weight.val().dims();
         debug_assert_eq!((kh, kw), (3, 3));
-        let weight = values(&layer.weight);
+        Self::from_weights(
+            &values(&layer.weight),
+            (outputs, inputs),
+            bias_values(&layer.bias, outputs),
+            0.0,
+        )
+    }
+
+    /// From row-major weights `[outputs][inputs][3][3]` and one bias per
+    /// output; `floor` as in the field.
+    pub(crate) fn from_weights(
+        weight: &[f32],
+        (outputs, inputs): (usize, usize),
+        bias: Vec<f32>,
+        floor: f32,
+    ) -> Self {
+        assert_eq!(weight.len(), 9 * outputs * inputs, "3 × 3 weights");
+        assert_eq!(bias.len(), outputs, "one bias per output");
         let mut taps = vec![0.0; 9 * outputs * inputs];
         let mut winograd = vec![0.0; 16 * outputs * inputs];
         for o in 0..outputs {
@@ -300,12 +320,13 @@ impl Conv3x3 {
             outputs,
             taps,
             winograd,
-            bias: bias_values(&layer.bias, outputs),
+            bias,
+            floor,
         }
     }
 
     /// Padded planes `[inputs]` of `h × w` → padded planes `[outputs]`.
-    fn forward(
+    pub(crate) fn forward(
         &self,
         source: &[f32],
         output: &mut [f32],
@@ -345,7 +366,7 @@ impl Conv3x3 {
                 line[0] = 0.0;
                 line[row - 1] = 0.0;
                 for value in &mut line[1..=w] {
-                    *value = value.max(0.0);
+                    *value = value.max(self.floor);
                 }
             }
         }
@@ -406,7 +427,7 @@ impl Conv3x3 {
                         &tiles.products,
                         |element| (element * outputs + o) * n + j,
                         &mut tiles.across,
-                        self.bias[o],
+                        (self.bias[o], self.floor),
                         &mut out[top..top + row + w],
                         row,
                     );
@@ -424,7 +445,7 @@ const WINOGRAD_BLOCK_FLOATS: usize = 1 << 18;
 /// and products `[16][outputs][tiles]` of one block, and one row of tiles
 /// half transformed, `[16][tiles in a row]`.
 #[derive(Debug, Default)]
-struct TileBuffers {
+pub(crate) struct TileBuffers {
     transformed: Vec<f32>,
     products: Vec<f32>,
     across: Vec<f32>,
@@ -522,7 +543,7 @@ fn fill(to: &mut [f32], p: &[f32], q: &[f32], f: impl Fn(f32, f32) -> f32) {
 }
 
 /// `Aᵀ m A` of every 4 × 4 product of one row of tiles, plus `bias`, then
-/// ReLU, written into the two output rows the tiles cover (`out` starts at
+/// `max(·, floor)`, written into the two output rows the tiles cover (`out` starts at
 /// the first one's first interior pixel; rows `row` apart); with
 /// `Aᵀ = [1 1 1 0; 0 1 −1 −1]`. Element `e` of tile `t` is
 /// `products[start(e) + t]`; `across` is scratch of 8 values per tile.
@@ -530,7 +551,7 @@ fn winograd_output_row(
     products: &[f32],
     start: impl Fn(usize) -> usize,
     across: &mut [f32],
-    bias: f32,
+    (bias, floor): (f32, f32),
     out: &mut [f32],
     row: usize,
 ) {
@@ -554,8 +575,8 @@ fn winograd_output_row(
         let line = &mut out[i * row..i * row + 2 * tiles];
         let sums = s0.iter().zip(s1).zip(s2.iter().zip(s3));
         for (pair, ((s0, s1), (s2, s3))) in line.chunks_exact_mut(2).zip(sums) {
-            pair[0] = (s0 + s1 + s2 + bias).max(0.0);
-            pair[1] = (s1 - s2 - s3 + bias).max(0.0);
+            pair[0] = (s0 + s1 + s2 + bias).max(floor);
+            pair[1] = (s1 - s2 - s3 + bias).max(floor);
         }
     }
 }

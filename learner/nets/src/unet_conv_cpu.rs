@@ -1,0 +1,437 @@
+//! The U-Net's 3 × 3 convolutions with their ReLU as one differentiable
+//! operation on burn's CPU backend, for training.
+//!
+//! Why it exists: burn's CPU backend turns every convolution of a training
+//! step into copies. Its forward pass and its weight gradient each build an
+//! im2col matrix nine times the input's size (the weight gradient as a
+//! convolution whose kernel is the whole output gradient), and a profile of
+//! a U-Net training step (batch 8 at 128 px) put a third of the time in
+//! those copies against 43 % in matrix products. Here, on zero-bordered
+//! channels-first planes (`unet_cpu`'s layout):
+//! - the forward pass is [`unet_cpu`](crate::unet_cpu)'s convolution
+//!   (Winograd, or nine shifted products over odd sides), ReLU included;
+//! - the input gradient is the same convolution with each kernel flipped and
+//!   inputs and outputs swapped, over the output gradient masked by the ReLU;
+//! - the weight gradient is nine matrix products per image, one per kernel
+//!   tap, each over a shifted view of the padded input: no copy at all.
+//!
+//! Tensors elsewhere (the GPU) take burn's own `Conv2d` and ReLU.
+
+use std::sync::Arc;
+
+use burn::backend::{Autodiff, Flex};
+use burn::nn::conv::Conv2d;
+use burn::prelude::*;
+use burn::tensor::activation::relu;
+use burn::tensor::{DType, TensorData};
+use burn_autodiff::checkpoint::base::Checkpointer;
+use burn_autodiff::checkpoint::strategy::NoCheckpointing;
+use burn_autodiff::grads::Gradients;
+use burn_autodiff::ops::{Backward, Ops, OpsKind};
+use burn_flex::FlexTensor;
+
+use crate::unet_cpu::{fill_padded, plane_len, wide_len, Conv3x3, TileBuffers};
+
+/// The autodiff backend a training step's tensors live on when on the CPU.
+type Tracked = Autodiff<Flex>;
+
+/// `relu(layer(x))` for a 3 × 3, same-padded, stride-1 convolution with a
+/// bias (as the U-Net's `DoubleConv` builds them): on the CPU through the
+/// operation above, anywhere else through burn.
+pub(crate) fn conv3x3_relu(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+    if let Some(bias) = &layer.bias {
+        let (weight, bias) = (layer.weight.val(), bias.val());
+        if let Some(out) = tracked_on_cpu(&x, &weight, &bias) {
+            return out;
+        }
+        if let Some(out) = untracked_on_cpu(&x, &weight, &bias) {
+            return out;
+        }
+    }
+    relu(layer.forward(x))
+}
+
+/// Sizes of one call: images, channels in and out, image sides.
+#[derive(Clone, Copy, Debug)]
+struct Sizes {
+    batch: usize,
+    inputs: usize,
+    outputs: usize,
+    h: usize,
+    w: usize,
+}
+
+impl Sizes {
+    /// From `x` `[batch, inputs, h, w]` and `weight` `[outputs, inputs, 3, 3]`;
+    /// `None` for anything else.
+    fn of(x: &FlexTensor, weight: &FlexTensor) -> Option<Self> {
+        let (x_dims, w_dims) = (x.layout().shape(), weight.layout().shape());
+        let ([batch, inputs, h, w], [outputs, weight_inputs, 3, 3]) =
+            (x_dims.dims::<4>(), w_dims.dims::<4>())
+        else {
+            return None;
+        };
+        let f32_only = x.dtype() == DType::F32 && weight.dtype() == DType::F32;
+        (f32_only && inputs == weight_inputs && batch * h * w > 0).then_some(Self {
+            batch,
+            inputs,
+            outputs,
+            h,
+            w,
+        })
+    }
+}
+
+/// The tracked path: `None` when the tensors are not all on the CPU
+/// backend with autodiff.
+fn tracked_on_cpu(x: &Tensor<4>, weight: &Tensor<4>, bias: &Tensor<1>) -> Option<Tensor<4>> {
+    let x = x.clone().try_into_primitive::<Tracked>().ok()?;
+    let weight = weight.clone().try_into_primitive::<Tracked>().ok()?;
+    let bias = bias.clone().try_into_primitive::<Tracked>().ok()?;
+    let sizes = Sizes::of(x.primitive(), weight.primitive())?;
+    let nodes = [x.node(), weight.node(), bias.node()];
+    let weight = contiguous(weight.primitive());
+    let bias = contiguous(bias.primitive());
+    let out = match ConvRelu
+        .prepare::<NoCheckpointing>(nodes)
+        .compute_bound()
+        .stateful()
+    {
+        OpsKind::Tracked(prep) => {
+            let (out, padded) = forward(&contiguous(x.primitive()), &weight, &bias, sizes);
+            let output = to_tensor(out, [sizes.batch, sizes.outputs, sizes.h, sizes.w]);
+            let state = ConvReluState {
+                sizes,
+                padded_input: Arc::new(padded),
+                weight: Arc::new(weight),
+                output: output.clone(),
+            };
+            prep.finish(state, output)
+        }
+        OpsKind::UnTracked(prep) => {
+            let (out, _) = forward(&contiguous(x.primitive()), &weight, &bias, sizes);
+            prep.finish(to_tensor(
+                out,
+                [sizes.batch, sizes.outputs, sizes.h, sizes.w],
+            ))
+        }
+    };
+    Some(Tensor::from_primitive::<Tracked>(out))
+}
+
+/// The path without autodiff (validation, a network without gradients).
+fn untracked_on_cpu(x: &Tensor<4>, weight: &Tensor<4>, bias: &Tensor<1>) -> Option<Tensor<4>> {
+    let x = x.clone().try_into_primitive::<Flex>().ok()?;
+    let weight = weight.clone().try_into_primitive::<Flex>().ok()?;
+    let bias = bias.clone().try_into_primitive::<Flex>().ok()?;
+    let sizes = Sizes::of(&x, &weight)?;
+    let (out, _) = forward(
+        &contiguous(&x),
+        &contiguous(&weight),
+        &contiguous(&bias),
+        sizes,
+    );
+    let out = to_tensor(out, [sizes.batch, sizes.outputs, sizes.h, sizes.w]);
+    Some(Tensor::from_primitive::<Flex>(out))
+}
+
+/// A tensor's values in row-major order (copied only when its layout is not).
+fn contiguous(tensor: &FlexTensor) -> Vec<f32> {
+    match tensor.as_slice::<f32>() {
+        Some(values) => values.to_vec(),
+        None => tensor
+            .to_contiguous()
+            .as_slice::<f32>()
+            .expect("a contiguous f32 tensor")
+            .to_vec(),
+    }
+}
+
+fn to_tensor<const D: usize>(values: Vec<f32>, shape: [usize; D]) -> FlexTensor {
+    FlexTensor::from_data(TensorData::new(values, shape))
+}
+
+/// `relu(conv(x) + bias)` as `[batch, outputs, h, w]`, and the input in
+/// padded planes `[batch][inputs]` (the weight gradient reads it).
+fn forward(x: &[f32], weight: &[f32], bias: &[f32], s: Sizes) -> (Vec<f32>, Vec<f32>) {
+    let conv = Conv3x3::from_weights(weight, (s.outputs, s.inputs), bias.to_vec(), 0.0);
+    let plane = plane_len(s.h, s.w);
+    let mut padded = vec![0.0; s.batch * s.inputs * plane];
+    let mut out = vec![0.0; s.batch * s.outputs * s.h * s.w];
+    let mut planes = vec![0.0; s.outputs * plane];
+    let mut tiles = TileBuffers::default();
+    for ((padded, image), out) in padded
+        .chunks_exact_mut(s.inputs * plane)
+        .zip(x.chunks_exact(s.inputs * s.h * s.w))
+        .zip(out.chunks_exact_mut(s.outputs * s.h * s.w))
+    {
+        fill_padded(padded, image, s.h, s.w);
+        conv.forward(padded, &mut planes, (s.h, s.w), &mut tiles);
+        copy_interiors(&planes, out, s.h, s.w);
+    }
+    (out, padded)
+}
+
+/// Copies the interiors of padded planes into a channels-first image.
+fn copy_interiors(planes: &[f32], image: &mut [f32], h: usize, w: usize) {
+    let row = w + 2;
+    for (plane, channel) in planes
+        .chunks_exact(plane_len(h, w))
+        .zip(image.chunks_exact_mut(h * w))
+    {
+        for (y, line) in channel.chunks_exact_mut(w).enumerate() {
+            let start = (y + 1) * row + 1;
+            line.copy_from_slice(&plane[start..start + w]);
+        }
+    }
+}
+
+/// The backward step of [`conv3x3_relu`]'s CPU operation.
+#[derive(Debug)]
+struct ConvRelu;
+
+/// What the backward step needs of the forward pass.
+#[derive(Clone, Debug)]
+struct ConvReluState {
+    sizes: Sizes,
+    padded_input: Arc<Vec<f32>>,
+    /// `[outputs][inputs][3][3]`.
+    weight: Arc<Vec<f32>>,
+    /// The output after ReLU, whose zeros pass no gradient.
+    output: FlexTensor,
+}
+
+impl Backward<Flex, 3> for ConvRelu {
+    type State = ConvReluState;
+
+    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [node_x, node_weight, node_bias] = ops.parents;
+        let grad = contiguous(&grads.consume::<Flex>(&ops.node));
+        let state = ops.state;
+        let s = state.sizes;
+        let (masked, bias_grad) = masked_gradient(&grad, &contiguous(&state.output), s);
+        if let Some(node) = node_weight {
+            let weight_grad = weight_gradient(&masked, &state.padded_input, s);
+            grads.register::<Flex>(node.id, to_tensor(weight_grad, [s.outputs, s.inputs, 3, 3]));
+        }
+        if let Some(node) = node_bias {
+            grads.register::<Flex>(node.id, to_tensor(bias_grad, [s.outputs]));
+        }
+        if let Some(node) = node_x {
+            let input_grad = input_gradient(&masked, &state.weight, s);
+            grads.register::<Flex>(
+                node.id,
+                to_tensor(input_grad, [s.batch, s.inputs, s.h, s.w]),
+            );
+        }
+    }
+}
+
+/// The output gradient where the ReLU passed its value (zero elsewhere),
+/// in padded planes `[batch][outputs]`, and its sum per output (the bias's
+/// gradient).
+fn masked_gradient(grad: &[f32], output: &[f32], s: Sizes) -> (Vec<f32>, Vec<f32>) {
+    let (row, plane) = (s.w + 2, plane_len(s.h, s.w));
+    let mut masked = vec![0.0; s.batch * s.outputs * plane];
+    let mut sums = vec![0.0f64; s.outputs];
+    for (index, ((plane, grad), output)) in masked
+        .chunks_exact_mut(plane)
+        .zip(grad.chunks_exact(s.h * s.w))
+        .zip(output.chunks_exact(s.h * s.w))
+        .enumerate()
+    {
+        let mut sum = 0.0f32;
+        for (y, (grad, output)) in grad
+            .chunks_exact(s.w)
+            .zip(output.chunks_exact(s.w))
+            .enumerate()
+        {
+            let line = &mut plane[(y + 1) * row + 1..][..s.w];
+            for ((to, &g), &out) in line.iter_mut().zip(grad).zip(output) {
+                *to = if out > 0.0 { g } else { 0.0 };
+                sum += *to;
+            }
+        }
+        sums[index % s.outputs] += f64::from(sum);
+    }
+    (masked, sums.into_iter().map(|sum| sum as f32).collect())
+}
+
+/// `∂L/∂W[o][i][tap] = Σ_images Σ_pixels masked[o][p] · input[i][p + shift(tap)]`:
+/// per image and tap, one product of the masked gradient's wide rows by the
+/// shifted padded input, read transposed in place.
+fn weight_gradient(masked: &[f32], padded: &[f32], s: Sizes) -> Vec<f32> {
+    let (row, plane, wide) = (s.w + 2, plane_len(s.h, s.w), wide_len(s.h, s.w));
+    let start = row + 1;
+    let mut grad = vec![0.0; 9 * s.outputs * s.inputs];
+    for (image, (masked, padded)) in masked
+        .chunks_exact(s.outputs * plane)
+        .zip(padded.chunks_exact(s.inputs * plane))
+        .enumerate()
+    {
+        for tap in 0..9 {
+            let shift = (tap / 3) * row + tap % 3;
+            assert!(
+                grad.len() > tap + 9 * (s.outputs * s.inputs - 1)
+                    && masked.len() >= (s.outputs - 1) * plane + start + wide
+                    && padded.len() >= (s.inputs - 1) * plane + shift + wide,
+                "weight gradient: buffers too short"
+            );
+            // SAFETY: the assert keeps every element gemm touches inside its
+            // slice: dst[tap + 9 (o · inputs + i)], lhs[o · plane + start + p],
+            // rhs[i · plane + shift + p] for o < outputs, i < inputs,
+            // p < wide; `grad` is borrowed mutably, so nothing aliases it.
+            unsafe {
+                gemm::gemm(
+                    s.outputs,
+                    s.inputs,
+                    wide,
+                    grad.as_mut_ptr().add(tap),
+                    9,
+                    (9 * s.inputs) as isize,
+                    image > 0,
+                    masked.as_ptr().add(start),
+                    1,
+                    plane as isize,
+                    padded.as_ptr().add(shift),
+                    plane as isize,
+                    1,
+                    1.0f32,
+                    1.0f32,
+                    false,
+                    false,
+                    false,
+                    gemm::Parallelism::None,
+                );
+            }
+        }
+    }
+    grad
+}
+
+/// `∂L/∂x`: the masked gradient through the convolution with kernels
+/// flipped and inputs and outputs swapped, as `[batch, inputs, h, w]`.
+fn input_gradient(masked: &[f32], weight: &[f32], s: Sizes) -> Vec<f32> {
+    let mut flipped = vec![0.0; weight.len()];
+    for o in 0..s.outputs {
+        for i in 0..s.inputs {
+            let from = &weight[(o * s.inputs + i) * 9..][..9];
+            let to = &mut flipped[(i * s.outputs + o) * 9..][..9];
+            for (tap, value) in to.iter_mut().enumerate() {
+                *value = from[8 - tap];
+            }
+        }
+    }
+    let transposed = Conv3x3::from_weights(
+        &flipped,
+        (s.inputs, s.outputs),
+        vec![0.0; s.inputs],
+        f32::NEG_INFINITY,
+    );
+    let plane = plane_len(s.h, s.w);
+    let mut grad = vec![0.0; s.batch * s.inputs * s.h * s.w];
+    let mut planes = vec![0.0; s.inputs * plane];
+    let mut tiles = TileBuffers::default();
+    for (masked, grad) in masked
+        .chunks_exact(s.outputs * plane)
+        .zip(grad.chunks_exact_mut(s.inputs * s.h * s.w))
+    {
+        transposed.forward(masked, &mut planes, (s.h, s.w), &mut tiles);
+        copy_interiors(&planes, grad, s.h, s.w);
+    }
+    grad
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::nn::conv::Conv2dConfig;
+    use burn::nn::PaddingConfig2d;
+    use burn::tensor::Distribution;
+
+    /// Asserts that `ours` is within 1e-5 of `burns`' largest value.
+    fn assert_close<const D: usize>(ours: Tensor<D>, burns: Tensor<D>, what: &str) {
+        let scale = burns.clone().abs().max().into_scalar::<f32>();
+        let difference = (ours - burns).abs().max().into_scalar::<f32>();
+        assert!(
+            difference <= 1e-5 * scale,
+            "{what} differ: {difference} of {scale}"
+        );
+    }
+
+    fn layer(inputs: usize, outputs: usize, device: &Device) -> Conv2d {
+        Conv2dConfig::new([inputs, outputs], [3, 3])
+            .with_padding(PaddingConfig2d::Same)
+            .init(device)
+    }
+
+    /// Values and the gradients of input, weight and bias against burn's
+    /// convolution and ReLU, for `batch` images of `inputs` channels.
+    fn check(batch: usize, inputs: usize, outputs: usize, h: usize, w: usize) {
+        let device = Device::flex().autodiff();
+        let conv = layer(inputs, outputs, &device);
+        let input = Tensor::<4>::random([batch, inputs, h, w], Distribution::Default, &device)
+            .sub_scalar(0.5);
+        // A loss that weighs every output differently, so a shifted or
+        // transposed output cannot give the same gradients.
+        let weights = Tensor::<4>::random(
+            [batch, outputs, h, w],
+            Distribution::Normal(0.0, 1.0),
+            &device,
+        );
+        let x_ours = input.clone().detach().require_grad();
+        let bias = conv.bias.as_ref().expect("bias");
+        let ours = tracked_on_cpu(&x_ours, &conv.weight.val(), &bias.val()).expect("the CPU path");
+        let ours_grads = (ours.clone() * weights.clone()).sum().backward();
+        let x_burn = input.detach().require_grad();
+        let burns = relu(conv.forward(x_burn.clone()));
+        let burn_grads = (burns.clone() * weights).sum().backward();
+        let what = format!("{batch} x {inputs} -> {outputs} at {h} x {w}");
+        let cut = burns
+            .clone()
+            .equal_elem(0.0)
+            .int()
+            .sum()
+            .into_scalar::<i64>();
+        assert!(cut > 0, "{what}: the ReLU must cut some outputs");
+        assert_close(ours, burns, &format!("outputs, {what}"));
+        assert_close(
+            x_ours.grad(&ours_grads).expect("gradient"),
+            x_burn.grad(&burn_grads).expect("gradient"),
+            &format!("input gradients, {what}"),
+        );
+        assert_close(
+            conv.weight.grad(&ours_grads).expect("gradient"),
+            conv.weight.grad(&burn_grads).expect("gradient"),
+            &format!("weight gradients, {what}"),
+        );
+        assert_close(
+            bias.grad(&ours_grads).expect("gradient"),
+            bias.grad(&burn_grads).expect("gradient"),
+            &format!("bias gradients, {what}"),
+        );
+    }
+
+    #[test]
+    fn gives_the_values_and_gradients_of_burns_convolution_and_relu() {
+        // Even sides (Winograd), odd sides (nine taps), a single pixel, and
+        // the U-Net's first layer at a small size.
+        check(2, 3, 5, 8, 8);
+        check(3, 6, 4, 5, 7);
+        check(2, 2, 3, 1, 1);
+        check(2, 4, 24, 16, 12);
+    }
+
+    #[test]
+    fn without_autodiff_gives_burns_values() {
+        let device = Device::flex();
+        let conv = layer(5, 7, &device);
+        let input = Tensor::<4>::random([2, 5, 10, 6], Distribution::Default, &device);
+        let bias = conv.bias.as_ref().expect("bias").val();
+        assert_close(
+            untracked_on_cpu(&input, &conv.weight.val(), &bias).expect("the CPU path"),
+            relu(conv.forward(input)),
+            "outputs",
+        );
+    }
+}
