@@ -17,6 +17,7 @@
 //!
 //! Tensors elsewhere (the GPU) take burn's own `Conv2d` and ReLU.
 
+use std::borrow::Cow;
 use std::sync::Arc;
 
 use burn::backend::{Autodiff, Flex};
@@ -62,17 +63,18 @@ struct Sizes {
 }
 
 impl Sizes {
-    /// From `x` `[batch, inputs, h, w]` and `weight` `[outputs, inputs, 3, 3]`;
-    /// `None` for anything else.
-    fn of(x: &FlexTensor, weight: &FlexTensor) -> Option<Self> {
+    /// From `x` `[batch, inputs, h, w]`, `weight` `[outputs, inputs, 3, 3]`
+    /// and `bias` `[outputs]`, all f32; `None` for anything else.
+    fn of(x: &FlexTensor, weight: &FlexTensor, bias: &FlexTensor) -> Option<Self> {
         let (x_dims, w_dims) = (x.layout().shape(), weight.layout().shape());
         let ([batch, inputs, h, w], [outputs, weight_inputs, 3, 3]) =
             (x_dims.dims::<4>(), w_dims.dims::<4>())
         else {
             return None;
         };
-        let f32_only = x.dtype() == DType::F32 && weight.dtype() == DType::F32;
-        (f32_only && inputs == weight_inputs && batch * h * w > 0).then_some(Self {
+        let f32_only = [x, weight, bias].iter().all(|t| t.dtype() == DType::F32);
+        let fits = inputs == weight_inputs && bias.layout().num_elements() == outputs;
+        (f32_only && fits && batch * h * w > 0).then_some(Self {
             batch,
             inputs,
             outputs,
@@ -88,7 +90,7 @@ fn tracked_on_cpu(x: &Tensor<4>, weight: &Tensor<4>, bias: &Tensor<1>) -> Option
     let x = x.clone().try_into_primitive::<Tracked>().ok()?;
     let weight = weight.clone().try_into_primitive::<Tracked>().ok()?;
     let bias = bias.clone().try_into_primitive::<Tracked>().ok()?;
-    let sizes = Sizes::of(x.primitive(), weight.primitive())?;
+    let sizes = Sizes::of(x.primitive(), weight.primitive(), bias.primitive())?;
     let nodes = [x.node(), weight.node(), bias.node()];
     let weight = contiguous(weight.primitive());
     let bias = contiguous(bias.primitive());
@@ -103,7 +105,7 @@ fn tracked_on_cpu(x: &Tensor<4>, weight: &Tensor<4>, bias: &Tensor<1>) -> Option
             let state = ConvReluState {
                 sizes,
                 padded_input: Arc::new(padded),
-                weight: Arc::new(weight),
+                weight: Arc::new(weight.into_owned()),
                 output: output.clone(),
             };
             prep.finish(state, output)
@@ -124,7 +126,7 @@ fn untracked_on_cpu(x: &Tensor<4>, weight: &Tensor<4>, bias: &Tensor<1>) -> Opti
     let x = x.clone().try_into_primitive::<Flex>().ok()?;
     let weight = weight.clone().try_into_primitive::<Flex>().ok()?;
     let bias = bias.clone().try_into_primitive::<Flex>().ok()?;
-    let sizes = Sizes::of(&x, &weight)?;
+    let sizes = Sizes::of(&x, &weight, &bias)?;
     let (out, _) = forward(
         &contiguous(&x),
         &contiguous(&weight),
@@ -136,14 +138,16 @@ fn untracked_on_cpu(x: &Tensor<4>, weight: &Tensor<4>, bias: &Tensor<1>) -> Opti
 }
 
 /// A tensor's values in row-major order (copied only when its layout is not).
-fn contiguous(tensor: &FlexTensor) -> Vec<f32> {
+fn contiguous(tensor: &FlexTensor) -> Cow<'_, [f32]> {
     match tensor.as_slice::<f32>() {
-        Some(values) => values.to_vec(),
-        None => tensor
-            .to_contiguous()
-            .as_slice::<f32>()
-            .expect("a contiguous f32 tensor")
-            .to_vec(),
+        Some(values) => Cow::Borrowed(values),
+        None => Cow::Owned(
+            tensor
+                .to_contiguous()
+                .as_slice::<f32>()
+                .expect("a contiguous tensor of f32, as `Sizes::of` checked")
+                .to_vec(),
+        ),
     }
 }
 
@@ -206,7 +210,8 @@ impl Backward<Flex, 3> for ConvRelu {
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
         let [node_x, node_weight, node_bias] = ops.parents;
-        let grad = contiguous(&grads.consume::<Flex>(&ops.node));
+        let grad = grads.consume::<Flex>(&ops.node);
+        let grad = contiguous(&grad);
         let state = ops.state;
         let s = state.sizes;
         let (masked, bias_grad) = masked_gradient(&grad, &contiguous(&state.output), s);
