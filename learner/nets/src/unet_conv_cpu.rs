@@ -15,6 +15,7 @@
 //! - the weight gradient is nine matrix products per image, one per kernel
 //!   tap, each over a shifted view of the padded input: no copy at all.
 //!
+//! Images run in parallel on rayon's threads (as burn's convolutions do).
 //! Tensors elsewhere (the GPU) take burn's own `Conv2d` and ReLU.
 
 use std::borrow::Cow;
@@ -30,6 +31,7 @@ use burn_autodiff::checkpoint::strategy::NoCheckpointing;
 use burn_autodiff::grads::Gradients;
 use burn_autodiff::ops::{Backward, Ops, OpsKind};
 use burn_flex::FlexTensor;
+use rayon::prelude::*;
 
 use crate::unet_cpu::{fill_padded, plane_len, wide_len, Conv3x3, TileBuffers};
 
@@ -162,17 +164,18 @@ fn forward(x: &[f32], weight: &[f32], bias: &[f32], s: Sizes) -> (Vec<f32>, Vec<
     let plane = plane_len(s.h, s.w);
     let mut padded = vec![0.0; s.batch * s.inputs * plane];
     let mut out = vec![0.0; s.batch * s.outputs * s.h * s.w];
-    let mut planes = vec![0.0; s.outputs * plane];
-    let mut tiles = TileBuffers::default();
-    for ((padded, image), out) in padded
-        .chunks_exact_mut(s.inputs * plane)
-        .zip(x.chunks_exact(s.inputs * s.h * s.w))
-        .zip(out.chunks_exact_mut(s.outputs * s.h * s.w))
-    {
-        fill_padded(padded, image, s.h, s.w);
-        conv.forward(padded, &mut planes, (s.h, s.w), &mut tiles);
-        copy_interiors(&planes, out, s.h, s.w);
-    }
+    padded
+        .par_chunks_exact_mut(s.inputs * plane)
+        .zip(x.par_chunks_exact(s.inputs * s.h * s.w))
+        .zip(out.par_chunks_exact_mut(s.outputs * s.h * s.w))
+        .for_each_init(
+            || (vec![0.0; s.outputs * plane], TileBuffers::default()),
+            |(planes, tiles), ((padded, image), out)| {
+                fill_padded(padded, image, s.h, s.w);
+                conv.forward(padded, planes, (s.h, s.w), tiles);
+                copy_interiors(planes, out, s.h, s.w);
+            },
+        );
     (out, padded)
 }
 
@@ -266,52 +269,64 @@ fn masked_gradient(grad: &[f32], output: &[f32], s: Sizes) -> (Vec<f32>, Vec<f32
 /// per image and tap, one product of the masked gradient's wide rows by the
 /// shifted padded input, read transposed in place.
 fn weight_gradient(masked: &[f32], padded: &[f32], s: Sizes) -> Vec<f32> {
+    let len = 9 * s.outputs * s.inputs;
+    masked
+        .par_chunks_exact(s.outputs * plane_len(s.h, s.w))
+        .zip(padded.par_chunks_exact(s.inputs * plane_len(s.h, s.w)))
+        .fold(
+            || vec![0.0; len],
+            |mut grad, (masked, padded)| {
+                add_image_weight_gradient(&mut grad, masked, padded, s);
+                grad
+            },
+        )
+        .reduce_with(|mut total, part| {
+            total.iter_mut().zip(&part).for_each(|(t, p)| *t += p);
+            total
+        })
+        .unwrap_or_else(|| vec![0.0; len])
+}
+
+/// Adds one image's share of [`weight_gradient`] to `grad`.
+fn add_image_weight_gradient(grad: &mut [f32], masked: &[f32], padded: &[f32], s: Sizes) {
     let (row, plane, wide) = (s.w + 2, plane_len(s.h, s.w), wide_len(s.h, s.w));
     let start = row + 1;
-    let mut grad = vec![0.0; 9 * s.outputs * s.inputs];
-    for (image, (masked, padded)) in masked
-        .chunks_exact(s.outputs * plane)
-        .zip(padded.chunks_exact(s.inputs * plane))
-        .enumerate()
-    {
-        for tap in 0..9 {
-            let shift = (tap / 3) * row + tap % 3;
-            assert!(
-                grad.len() > tap + 9 * (s.outputs * s.inputs - 1)
-                    && masked.len() >= (s.outputs - 1) * plane + start + wide
-                    && padded.len() >= (s.inputs - 1) * plane + shift + wide,
-                "weight gradient: buffers too short"
+    for tap in 0..9 {
+        let shift = (tap / 3) * row + tap % 3;
+        assert!(
+            grad.len() > tap + 9 * (s.outputs * s.inputs - 1)
+                && masked.len() >= (s.outputs - 1) * plane + start + wide
+                && padded.len() >= (s.inputs - 1) * plane + shift + wide,
+            "weight gradient: buffers too short"
+        );
+        // SAFETY: the assert keeps every element gemm touches inside its
+        // slice: dst[tap + 9 (o · inputs + i)], lhs[o · plane + start + p],
+        // rhs[i · plane + shift + p] for o < outputs, i < inputs, p < wide;
+        // `grad` is borrowed mutably, so nothing aliases it.
+        unsafe {
+            gemm::gemm(
+                s.outputs,
+                s.inputs,
+                wide,
+                grad.as_mut_ptr().add(tap),
+                9,
+                (9 * s.inputs) as isize,
+                true,
+                masked.as_ptr().add(start),
+                1,
+                plane as isize,
+                padded.as_ptr().add(shift),
+                plane as isize,
+                1,
+                1.0f32,
+                1.0f32,
+                false,
+                false,
+                false,
+                gemm::Parallelism::None,
             );
-            // SAFETY: the assert keeps every element gemm touches inside its
-            // slice: dst[tap + 9 (o · inputs + i)], lhs[o · plane + start + p],
-            // rhs[i · plane + shift + p] for o < outputs, i < inputs,
-            // p < wide; `grad` is borrowed mutably, so nothing aliases it.
-            unsafe {
-                gemm::gemm(
-                    s.outputs,
-                    s.inputs,
-                    wide,
-                    grad.as_mut_ptr().add(tap),
-                    9,
-                    (9 * s.inputs) as isize,
-                    image > 0,
-                    masked.as_ptr().add(start),
-                    1,
-                    plane as isize,
-                    padded.as_ptr().add(shift),
-                    plane as isize,
-                    1,
-                    1.0f32,
-                    1.0f32,
-                    false,
-                    false,
-                    false,
-                    gemm::Parallelism::None,
-                );
-            }
         }
     }
-    grad
 }
 
 /// `∂L/∂x`: the masked gradient through the convolution with kernels
@@ -335,15 +350,16 @@ fn input_gradient(masked: &[f32], weight: &[f32], s: Sizes) -> Vec<f32> {
     );
     let plane = plane_len(s.h, s.w);
     let mut grad = vec![0.0; s.batch * s.inputs * s.h * s.w];
-    let mut planes = vec![0.0; s.inputs * plane];
-    let mut tiles = TileBuffers::default();
-    for (masked, grad) in masked
-        .chunks_exact(s.outputs * plane)
-        .zip(grad.chunks_exact_mut(s.inputs * s.h * s.w))
-    {
-        transposed.forward(masked, &mut planes, (s.h, s.w), &mut tiles);
-        copy_interiors(&planes, grad, s.h, s.w);
-    }
+    masked
+        .par_chunks_exact(s.outputs * plane)
+        .zip(grad.par_chunks_exact_mut(s.inputs * s.h * s.w))
+        .for_each_init(
+            || (vec![0.0; s.inputs * plane], TileBuffers::default()),
+            |(planes, tiles), (masked, grad)| {
+                transposed.forward(masked, planes, (s.h, s.w), tiles);
+                copy_interiors(planes, grad, s.h, s.w);
+            },
+        );
     grad
 }
 
