@@ -12,8 +12,11 @@
 //!   (Winograd, or nine shifted products over odd sides), ReLU included;
 //! - the input gradient is the same convolution with each kernel flipped and
 //!   inputs and outputs swapped, over the output gradient masked by the ReLU;
-//! - the weight gradient is nine matrix products per image, one per kernel
-//!   tap, each over a shifted view of the padded input: no copy at all.
+//! - the weight gradient is taken in Winograd's domain over even sides (16
+//!   matrix products per block of tiles, whose summed products are mapped
+//!   back to the 3 × 3 kernels), and over odd sides as nine matrix products
+//!   per image, one per kernel tap, each over a shifted view of the padded
+//!   input.
 //!
 //! Images run in parallel on rayon's threads (as burn's convolutions do).
 //! Tensors elsewhere (the GPU) take burn's own `Conv2d` and ReLU.
@@ -33,7 +36,10 @@ use burn_autodiff::ops::{Backward, Ops, OpsKind};
 use burn_flex::FlexTensor;
 use rayon::prelude::*;
 
-use crate::unet_cpu::{fill_padded, plane_len, wide_len, Conv3x3, TileBuffers};
+use crate::unet_cpu::{
+    fill, fill_padded, grow, plane_len, wide_len, winograd_input_row, Conv3x3, TileBuffers,
+    WINOGRAD_BLOCK_FLOATS,
+};
 
 /// The autodiff backend a training step's tensors live on when on the CPU.
 type Tracked = Autodiff<Flex>;
@@ -265,26 +271,189 @@ fn masked_gradient(grad: &[f32], output: &[f32], s: Sizes) -> (Vec<f32>, Vec<f32
     (masked, sums.into_iter().map(|sum| sum as f32).collect())
 }
 
-/// `∂L/∂W[o][i][tap] = Σ_images Σ_pixels masked[o][p] · input[i][p + shift(tap)]`:
-/// per image and tap, one product of the masked gradient's wide rows by the
-/// shifted padded input, read transposed in place.
+/// `∂L/∂W[o][i][tap] = Σ_images Σ_pixels masked[o][p] · input[i][p + shift(tap)]`,
+/// as `[outputs][inputs][3][3]`. Over even sides in Winograd's domain (16
+/// products per 2 × 2 tile instead of 36), otherwise per kernel tap.
 fn weight_gradient(masked: &[f32], padded: &[f32], s: Sizes) -> Vec<f32> {
-    let len = 9 * s.outputs * s.inputs;
-    masked
+    let winograd = s.h.is_multiple_of(2) && s.w.is_multiple_of(2);
+    let len = if winograd { 16 } else { 9 } * s.outputs * s.inputs;
+    let sum = masked
         .par_chunks_exact(s.outputs * plane_len(s.h, s.w))
         .zip(padded.par_chunks_exact(s.inputs * plane_len(s.h, s.w)))
         .fold(
-            || vec![0.0; len],
-            |mut grad, (masked, padded)| {
-                add_image_weight_gradient(&mut grad, masked, padded, s);
-                grad
+            || (vec![0.0; len], TileBuffers::default()),
+            |(mut grad, mut tiles), (masked, padded)| {
+                if winograd {
+                    add_image_winograd_gradient(&mut grad, &mut tiles, masked, padded, s);
+                } else {
+                    add_image_weight_gradient(&mut grad, masked, padded, s);
+                }
+                (grad, tiles)
             },
         )
+        .map(|(grad, _)| grad)
         .reduce_with(|mut total, part| {
             total.iter_mut().zip(&part).for_each(|(t, p)| *t += p);
             total
         })
-        .unwrap_or_else(|| vec![0.0; len])
+        .unwrap_or_else(|| vec![0.0; len]);
+    if winograd {
+        from_winograd_domain(&sum, s)
+    } else {
+        sum
+    }
+}
+
+/// Adds one image's share of the weight gradient in Winograd's domain,
+/// `∂L/∂U[e][o][i]` for `U = G g Gᵀ`: the forward pass computes
+/// `Y = Aᵀ (Σ_i U_oi ⊙ V_i) A` per tile with `V = Bᵀ d B`, so each tile
+/// adds `(A ∂Y Aᵀ) ⊙ V`, summed over tiles as 16 products.
+fn add_image_winograd_gradient(
+    grad: &mut [f32],
+    tiles: &mut TileBuffers,
+    masked: &[f32],
+    padded: &[f32],
+    s: Sizes,
+) {
+    let (inputs, outputs) = (s.inputs, s.outputs);
+    let (row, plane) = (s.w + 2, plane_len(s.h, s.w));
+    let (tile_rows, tiles_per_row) = (s.h / 2, s.w / 2);
+    let rows_per_block =
+        (WINOGRAD_BLOCK_FLOATS / (16 * inputs.max(outputs) * tiles_per_row)).clamp(1, tile_rows);
+    tiles.across.resize(18 * (tiles_per_row + 1), 0.0);
+    for first_row in (0..tile_rows).step_by(rows_per_block) {
+        let block_rows = rows_per_block.min(tile_rows - first_row);
+        let n = block_rows * tiles_per_row;
+        grow(&mut tiles.transformed, 16 * inputs * n);
+        grow(&mut tiles.products, 16 * outputs * n);
+        for (c, channel) in padded.chunks_exact(plane).enumerate() {
+            for r in 0..block_rows {
+                let corner = 2 * (first_row + r) * row;
+                let j = r * tiles_per_row;
+                winograd_input_row(
+                    &channel[corner..corner + 4 * row],
+                    row,
+                    &mut tiles.across,
+                    |element| (element * inputs + c) * n + j,
+                    &mut tiles.transformed,
+                );
+            }
+        }
+        for (o, channel) in masked.chunks_exact(plane).enumerate() {
+            for r in 0..block_rows {
+                let top = (2 * (first_row + r) + 1) * row + 1;
+                let j = r * tiles_per_row;
+                winograd_gradient_row(
+                    &channel[top..top + row + s.w],
+                    row,
+                    &mut tiles.across,
+                    |element| (element * outputs + o) * n + j,
+                    &mut tiles.products,
+                );
+            }
+        }
+        for element in 0..16 {
+            let dst = &mut grad[element * outputs * inputs..][..outputs * inputs];
+            let lhs = &tiles.products[element * outputs * n..][..outputs * n];
+            let rhs = &tiles.transformed[element * inputs * n..][..inputs * n];
+            // SAFETY: dst[o · inputs + i], lhs[o · n + t] and rhs[i · n + t]
+            // for o < outputs, i < inputs, t < n lie inside the three slices
+            // (sized just above); `dst` is borrowed mutably, so nothing
+            // aliases it.
+            unsafe {
+                gemm::gemm(
+                    outputs,
+                    inputs,
+                    n,
+                    dst.as_mut_ptr(),
+                    1,
+                    inputs as isize,
+                    true,
+                    lhs.as_ptr(),
+                    1,
+                    n as isize,
+                    rhs.as_ptr(),
+                    n as isize,
+                    1,
+                    1.0f32,
+                    1.0f32,
+                    false,
+                    false,
+                    false,
+                    gemm::Parallelism::None,
+                );
+            }
+        }
+    }
+}
+
+/// `A ∂Y Aᵀ` of every 2 × 2 gradient tile of one row of tiles, with
+/// `A = [1 0; 1 1; 1 −1; 0 −1]`: `rows` starts at the tiles' first pixel and
+/// holds their two rows, `row` apart; element `e` (row-major in 4 × 4) of
+/// tile `t` goes to `products[start(e) + t]`. `across` is scratch of 8
+/// values per tile.
+fn winograd_gradient_row(
+    rows: &[f32],
+    row: usize,
+    across: &mut [f32],
+    start: impl Fn(usize) -> usize,
+    products: &mut [f32],
+) {
+    let tiles = (row - 2) / 2;
+    let (top, bottom) = (&rows[..2 * tiles], &rows[row..row + 2 * tiles]);
+    // A down each tile's two columns: left[r][t] and right[r][t].
+    let (left, right) = across[..8 * tiles].split_at_mut(4 * tiles);
+    for (column, parts) in [left, right].into_iter().enumerate() {
+        let (first, rest) = parts.split_at_mut(tiles);
+        let (second, rest) = rest.split_at_mut(tiles);
+        let (third, fourth) = rest.split_at_mut(tiles);
+        let pairs = top.chunks_exact(2).zip(bottom.chunks_exact(2));
+        for ((((upper, lower), p0), p1), (p2, p3)) in pairs
+            .zip(first.iter_mut())
+            .zip(second.iter_mut())
+            .zip(third.iter_mut().zip(fourth.iter_mut()))
+        {
+            let (a, b) = (upper[column], lower[column]);
+            (*p0, *p1, *p2, *p3) = (a, a + b, a - b, -b);
+        }
+    }
+    // Then along each of the four rows: [a, b] → [a, a + b, a − b, −b].
+    let (left, right) = across[..8 * tiles].split_at(4 * tiles);
+    for r in 0..4 {
+        let (a, b) = (&left[r * tiles..][..tiles], &right[r * tiles..][..tiles]);
+        fill(&mut products[start(4 * r)..][..tiles], a, b, |p, _| p);
+        fill(&mut products[start(4 * r + 1)..][..tiles], a, b, |p, q| {
+            p + q
+        });
+        fill(&mut products[start(4 * r + 2)..][..tiles], a, b, |p, q| {
+            p - q
+        });
+        fill(&mut products[start(4 * r + 3)..][..tiles], a, b, |_, q| -q);
+    }
+}
+
+/// `∂L/∂g = Gᵀ (∂L/∂U) G` for every kernel: `[16][outputs][inputs]` in
+/// Winograd's domain → `[outputs][inputs][3][3]`.
+fn from_winograd_domain(grad: &[f32], s: Sizes) -> Vec<f32> {
+    // Gᵀ u for a 4-vector u, with G = [1 0 0; ½ ½ ½; ½ −½ ½; 0 0 1].
+    let g_t = |u: [f32; 4]| {
+        let (sum, difference) = ((u[1] + u[2]) / 2.0, (u[1] - u[2]) / 2.0);
+        [u[0] + sum, difference, sum + u[3]]
+    };
+    let pairs = s.outputs * s.inputs;
+    let mut kernels = vec![0.0; 9 * pairs];
+    for (pair, kernel) in kernels.chunks_exact_mut(9).enumerate() {
+        let u = |r: usize, k: usize| grad[(4 * r + k) * pairs + pair];
+        // Gᵀ down each of the four columns, then along each of the three rows.
+        let columns: Vec<[f32; 3]> = (0..4)
+            .map(|k| g_t([u(0, k), u(1, k), u(2, k), u(3, k)]))
+            .collect();
+        for (r, line) in kernel.chunks_exact_mut(3).enumerate() {
+            let along = g_t([columns[0][r], columns[1][r], columns[2][r], columns[3][r]]);
+            line.copy_from_slice(&along);
+        }
+    }
+    kernels
 }
 
 /// Adds one image's share of [`weight_gradient`] to `grad`.

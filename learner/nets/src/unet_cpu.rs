@@ -439,21 +439,21 @@ impl Conv3x3 {
 
 /// Floats of a block of Winograd tiles, per buffer (about 1 MB: the level-2
 /// cache's size, so a block's transforms and products stay close).
-const WINOGRAD_BLOCK_FLOATS: usize = 1 << 18;
+pub(crate) const WINOGRAD_BLOCK_FLOATS: usize = 1 << 18;
 
 /// The buffers of Winograd's tiles: transformed inputs `[16][inputs][tiles]`
 /// and products `[16][outputs][tiles]` of one block, and one row of tiles
 /// half transformed, `[16][tiles in a row]`.
 #[derive(Debug, Default)]
 pub(crate) struct TileBuffers {
-    transformed: Vec<f32>,
-    products: Vec<f32>,
-    across: Vec<f32>,
+    pub(crate) transformed: Vec<f32>,
+    pub(crate) products: Vec<f32>,
+    pub(crate) across: Vec<f32>,
 }
 
 /// Makes `buffer` at least `len` long (never shorter: shrinking and
 /// growing again would zero it every time).
-fn grow(buffer: &mut Vec<f32>, len: usize) {
+pub(crate) fn grow(buffer: &mut Vec<f32>, len: usize) {
     if buffer.len() < len {
         buffer.resize(len, 0.0);
     }
@@ -478,7 +478,7 @@ fn winograd_kernel(g: &[f32]) -> [f32; 16] {
 /// padded rows the tiles cover (`row` floats each; tile `t` starts at column
 /// `2t`); element `e` (row-major in 4 × 4) of tile `t` goes to
 /// `transformed[start(e) + t]`. `across` is scratch of 18 values per tile.
-fn winograd_input_row(
+pub(crate) fn winograd_input_row(
     rows: &[f32],
     row: usize,
     across: &mut [f32],
@@ -536,7 +536,7 @@ fn winograd_input_row(
 
 /// `to[i] = f(p[i], q[i])`.
 #[inline(always)]
-fn fill(to: &mut [f32], p: &[f32], q: &[f32], f: impl Fn(f32, f32) -> f32) {
+pub(crate) fn fill(to: &mut [f32], p: &[f32], q: &[f32], f: impl Fn(f32, f32) -> f32) {
     for (v, (&p, &q)) in to.iter_mut().zip(p.iter().zip(q)) {
         *v = f(p, q);
     }
