@@ -18,7 +18,7 @@
 //!   per image, one per kernel tap, each over a shifted view of the padded
 //!   input.
 //!
-//! Images run in parallel on rayon's threads (as burn's convolutions do).
+//! The images of a batch run in parallel on rayon's threads.
 //! Tensors elsewhere (the GPU) take burn's own `Conv2d` and ReLU.
 
 use std::borrow::Cow;
