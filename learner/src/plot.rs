@@ -164,6 +164,17 @@ pub fn group_curve(runs: &[Series], window: usize, points: usize) -> Vec<(f64, f
 /// Points of a group's curve.
 const GROUP_POINTS: usize = 200;
 
+/// Episode dots drawn per curve at most: a panel is 500 pixels wide, so more
+/// dots draw nothing new, and a long run's 5 000 episodes made a 3 MB file.
+const MAX_DOTS: usize = 1_000;
+
+/// Every k-th point of `series` (from the first), with k the smallest step
+/// that keeps at most `max` points.
+fn thinned(series: &[(f64, f64)], max: usize) -> impl Iterator<Item = (f64, f64)> + '_ {
+    let step = series.len().div_ceil(max.max(1)).max(1);
+    series.iter().copied().step_by(step)
+}
+
 /// Line colours of the runs in a comparison, in order (then repeated).
 const RUN_COLOURS: [RGBColor; 6] = [
     RGBColor(214, 39, 40),
@@ -254,9 +265,8 @@ pub fn plot(groups: &[RunGroup], out: &Path, window: usize) -> anyhow::Result<us
                 if !comparison {
                     chart
                         .draw_series(
-                            series
-                                .iter()
-                                .map(|&p| Circle::new(p, 2, BLUE.mix(0.3).filled())),
+                            thinned(series, MAX_DOTS)
+                                .map(|p| Circle::new(p, 2, BLUE.mix(0.3).filled())),
                         )
                         .map_err(|e| draw(Box::new(e)))?;
                 }
@@ -321,6 +331,21 @@ mod tests {
             })
             .collect();
         std::fs::write(dir.join(HISTORY_FILE), lines).unwrap();
+    }
+
+    #[test]
+    fn long_runs_draw_at_most_max_dots_evenly_spaced() {
+        let series: Series = (0..4_784).map(|i| (i as f64, 0.5)).collect();
+        let dots: Vec<(f64, f64)> = thinned(&series, 1_000).collect();
+        assert_eq!(dots.len(), 957, "every fifth of 4 784");
+        assert_eq!(dots[0].0, 0.0);
+        assert!(dots.windows(2).all(|pair| pair[1].0 - pair[0].0 == 5.0));
+        let short: Series = (0..10).map(|i| (i as f64, 0.5)).collect();
+        assert_eq!(
+            thinned(&short, 1_000).count(),
+            10,
+            "short runs keep every dot"
+        );
     }
 
     #[test]
