@@ -26,3 +26,19 @@ pub mod unet_inference;
 pub mod weights;
 
 pub use masked_categorical::sample;
+
+/// What the crate's tests share.
+#[cfg(test)]
+mod test_support {
+    use burn::prelude::*;
+
+    /// Asserts that `ours` is within 1e-5 of `burns`' largest value.
+    pub(crate) fn assert_close<const D: usize>(ours: Tensor<D>, burns: Tensor<D>, what: &str) {
+        let scale = burns.clone().abs().max().into_scalar::<f32>();
+        let difference = (ours - burns).abs().max().into_scalar::<f32>();
+        assert!(
+            difference <= 1e-5 * scale,
+            "{what} differ: {difference} of {scale}"
+        );
+    }
+}

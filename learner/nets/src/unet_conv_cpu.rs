@@ -37,8 +37,8 @@ use burn_flex::FlexTensor;
 use rayon::prelude::*;
 
 use crate::unet_cpu::{
-    fill, fill_padded, grow, plane_len, wide_len, winograd_input_row, Conv3x3, TileBuffers,
-    WINOGRAD_BLOCK_FLOATS,
+    fill, fill_padded, grow, plane_len, transform_input_block, wide_len, winograd_blocks, Conv3x3,
+    TileBuffers,
 };
 
 /// The autodiff backend a training step's tensors live on when on the CPU.
@@ -317,28 +317,10 @@ fn add_image_winograd_gradient(
 ) {
     let (inputs, outputs) = (s.inputs, s.outputs);
     let (row, plane) = (s.w + 2, plane_len(s.h, s.w));
-    let (tile_rows, tiles_per_row) = (s.h / 2, s.w / 2);
-    let rows_per_block =
-        (WINOGRAD_BLOCK_FLOATS / (16 * inputs.max(outputs) * tiles_per_row)).clamp(1, tile_rows);
-    tiles.across.resize(18 * (tiles_per_row + 1), 0.0);
-    for first_row in (0..tile_rows).step_by(rows_per_block) {
-        let block_rows = rows_per_block.min(tile_rows - first_row);
-        let n = block_rows * tiles_per_row;
-        grow(&mut tiles.transformed, 16 * inputs * n);
+    let tiles_per_row = s.w / 2;
+    for (first_row, block_rows) in winograd_blocks((s.h, s.w), inputs.max(outputs)) {
+        let n = transform_input_block(padded, (s.h, s.w), (first_row, block_rows), tiles);
         grow(&mut tiles.products, 16 * outputs * n);
-        for (c, channel) in padded.chunks_exact(plane).enumerate() {
-            for r in 0..block_rows {
-                let corner = 2 * (first_row + r) * row;
-                let j = r * tiles_per_row;
-                winograd_input_row(
-                    &channel[corner..corner + 4 * row],
-                    row,
-                    &mut tiles.across,
-                    |element| (element * inputs + c) * n + j,
-                    &mut tiles.transformed,
-                );
-            }
-        }
         for (o, channel) in masked.chunks_exact(plane).enumerate() {
             for r in 0..block_rows {
                 let top = (2 * (first_row + r) + 1) * row + 1;
@@ -352,37 +334,14 @@ fn add_image_winograd_gradient(
                 );
             }
         }
+        // ∂U[e] += (A ∂Y Aᵀ)[e] · V[e]ᵀ over the block's tiles.
         for element in 0..16 {
-            let dst = &mut grad[element * outputs * inputs..][..outputs * inputs];
-            let lhs = &tiles.products[element * outputs * n..][..outputs * n];
-            let rhs = &tiles.transformed[element * inputs * n..][..inputs * n];
-            // SAFETY: dst[o · inputs + i], lhs[o · n + t] and rhs[i · n + t]
-            // for o < outputs, i < inputs, t < n lie inside the three slices
-            // (sized just above); `dst` is borrowed mutably, so nothing
-            // aliases it.
-            unsafe {
-                gemm::gemm(
-                    outputs,
-                    inputs,
-                    n,
-                    dst.as_mut_ptr(),
-                    1,
-                    inputs as isize,
-                    true,
-                    lhs.as_ptr(),
-                    1,
-                    n as isize,
-                    rhs.as_ptr(),
-                    n as isize,
-                    1,
-                    1.0f32,
-                    1.0f32,
-                    false,
-                    false,
-                    false,
-                    gemm::Parallelism::None,
-                );
-            }
+            add_product(
+                (&mut grad[element * outputs * inputs..], [1, inputs]),
+                (&tiles.products[element * outputs * n..], [1, n]),
+                (&tiles.transformed[element * inputs * n..], [n, 1]),
+                (outputs, inputs, n),
+            );
         }
     }
 }
@@ -456,45 +415,71 @@ fn from_winograd_domain(grad: &[f32], s: Sizes) -> Vec<f32> {
     kernels
 }
 
-/// Adds one image's share of [`weight_gradient`] to `grad`.
+/// Adds one image's share of [`weight_gradient`] to `grad`, one product per
+/// kernel tap: the masked gradient's wide rows by the shifted padded input,
+/// read transposed in place.
 fn add_image_weight_gradient(grad: &mut [f32], masked: &[f32], padded: &[f32], s: Sizes) {
     let (row, plane, wide) = (s.w + 2, plane_len(s.h, s.w), wide_len(s.h, s.w));
     let start = row + 1;
     for tap in 0..9 {
         let shift = (tap / 3) * row + tap % 3;
-        assert!(
-            grad.len() > tap + 9 * (s.outputs * s.inputs - 1)
-                && masked.len() >= (s.outputs - 1) * plane + start + wide
-                && padded.len() >= (s.inputs - 1) * plane + shift + wide,
-            "weight gradient: buffers too short"
+        add_product(
+            (&mut grad[tap..], [9, 9 * s.inputs]),
+            (&masked[start..], [1, plane]),
+            (&padded[shift..], [plane, 1]),
+            (s.outputs, s.inputs, wide),
         );
-        // SAFETY: the assert keeps every element gemm touches inside its
-        // slice: dst[tap + 9 (o · inputs + i)], lhs[o · plane + start + p],
-        // rhs[i · plane + shift + p] for o < outputs, i < inputs, p < wide;
-        // `grad` is borrowed mutably, so nothing aliases it.
-        unsafe {
-            gemm::gemm(
-                s.outputs,
-                s.inputs,
-                wide,
-                grad.as_mut_ptr().add(tap),
-                9,
-                (9 * s.inputs) as isize,
-                true,
-                masked.as_ptr().add(start),
-                1,
-                plane as isize,
-                padded.as_ptr().add(shift),
-                plane as isize,
-                1,
-                1.0f32,
-                1.0f32,
-                false,
-                false,
-                false,
-                gemm::Parallelism::None,
-            );
-        }
+    }
+}
+
+/// `dst[i][j] += Σ_k lhs[i][k] · rhs[k][j]` for `i < m`, `j < n`, `k < k`,
+/// each matrix a slice with its `[column, row]` strides.
+///
+/// # Panics
+/// If a matrix's last element lies outside its slice.
+fn add_product(
+    (dst, [dst_column, dst_row]): (&mut [f32], [usize; 2]),
+    (lhs, [lhs_column, lhs_row]): (&[f32], [usize; 2]),
+    (rhs, [rhs_column, rhs_row]): (&[f32], [usize; 2]),
+    (m, n, k): (usize, usize, usize),
+) {
+    if m == 0 || n == 0 || k == 0 {
+        return;
+    }
+    let last = |rows: usize, columns: usize, column: usize, row: usize| {
+        (rows - 1) * row + (columns - 1) * column
+    };
+    assert!(
+        last(m, n, dst_column, dst_row) < dst.len()
+            && last(m, k, lhs_column, lhs_row) < lhs.len()
+            && last(k, n, rhs_column, rhs_row) < rhs.len(),
+        "add_product: a matrix runs past its slice"
+    );
+    // SAFETY: the assert keeps the last (largest) element of each matrix,
+    // hence every element gemm touches, inside its slice; `dst` is borrowed
+    // mutably, so nothing aliases it.
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            dst.as_mut_ptr(),
+            dst_column as isize,
+            dst_row as isize,
+            true,
+            lhs.as_ptr(),
+            lhs_column as isize,
+            lhs_row as isize,
+            rhs.as_ptr(),
+            rhs_column as isize,
+            rhs_row as isize,
+            1.0f32,
+            1.0f32,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
+        );
     }
 }
 
@@ -535,19 +520,10 @@ fn input_gradient(masked: &[f32], weight: &[f32], s: Sizes) -> Vec<f32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::assert_close;
     use burn::nn::conv::Conv2dConfig;
     use burn::nn::PaddingConfig2d;
     use burn::tensor::Distribution;
-
-    /// Asserts that `ours` is within 1e-5 of `burns`' largest value.
-    fn assert_close<const D: usize>(ours: Tensor<D>, burns: Tensor<D>, what: &str) {
-        let scale = burns.clone().abs().max().into_scalar::<f32>();
-        let difference = (ours - burns).abs().max().into_scalar::<f32>();
-        assert!(
-            difference <= 1e-5 * scale,
-            "{what} differ: {difference} of {scale}"
-        );
-    }
 
     fn layer(inputs: usize, outputs: usize, device: &Device) -> Conv2d {
         Conv2dConfig::new([inputs, outputs], [3, 3])

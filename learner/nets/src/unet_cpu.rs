@@ -386,28 +386,10 @@ impl Conv3x3 {
     ) {
         let (inputs, outputs) = (self.inputs, self.outputs);
         let (row, plane) = (w + 2, plane_len(h, w));
-        let (tile_rows, tiles_per_row) = (h / 2, w / 2);
-        let rows_per_block = (WINOGRAD_BLOCK_FLOATS / (16 * inputs.max(outputs) * tiles_per_row))
-            .clamp(1, tile_rows);
-        tiles.across.resize(18 * (tiles_per_row + 1), 0.0);
-        for first_row in (0..tile_rows).step_by(rows_per_block) {
-            let block_rows = rows_per_block.min(tile_rows - first_row);
-            let n = block_rows * tiles_per_row;
-            grow(&mut tiles.transformed, 16 * inputs * n);
+        let tiles_per_row = w / 2;
+        for (first_row, block_rows) in winograd_blocks((h, w), inputs.max(outputs)) {
+            let n = transform_input_block(source, (h, w), (first_row, block_rows), tiles);
             grow(&mut tiles.products, 16 * outputs * n);
-            for (c, channel) in source.chunks_exact(plane).enumerate() {
-                for r in 0..block_rows {
-                    let corner = 2 * (first_row + r) * row;
-                    let j = r * tiles_per_row;
-                    winograd_input_row(
-                        &channel[corner..corner + 4 * row],
-                        row,
-                        &mut tiles.across,
-                        |element| (element * inputs + c) * n + j,
-                        &mut tiles.transformed,
-                    );
-                }
-            }
             for element in 0..16 {
                 matmul(
                     &mut tiles.products[element * outputs * n..],
@@ -439,7 +421,53 @@ impl Conv3x3 {
 
 /// Floats of a block of Winograd tiles, per buffer (about 1 MB: the level-2
 /// cache's size, so a block's transforms and products stay close).
-pub(crate) const WINOGRAD_BLOCK_FLOATS: usize = 1 << 18;
+const WINOGRAD_BLOCK_FLOATS: usize = 1 << 18;
+
+/// The blocks of whole tile rows Winograd's F(2 × 2, 3 × 3) works through
+/// over an even-sided `h × w` image, as (first tile row, tile rows), sized
+/// for buffers of `16 · channels` floats per tile.
+pub(crate) fn winograd_blocks(
+    (h, w): (usize, usize),
+    channels: usize,
+) -> impl Iterator<Item = (usize, usize)> {
+    let (tile_rows, tiles_per_row) = (h / 2, w / 2);
+    let rows_per_block =
+        (WINOGRAD_BLOCK_FLOATS / (16 * channels * tiles_per_row)).clamp(1, tile_rows);
+    (0..tile_rows)
+        .step_by(rows_per_block)
+        .map(move |first_row| (first_row, rows_per_block.min(tile_rows - first_row)))
+}
+
+/// `Bᵀ d B` of every input tile of one block (see [`winograd_blocks`]) of
+/// the padded planes `source`, into `tiles.transformed` as
+/// `[16][channels][tiles of the block]`; returns the block's tile count.
+pub(crate) fn transform_input_block(
+    source: &[f32],
+    (h, w): (usize, usize),
+    (first_row, block_rows): (usize, usize),
+    tiles: &mut TileBuffers,
+) -> usize {
+    let (row, plane) = (w + 2, plane_len(h, w));
+    let tiles_per_row = w / 2;
+    let channels = source.len() / plane;
+    let n = block_rows * tiles_per_row;
+    tiles.across.resize(18 * (tiles_per_row + 1), 0.0);
+    grow(&mut tiles.transformed, 16 * channels * n);
+    for (c, channel) in source.chunks_exact(plane).enumerate() {
+        for r in 0..block_rows {
+            let corner = 2 * (first_row + r) * row;
+            let j = r * tiles_per_row;
+            winograd_input_row(
+                &channel[corner..corner + 4 * row],
+                row,
+                &mut tiles.across,
+                |element| (element * channels + c) * n + j,
+                &mut tiles.transformed,
+            );
+        }
+    }
+    n
+}
 
 /// The buffers of Winograd's tiles: transformed inputs `[16][inputs][tiles]`
 /// and products `[16][outputs][tiles]` of one block, and one row of tiles
@@ -478,7 +506,7 @@ fn winograd_kernel(g: &[f32]) -> [f32; 16] {
 /// padded rows the tiles cover (`row` floats each; tile `t` starts at column
 /// `2t`); element `e` (row-major in 4 × 4) of tile `t` goes to
 /// `transformed[start(e) + t]`. `across` is scratch of 18 values per tile.
-pub(crate) fn winograd_input_row(
+fn winograd_input_row(
     rows: &[f32],
     row: usize,
     across: &mut [f32],

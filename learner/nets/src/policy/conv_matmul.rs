@@ -123,18 +123,9 @@ pub(super) fn conv(x: Tensor<4>, layout: Layout, conv: &Conv2d) -> Tensor<4> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::assert_close;
     use burn::nn::conv::Conv2dConfig;
     use burn::tensor::Distribution;
-
-    /// Asserts that `ours` is within 1e-5 of `burns`' largest value.
-    fn assert_close<const D: usize>(ours: Tensor<D>, burns: Tensor<D>, what: &str) {
-        let scale = burns.clone().abs().max().into_scalar::<f32>();
-        let difference = (ours - burns).abs().max().into_scalar::<f32>();
-        assert!(
-            difference <= 1e-5 * scale,
-            "{what} differ: {difference} of {scale}"
-        );
-    }
 
     /// Forward values and all three gradients (input, weight, bias) of the
     /// matrix-product form against burn's convolution, for one shape.
