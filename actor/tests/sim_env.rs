@@ -1,7 +1,7 @@
 //! The `ours` environment end to end on a generated room: simulator, map,
 //! U-Net, state, mask, reward and the labeler at the episode's end.
 
-use actor::env::actions::random_allowed_action;
+use actor::env::actions::{random_allowed_action, PolicyAction};
 use actor::env::affordance_model::AffordanceModel;
 use actor::env::sim_env::{SimEnv, SimEnvConfig, SimObservation};
 use actor::env::Environment;
@@ -54,7 +54,7 @@ fn run(
     model: &AffordanceModel,
     seed: u64,
     steps: usize,
-) -> (Vec<(f32, bool)>, Vec<SimObservation>) {
+) -> (Vec<(f32, bool, bool)>, Vec<SimObservation>) {
     let mut rng = StdRng::seed_from_u64(seed);
     let mut observation = env.reset(seed, model).unwrap();
     let (mut outcomes, mut observations) = (Vec::new(), vec![observation.clone()]);
@@ -68,7 +68,11 @@ fn run(
             step + 1 == steps,
             "done exactly at the budget"
         );
-        outcomes.push((outcome.reward, outcome.success));
+        let selects = matches!(
+            env.action_space().get(action),
+            Some(PolicyAction::Select { .. })
+        );
+        outcomes.push((outcome.reward, outcome.success, selects));
         observation = next;
         observations.push(observation.clone());
     }
@@ -90,7 +94,8 @@ fn an_episode_runs_labels_and_repeats_exactly() {
         assert_eq!(o.state.global_map.len(), config.map_channels() * 128 * 128);
         assert_eq!(o.state.history.len(), config.history_len());
     }
-    let interactions = outcomes.iter().filter(|(r, _)| *r != 0.0).count();
+    let interactions = outcomes.iter().filter(|(r, ..)| *r != 0.0).count();
+    let attempts = outcomes.iter().filter(|(.., selects)| *selects).count();
     println!(
         "{} of {steps} steps succeeded, return {:.1}",
         outcomes.iter().filter(|o| o.1).count(),
@@ -111,10 +116,20 @@ fn an_episode_runs_labels_and_repeats_exactly() {
         StatField::NonInteractableAnnotationRate,
         StatField::AffordanceIou,
         StatField::ObjectAccuracy,
+        StatField::InteractionAttemptRate,
     ] {
         let v = stats[&field];
         assert!((0.0..=1.0).contains(&v), "{field:?} = {v}");
     }
+    assert!(
+        attempts > 0,
+        "a random policy that favours interactions tries some"
+    );
+    assert_eq!(
+        stats[&StatField::InteractionAttemptRate],
+        attempts as f32 / steps as f32,
+        "one attempt per pick-up or push selected"
+    );
     assert!(batch.n_frames() <= steps + 1);
     println!("labelled frames: {}", batch.n_frames());
 

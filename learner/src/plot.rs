@@ -1,5 +1,6 @@
-//! `learner plot`: the paper's six training curves (Fig. 3) from a run's
-//! `history.jsonl`, as one SVG: per-episode values over environment steps
+//! `learner plot`: the paper's six training curves (Fig. 3), the episode
+//! return and the interaction attempt rate from a run's `history.jsonl`, as
+//! one SVG: per-episode values over environment steps
 //! (dots) and their moving average (line); or several runs' moving averages
 //! in one figure, to compare methods; or groups of repeats (seeds) as their
 //! mean with a min–max band.
@@ -11,8 +12,10 @@ use plotters::prelude::*;
 
 use crate::history::{read_records, HISTORY_FILE};
 
-/// The six per-episode metrics of the paper's training figure, in panel order.
-pub const CURVES: [(&str, &str); 6] = [
+/// The per-episode metrics drawn, in panel order: the paper's six training
+/// curves, then the return PPO maximises and how often the policy still
+/// tries an interaction (what a reward that favours navigation erodes).
+pub const CURVES: [(&str, &str); 8] = [
     ("interaction_success_rate", "interaction success rate"),
     ("interacted_object_rate", "interacted object rate"),
     (
@@ -25,6 +28,8 @@ pub const CURVES: [(&str, &str); 6] = [
     ),
     ("affordance_iou", "affordance IoU (U-Net vs ground truth)"),
     ("object_accuracy", "object-level accuracy"),
+    ("episode_return", "episode return"),
+    ("interaction_attempt_rate", "interaction attempts per step"),
 ];
 
 /// One curve: (environment steps, value) per episode, in file order.
@@ -193,7 +198,7 @@ fn run_name(run_dir: &Path) -> String {
         .unwrap_or_else(|| run_dir.display().to_string())
 }
 
-/// Draws the six curves into `out` (an SVG file). One run: every episode as
+/// Draws the curves into `out` (an SVG file). One run: every episode as
 /// a dot and the moving average as a line. Several runs (a comparison of
 /// methods or settings): one moving-average line per run, with a legend; a
 /// group of repeats is drawn as their mean, in a band from their lowest to
@@ -223,29 +228,32 @@ pub fn plot(groups: &[RunGroup], out: &Path, window: usize) -> anyhow::Result<us
     };
     let episodes = all_series().map(Vec::len).max().unwrap_or(0);
     let max_steps = all_series().flatten().map(|p| p.0).fold(1.0f64, f64::max);
-    let root = SVGBackend::new(out, (1500, 860)).into_drawing_area();
+    let root = SVGBackend::new(out, (2000, 860)).into_drawing_area();
     let draw =
         |e: Box<dyn std::error::Error + '_>| anyhow::anyhow!("drawing {}: {e}", out.display());
     root.fill(&WHITE).map_err(|e| draw(Box::new(e)))?;
     let comparison = runs.len() > 1 || runs[0].1.len() > 1;
     for (index, (panel, (_, title))) in root
-        .split_evenly((2, 3))
+        .split_evenly((2, 4))
         .iter()
         .zip(CURVES.iter())
         .enumerate()
     {
-        let top = runs
-            .iter()
-            .flat_map(|(_, group)| group.iter().flat_map(|curves| curves[index].iter()))
-            .map(|p| p.1)
-            .fold(0.0f64, f64::max);
+        let values = || {
+            runs.iter()
+                .flat_map(|(_, group)| group.iter().flat_map(|curves| curves[index].iter()))
+                .map(|p| p.1)
+        };
+        let top = values().fold(0.0f64, f64::max);
+        let bottom = values().fold(0.0f64, f64::min);
         let y_max = if top <= 1.0 { 1.0 } else { top * 1.05 };
+        let y_min = bottom * 1.05;
         let mut chart = ChartBuilder::on(panel)
             .caption(*title, ("sans-serif", 18))
             .margin(12)
             .x_label_area_size(36)
             .y_label_area_size(48)
-            .build_cartesian_2d(0.0..max_steps, 0.0..y_max)
+            .build_cartesian_2d(0.0..max_steps, y_min..y_max)
             .map_err(|e| draw(Box::new(e)))?;
         chart
             .configure_mesh()

@@ -37,11 +37,15 @@ pub enum StatField {
     /// the map re-identifies every object in every frame. Methods with a
     /// map only.
     MapIdConsistency = 8,
+    /// Interactions attempted (an object selected for pick up or push) /
+    /// steps: how much the policy still tries, which the success rate alone
+    /// hides when attempts stop.
+    InteractionAttemptRate = 9,
 }
 
 impl StatField {
     /// Number of fields.
-    pub const COUNT: usize = 9;
+    pub const COUNT: usize = 10;
     /// All fields in wire order.
     pub const ALL: [StatField; Self::COUNT] = [
         StatField::EpisodeReturn,
@@ -53,6 +57,7 @@ impl StatField {
         StatField::ObjectAccuracy,
         StatField::StepsPerSecond,
         StatField::MapIdConsistency,
+        StatField::InteractionAttemptRate,
     ];
 
     /// snake_case name used in metrics and JSON.
@@ -67,6 +72,7 @@ impl StatField {
             StatField::ObjectAccuracy => "object_accuracy",
             StatField::StepsPerSecond => "steps_per_second",
             StatField::MapIdConsistency => "map_id_consistency",
+            StatField::InteractionAttemptRate => "interaction_attempt_rate",
         }
     }
 
@@ -128,7 +134,7 @@ impl EpisodeStats {
             return Err(ProtoError::OutOfRange {
                 field: "present",
                 value: present.into(),
-                allowed: "bits 0..9",
+                allowed: "bits 0..10",
             });
         }
         let reserved = read_u32(payload, 20);

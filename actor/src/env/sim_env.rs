@@ -882,6 +882,10 @@ fn episode_stats(
             episode.successes as f32 / episode.attempts.max(1) as f32,
         ),
         (
+            StatField::InteractionAttemptRate,
+            episode.attempts as f32 / episode.steps.max(1) as f32,
+        ),
+        (
             StatField::InteractedObjectRate,
             interacted as f32 / interactable.max(1) as f32,
         ),
