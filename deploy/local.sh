@@ -32,6 +32,9 @@ Options:
   --renderer R      gpu (wgpu: a GPU or Mesa lavapipe, default) or cpu
   --device D        where learner and actors run the networks: cpu (default) or
                     gpu (binaries built with --features nets/gpu; see README)
+  --max-steps N     stop as on Ctrl-C (final checkpoint) once the run has taken
+                    N environment steps over all actors (on --resume: the run's
+                    total, so resuming continues to N); default: run until stopped
   --seed N          the run's seed (default 0): initial networks, rooms, actions;
                     runs that differ only in --seed are independent repeats
   --port PORT       HTTP port of the learner's metrics endpoint (default 9464)
@@ -45,7 +48,7 @@ ignores SIGINT).
 USAGE
 }
 
-ACTORS="" ENVS=1 RUN_DIR="" RESUME=0 PORT=9464 PROFILE=release BIN="" SEED=0
+ACTORS="" ENVS=1 RUN_DIR="" RESUME=0 PORT=9464 PROFILE=release BIN="" SEED=0 MAX_STEPS=
 TASK_ARGS=() ACTOR_ARGS=() LEARNER_DEVICE=() METHOD=ours ENV_KIND=sim
 EXTRA=()
 while [[ $# -gt 0 ]]; do
@@ -63,6 +66,7 @@ while [[ $# -gt 0 ]]; do
     --renderer) ACTOR_ARGS+=(--renderer "${2:?--renderer needs a value}"); shift 2 ;;
     --device) DEVICE="${2:?--device needs a value}"; ACTOR_ARGS+=(--device "$DEVICE"); LEARNER_DEVICE=(--device "$DEVICE"); shift 2 ;;
     --port) PORT="${2:?--port needs a number}"; shift 2 ;;
+    --max-steps) MAX_STEPS="${2:?--max-steps needs a number}"; shift 2 ;;
     --seed) SEED="${2:?--seed needs a number}"; TASK_ARGS+=(--seed "$SEED"); shift 2 ;;
     --debug) PROFILE=debug; shift ;;
     --bin-dir) BIN="$(cd "${2:?--bin-dir needs a directory}" && pwd)"; shift 2 ;;
@@ -73,6 +77,7 @@ while [[ $# -gt 0 ]]; do
 done
 [[ "$ACTORS" =~ ^[1-9][0-9]*$ ]] || { echo "local.sh: --actors N is required (N >= 1)" >&2; usage >&2; exit 2; }
 [[ "$ENVS" =~ ^[1-9][0-9]*$ && "$ENVS" -le 256 ]] || { echo "local.sh: --envs-per-actor needs an integer in 1..256, got '$ENVS'" >&2; exit 2; }
+[[ -z "$MAX_STEPS" || "$MAX_STEPS" =~ ^[1-9][0-9]*$ ]] || { echo "local.sh: --max-steps needs a positive integer, got '$MAX_STEPS'" >&2; exit 2; }
 [[ "$SEED" =~ ^[0-9]+$ ]] || { echo "local.sh: --seed needs a non-negative integer, got '$SEED'" >&2; exit 2; }
 if [[ $RESUME -eq 1 && -z "$RUN_DIR" ]]; then
   echo "local.sh: --resume needs --run-dir DIR (the run to resume)" >&2; exit 2
@@ -202,6 +207,24 @@ echo "status:   http://$ADDR/api/status   (curl -s http://$ADDR/api/status)"
 echo "actors:   $ACTORS x $ENV_KIND ($METHOD), logs in $LOGS; Ctrl-C to stop"
 echo "curves:   $BIN/learner plot --run-dir $RUN_DIR"
 
+# Environment steps of the whole run, from the learner's status (empty if it
+# does not answer).
+run_steps() {
+  curl -fsS --max-time 5 "http://$ADDR/api/status" 2>/dev/null | grep -o '"env_steps":[0-9]*' | head -n 1 | cut -d: -f2
+}
+
+[[ -z "$MAX_STEPS" ]] || echo "stops after $MAX_STEPS environment steps"
+while kill -0 "$LEARNER_PID" 2>/dev/null; do
+  if [[ -n "$MAX_STEPS" ]]; then
+    steps=$(run_steps || true)
+    if [[ -n "$steps" && "$steps" -ge "$MAX_STEPS" ]]; then
+      echo "the run reached $steps environment steps (--max-steps $MAX_STEPS)"
+      shutdown
+    fi
+  fi
+  # `wait` on a background sleep lets a Ctrl-C's trap run at once.
+  sleep 2 & wait $! || true
+done
 code=0; wait "$LEARNER_PID" || code=$?
 if [[ ! -e "$STOP_FILE" ]]; then
   echo "local.sh: the learner exited unexpectedly (status $code); see $LOGS/learner.log" >&2

@@ -1,8 +1,9 @@
 //! `deploy/local.sh` as a user runs it, with the bandit fixture and the
 //! already built binaries (`--bin-dir`): it brings up the learner and two
 //! actors, and a stop, whichever processes it reaches, ends every process
-//! of the run with a final checkpoint and exit status 0. Also
-//! `deploy/throughput.sh`, which measures runs of `local.sh`.
+//! of the run with a final checkpoint and exit status 0, as does reaching
+//! `--max-steps`. Also `deploy/throughput.sh`, which measures runs of
+//! `local.sh`.
 
 use std::fs::File;
 use std::os::unix::process::CommandExt;
@@ -40,8 +41,8 @@ fn free_port() -> u16 {
 /// The `--seed` every launch gives.
 const RUN_SEED: &str = "7";
 
-/// Starts the script and waits until both actors feed the learner.
-fn launch(dir: &Path, case: &str) -> Launch {
+/// Starts the script with `extra` arguments, without waiting for anything.
+fn start(dir: &Path, case: &str, extra: &[&str]) -> (Launch, String) {
     let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let bin_dir = bin("learner").parent().expect("binary dir").to_path_buf();
     let name = format!("ls-{case}-{}", std::process::id());
@@ -63,6 +64,7 @@ fn launch(dir: &Path, case: &str) -> Launch {
             "--device",
             "cpu",
         ])
+        .args(extra)
         .stdout(Stdio::from(out.try_clone().expect("log handle")))
         .stderr(Stdio::from(out))
         .process_group(0)
@@ -74,7 +76,12 @@ fn launch(dir: &Path, case: &str) -> Launch {
         run_dir,
         prefix: format!("afx-{name}"),
     };
-    let addr = format!("127.0.0.1:{port}");
+    (launch, format!("127.0.0.1:{port}"))
+}
+
+/// Starts the script and waits until both actors feed the learner.
+fn launch(dir: &Path, case: &str) -> Launch {
+    let (launch, addr) = start(dir, case, &[]);
     wait_for(
         Duration::from_secs(90),
         "both actors sending to the learner",
@@ -217,6 +224,31 @@ fn sigterm_that_also_kills_the_actor_supervisors_still_stops_the_learner() {
         }
     }
     assert_stopped_cleanly(launch);
+}
+
+#[test]
+fn max_steps_stops_the_run_cleanly_once_it_has_taken_them() {
+    let dir = scratch_dir("local-sh-max-steps");
+    let max_steps = 3000;
+    let (launch, _) = start(&dir, "max", &["--max-steps", &max_steps.to_string()]);
+    let run_dir = launch.run_dir.clone();
+    let log_path = launch.log.clone();
+    assert_stopped_cleanly(launch);
+    let log = std::fs::read_to_string(&log_path).unwrap_or_default();
+    assert!(
+        log.contains(&format!("(--max-steps {max_steps})")),
+        "the script did not say why it stopped:\n{log}"
+    );
+    // Checkpoints are named by the run's environment steps.
+    let steps = std::fs::read_dir(run_dir.join("checkpoints"))
+        .expect("the run's checkpoints")
+        .filter_map(|e| e.ok()?.file_name().to_str()?.parse::<u64>().ok())
+        .max()
+        .unwrap_or(0);
+    assert!(
+        steps >= max_steps,
+        "final checkpoint at {steps} steps, before --max-steps {max_steps}"
+    );
 }
 
 #[test]
