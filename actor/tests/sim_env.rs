@@ -3,12 +3,13 @@
 
 use actor::env::actions::{random_allowed_action, PolicyAction};
 use actor::env::affordance_model::AffordanceModel;
-use actor::env::sim_env::{SimEnv, SimEnvConfig, SimObservation};
+use actor::env::sim_env::{ActionOutcome, SimEnv, SimEnvConfig, SimObservation};
 use actor::env::Environment;
 use mapper::Affordance;
 use proto::{Method, StatField, LABEL_UNKNOWN};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
+use sim::agent::Failure;
 use sim::ithor::SceneSet;
 use sim::profile::RobotProfile;
 use sim::renderer::{Renderer, RendererChoice};
@@ -54,7 +55,7 @@ fn run(
     model: &AffordanceModel,
     seed: u64,
     steps: usize,
-) -> (Vec<(f32, bool, bool)>, Vec<SimObservation>) {
+) -> (Vec<(ActionOutcome, bool)>, Vec<SimObservation>) {
     let mut rng = StdRng::seed_from_u64(seed);
     let mut observation = env.reset(seed, model).unwrap();
     let (mut outcomes, mut observations) = (Vec::new(), vec![observation.clone()]);
@@ -72,7 +73,7 @@ fn run(
             env.action_space().get(action),
             Some(PolicyAction::Select { .. })
         );
-        outcomes.push((outcome.reward, outcome.success, selects));
+        outcomes.push((outcome, selects));
         observation = next;
         observations.push(observation.clone());
     }
@@ -94,12 +95,22 @@ fn an_episode_runs_labels_and_repeats_exactly() {
         assert_eq!(o.state.global_map.len(), config.map_channels() * 128 * 128);
         assert_eq!(o.state.history.len(), config.history_len());
     }
-    let interactions = outcomes.iter().filter(|(r, ..)| *r != 0.0).count();
-    let attempts = outcomes.iter().filter(|(.., selects)| *selects).count();
+    let interactions = outcomes.iter().filter(|(o, _)| o.reward != 0.0).count();
+    let attempts: Vec<&ActionOutcome> = outcomes
+        .iter()
+        .filter(|(_, selects)| *selects)
+        .map(|(o, _)| o)
+        .collect();
+    let failed_share = |why: fn(&Failure) -> bool| {
+        let failed = attempts
+            .iter()
+            .filter(|o| o.failure.as_ref().is_some_and(why));
+        failed.count() as f32 / attempts.len() as f32
+    };
     println!(
         "{} of {steps} steps succeeded, return {:.1}",
-        outcomes.iter().filter(|o| o.1).count(),
-        outcomes.iter().map(|o| o.0).sum::<f32>()
+        outcomes.iter().filter(|(o, _)| o.success).count(),
+        outcomes.iter().map(|(o, _)| o.reward).sum::<f32>()
     );
     assert!(interactions > 0);
     let timings = env.last_timings();
@@ -117,18 +128,40 @@ fn an_episode_runs_labels_and_repeats_exactly() {
         StatField::AffordanceIou,
         StatField::ObjectAccuracy,
         StatField::InteractionAttemptRate,
+        StatField::InteractionOutOfReachRate,
+        StatField::InteractionUnaffordedRate,
     ] {
         let v = stats[&field];
         assert!((0.0..=1.0).contains(&v), "{field:?} = {v}");
     }
     assert!(
-        attempts > 0,
+        !attempts.is_empty(),
         "a random policy that favours interactions tries some"
     );
     assert_eq!(
         stats[&StatField::InteractionAttemptRate],
-        attempts as f32 / steps as f32,
+        attempts.len() as f32 / steps as f32,
         "one attempt per pick-up or push selected"
+    );
+    assert_eq!(
+        stats[&StatField::InteractionOutOfReachRate],
+        failed_share(|f| matches!(f, Failure::OutOfReach { .. })),
+        "attempts that failed beyond reach"
+    );
+    let unafforded = failed_share(|f| {
+        matches!(
+            f,
+            Failure::NotPickupable
+                | Failure::TooHeavy { .. }
+                | Failure::TooWide { .. }
+                | Failure::NotPushable
+                | Failure::DidNotMove { .. }
+        )
+    });
+    assert_eq!(
+        stats[&StatField::InteractionUnaffordedRate],
+        unafforded,
+        "attempts on objects that do not afford the action"
     );
     assert!(batch.n_frames() <= steps + 1);
     println!("labelled frames: {}", batch.n_frames());

@@ -1,4 +1,4 @@
-//! Per-episode metrics (actor → learner): a fixed 64-byte record.
+//! Per-episode metrics (actor → learner): a fixed 72-byte record.
 //!
 //! Layout after the message header: episode_id u64, steps u32, scene_index u32,
 //! present u32 (bit i set = field i carries a value), reserved u32 (0), then one
@@ -41,11 +41,20 @@ pub enum StatField {
     /// steps: how much the policy still tries, which the success rate alone
     /// hides when attempts stop.
     InteractionAttemptRate = 9,
+    /// Of the interactions attempted, the share that failed because the
+    /// object was beyond the arm's reach: the policy chose well but did not
+    /// get close. Reported when the episode attempted any.
+    InteractionOutOfReachRate = 10,
+    /// Of the interactions attempted, the share that failed because the
+    /// object does not afford the action (not pickupable, too heavy, too
+    /// wide, static, or did not move when pushed): the policy chose the
+    /// wrong object. Reported when the episode attempted any.
+    InteractionUnaffordedRate = 11,
 }
 
 impl StatField {
     /// Number of fields.
-    pub const COUNT: usize = 10;
+    pub const COUNT: usize = 12;
     /// All fields in wire order.
     pub const ALL: [StatField; Self::COUNT] = [
         StatField::EpisodeReturn,
@@ -58,6 +67,8 @@ impl StatField {
         StatField::StepsPerSecond,
         StatField::MapIdConsistency,
         StatField::InteractionAttemptRate,
+        StatField::InteractionOutOfReachRate,
+        StatField::InteractionUnaffordedRate,
     ];
 
     /// snake_case name used in metrics and JSON.
@@ -73,6 +84,8 @@ impl StatField {
             StatField::StepsPerSecond => "steps_per_second",
             StatField::MapIdConsistency => "map_id_consistency",
             StatField::InteractionAttemptRate => "interaction_attempt_rate",
+            StatField::InteractionOutOfReachRate => "interaction_out_of_reach_rate",
+            StatField::InteractionUnaffordedRate => "interaction_unafforded_rate",
         }
     }
 
@@ -134,7 +147,7 @@ impl EpisodeStats {
             return Err(ProtoError::OutOfRange {
                 field: "present",
                 value: present.into(),
-                allowed: "bits 0..10",
+                allowed: "bits 0..12",
             });
         }
         let reserved = read_u32(payload, 20);

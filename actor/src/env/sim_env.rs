@@ -192,6 +192,10 @@ struct Episode {
     /// Interactions tried and those that succeeded.
     attempts: u32,
     successes: u32,
+    /// Interactions that failed because the object was beyond reach, and
+    /// because it does not afford the action ([`does_not_afford`]).
+    out_of_reach: u32,
+    unafforded: u32,
     /// Interactable scene objects an interaction succeeded on.
     interacted: std::collections::BTreeSet<usize>,
     episode_return: f32,
@@ -382,6 +386,8 @@ impl SimEnv {
             scores: vec![ScoreSums::default(); self.config.affordances.len()],
             attempts: 0,
             successes: 0,
+            out_of_reach: 0,
+            unafforded: 0,
             interacted: Default::default(),
             episode_return: 0.0,
             reward: RewardTracker::new(self.config.reward, start),
@@ -464,6 +470,10 @@ impl SimEnv {
             interacted_instance = Some((affordance, object as usize));
             episode.attempts += 1;
             episode.successes += u32::from(outcome.success);
+            if let Some(failure) = &outcome.failure {
+                episode.out_of_reach += u32::from(matches!(failure, Failure::OutOfReach { .. }));
+                episode.unafforded += u32::from(does_not_afford(failure));
+            }
         }
         if let Some((affordance, Target { object, .. })) =
             interaction.filter(|_| self.config.uses_map())
@@ -832,8 +842,22 @@ impl SimEnv {
     }
 }
 
+/// Whether an interaction failed because its object does not afford the
+/// action, whatever the robot's pose: the policy chose the wrong object.
+fn does_not_afford(failure: &Failure) -> bool {
+    matches!(
+        failure,
+        Failure::NotPickupable
+            | Failure::TooHeavy { .. }
+            | Failure::TooWide { .. }
+            | Failure::NotPushable
+            | Failure::DidNotMove { .. }
+    )
+}
+
 /// The paper's per-episode metrics against the simulator's ground truth:
-/// return, interaction success rate, interacted object rate, both
+/// return, interaction success rate (and why attempts failed),
+/// interacted object rate, both
 /// annotation rates of `labels`, the U-Net's mean IoU and object
 /// accuracy over the episode's frames (means over affordances), and, for
 /// methods with a map (`uses_map`), how consistently it re-identified the
@@ -898,6 +922,17 @@ fn episode_stats(
             (negative / rated) as f32,
         ),
     ];
+    if episode.attempts > 0 {
+        let attempts = episode.attempts as f32;
+        stats.push((
+            StatField::InteractionOutOfReachRate,
+            episode.out_of_reach as f32 / attempts,
+        ));
+        stats.push((
+            StatField::InteractionUnaffordedRate,
+            episode.unafforded as f32 / attempts,
+        ));
+    }
     if let Some(iou) = mean(|s| (s.iou, s.iou_frames)) {
         stats.push((StatField::AffordanceIou, iou));
     }
