@@ -14,5 +14,6 @@ pub mod metrics;
 pub mod plot;
 pub mod service;
 pub mod status;
+pub mod summary;
 pub mod train;
 pub mod unet_worker;

@@ -47,6 +47,19 @@ enum Command {
         #[arg(long, default_value_t = 20)]
         window: usize,
     },
+    /// Print a run's history as a table: the mean of every episode metric and
+    /// the policy's entropy per span of environment steps (Markdown, or JSON).
+    Summary {
+        /// A run directory (holds history.jsonl).
+        #[arg(long)]
+        run_dir: PathBuf,
+        /// Environment steps per row.
+        #[arg(long, default_value_t = 20_000, value_parser = clap::value_parser!(u64).range(1..))]
+        every: u64,
+        /// Print JSON (one object per row) instead of a Markdown table.
+        #[arg(long)]
+        json: bool,
+    },
     /// Measure the message path over iceoryx2 and over loopback TCP, side by side.
     BenchTransport {
         /// Scale of the run (1 = 100 x 1 MiB, 10 x 16 MiB, 10 broadcasts per transport).
@@ -144,6 +157,19 @@ fn main() -> anyhow::Result<()> {
                     run_dir.len(),
                     out.display()
                 );
+            }
+            Ok(())
+        }
+        Command::Summary {
+            run_dir,
+            every,
+            json,
+        } => {
+            let summary = learner::summary::summarize(&run_dir, every)?;
+            if json {
+                println!("{}", serde_json::Value::from(&summary));
+            } else {
+                print!("{}", summary.markdown());
             }
             Ok(())
         }
