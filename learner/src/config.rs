@@ -217,7 +217,10 @@ mod tests {
         assert_eq!(partial.task.env, proto::EnvKind::BanditFixture);
         let weighted: LearnerConfig = toml::from_str("[task.reward]\nfailure = 0.25").unwrap();
         assert_eq!(weighted.task.reward.failure, 0.25);
-        assert_eq!(weighted.task.reward.navigation, 1.0);
+        assert_eq!(
+            weighted.task.reward.navigation,
+            proto::RewardWeights::default().navigation
+        );
         assert!(toml::from_str::<LearnerConfig>("[task.reward]\nfail = 1.0").is_err());
         let gru: LearnerConfig = toml::from_str("[task]\nmethod = \"nomap-seg\"").unwrap();
         assert!(gru.validate().is_ok());

@@ -103,7 +103,7 @@ mod tests {
 
     #[test]
     fn novelty_interactions_and_failures_are_rewarded_as_the_paper_says() {
-        let mut r = RewardTracker::new(RewardWeights::default(), at(0.0, 0.0, 0.0));
+        let mut r = RewardTracker::new(RewardWeights::PAPER, at(0.0, 0.0, 0.0));
         assert_eq!(
             r.reward(&step(at(0.25, 0.0, 0.0), true, None)),
             1.0,
