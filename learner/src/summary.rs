@@ -127,7 +127,7 @@ impl Summary {
 
 /// Steps as people write them: `40 k` for whole thousands.
 fn steps(n: u64) -> String {
-    if n > 0 && n % 1000 == 0 {
+    if n > 0 && n.is_multiple_of(1000) {
         format!("{} k", n / 1000)
     } else {
         n.to_string()
