@@ -36,27 +36,32 @@ pub struct Summary {
     pub rows: Vec<SummaryRow>,
 }
 
+/// Sums over one span, as the history is read.
+#[derive(Default)]
+struct SpanSums {
+    episodes: usize,
+    /// Sum and count per [`StatField`], in wire order.
+    fields: [(f64, usize); StatField::COUNT],
+    entropy: (f64, usize),
+}
+
 /// Means of `run_dir`'s history per `every` environment steps.
 pub fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
     anyhow::ensure!(every > 0, "the span must be at least one step");
-    let records = read_records(run_dir, None)?;
-    let last_step = records
-        .iter()
-        .filter_map(|r| r["env_steps"].as_u64())
-        .max()
-        .unwrap_or(0);
-    let spans = (last_step / every + 1) as usize;
-    let mut sums = vec![vec![(0.0, 0usize); StatField::COUNT]; spans];
-    let mut episodes = vec![0usize; spans];
-    let mut entropy = vec![(0.0, 0usize); spans];
-    for record in &records {
-        let span = (record["env_steps"].as_u64().unwrap_or(0) / every) as usize;
+    // Only spans that hold a record are kept, so a small `every` on a long
+    // run costs what its records cost.
+    let mut spans = std::collections::BTreeMap::<u64, SpanSums>::new();
+    let mut last_step = 0;
+    for record in read_records(run_dir, None)? {
+        let step = record["env_steps"].as_u64().unwrap_or(0);
+        last_step = last_step.max(step);
+        let span = spans.entry(step / every).or_default();
         match record["kind"].as_str() {
             Some("episode") => {
-                episodes[span] += 1;
+                span.episodes += 1;
                 for field in StatField::ALL {
                     if let Some(v) = record["stats"][field.as_str()].as_f64() {
-                        let (sum, n) = &mut sums[span][field as usize];
+                        let (sum, n) = &mut span.fields[field as usize];
                         *sum += v;
                         *n += 1;
                     }
@@ -64,34 +69,35 @@ pub fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
             }
             Some("ppo") => {
                 if let Some(v) = record["stats"]["entropy"].as_f64() {
-                    entropy[span].0 += v;
-                    entropy[span].1 += 1;
+                    span.entropy.0 += v;
+                    span.entropy.1 += 1;
                 }
             }
             _ => {}
         }
     }
+    spans.retain(|_, span| span.episodes > 0);
     anyhow::ensure!(
-        episodes.iter().any(|&n| n > 0),
+        !spans.is_empty(),
         "{} holds no finished episode yet: let the run go on",
         run_dir.display()
     );
     let mean = |(sum, n): (f64, usize)| (n > 0).then(|| sum / n as f64);
     let fields: Vec<StatField> = StatField::ALL
         .into_iter()
-        .filter(|&f| sums.iter().any(|span| span[f as usize].1 > 0))
+        .filter(|&f| spans.values().any(|span| span.fields[f as usize].1 > 0))
         .collect();
-    let rows = (0..spans)
-        .filter(|&span| episodes[span] > 0)
-        .map(|span| SummaryRow {
-            from_steps: span as u64 * every,
-            to_steps: ((span as u64 + 1) * every).min(last_step),
-            episodes: episodes[span],
+    let rows = spans
+        .iter()
+        .map(|(&index, span)| SummaryRow {
+            from_steps: index * every,
+            to_steps: ((index + 1) * every).min(last_step),
+            episodes: span.episodes,
             means: fields
                 .iter()
-                .map(|&f| mean(sums[span][f as usize]))
+                .map(|&f| mean(span.fields[f as usize]))
                 .collect(),
-            entropy: mean(entropy[span]),
+            entropy: mean(span.entropy),
         })
         .collect();
     Ok(Summary { fields, rows })
