@@ -28,9 +28,10 @@ enum Command {
     PrintConfig,
     /// Remove shared-memory resources left by crashed learner or actor processes.
     Clean,
-    /// Draw the paper's six training curves, the episode return and the
-    /// interaction attempt rate from a run's history.jsonl into an SVG; with
-    /// several --run-dir, one line per run to compare them.
+    /// Draw the paper's six training curves, the episode return, the
+    /// interaction attempt rate and why attempts fail (beyond reach, not
+    /// afforded) from a run's history.jsonl into an SVG; with several
+    /// --run-dir, one line per run to compare them.
     Plot {
         /// A run directory (holds history.jsonl); repeat to compare runs.
         /// Several directories joined by commas are repeats of one setting

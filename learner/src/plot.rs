@@ -1,6 +1,6 @@
 //! `learner plot`: the paper's six training curves (Fig. 3), the episode
-//! return and the interaction attempt rate from a run's `history.jsonl`, as
-//! one SVG: per-episode values over environment steps
+//! return, the interaction attempt rate and why attempts fail, from a run's
+//! `history.jsonl`, as one SVG: per-episode values over environment steps
 //! (dots) and their moving average (line); or several runs' moving averages
 //! in one figure, to compare methods; or groups of repeats (seeds) as their
 //! mean with a min–max band.
@@ -13,9 +13,12 @@ use plotters::prelude::*;
 use crate::history::{read_records, HISTORY_FILE};
 
 /// The per-episode metrics drawn, in panel order: the paper's six training
-/// curves, then the return PPO maximises and how often the policy still
-/// tries an interaction (what a reward that favours navigation erodes).
-pub const CURVES: [(&str, &str); 8] = [
+/// curves, then the return PPO maximises, how often the policy still
+/// tries an interaction (what a reward that favours navigation erodes), and
+/// the shares of attempts that fail for want of an approach (the object is
+/// beyond the arm's reach) or of a better choice (the object does not afford
+/// the interaction).
+pub const CURVES: [(&str, &str); 10] = [
     ("interaction_success_rate", "interaction success rate"),
     ("interacted_object_rate", "interacted object rate"),
     (
@@ -30,7 +33,18 @@ pub const CURVES: [(&str, &str); 8] = [
     ("object_accuracy", "object-level accuracy"),
     ("episode_return", "episode return"),
     ("interaction_attempt_rate", "interaction attempts per step"),
+    (
+        "interaction_out_of_reach_rate",
+        "attempts failed: beyond reach",
+    ),
+    (
+        "interaction_unafforded_rate",
+        "attempts failed: not afforded",
+    ),
 ];
+
+/// Panels per row of the figure (two rows).
+const PANELS_PER_ROW: usize = CURVES.len().div_ceil(2);
 
 /// One curve: (environment steps, value) per episode, in file order.
 pub type Series = Vec<(f64, f64)>;
@@ -228,13 +242,13 @@ pub fn plot(groups: &[RunGroup], out: &Path, window: usize) -> anyhow::Result<us
     };
     let episodes = all_series().map(Vec::len).max().unwrap_or(0);
     let max_steps = all_series().flatten().map(|p| p.0).fold(1.0f64, f64::max);
-    let root = SVGBackend::new(out, (2000, 860)).into_drawing_area();
+    let root = SVGBackend::new(out, (500 * PANELS_PER_ROW as u32, 860)).into_drawing_area();
     let draw =
         |e: Box<dyn std::error::Error + '_>| anyhow::anyhow!("drawing {}: {e}", out.display());
     root.fill(&WHITE).map_err(|e| draw(Box::new(e)))?;
     let comparison = runs.len() > 1 || runs[0].1.len() > 1;
     for (index, (panel, (_, title))) in root
-        .split_evenly((2, 4))
+        .split_evenly((2, PANELS_PER_ROW))
         .iter()
         .zip(CURVES.iter())
         .enumerate()
@@ -427,6 +441,9 @@ mod tests {
         assert_eq!(plot(&[one(dir.path())], &svg, 5).unwrap(), 2);
         let text = std::fs::read_to_string(&svg).unwrap();
         assert!(text.contains("<svg") && text.contains("affordance IoU"));
+        for (_, title) in CURVES {
+            assert!(text.contains(title), "no panel for {title}");
+        }
 
         // Two runs: one line each, named in a legend.
         let other = tempfile::tempdir().unwrap();
