@@ -51,9 +51,11 @@ enum Command {
     /// Print a run's history as a table: the mean of every episode metric and
     /// the policy's entropy per span of environment steps (Markdown, or JSON).
     Summary {
-        /// A run directory (holds history.jsonl).
-        #[arg(long)]
-        run_dir: PathBuf,
+        /// A run directory (holds history.jsonl). Repeat it for repeats of
+        /// one setting (seeds): each cell is then the runs' mean with their
+        /// lowest and highest in brackets, over the spans every run reached.
+        #[arg(long, required = true)]
+        run_dir: Vec<PathBuf>,
         /// Environment steps per row.
         #[arg(long, default_value_t = 20_000, value_parser = clap::value_parser!(u64).range(1..))]
         every: u64,
@@ -166,7 +168,7 @@ fn main() -> anyhow::Result<()> {
             every,
             json,
         } => {
-            let summary = learner::summary::summarize(&run_dir, every)?;
+            let summary = learner::summary::summarize_repeats(&run_dir, every)?;
             if json {
                 println!("{}", serde_json::Value::from(&summary));
             } else {

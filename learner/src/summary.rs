@@ -1,38 +1,75 @@
 //! `learner summary`: a run's history as a table of means per span of
 //! environment steps (every episode metric, and the policy's entropy), so
 //! that a long run, or two runs side by side, can be read without plotting:
-//! where the success rate peaked, when the policy stopped trying.
+//! where the success rate peaked, when the policy stopped trying. Repeats of
+//! one setting (seeds) summarise as the runs' mean with their range.
 
 use std::fmt::Write as _;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use proto::StatField;
-use serde_json::Value;
+use serde_json::{json, Value};
 
 use crate::history::read_records;
+
+/// One metric over one span: the mean, and over repeats the lowest and the
+/// highest of the runs' means (one run: all three are its mean).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Spread {
+    /// Mean of the runs' means (one run: its mean).
+    pub mean: f64,
+    /// Lowest of the runs' means.
+    pub min: f64,
+    /// Highest of the runs' means.
+    pub max: f64,
+}
+
+impl Spread {
+    /// The spread of one run's mean.
+    fn one(mean: f64) -> Self {
+        Self {
+            mean,
+            min: mean,
+            max: mean,
+        }
+    }
+
+    /// The spread of several runs' means; `None` without any.
+    fn of(values: impl IntoIterator<Item = f64>) -> Option<Self> {
+        let values: Vec<f64> = values.into_iter().collect();
+        (!values.is_empty()).then(|| Self {
+            mean: values.iter().sum::<f64>() / values.len() as f64,
+            min: values.iter().copied().fold(f64::INFINITY, f64::min),
+            max: values.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        })
+    }
+}
 
 /// Means over one span of environment steps.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SummaryRow {
     /// First environment step of the span.
     pub from_steps: u64,
-    /// End of the span: the next span's first step, or the last step seen.
+    /// End of the span: the next span's first step, or the last step seen
+    /// (over repeats: by the shortest run).
     pub to_steps: u64,
-    /// Episodes that ended in the span.
+    /// Episodes that ended in the span (over repeats: in all runs).
     pub episodes: usize,
     /// Mean of each of [`Summary::fields`] over the span's episodes that
     /// reported it.
-    pub means: Vec<Option<f64>>,
+    pub means: Vec<Option<Spread>>,
     /// Mean entropy of the policy updates in the span.
-    pub entropy: Option<f64>,
+    pub entropy: Option<Spread>,
 }
 
-/// A run's history, span by span.
+/// A run's history, or repeats' histories, span by span.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Summary {
+    /// Runs summarised: one, or repeats of one setting.
+    pub runs: usize,
     /// The episode metrics some episode reported, in wire order.
     pub fields: Vec<StatField>,
-    /// One row per span that ended an episode, in step order.
+    /// One row per span that ended an episode (in every run), in step order.
     pub rows: Vec<SummaryRow>,
 }
 
@@ -82,7 +119,7 @@ pub fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
         "{} holds no finished episode yet: let the run go on",
         run_dir.display()
     );
-    let mean = |(sum, n): (f64, usize)| (n > 0).then(|| sum / n as f64);
+    let mean = |(sum, n): (f64, usize)| (n > 0).then(|| Spread::one(sum / n as f64));
     let fields: Vec<StatField> = StatField::ALL
         .into_iter()
         .filter(|&f| spans.values().any(|span| span.fields[f as usize].1 > 0))
@@ -100,11 +137,74 @@ pub fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
             entropy: mean(span.entropy),
         })
         .collect();
-    Ok(Summary { fields, rows })
+    Ok(Summary {
+        runs: 1,
+        fields,
+        rows,
+    })
+}
+
+/// Repeats of one setting (seeds), span by span: each metric's mean over
+/// the runs' means with their range. Only spans in which every run ended an
+/// episode are kept, so a shorter run cuts the table.
+pub fn summarize_repeats(run_dirs: &[PathBuf], every: u64) -> anyhow::Result<Summary> {
+    let summaries = run_dirs
+        .iter()
+        .map(|dir| summarize(dir, every))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let [first, rest @ ..] = summaries.as_slice() else {
+        anyhow::bail!("no run directory to summarise");
+    };
+    if rest.is_empty() {
+        return Ok(first.clone());
+    }
+    let fields: Vec<StatField> = StatField::ALL
+        .into_iter()
+        .filter(|f| summaries.iter().any(|s| s.fields.contains(f)))
+        .collect();
+    let mut rows = Vec::new();
+    for row in &first.rows {
+        let Some(span): Option<Vec<(&Summary, &SummaryRow)>> = summaries
+            .iter()
+            .map(|s| {
+                s.rows
+                    .iter()
+                    .find(|r| r.from_steps == row.from_steps)
+                    .map(|r| (s, r))
+            })
+            .collect()
+        else {
+            continue;
+        };
+        let field_mean = |summary: &Summary, row: &SummaryRow, field: StatField| {
+            let column = summary.fields.iter().position(|&f| f == field)?;
+            row.means[column].map(|spread| spread.mean)
+        };
+        rows.push(SummaryRow {
+            from_steps: row.from_steps,
+            to_steps: span.iter().map(|(_, r)| r.to_steps).min().unwrap_or(0),
+            episodes: span.iter().map(|(_, r)| r.episodes).sum(),
+            means: fields
+                .iter()
+                .map(|&f| Spread::of(span.iter().filter_map(|&(s, r)| field_mean(s, r, f))))
+                .collect(),
+            entropy: Spread::of(span.iter().filter_map(|(_, r)| r.entropy.map(|e| e.mean))),
+        });
+    }
+    anyhow::ensure!(
+        !rows.is_empty(),
+        "the runs share no span of {every} steps in which each ended an episode"
+    );
+    Ok(Summary {
+        runs: summaries.len(),
+        fields,
+        rows,
+    })
 }
 
 impl Summary {
-    /// The table in Markdown: one row per span, one column per metric.
+    /// The table in Markdown: one row per span, one column per metric;
+    /// over repeats each cell is `mean (lowest–highest)`.
     pub fn markdown(&self) -> String {
         let mut out = String::from("| steps | episodes |");
         for field in &self.fields {
@@ -113,7 +213,12 @@ impl Summary {
         out.push_str(" ppo entropy |\n|---|---|");
         out.push_str(&"---|".repeat(self.fields.len() + 1));
         out.push('\n');
-        let cell = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.3}"));
+        let repeats = self.runs > 1;
+        let cell = |v: Option<Spread>| match v {
+            None => "–".to_string(),
+            Some(s) if repeats => format!("{:.3} ({:.3}–{:.3})", s.mean, s.min, s.max),
+            Some(s) => format!("{:.3}", s.mean),
+        };
         for row in &self.rows {
             let _ = write!(
                 out,
@@ -141,22 +246,39 @@ fn steps(n: u64) -> String {
 }
 
 impl From<&Summary> for Value {
+    /// One object per span: `means` per metric and `ppo_entropy`; over
+    /// repeats also `ranges`, each metric's `[lowest, highest]` run mean.
     fn from(summary: &Summary) -> Value {
         let rows: Vec<Value> = summary
             .rows
             .iter()
             .map(|row| {
                 let mut means = serde_json::Map::new();
-                for (field, v) in summary.fields.iter().zip(&row.means) {
-                    means.insert(field.as_str().into(), serde_json::json!(v));
+                let mut ranges = serde_json::Map::new();
+                let columns = summary
+                    .fields
+                    .iter()
+                    .map(|f| f.as_str())
+                    .zip(&row.means)
+                    .chain(std::iter::once(("ppo_entropy", &row.entropy)));
+                for (name, spread) in columns {
+                    ranges.insert(name.into(), json!(spread.map(|s| [s.min, s.max])));
+                    if name != "ppo_entropy" {
+                        means.insert(name.into(), json!(spread.map(|s| s.mean)));
+                    }
                 }
-                serde_json::json!({
+                let mut object = json!({
                     "from_steps": row.from_steps,
                     "to_steps": row.to_steps,
                     "episodes": row.episodes,
                     "means": means,
-                    "ppo_entropy": row.entropy,
-                })
+                    "ppo_entropy": row.entropy.map(|s| s.mean),
+                });
+                if summary.runs > 1 {
+                    object["runs"] = json!(summary.runs);
+                    object["ranges"] = Value::Object(ranges);
+                }
+                object
             })
             .collect();
         Value::Array(rows)
@@ -167,7 +289,6 @@ impl From<&Summary> for Value {
 mod tests {
     use super::*;
     use crate::history::History;
-    use serde_json::json;
 
     fn episode(history: &mut History, steps: u64, success: f64, attempts: Option<f64>) {
         let mut stats = json!({"interaction_success_rate": success});
@@ -213,12 +334,12 @@ mod tests {
             (first.from_steps, first.to_steps, first.episodes),
             (0, 1000, 2)
         );
-        assert!((first.means[0].unwrap() - 0.2).abs() < 1e-9);
+        assert!((first.means[0].unwrap().mean - 0.2).abs() < 1e-9);
         assert!(
-            (first.means[1].unwrap() - 0.2).abs() < 1e-9,
+            (first.means[1].unwrap().mean - 0.2).abs() < 1e-9,
             "only episodes that reported it"
         );
-        assert_eq!(first.entropy, Some(1.5));
+        assert_eq!(first.entropy, Some(Spread::one(1.5)));
         let last = &summary.rows[1];
         assert_eq!((last.from_steps, last.to_steps), (2000, 2500));
         assert_eq!(last.entropy, None);
@@ -237,6 +358,66 @@ mod tests {
         );
         let json = Value::from(&summary);
         assert_eq!(json[1]["means"]["interaction_success_rate"], 0.5);
+        assert_eq!(json[0]["ppo_entropy"], 1.5);
+        assert!(json[0].get("ranges").is_none(), "one run has no range");
+    }
+
+    #[test]
+    fn repeats_give_the_mean_and_range_of_their_means_where_all_ran() {
+        let root = tempfile::tempdir().unwrap();
+        // Seed A: two spans; seed B: success 0.3 in the first span only and
+        // attempts in neither; seed C: no episode in the first span.
+        type Episode = (u64, f64, Option<f64>);
+        let runs: [(&[Episode], &str); 3] = [
+            (&[(500, 0.1, Some(0.2)), (1500, 0.2, Some(0.4))], "a"),
+            (&[(700, 0.3, None)], "b"),
+            (&[(1200, 0.9, None)], "c"),
+        ];
+        let dirs: Vec<PathBuf> = runs
+            .iter()
+            .map(|(episodes, name)| {
+                let dir = root.path().join(name);
+                std::fs::create_dir(&dir).unwrap();
+                let mut history = History::open(&dir).unwrap();
+                for &(steps, success, attempts) in *episodes {
+                    episode(&mut history, steps, success, attempts);
+                }
+                dir
+            })
+            .collect();
+
+        let summary = summarize_repeats(&dirs[..2], 1000).unwrap();
+        assert_eq!(summary.runs, 2);
+        assert_eq!(summary.rows.len(), 1, "only the span both runs reached");
+        let row = &summary.rows[0];
+        assert_eq!((row.from_steps, row.to_steps, row.episodes), (0, 700, 2));
+        let success = row.means[0].unwrap();
+        assert!((success.mean - 0.2).abs() < 1e-9);
+        assert_eq!((success.min, success.max), (0.1, 0.3));
+        assert_eq!(
+            row.means[1],
+            Some(Spread::one(0.2)),
+            "attempts: only the run that reported them"
+        );
+        let table = summary.markdown();
+        assert!(
+            table.contains("| 0–700 | 2 | 0.200 (0.100–0.300) | 0.200 (0.200–0.200) | – |"),
+            "{table}"
+        );
+        let json = Value::from(&summary);
+        assert_eq!(json[0]["runs"], 2);
+        assert_eq!(
+            json[0]["ranges"]["interaction_success_rate"],
+            json!([0.1, 0.3])
+        );
+
+        assert_eq!(
+            summarize_repeats(&dirs[..1], 1000).unwrap(),
+            summarize(&dirs[0], 1000).unwrap()
+        );
+        let error = summarize_repeats(&dirs[1..], 1000).unwrap_err().to_string();
+        assert!(error.contains("share no span"), "{error}");
+        assert!(summarize_repeats(&[], 1000).is_err());
     }
 
     #[test]
