@@ -11,6 +11,7 @@ use std::str::FromStr;
 use plotters::prelude::*;
 
 use crate::history::{read_records, HISTORY_FILE};
+use crate::summary::Spread;
 
 /// The per-episode metrics drawn, in panel order: the paper's six training
 /// curves, then the return PPO maximises, how often the policy still
@@ -167,15 +168,11 @@ pub fn group_curve(runs: &[Series], window: usize, points: usize) -> Vec<(f64, f
     (0..points)
         .map(|i| end * i as f64 / (points - 1) as f64)
         .filter(|&x| x >= start)
-        .map(|x| {
-            let values: Vec<f64> = averaged
+        .filter_map(|x| {
+            let values = averaged
                 .iter()
-                .map(|s| s[s.partition_point(|p| p.0 <= x) - 1].1)
-                .collect();
-            let mean = values.iter().sum::<f64>() / values.len() as f64;
-            let lo = values.iter().copied().fold(f64::INFINITY, f64::min);
-            let hi = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            (x, mean, lo, hi)
+                .map(|s| s[s.partition_point(|p| p.0 <= x) - 1].1);
+            Spread::of(values).map(|s| (x, s.mean, s.min, s.max))
         })
         .collect()
 }

@@ -34,8 +34,8 @@ impl Spread {
         }
     }
 
-    /// The spread of several runs' means; `None` without any.
-    fn of(values: impl IntoIterator<Item = f64>) -> Option<Self> {
+    /// The spread of several runs' values; `None` without any.
+    pub fn of(values: impl IntoIterator<Item = f64>) -> Option<Self> {
         let values: Vec<f64> = values.into_iter().collect();
         (!values.is_empty()).then(|| Self {
             mean: values.iter().sum::<f64>() / values.len() as f64,
@@ -152,12 +152,9 @@ pub fn summarize_repeats(run_dirs: &[PathBuf], every: u64) -> anyhow::Result<Sum
         .iter()
         .map(|dir| summarize(dir, every))
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let [first, rest @ ..] = summaries.as_slice() else {
+    let Some(first) = summaries.first() else {
         anyhow::bail!("no run directory to summarise");
     };
-    if rest.is_empty() {
-        return Ok(first.clone());
-    }
     let fields: Vec<StatField> = StatField::ALL
         .into_iter()
         .filter(|f| summaries.iter().any(|s| s.fields.contains(f)))
