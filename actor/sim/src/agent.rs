@@ -97,9 +97,10 @@ pub enum Failure {
     HorizonLimit,
     /// No object under the selected pixel (floor, wall or nothing).
     NothingThere,
-    /// The object is farther from the camera than the robot's reach.
+    /// The point aimed at is farther from the agent's vertical axis than
+    /// the robot's reach.
     OutOfReach {
-        /// Distance to the hit point, metres.
+        /// Horizontal distance from the agent's axis to the point, metres.
         distance_m: f32,
     },
     /// The object cannot be picked up (AI2-THOR's flag).

@@ -1,11 +1,13 @@
 //! Picking up, dropping and pushing through the simulator, with the rules
 //! of the robot profiles and the outcomes of the physics.
 
-use nalgebra::Vector3;
-use sim::agent::{AgentState, Failure, HandMove, NavAction, Simulator, DEFAULT_HAND, HAND_STEP_M};
+use nalgebra::{Point2, Point3, Vector3};
+use sim::agent::{
+    Action, AgentState, Failure, HandMove, NavAction, Simulator, DEFAULT_HAND, HAND_STEP_M,
+};
 use sim::ithor::{load_set, SceneSet};
 use sim::profile::RobotProfile;
-use sim::scene::Scene;
+use sim::scene::{walls_around, OrientedBox, Scene, SceneObject};
 
 fn scenes() -> Vec<Scene> {
     let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -236,4 +238,116 @@ fn the_held_object_moves_with_the_hand_and_the_agent_and_stops_at_limits() {
     let dropped = sim.drop_held();
     assert!(dropped.success, "{dropped:?}");
     assert_eq!(sim.hand_offset(), DEFAULT_HAND, "the hand resets");
+}
+
+/// An object of `scene` occupying the axis-aligned box `min`–`max`.
+fn boxed(id: &str, object_type: &str, min: Point3<f32>, max: Point3<f32>) -> SceneObject {
+    let bounds = OrientedBox::axis_aligned(min, max);
+    SceneObject {
+        id: id.into(),
+        object_type: object_type.into(),
+        position: bounds.center,
+        rotation: bounds.rotation,
+        bounds,
+        aabb_min: min,
+        aabb_max: max,
+        mass_kg: if object_type == "Floor" { 0.0 } else { 0.5 },
+        pickupable: object_type != "Floor",
+        moveable: false,
+        receptacle: object_type == "Floor",
+        openable: false,
+        materials: vec![],
+        parent_receptacles: vec![],
+    }
+}
+
+/// The pixel nearest the centroid of object `index`'s pixels in `sim`'s view.
+fn middle_pixel(sim: &Simulator, index: usize) -> (usize, usize) {
+    let frame = sim.render_cpu();
+    let id = index as u32 + 1;
+    let pixels: Vec<usize> = (0..frame.ids.len())
+        .filter(|&p| frame.ids[p] == id)
+        .collect();
+    assert!(pixels.len() > 20, "object {index} is in view");
+    let n = pixels.len() as f32;
+    let cu = pixels
+        .iter()
+        .map(|&p| (p % frame.width) as f32)
+        .sum::<f32>()
+        / n;
+    let cv = pixels
+        .iter()
+        .map(|&p| (p / frame.width) as f32)
+        .sum::<f32>()
+        / n;
+    let d = |p: usize| {
+        ((p % frame.width) as f32 - cu).powi(2) + ((p / frame.width) as f32 - cv).powi(2)
+    };
+    let best = *pixels
+        .iter()
+        .min_by(|&&a, &&b| d(a).total_cmp(&d(b)))
+        .unwrap();
+    (best % frame.width, best / frame.width)
+}
+
+#[test]
+fn reach_is_measured_from_the_agents_axis_so_objects_on_the_floor_can_be_picked_up() {
+    // Two 0.3 m boxes on the floor straight ahead of an agent looking down:
+    // their near faces 0.85 m and 1.85 m from its axis. The near box's top is
+    // more than 1.5 m from the camera (1.58 m up), yet within reach.
+    let (lo, hi) = (Point2::new(-2.0, -1.5), Point2::new(2.0, 1.5));
+    let scene = Scene {
+        name: "two boxes".into(),
+        objects: vec![
+            boxed(
+                "Floor|0",
+                "Floor",
+                Point3::new(-2.0, -1.5, -0.1),
+                Point3::new(2.0, 1.5, 0.0),
+            ),
+            boxed(
+                "Box|near",
+                "Box",
+                Point3::new(-0.65, -0.15, 0.0),
+                Point3::new(-0.35, 0.15, 0.3),
+            ),
+            boxed(
+                "Box|far",
+                "Box",
+                Point3::new(0.35, -0.15, 0.0),
+                Point3::new(0.65, 0.15, 0.3),
+            ),
+        ],
+        floor_min: lo,
+        floor_max: hi,
+        floor_top_m: 0.0,
+        walls: walls_around(lo, hi, 0.0, 0.3),
+    };
+    let profile = RobotProfile::load("default").unwrap();
+    let start = AgentState {
+        x: -1.5,
+        y: 0.0,
+        yaw_deg: 0.0,
+        horizon_deg: 45.0,
+    };
+    let sim = Simulator::new(scene, profile, start).unwrap();
+    let (u, v) = middle_pixel(&sim, 2);
+    let mut far = sim.clone();
+    let outcome = far.apply(Action::PickUp { u, v });
+    match outcome.failure {
+        Some(Failure::OutOfReach { distance_m }) => {
+            assert!((1.85..2.0).contains(&distance_m), "{distance_m}")
+        }
+        other => panic!("the far box is beyond reach, got {other:?}"),
+    }
+    let push = far.apply(Action::Push { u, v });
+    assert!(
+        matches!(push.failure, Some(Failure::OutOfReach { .. })),
+        "{push:?}"
+    );
+    let (u, v) = middle_pixel(&sim, 1);
+    let mut near = sim.clone();
+    let outcome = near.apply(Action::PickUp { u, v });
+    assert!(outcome.success, "the near box is within reach: {outcome:?}");
+    assert_eq!(near.held(), Some(1));
 }

@@ -43,8 +43,12 @@ impl Simulator {
         self.held
     }
 
-    /// The object under pixel `(u, v)`, the world point hit and its distance.
-    fn pixel_hit(&self, u: usize, v: usize) -> Result<(usize, Point3<f32>, f32), Failure> {
+    /// The object under pixel `(u, v)`, if it is within reach: the point hit
+    /// lies at most the profile's reach from the agent's vertical axis
+    /// (AI2-THOR's visibility distance), whatever its height, so an object
+    /// on the floor at the agent's feet is within reach as much as one on a
+    /// table.
+    fn pixel_hit(&self, u: usize, v: usize) -> Result<usize, Failure> {
         let camera = self.camera();
         if u >= camera.width || v >= camera.height {
             return Err(Failure::BadPixel);
@@ -58,12 +62,14 @@ impl Simulator {
         if id == 0 {
             return Err(Failure::NothingThere);
         }
-        if distance > self.profile.reach_m {
+        let hit = origin + dir * distance;
+        let from_axis = (hit.x - self.agent.x).hypot(hit.y - self.agent.y);
+        if from_axis > self.profile.reach_m {
             return Err(Failure::OutOfReach {
-                distance_m: distance,
+                distance_m: from_axis,
             });
         }
-        Ok((id as usize - 1, origin + dir * distance, distance))
+        Ok(id as usize - 1)
     }
 
     /// Moves object `index` to box `to` (its pivot follows rigidly) and rebuilds the geometry.
@@ -83,7 +89,7 @@ impl Simulator {
             return Outcome::failed(Failure::HandFull);
         }
         let index = match self.pixel_hit(u, v) {
-            Ok((i, _, _)) => i,
+            Ok(i) => i,
             Err(f) => return Outcome::failed(f),
         };
         if let Err(f) = pickup_rule(&self.scene.objects[index], &self.profile) {
@@ -119,8 +125,8 @@ impl Simulator {
     /// the camera's horizontal forward direction; it succeeds if the object
     /// moves at least [`PUSH_SUCCESS_M`].
     pub fn push(&mut self, u: usize, v: usize) -> Outcome {
-        let (index, _, _) = match self.pixel_hit(u, v) {
-            Ok(hit) => hit,
+        let index = match self.pixel_hit(u, v) {
+            Ok(i) => i,
             Err(f) => return Outcome::failed(f),
         };
         if !self.scene.objects[index].pushable() {
