@@ -7,6 +7,7 @@
 pub mod config;
 pub mod env;
 pub mod episode_loop;
+pub mod evaluation;
 pub mod labeler;
 pub mod mapping;
 pub mod metrics;

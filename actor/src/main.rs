@@ -7,7 +7,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use actor::config::RunConfig;
-use actor::env::affordance_model::AffordanceModel;
+use actor::env::affordance_model::{AffordanceModel, CameraFrame};
 use actor::env::sim_env::{SimEnv, SimEnvConfig};
 use actor::env::{BanditFixture, Environment, SimEnvironment};
 use actor::episode_loop::{run, LoopSettings};
@@ -50,6 +50,50 @@ enum Command {
     /// PNGs of what it sees (RGB, colour-mapped depth, instance ids) plus a
     /// top-down map of the room with the path.
     SimView(SimViewArgs),
+    /// Scores a run's affordance U-Net in rooms it never trained in, as the
+    /// paper's Tables 1 and 2: pixel precision, recall, F1 and object accuracy
+    /// per test view (median [10th, 90th percentile]), and, with the robot
+    /// placed in front of every object and each affordance tried there, the
+    /// object-level prediction (mean over its pixels) against the outcome.
+    Evaluate(EvaluateArgs),
+}
+
+#[derive(Args)]
+struct EvaluateArgs {
+    /// The run directory: its config.toml gives the image size and the
+    /// affordances, its checkpoints/ the network.
+    #[arg(long)]
+    run_dir: PathBuf,
+    /// Checkpoint step to evaluate (default: the newest).
+    #[arg(long, conflicts_with = "untrained")]
+    step: Option<u64>,
+    /// Evaluate a freshly initialised network instead: the floor a trained
+    /// one must beat.
+    #[arg(long)]
+    untrained: bool,
+    /// Rooms: test (FloorPlan226–230), val (221–225) or train (201–220).
+    #[arg(long, default_value = "test")]
+    scenes: SceneSet,
+    /// Test views per room for Table 1 (the paper had 611 frames over 5 rooms).
+    #[arg(long, default_value_t = 120)]
+    views_per_scene: usize,
+    /// Seed of the test views (the same seed gives the same views).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Write the whole report (both tables and every object's trial) as JSON here.
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
+    /// Shared data directory with ithor-livingrooms/.
+    #[arg(long, env = "AFX_DATA", default_value = "../shared/data")]
+    data: PathBuf,
+    /// Robot profile: a shipped name (default, weak-arm) or a TOML file; the
+    /// one the run trained with.
+    #[arg(long, default_value = "default")]
+    profile: String,
+    /// Renderer: gpu (wgpu: a GPU or Mesa lavapipe) or cpu (ray casting);
+    /// the one the run trained with.
+    #[arg(long, default_value = "gpu")]
+    renderer: RendererChoice,
 }
 
 #[derive(Args)]
@@ -136,6 +180,7 @@ fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Some(Command::SimView(args)) => sim_view(args),
+        Some(Command::Evaluate(args)) => evaluate(args),
         None => run_actor(cli.run),
     }
 }
@@ -158,6 +203,86 @@ fn sim_view(args: SimViewArgs) -> anyhow::Result<()> {
         summary.files.len(),
         settings.out.display()
     );
+    Ok(())
+}
+
+fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
+    let config_path = args.run_dir.join("config.toml");
+    let task = actor::config::run_config_from_toml_file(&config_path)?.task;
+    anyhow::ensure!(
+        task.env == EnvKind::Sim,
+        "{} trains on {:?}, which has no affordance network to evaluate",
+        config_path.display(),
+        task.env
+    );
+    anyhow::ensure!(
+        args.views_per_scene > 0,
+        "--views-per-scene must be at least 1"
+    );
+    let device = nets::device::open_device(nets::device::DeviceChoice::Cpu)?;
+    let mut model = AffordanceModel::new(task.affordances.len(), &device);
+    let model_name = if args.untrained {
+        "an untrained U-Net".to_string()
+    } else {
+        let unet = actor::evaluation::load_checkpoint_unet(&args.run_dir, args.step)?;
+        model.load_weights(unet.weights).with_context(|| {
+            format!(
+                "loading the U-Net of step {} (made for {:?} at {} px?)",
+                unet.step, task.affordances, task.image_size
+            )
+        })?;
+        model.temperature = unet.temperature;
+        format!(
+            "the U-Net of {} at step {}",
+            args.run_dir.display(),
+            unet.step
+        )
+    };
+    let mut profile = RobotProfile::load(&args.profile)?;
+    profile.image_size = task.image_size;
+    let rooms = args.data.join("ithor-livingrooms");
+    let scenes = sim::ithor::load_set(&rooms, args.scenes).with_context(|| {
+        format!(
+            "loading the rooms from {} (set --data or AFX_DATA to the shared data directory)",
+            rooms.display()
+        )
+    })?;
+    let mut renderer = Renderer::open(args.renderer)?;
+    let predict = |frame: &sim::raycast::Frame| {
+        model.predict(&CameraFrame {
+            rgb: &frame.rgb,
+            depth_m: &frame.depth_m,
+            height: frame.height,
+            width: frame.width,
+        })
+    };
+    let settings = actor::evaluation::EvaluationSettings {
+        model: model_name,
+        affordances: task.affordances.clone(),
+        views_per_scene: args.views_per_scene,
+        seed: args.seed,
+    };
+    eprintln!(
+        "evaluate: {} in {} rooms at {} px with {}",
+        settings.model,
+        scenes.len(),
+        task.image_size,
+        renderer.describe()
+    );
+    let report = actor::evaluation::evaluate(
+        &scenes,
+        &profile,
+        &mut renderer,
+        &predict,
+        &settings,
+        &mut |line| eprintln!("evaluate: {line}"),
+    )?;
+    print!("{}", report.to_markdown());
+    if let Some(path) = &args.json {
+        let text = serde_json::to_string_pretty(&report)?;
+        std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
+        eprintln!("evaluate: wrote {}", path.display());
+    }
     Ok(())
 }
 

@@ -9,7 +9,35 @@
 
 use std::collections::BTreeMap;
 
-use proto::{LABEL_NEGATIVE, LABEL_POSITIVE};
+use proto::{Affordance, LABEL_NEGATIVE, LABEL_POSITIVE};
+use sim::affordances::{can_pick_up, can_push};
+use sim::profile::RobotProfile;
+use sim::scene::Scene;
+
+/// Per scene object (by index, so instance id − 1), whether it affords each
+/// of `affordances` (plane order) for `profile`: the rules and physics the
+/// actions use. The floor affords nothing.
+pub fn ground_truth_planes(
+    scene: &Scene,
+    profile: &RobotProfile,
+    affordances: &[Affordance],
+) -> Vec<Vec<bool>> {
+    (0..scene.objects.len())
+        .map(|i| {
+            let object = &scene.objects[i];
+            affordances
+                .iter()
+                .map(|a| {
+                    object.object_type != "Floor"
+                        && match a {
+                            Affordance::PickUp => can_pick_up(object, profile),
+                            Affordance::Push => can_push(scene, i, profile),
+                        }
+                })
+                .collect()
+        })
+        .collect()
+}
 
 /// Scores of one frame for one affordance.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -48,6 +76,43 @@ pub fn score_frame(
     FrameScores {
         iou: (union > 0).then(|| intersection as f32 / union as f32),
         object_accuracy: (!votes.is_empty()).then(|| correct as f32 / votes.len() as f32),
+    }
+}
+
+/// Pixel-level precision, recall and F1 of one frame for one affordance
+/// (the paper's Table 1), over every pixel: structure (instance 0) and
+/// objects that do not afford the action are negatives. Each is `None`
+/// where it is undefined: precision without predicted positives, recall
+/// without true ones, F1 without either.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PixelScores {
+    /// True positives over predicted positives.
+    pub precision: Option<f32>,
+    /// True positives over true positives and false negatives.
+    pub recall: Option<f32>,
+    /// 2·TP / (2·TP + FP + FN).
+    pub f1: Option<f32>,
+}
+
+/// Scores a probability plane (threshold 0.5) pixel by pixel against the
+/// ground truth (see [`PixelScores`]).
+pub fn pixel_scores(
+    probabilities: &[f32],
+    instances: &[u32],
+    affords: &dyn Fn(u32) -> bool,
+) -> PixelScores {
+    let (mut tp, mut fp, mut fn_) = (0usize, 0usize, 0usize);
+    for (&p, &id) in probabilities.iter().zip(instances) {
+        let (predicted, truth) = (p >= 0.5, id != 0 && affords(id));
+        tp += usize::from(predicted && truth);
+        fp += usize::from(predicted && !truth);
+        fn_ += usize::from(!predicted && truth);
+    }
+    let ratio = |num: usize, den: usize| (den > 0).then(|| num as f32 / den as f32);
+    PixelScores {
+        precision: ratio(tp, tp + fp),
+        recall: ratio(tp, tp + fn_),
+        f1: ratio(2 * tp, 2 * tp + fp + fn_),
     }
 }
 
@@ -135,6 +200,25 @@ mod tests {
         assert_eq!(s.object_accuracy, Some(0.5));
         let s = score_frame(&[0.1; 2], &[0, 0], &affords);
         assert_eq!((s.iou, s.object_accuracy), (None, None));
+    }
+
+    #[test]
+    fn pixel_scores_count_structure_as_negative_and_leave_undefined_ratios_out() {
+        // Object 1 affords (4 px), object 2 does not (2 px), structure (2 px).
+        let ids = [1, 1, 1, 1, 2, 2, 0, 0];
+        let affords = |id: u32| id == 1;
+        // Hits 3 of object 1; false alarms on object 2 (1 px) and the floor (1 px).
+        let p = [0.9, 0.9, 0.9, 0.1, 0.7, 0.1, 0.6, 0.0];
+        let s = pixel_scores(&p, &ids, &affords);
+        assert_eq!(s.precision, Some(3.0 / 5.0));
+        assert_eq!(s.recall, Some(3.0 / 4.0));
+        assert_eq!(s.f1, Some(6.0 / 9.0));
+        // Nothing affords and nothing is predicted: all undefined.
+        let s = pixel_scores(&[0.1; 8], &ids, &|_| false);
+        assert_eq!((s.precision, s.recall, s.f1), (None, None, None));
+        // Nothing predicted where something affords: recall and F1 are 0.
+        let s = pixel_scores(&[0.1; 8], &ids, &affords);
+        assert_eq!((s.precision, s.recall, s.f1), (None, Some(0.0), Some(0.0)));
     }
 
     #[test]

@@ -21,7 +21,6 @@ use nalgebra::Point2;
 use proto::{FrameBatch, Method, StatField};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
-use sim::affordances::{can_pick_up, can_push};
 use sim::agent::{Failure, Simulator};
 use sim::profile::RobotProfile;
 use sim::randomise::randomise;
@@ -42,7 +41,7 @@ use crate::labeler::{
     sphere_labels, ConfidenceRule, EpisodeFrame, InteractionPoint, SphereRule,
 };
 use crate::mapping::{class_image, instance_classes, intrinsics, map_frame};
-use crate::metrics::{annotation_rates, map_id_consistency, score_frame};
+use crate::metrics::{annotation_rates, ground_truth_planes, map_id_consistency, score_frame};
 use crate::recording::{write_episode, FrameRecord, StepRecord};
 
 /// Settings of the environment.
@@ -358,22 +357,7 @@ impl SimEnv {
         let (sim, _) = randomise(&scene, &self.profile, &mut rng)
             .with_context(|| format!("setting up an episode in {}", scene.name))?;
         let start = sim.agent();
-        let truth = (0..scene.objects.len())
-            .map(|i| {
-                let object = &sim.scene().objects[i];
-                self.config
-                    .affordances
-                    .iter()
-                    .map(|a| {
-                        object.object_type != "Floor"
-                            && match a {
-                                Affordance::PickUp => can_pick_up(object, &self.profile),
-                                Affordance::Push => can_push(sim.scene(), i, &self.profile),
-                            }
-                    })
-                    .collect()
-            })
-            .collect();
+        let truth = ground_truth_planes(sim.scene(), &self.profile, &self.config.affordances);
         let classes = instance_classes(sim.scene().objects.iter().map(|o| o.object_type.as_str()));
         self.episode = Some(Episode {
             pending: None,

@@ -1,0 +1,153 @@
+//! The paper's test evaluation of an affordance network in rooms it never
+//! trained in (FloorPlan226–230 by default). Table 1 scores its pixels on a
+//! fixed set of views against the simulator's ground truth (precision,
+//! recall, F1 and object accuracy per frame, as median and 10th / 90th
+//! percentile). Table 2 places the robot in front of every object, tries
+//! each affordance there, and scores the network's object-level prediction
+//! (the mean of its pixels) against what happened.
+
+mod object_trials;
+mod report;
+mod test_views;
+mod weights;
+
+pub use object_trials::{try_affordance, view_object, ObjectView};
+pub use report::{Confusion, ObjectRow, ObjectTrial, Percentiles, PixelRow, Report};
+pub use test_views::{test_views, MIN_OBJECT_SHARE};
+pub use weights::{load_checkpoint_unet, CheckpointUnet};
+
+use anyhow::Context;
+use proto::Affordance;
+use sim::profile::RobotProfile;
+use sim::randomise::reachable_grid;
+use sim::raycast::Frame;
+use sim::renderer::Renderer;
+use sim::scene::Scene;
+
+use crate::metrics::{ground_truth_planes, pixel_scores, score_frame, PixelScores};
+
+/// What to evaluate and how much.
+#[derive(Debug, Clone)]
+pub struct EvaluationSettings {
+    /// What the report calls the network.
+    pub model: String,
+    /// Affordances, in the network's plane order.
+    pub affordances: Vec<Affordance>,
+    /// Test views per room (Table 1).
+    pub views_per_scene: usize,
+    /// Seed of the test views.
+    pub seed: u64,
+}
+
+/// The network under evaluation (or a stand-in in tests): per affordance,
+/// the probability plane of one frame.
+pub type Predictor<'a> = dyn Fn(&Frame) -> Vec<Vec<f32>> + 'a;
+
+/// Runs both tables over `scenes` (as loaded, not randomised), telling
+/// `progress` about each room as it finishes.
+pub fn evaluate(
+    scenes: &[Scene],
+    profile: &RobotProfile,
+    renderer: &mut Renderer,
+    predict: &Predictor<'_>,
+    settings: &EvaluationSettings,
+    progress: &mut dyn FnMut(&str),
+) -> anyhow::Result<Report> {
+    let planes = settings.affordances.len();
+    let mut frame_scores: Vec<Vec<(PixelScores, Option<f32>)>> = vec![Vec::new(); planes];
+    let mut trials = Vec::new();
+    let mut objects_not_viewed = Vec::new();
+    let mut confusion = vec![Confusion::default(); planes];
+    let mut frames = 0;
+    for (room, scene) in scenes.iter().enumerate() {
+        let truth = ground_truth_planes(scene, profile, &settings.affordances);
+        let affords = |plane: usize| {
+            let truth = &truth;
+            move |id: u32| truth.get(id as usize - 1).is_some_and(|t| t[plane])
+        };
+        let seed = settings
+            .seed
+            .wrapping_add((room as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+        let views = test_views(scene, profile, renderer, settings.views_per_scene, seed)?;
+        for view in &views {
+            let probabilities = predict(view);
+            for (plane, scores) in frame_scores.iter_mut().enumerate() {
+                let p = probabilities
+                    .get(plane)
+                    .context("the network has too few planes")?;
+                let affords = affords(plane);
+                let object_accuracy = score_frame(p, &view.ids, &affords).object_accuracy;
+                scores.push((pixel_scores(p, &view.ids, &affords), object_accuracy));
+            }
+        }
+        frames += views.len();
+        let reachable = reachable_grid(scene, profile)
+            .with_context(|| format!("finding where the agent fits in {}", scene.name))?;
+        let mut tried = 0;
+        for (index, object) in scene.objects.iter().enumerate() {
+            if object.object_type == "Floor" {
+                continue;
+            }
+            let Some(view) = view_object(scene, profile, &reachable, index, renderer)? else {
+                objects_not_viewed.push(format!("{}/{}", scene.name, object.id));
+                continue;
+            };
+            let probabilities = predict(&view.frame);
+            let mut trial = ObjectTrial {
+                scene: scene.name.clone(),
+                object: object.id.clone(),
+                object_type: object.object_type.clone(),
+                pixels: view.pixels.len(),
+                distance_m: view.distance_m,
+                predicted: Vec::with_capacity(planes),
+                succeeded: Vec::with_capacity(planes),
+                failure: Vec::with_capacity(planes),
+            };
+            for (plane, &affordance) in settings.affordances.iter().enumerate() {
+                let p = probabilities
+                    .get(plane)
+                    .context("the network has too few planes")?;
+                let mean =
+                    view.pixels.iter().map(|&i| p[i]).sum::<f32>() / view.pixels.len() as f32;
+                let (success, failure) = try_affordance(&view, affordance);
+                confusion[plane].add(mean >= 0.5, success);
+                trial.predicted.push(mean);
+                trial.succeeded.push(success);
+                trial.failure.push(failure.map(|f| format!("{f:?}")));
+            }
+            trials.push(trial);
+            tried += 1;
+        }
+        progress(&format!(
+            "{}: {} test views, {tried} objects tried",
+            scene.name,
+            views.len()
+        ));
+    }
+    let names = settings.affordances.iter().map(|a| a.as_str().to_string());
+    let pixel = names
+        .clone()
+        .zip(&frame_scores)
+        .map(|(affordance, scores)| PixelRow {
+            affordance,
+            precision: Percentiles::of(scores.iter().map(|s| s.0.precision)),
+            recall: Percentiles::of(scores.iter().map(|s| s.0.recall)),
+            f1: Percentiles::of(scores.iter().map(|s| s.0.f1)),
+            object_accuracy: Percentiles::of(scores.iter().map(|s| s.1)),
+        })
+        .collect();
+    let object = names
+        .zip(confusion)
+        .map(|(affordance, c)| ObjectRow::new(affordance, c))
+        .collect();
+    Ok(Report {
+        model: settings.model.clone(),
+        scenes: scenes.iter().map(|s| s.name.clone()).collect(),
+        frames,
+        pixel,
+        objects: trials.len() + objects_not_viewed.len(),
+        objects_not_viewed,
+        object,
+        trials,
+    })
+}

@@ -1,0 +1,297 @@
+//! The evaluation's results as the paper reports them: per-frame scores as
+//! median with 10th and 90th percentile (Table 1), object-level scores from
+//! a confusion matrix (Table 2), rendered as Markdown tables.
+
+use std::fmt::Write as _;
+
+use serde::Serialize;
+
+/// Median and 10th / 90th percentiles of a per-frame score (linear
+/// interpolation between order statistics), over the frames where it is
+/// defined.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Percentiles {
+    /// 50th percentile.
+    pub median: f32,
+    /// 10th percentile.
+    pub p10: f32,
+    /// 90th percentile.
+    pub p90: f32,
+    /// Frames the score was defined in.
+    pub frames: usize,
+}
+
+impl Percentiles {
+    /// The percentiles of the defined values of `values`; `None` if none is.
+    pub fn of(values: impl IntoIterator<Item = Option<f32>>) -> Option<Self> {
+        let mut sorted: Vec<f32> = values.into_iter().flatten().collect();
+        if sorted.is_empty() {
+            return None;
+        }
+        sorted.sort_by(f32::total_cmp);
+        let at = |q: f32| {
+            let position = q * (sorted.len() - 1) as f32;
+            let (low, high) = (position.floor() as usize, position.ceil() as usize);
+            let t = position - low as f32;
+            sorted[low] + t * (sorted[high] - sorted[low])
+        };
+        Some(Self {
+            median: at(0.5),
+            p10: at(0.1),
+            p90: at(0.9),
+            frames: sorted.len(),
+        })
+    }
+}
+
+/// Counts of object-level predictions against outcomes.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct Confusion {
+    /// Predicted to afford, and the attempt succeeded.
+    pub true_positives: usize,
+    /// Predicted to afford, and the attempt failed.
+    pub false_positives: usize,
+    /// Predicted not to afford, and the attempt failed.
+    pub true_negatives: usize,
+    /// Predicted not to afford, and the attempt succeeded.
+    pub false_negatives: usize,
+}
+
+impl Confusion {
+    /// Counts one object.
+    pub fn add(&mut self, predicted: bool, truth: bool) {
+        match (predicted, truth) {
+            (true, true) => self.true_positives += 1,
+            (true, false) => self.false_positives += 1,
+            (false, false) => self.true_negatives += 1,
+            (false, true) => self.false_negatives += 1,
+        }
+    }
+
+    /// Right predictions over all; `None` without objects.
+    pub fn accuracy(&self) -> Option<f32> {
+        let all = self.true_positives + self.false_positives + self.true_negatives;
+        ratio(
+            self.true_positives + self.true_negatives,
+            all + self.false_negatives,
+        )
+    }
+
+    /// True positives over predicted positives.
+    pub fn precision(&self) -> Option<f32> {
+        ratio(
+            self.true_positives,
+            self.true_positives + self.false_positives,
+        )
+    }
+
+    /// True positives over actual positives.
+    pub fn recall(&self) -> Option<f32> {
+        ratio(
+            self.true_positives,
+            self.true_positives + self.false_negatives,
+        )
+    }
+
+    /// 2·TP / (2·TP + FP + FN).
+    pub fn f1(&self) -> Option<f32> {
+        ratio(
+            2 * self.true_positives,
+            2 * self.true_positives + self.false_positives + self.false_negatives,
+        )
+    }
+}
+
+fn ratio(num: usize, den: usize) -> Option<f32> {
+    (den > 0).then(|| num as f32 / den as f32)
+}
+
+/// Table 1's row for one affordance.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PixelRow {
+    /// The affordance (`pick_up`, `push`).
+    pub affordance: String,
+    /// Per-frame pixel precision.
+    pub precision: Option<Percentiles>,
+    /// Per-frame pixel recall.
+    pub recall: Option<Percentiles>,
+    /// Per-frame pixel F1.
+    pub f1: Option<Percentiles>,
+    /// Per-frame object accuracy (majority vote of each visible object's pixels).
+    pub object_accuracy: Option<Percentiles>,
+}
+
+/// Table 2's row for one affordance.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ObjectRow {
+    /// The affordance (`pick_up`, `push`).
+    pub affordance: String,
+    /// Predictions (mean probability over the object's pixels ≥ 0.5)
+    /// against the outcome of trying.
+    pub confusion: Confusion,
+    /// [`Confusion::accuracy`].
+    pub accuracy: Option<f32>,
+    /// [`Confusion::precision`].
+    pub precision: Option<f32>,
+    /// [`Confusion::recall`].
+    pub recall: Option<f32>,
+    /// [`Confusion::f1`].
+    pub f1: Option<f32>,
+}
+
+impl ObjectRow {
+    /// The row of `affordance` from its counts.
+    pub fn new(affordance: String, confusion: Confusion) -> Self {
+        Self {
+            affordance,
+            confusion,
+            accuracy: confusion.accuracy(),
+            precision: confusion.precision(),
+            recall: confusion.recall(),
+            f1: confusion.f1(),
+        }
+    }
+}
+
+/// One object's trial: what the U-Net predicted from in front of it and
+/// what trying each affordance there did.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ObjectTrial {
+    /// The room.
+    pub scene: String,
+    /// The object's id.
+    pub object: String,
+    /// Its type.
+    pub object_type: String,
+    /// Pixels it covered in the view it was tried from.
+    pub pixels: usize,
+    /// Horizontal distance from the agent to the object's centre, metres.
+    pub distance_m: f32,
+    /// Per affordance (plane order), the mean probability over its pixels.
+    pub predicted: Vec<f32>,
+    /// Per affordance, whether trying it succeeded.
+    pub succeeded: Vec<bool>,
+    /// Per affordance, why it failed (`None` on success).
+    pub failure: Vec<Option<String>>,
+}
+
+/// Everything one evaluation measured.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Report {
+    /// What was evaluated (a checkpoint, or an untrained network).
+    pub model: String,
+    /// The rooms.
+    pub scenes: Vec<String>,
+    /// Test frames scored (Table 1).
+    pub frames: usize,
+    /// Table 1, one row per affordance.
+    pub pixel: Vec<PixelRow>,
+    /// Objects of the rooms (the floor excluded).
+    pub objects: usize,
+    /// Objects no pose within reach showed well enough to try (left out of Table 2).
+    pub objects_not_viewed: Vec<String>,
+    /// Table 2, one row per affordance.
+    pub object: Vec<ObjectRow>,
+    /// Every tried object.
+    pub trials: Vec<ObjectTrial>,
+}
+
+impl Report {
+    /// Tables 1 and 2 as Markdown.
+    pub fn to_markdown(&self) -> String {
+        let mut out = String::new();
+        let rooms = self.scenes.join(", ");
+        let _ = writeln!(
+            out,
+            "Evaluation of {} in {rooms}\n\nTable 1: per-frame pixel scores on {} test frames, \
+             median [10th, 90th percentile] (frames where defined)\n",
+            self.model, self.frames
+        );
+        out.push_str("| affordance | precision | recall | F1 | object accuracy |\n");
+        out.push_str("|---|---|---|---|---|\n");
+        for row in &self.pixel {
+            let _ = writeln!(
+                out,
+                "| {} | {} | {} | {} | {} |",
+                row.affordance,
+                cell(row.precision),
+                cell(row.recall),
+                cell(row.f1),
+                cell(row.object_accuracy)
+            );
+        }
+        let _ = writeln!(
+            out,
+            "\nTable 2: object-level prediction (mean over the object's pixels ≥ 0.5) against \
+             trying it, {} of {} objects tried\n",
+            self.trials.len(),
+            self.objects
+        );
+        out.push_str(
+            "| affordance | accuracy | precision | recall | F1 | succeeded | predicted |\n",
+        );
+        out.push_str("|---|---|---|---|---|---|---|\n");
+        for row in &self.object {
+            let c = row.confusion;
+            let _ = writeln!(
+                out,
+                "| {} | {} | {} | {} | {} | {} | {} |",
+                row.affordance,
+                number(row.accuracy),
+                number(row.precision),
+                number(row.recall),
+                number(row.f1),
+                c.true_positives + c.false_negatives,
+                c.true_positives + c.false_positives
+            );
+        }
+        out
+    }
+}
+
+fn cell(p: Option<Percentiles>) -> String {
+    match p {
+        Some(p) => format!(
+            "{:.2} [{:.2}, {:.2}] ({})",
+            p.median, p.p10, p.p90, p.frames
+        ),
+        None => "–".into(),
+    }
+}
+
+fn number(x: Option<f32>) -> String {
+    x.map_or_else(|| "–".into(), |x| format!("{x:.2}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn percentiles_interpolate_between_order_statistics_and_skip_undefined() {
+        let values = (0..=10).rev().map(|i| Some(i as f32)).chain([None, None]);
+        let p = Percentiles::of(values).unwrap();
+        assert_eq!((p.median, p.p10, p.p90, p.frames), (5.0, 1.0, 9.0, 11));
+        let p = Percentiles::of([Some(0.0), Some(1.0)]).unwrap();
+        assert!((p.median - 0.5).abs() < 1e-6 && (p.p10 - 0.1).abs() < 1e-6);
+        assert_eq!(Percentiles::of([None, None]), None);
+    }
+
+    #[test]
+    fn confusion_gives_the_usual_ratios() {
+        let mut c = Confusion::default();
+        for (predicted, truth) in [(true, true), (true, true), (true, false), (false, true)] {
+            c.add(predicted, truth);
+        }
+        c.add(false, false);
+        assert_eq!(c.accuracy(), Some(3.0 / 5.0));
+        assert_eq!(c.precision(), Some(2.0 / 3.0));
+        assert_eq!(c.recall(), Some(2.0 / 3.0));
+        assert_eq!(c.f1(), Some(4.0 / 6.0));
+        let none = Confusion::default();
+        assert_eq!(
+            (none.accuracy(), none.precision(), none.f1()),
+            (None, None, None)
+        );
+    }
+}

@@ -1,0 +1,114 @@
+//! The test evaluation (the paper's Tables 1 and 2) on a real test room,
+//! with the simulator's ground truth standing in for the network: it must
+//! score perfectly on Table 1, its opposite must score nothing, and on
+//! Table 2 every object the robot picked up must be one the rules allow.
+
+use actor::evaluation::{evaluate, EvaluationSettings, Predictor, Report};
+use actor::metrics::ground_truth_planes;
+use proto::Affordance;
+use sim::ithor::load_scene;
+use sim::profile::RobotProfile;
+use sim::raycast::Frame;
+use sim::renderer::{Renderer, RendererChoice};
+use sim::scene::Scene;
+
+const AFFORDANCES: [Affordance; 2] = [Affordance::PickUp, Affordance::Push];
+
+fn room() -> (Scene, RobotProfile) {
+    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data/ithor-livingrooms/FloorPlan227.json");
+    let mut profile = RobotProfile::load("default").unwrap();
+    profile.image_size = 64;
+    (load_scene(&path).unwrap(), profile)
+}
+
+fn run(scene: &Scene, profile: &RobotProfile, predict: &Predictor<'_>) -> Report {
+    let settings = EvaluationSettings {
+        model: "the ground truth".into(),
+        affordances: AFFORDANCES.to_vec(),
+        views_per_scene: 4,
+        seed: 3,
+    };
+    let mut renderer = Renderer::open(RendererChoice::Cpu).unwrap();
+    let mut rooms = Vec::new();
+    let report = evaluate(
+        std::slice::from_ref(scene),
+        profile,
+        &mut renderer,
+        predict,
+        &settings,
+        &mut |line| rooms.push(line.to_string()),
+    )
+    .unwrap();
+    assert_eq!(rooms.len(), 1, "one progress line per room: {rooms:?}");
+    report
+}
+
+#[test]
+fn the_ground_truth_scores_perfectly_and_its_opposite_scores_nothing() {
+    let (scene, profile) = room();
+    let truth = ground_truth_planes(&scene, &profile, &AFFORDANCES);
+    let oracle = |value: f32| {
+        let truth = truth.clone();
+        move |frame: &Frame| -> Vec<Vec<f32>> {
+            (0..AFFORDANCES.len())
+                .map(|plane| {
+                    frame
+                        .ids
+                        .iter()
+                        .map(|&id| {
+                            let affords = id != 0 && truth[id as usize - 1][plane];
+                            if affords {
+                                value
+                            } else {
+                                1.0 - value
+                            }
+                        })
+                        .collect()
+                })
+                .collect()
+        }
+    };
+    let right = run(&scene, &profile, &oracle(1.0));
+    assert_eq!(right.frames, 4);
+    let objects = scene
+        .objects
+        .iter()
+        .filter(|o| o.object_type != "Floor")
+        .count();
+    assert_eq!(right.objects, objects);
+    assert!(
+        right.trials.len() * 10 >= objects * 8,
+        "most objects are tried: {} of {objects}; not viewed: {:?}",
+        right.trials.len(),
+        right.objects_not_viewed
+    );
+    for row in &right.pixel {
+        for p in [row.precision, row.recall, row.f1, row.object_accuracy] {
+            let p = p.expect("defined in some view");
+            assert_eq!((p.p10, p.median, p.p90), (1.0, 1.0, 1.0), "{row:?}");
+        }
+    }
+    let pick_up = &right.object[0];
+    assert_eq!(pick_up.affordance, "pick_up");
+    assert!(pick_up.confusion.true_positives > 0, "{pick_up:?}");
+    assert_eq!(
+        pick_up.confusion.false_negatives, 0,
+        "only what the rules allow is picked up: {pick_up:?}"
+    );
+    assert!(pick_up.accuracy.unwrap() >= 0.9, "{pick_up:?}");
+    let push = &right.object[1];
+    assert!(push.confusion.true_positives > 0 && push.confusion.true_negatives > 0);
+    assert!(push.accuracy.unwrap() >= 0.9, "{push:?}");
+
+    let wrong = run(&scene, &profile, &oracle(0.0));
+    for row in &wrong.pixel {
+        let f1 = row.f1.unwrap();
+        assert_eq!((f1.p10, f1.median, f1.p90), (0.0, 0.0, 0.0), "{row:?}");
+    }
+    for (w, r) in wrong.object.iter().zip(&right.object) {
+        assert_eq!(w.confusion.true_positives, r.confusion.false_negatives);
+        assert_eq!(w.confusion.false_negatives, r.confusion.true_positives);
+        assert_eq!(w.f1.unwrap_or(0.0), 0.0);
+    }
+}
