@@ -114,17 +114,26 @@ impl AffordanceUnet {
 /// Loss over labelled pixels only: binary cross-entropy (from logits) plus
 /// soft Dice. `labels` holds 1 / 0 where `known` is 1; pixels with `known`
 /// 0 contribute nothing (neither value nor gradient). All `[b, a, h, w]`.
+///
+/// Each affordance plane gets its own BCE (mean over its labelled pixels)
+/// and its own Dice, and the loss is their mean over the planes that have
+/// labels: every affordance is learnt as if it were the network's only one
+/// (the paper trained one network per affordance), so one with few labels
+/// (successful pick-ups are rare) is not drowned by another's.
 pub fn masked_bce_dice(logits: Tensor<4>, labels: Tensor<4>, known: Tensor<4>) -> Tensor<1> {
-    let count = known.clone().sum().clamp_min(1.0);
+    let per_plane = |t: Tensor<4>| t.sum_dim(0).sum_dim(2).sum_dim(3).flatten::<1>(0, 3);
+    let labelled = per_plane(known.clone());
     // softplus(x) - y x, written stably as max(x, 0) - y x + ln(1 + e^{-|x|}).
     let bce = logits.clone().clamp_min(0.0) - logits.clone() * labels.clone()
         + (logits.clone().abs().neg().exp() + 1.0).log();
-    let bce = (bce * known.clone()).sum() / count;
+    let bce = per_plane(bce * known.clone()) / labelled.clone().clamp_min(1.0);
     let p = burn::tensor::activation::sigmoid(logits) * known.clone();
     let y = labels * known;
-    let intersection = (p.clone() * y.clone()).sum();
-    let dice = (intersection * 2.0 + 1.0) / (p.sum() + y.sum() + 1.0);
-    bce + dice.neg() + 1.0
+    let intersection = per_plane(p.clone() * y.clone());
+    let dice = (intersection * 2.0 + 1.0) / (per_plane(p) + per_plane(y) + 1.0);
+    // A plane without labels has BCE 0 and Dice 1: it adds nothing.
+    let planes = labelled.greater_elem(0.0).float().sum().clamp_min(1.0);
+    (bce - dice + 1.0).sum() / planes
 }
 
 #[cfg(test)]

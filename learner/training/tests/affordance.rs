@@ -146,6 +146,51 @@ fn unknown_pixels_do_not_affect_the_loss_or_its_gradients() {
     assert_eq!(grads_a, grads_b, "unknown pixels changed the gradients");
 }
 
+#[test]
+fn each_affordance_counts_as_if_it_were_learnt_alone() {
+    // Plane 0: many labels; plane 1: four labelled pixels, one positive. The
+    // loss of both is the mean of each plane's loss on its own, and a plane
+    // without labels adds nothing.
+    let device = Device::flex();
+    let mut rng = StdRng::seed_from_u64(9);
+    let (b, h, w) = (2, 8, 8);
+    let n = b * 2 * h * w;
+    let logits: Vec<f32> = (0..n).map(|_| rng.random_range(-3.0..3.0)).collect();
+    let labels: Vec<f32> = (0..n).map(|i| f32::from(i % 3 == 0)).collect();
+    let known: Vec<f32> = (0..n)
+        .map(|i| {
+            let (plane, pixel) = ((i / (h * w)) % 2, i % (h * w));
+            f32::from(plane == 0 || pixel < 4)
+        })
+        .collect();
+    let tensor = |v: &[f32]| Tensor::<1>::from_floats(v, &device).reshape([b, 2, h, w]);
+    let loss =
+        |l: Tensor<4>, y: Tensor<4>, k: Tensor<4>| masked_bce_dice(l, y, k).into_scalar::<f32>();
+    let plane = |t: Tensor<4>, a: usize| t.slice([0..b, a..a + 1, 0..h, 0..w]);
+    let (l, y, k) = (tensor(&logits), tensor(&labels), tensor(&known));
+    let both = loss(l.clone(), y.clone(), k.clone());
+    let alone: Vec<f32> = (0..2)
+        .map(|a| {
+            loss(
+                plane(l.clone(), a),
+                plane(y.clone(), a),
+                plane(k.clone(), a),
+            )
+        })
+        .collect();
+    assert!(
+        (both - (alone[0] + alone[1]) / 2.0).abs() < 1e-5,
+        "{both} vs {alone:?}"
+    );
+    assert!(alone[1] > 0.0);
+    let unlabelled = Tensor::cat(vec![plane(k.clone(), 0), plane(k, 1).zeros_like()], 1);
+    let first_only = loss(l, y, unlabelled);
+    assert!(
+        (first_only - alone[0]).abs() < 1e-5,
+        "{first_only} vs {alone:?}"
+    );
+}
+
 fn tiny_frame(value: f32) -> LabelledFrame {
     LabelledFrame {
         size: [8, 8],
