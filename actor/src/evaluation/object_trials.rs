@@ -37,10 +37,10 @@ pub struct ObjectView {
 
 /// Places the agent in front of object `index` of `scene`: on the
 /// reachable grid position nearest the object (but at least
-/// [`NEAREST_M`] away) from which, facing the object's centre with the
+/// 0.4 m away) from which, facing the object's centre with the
 /// camera tilted towards it, the object covers enough pixels and its middle
-/// pixel is within reach. `None` if none of the [`CANDIDATE_POSITIONS`]
-/// nearest positions does.
+/// pixel is within reach. `None` if none of the 16 nearest
+/// positions does.
 pub fn view_object(
     scene: &Scene,
     profile: &RobotProfile,
