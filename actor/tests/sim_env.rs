@@ -55,7 +55,10 @@ fn run(
     model: &AffordanceModel,
     seed: u64,
     steps: usize,
-) -> (Vec<(ActionOutcome, bool)>, Vec<SimObservation>) {
+) -> (
+    Vec<(ActionOutcome, Option<Affordance>)>,
+    Vec<SimObservation>,
+) {
     let mut rng = StdRng::seed_from_u64(seed);
     let mut observation = env.reset(seed, model).unwrap();
     let (mut outcomes, mut observations) = (Vec::new(), vec![observation.clone()]);
@@ -69,11 +72,11 @@ fn run(
             step + 1 == steps,
             "done exactly at the budget"
         );
-        let selects = matches!(
-            env.action_space().get(action),
-            Some(PolicyAction::Select { .. })
-        );
-        outcomes.push((outcome, selects));
+        let tried = match env.action_space().get(action) {
+            Some(PolicyAction::Select { affordance, .. }) => Some(affordance),
+            _ => None,
+        };
+        outcomes.push((outcome, tried));
         observation = next;
         observations.push(observation.clone());
     }
@@ -98,7 +101,7 @@ fn an_episode_runs_labels_and_repeats_exactly() {
     let interactions = outcomes.iter().filter(|(o, _)| o.reward != 0.0).count();
     let attempts: Vec<&ActionOutcome> = outcomes
         .iter()
-        .filter(|(_, selects)| *selects)
+        .filter(|(_, tried)| tried.is_some())
         .map(|(o, _)| o)
         .collect();
     let failed_share = |why: fn(&Failure) -> bool| {
@@ -163,6 +166,35 @@ fn an_episode_runs_labels_and_repeats_exactly() {
         unafforded,
         "attempts on objects that do not afford the action"
     );
+    for (affordance, attempt_rate, success_rate) in [
+        (
+            Affordance::PickUp,
+            StatField::PickUpAttemptRate,
+            StatField::PickUpSuccessRate,
+        ),
+        (
+            Affordance::Push,
+            StatField::PushAttemptRate,
+            StatField::PushSuccessRate,
+        ),
+    ] {
+        let tried: Vec<&ActionOutcome> = outcomes
+            .iter()
+            .filter(|(_, tried)| *tried == Some(affordance))
+            .map(|(o, _)| o)
+            .collect();
+        assert_eq!(
+            stats[&attempt_rate],
+            tried.len() as f32 / steps as f32,
+            "{affordance:?} attempts per step"
+        );
+        let succeeded = tried.iter().filter(|o| o.success).count();
+        assert_eq!(
+            stats.get(&success_rate).copied(),
+            (!tried.is_empty()).then(|| succeeded as f32 / tried.len() as f32),
+            "{affordance:?} successes per attempt"
+        );
+    }
     assert!(batch.n_frames() <= steps + 1);
     println!("labelled frames: {}", batch.n_frames());
 

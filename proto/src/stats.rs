@@ -1,4 +1,4 @@
-//! Per-episode metrics (actor → learner): a fixed 72-byte record.
+//! Per-episode metrics (actor → learner): a fixed 88-byte record.
 //!
 //! Layout after the message header: episode_id u64, steps u32, scene_index u32,
 //! present u32 (bit i set = field i carries a value), reserved u32 (0), then one
@@ -50,11 +50,21 @@ pub enum StatField {
     /// wide, static, or did not move when pushed): the policy chose the
     /// wrong object. Reported when the episode attempted any.
     InteractionUnaffordedRate = 11,
+    /// Pick-up attempts / steps (when the task has pick up).
+    PickUpAttemptRate = 12,
+    /// Successful pick-ups / pick-up attempts: each success is an object
+    /// whose every view gets positive pick-up labels. Reported when the
+    /// episode tried any.
+    PickUpSuccessRate = 13,
+    /// Push attempts / steps (when the task has push).
+    PushAttemptRate = 14,
+    /// Successful pushes / push attempts. Reported when the episode tried any.
+    PushSuccessRate = 15,
 }
 
 impl StatField {
     /// Number of fields.
-    pub const COUNT: usize = 12;
+    pub const COUNT: usize = 16;
     /// All fields in wire order.
     pub const ALL: [StatField; Self::COUNT] = [
         StatField::EpisodeReturn,
@@ -69,6 +79,10 @@ impl StatField {
         StatField::InteractionAttemptRate,
         StatField::InteractionOutOfReachRate,
         StatField::InteractionUnaffordedRate,
+        StatField::PickUpAttemptRate,
+        StatField::PickUpSuccessRate,
+        StatField::PushAttemptRate,
+        StatField::PushSuccessRate,
     ];
 
     /// snake_case name used in metrics and JSON.
@@ -86,6 +100,10 @@ impl StatField {
             StatField::InteractionAttemptRate => "interaction_attempt_rate",
             StatField::InteractionOutOfReachRate => "interaction_out_of_reach_rate",
             StatField::InteractionUnaffordedRate => "interaction_unafforded_rate",
+            StatField::PickUpAttemptRate => "pick_up_attempt_rate",
+            StatField::PickUpSuccessRate => "pick_up_success_rate",
+            StatField::PushAttemptRate => "push_attempt_rate",
+            StatField::PushSuccessRate => "push_success_rate",
         }
     }
 

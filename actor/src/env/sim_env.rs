@@ -191,6 +191,9 @@ struct Episode {
     /// Interactions tried and those that succeeded.
     attempts: u32,
     successes: u32,
+    /// The same per affordance (indexed by `Affordance as usize`).
+    attempts_by: [u32; Affordance::ALL.len()],
+    successes_by: [u32; Affordance::ALL.len()],
     /// Interactions that failed because the object was beyond reach, and
     /// because it does not afford the action ([`does_not_afford`]).
     out_of_reach: u32,
@@ -370,6 +373,8 @@ impl SimEnv {
             scores: vec![ScoreSums::default(); self.config.affordances.len()],
             attempts: 0,
             successes: 0,
+            attempts_by: Default::default(),
+            successes_by: Default::default(),
             out_of_reach: 0,
             unafforded: 0,
             interacted: Default::default(),
@@ -454,6 +459,9 @@ impl SimEnv {
             interacted_instance = Some((affordance, object as usize));
             episode.attempts += 1;
             episode.successes += u32::from(outcome.success);
+            let kind = affordance as usize;
+            episode.attempts_by[kind] += 1;
+            episode.successes_by[kind] += u32::from(outcome.success);
             if let Some(failure) = &outcome.failure {
                 episode.out_of_reach += u32::from(matches!(failure, Failure::OutOfReach { .. }));
                 episode.unafforded += u32::from(does_not_afford(failure));
@@ -725,7 +733,13 @@ impl SimEnv {
                 .with_context(|| format!("recording the episode (--record {})", dir.display()))?;
         }
         Ok(EpisodeSummary {
-            stats: episode_stats(&episode, &labels, k.pixels(), self.config.uses_map()),
+            stats: episode_stats(
+                &episode,
+                &labels,
+                k.pixels(),
+                self.config.uses_map(),
+                &self.config.affordances,
+            ),
             frames: frame_batch(
                 episode_id,
                 &k,
@@ -851,6 +865,7 @@ fn episode_stats(
     labels: &[Vec<u8>],
     pixels: usize,
     uses_map: bool,
+    affordances: &[Affordance],
 ) -> Vec<(StatField, f32)> {
     let planes = episode.scores.len();
     // Annotation rates of the labels over every frame of the episode.
@@ -916,6 +931,18 @@ fn episode_stats(
             StatField::InteractionUnaffordedRate,
             episode.unafforded as f32 / attempts,
         ));
+    }
+    for &affordance in affordances {
+        let kind = affordance as usize;
+        let (attempts, successes) = (episode.attempts_by[kind], episode.successes_by[kind]);
+        let (attempt_rate, success_rate) = match affordance {
+            Affordance::PickUp => (StatField::PickUpAttemptRate, StatField::PickUpSuccessRate),
+            Affordance::Push => (StatField::PushAttemptRate, StatField::PushSuccessRate),
+        };
+        stats.push((attempt_rate, attempts as f32 / episode.steps.max(1) as f32));
+        if attempts > 0 {
+            stats.push((success_rate, successes as f32 / attempts as f32));
+        }
     }
     if let Some(iou) = mean(|s| (s.iou, s.iou_frames)) {
         stats.push((StatField::AffordanceIou, iou));
