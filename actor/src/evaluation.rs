@@ -65,10 +65,19 @@ pub fn evaluate(
             let truth = &truth;
             move |id: u32| truth.get(id as usize - 1).is_some_and(|t| t[plane])
         };
+        let reachable = reachable_grid(scene, profile)
+            .with_context(|| format!("finding where the agent fits in {}", scene.name))?;
         let seed = settings
             .seed
             .wrapping_add((room as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
-        let views = test_views(scene, profile, renderer, settings.views_per_scene, seed)?;
+        let views = test_views(
+            scene,
+            profile,
+            &reachable,
+            renderer,
+            settings.views_per_scene,
+            seed,
+        )?;
         for view in &views {
             let probabilities = predict(view);
             for (plane, scores) in frame_scores.iter_mut().enumerate() {
@@ -81,8 +90,6 @@ pub fn evaluate(
             }
         }
         frames += views.len();
-        let reachable = reachable_grid(scene, profile)
-            .with_context(|| format!("finding where the agent fits in {}", scene.name))?;
         let mut tried = 0;
         for (index, object) in scene.objects.iter().enumerate() {
             if object.object_type == "Floor" {

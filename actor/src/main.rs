@@ -83,15 +83,22 @@ struct EvaluateArgs {
     /// Write the whole report (both tables and every object's trial) as JSON here.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
-    /// Shared data directory with ithor-livingrooms/.
+    /// The robot and renderer: pass the ones the run trained with.
+    #[command(flatten)]
+    sim: SimArgs,
+}
+
+/// Where the simulator's data comes from, which robot it simulates and how
+/// it renders: the same flags for every subcommand that runs it.
+#[derive(Args)]
+struct SimArgs {
+    /// Shared data directory with ithor-livingrooms/ and ithor-object-types.tsv.
     #[arg(long, env = "AFX_DATA", default_value = "../shared/data")]
     data: PathBuf,
-    /// Robot profile: a shipped name (default, weak-arm) or a TOML file; the
-    /// one the run trained with.
+    /// Robot profile: a shipped name (default, weak-arm) or a TOML file.
     #[arg(long, default_value = "default")]
     profile: String,
-    /// Renderer: gpu (wgpu: a GPU or Mesa lavapipe) or cpu (ray casting);
-    /// the one the run trained with.
+    /// Renderer: gpu (wgpu: a GPU or Mesa lavapipe) or cpu (ray casting).
     #[arg(long, default_value = "gpu")]
     renderer: RendererChoice,
 }
@@ -104,15 +111,8 @@ struct SimViewArgs {
     /// Directory to write the PNGs to (created).
     #[arg(long)]
     out: PathBuf,
-    /// Shared data directory with ithor-livingrooms/ and ithor-object-types.tsv.
-    #[arg(long, env = "AFX_DATA", default_value = "../shared/data")]
-    data: PathBuf,
-    /// Robot profile: a shipped name (default, weak-arm) or a TOML file.
-    #[arg(long, default_value = "default")]
-    profile: String,
-    /// Renderer: gpu (wgpu: a GPU or Mesa lavapipe) or cpu (ray casting).
-    #[arg(long, default_value = "gpu")]
-    renderer: RendererChoice,
+    #[command(flatten)]
+    sim: SimArgs,
 }
 
 #[derive(Args)]
@@ -150,18 +150,11 @@ struct RunArgs {
     /// Seconds to wait for the learner's first weights before giving up.
     #[arg(long, default_value_t = 30.0)]
     weights_timeout_s: f64,
-    /// Shared data directory with ithor-livingrooms/ and ithor-object-types.tsv.
-    #[arg(long, env = "AFX_DATA", default_value = "../shared/data")]
-    data: PathBuf,
     /// Rooms to explore.
     #[arg(long, value_enum, default_value = "ithor")]
     scenes: Scenes,
-    /// Robot profile: a shipped name (default, weak-arm) or a TOML file.
-    #[arg(long, default_value = "default")]
-    profile: String,
-    /// Renderer: gpu (wgpu: a GPU or Mesa lavapipe) or cpu (ray casting).
-    #[arg(long, default_value = "gpu")]
-    renderer: RendererChoice,
+    #[command(flatten)]
+    sim: SimArgs,
     /// Where the networks infer: cpu, or gpu in a build with `--features nets/gpu`.
     #[arg(long, default_value = "cpu")]
     device: String,
@@ -188,9 +181,9 @@ fn main() -> anyhow::Result<()> {
 fn sim_view(args: SimViewArgs) -> anyhow::Result<()> {
     let settings = SimViewSettings {
         scene: args.scene,
-        data_dir: args.data,
-        profile: args.profile,
-        renderer: args.renderer,
+        data_dir: args.sim.data,
+        profile: args.sim.profile,
+        renderer: args.sim.renderer,
         out: args.out,
     };
     let summary = actor::sim_view::run(&settings)?;
@@ -238,16 +231,16 @@ fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
             unet.step
         )
     };
-    let mut profile = RobotProfile::load(&args.profile)?;
+    let mut profile = RobotProfile::load(&args.sim.profile)?;
     profile.image_size = task.image_size;
-    let rooms = args.data.join("ithor-livingrooms");
+    let rooms = args.sim.data.join("ithor-livingrooms");
     let scenes = sim::ithor::load_set(&rooms, args.scenes).with_context(|| {
         format!(
             "loading the rooms from {} (set --data or AFX_DATA to the shared data directory)",
             rooms.display()
         )
     })?;
-    let mut renderer = Renderer::open(args.renderer)?;
+    let mut renderer = Renderer::open(args.sim.renderer)?;
     let predict = |frame: &sim::raycast::Frame| {
         model.predict(&CameraFrame {
             rgb: &frame.rgb,
@@ -288,22 +281,22 @@ fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
 
 /// The simulator environment for `task`.
 fn sim_environment(task: &TaskSpec, cli: &RunArgs) -> anyhow::Result<SimEnvironment> {
-    let mut profile = RobotProfile::load(&cli.profile)?;
+    let mut profile = RobotProfile::load(&cli.sim.profile)?;
     profile.image_size = task.image_size;
-    let rooms = cli.data.join("ithor-livingrooms");
+    let rooms = cli.sim.data.join("ithor-livingrooms");
     let source = SceneSource::open(
         matches!(cli.scenes, Scenes::Ithor).then_some(rooms.as_path()),
         SceneSet::Train,
-        &cli.data.join("ithor-object-types.tsv"),
+        &cli.sim.data.join("ithor-object-types.tsv"),
         &profile,
     )
     .with_context(|| {
         format!(
             "opening the rooms under {} (set --data or AFX_DATA to the shared data directory)",
-            cli.data.display()
+            cli.sim.data.display()
         )
     })?;
-    let renderer = Renderer::open(cli.renderer)?;
+    let renderer = Renderer::open(cli.sim.renderer)?;
     let config = SimEnvConfig {
         episode_steps: task.episode_steps,
         balanced_frames: task.balanced_frames,

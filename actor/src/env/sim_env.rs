@@ -188,12 +188,10 @@ struct Episode {
     probabilities: Vec<Vec<u8>>,
     /// Per affordance: sums and counts of the U-Net's frame IoU and object accuracy.
     scores: Vec<ScoreSums>,
-    /// Interactions tried and those that succeeded.
-    attempts: u32,
-    successes: u32,
-    /// The same per affordance (indexed by `Affordance as usize`).
-    attempts_by: [u32; Affordance::ALL.len()],
-    successes_by: [u32; Affordance::ALL.len()],
+    /// Interactions tried and those that succeeded, per affordance
+    /// (indexed by `Affordance as usize`).
+    attempts: [u32; Affordance::ALL.len()],
+    successes: [u32; Affordance::ALL.len()],
     /// Interactions that failed because the object was beyond reach, and
     /// because it does not afford the action ([`does_not_afford`]).
     out_of_reach: u32,
@@ -371,10 +369,8 @@ impl SimEnv {
             stamps: Vec::new(),
             step_log: Vec::new(),
             scores: vec![ScoreSums::default(); self.config.affordances.len()],
-            attempts: 0,
-            successes: 0,
-            attempts_by: Default::default(),
-            successes_by: Default::default(),
+            attempts: Default::default(),
+            successes: Default::default(),
             out_of_reach: 0,
             unafforded: 0,
             interacted: Default::default(),
@@ -457,11 +453,8 @@ impl SimEnv {
         }
         if let Some((affordance, Target { object, .. })) = interaction {
             interacted_instance = Some((affordance, object as usize));
-            episode.attempts += 1;
-            episode.successes += u32::from(outcome.success);
-            let kind = affordance as usize;
-            episode.attempts_by[kind] += 1;
-            episode.successes_by[kind] += u32::from(outcome.success);
+            episode.attempts[affordance as usize] += 1;
+            episode.successes[affordance as usize] += u32::from(outcome.success);
             if let Some(failure) = &outcome.failure {
                 episode.out_of_reach += u32::from(matches!(failure, Failure::OutOfReach { .. }));
                 episode.unafforded += u32::from(does_not_afford(failure));
@@ -898,15 +891,17 @@ fn episode_stats(
             .fold((0.0, 0), |(s, c), (x, k)| (s + x, c + k));
         (n > 0).then(|| (sum / f64::from(n)) as f32)
     };
+    let attempts: u32 = episode.attempts.iter().sum();
+    let successes: u32 = episode.successes.iter().sum();
     let mut stats = vec![
         (StatField::EpisodeReturn, episode.episode_return),
         (
             StatField::InteractionSuccessRate,
-            episode.successes as f32 / episode.attempts.max(1) as f32,
+            successes as f32 / attempts.max(1) as f32,
         ),
         (
             StatField::InteractionAttemptRate,
-            episode.attempts as f32 / episode.steps.max(1) as f32,
+            attempts as f32 / episode.steps.max(1) as f32,
         ),
         (
             StatField::InteractedObjectRate,
@@ -921,8 +916,8 @@ fn episode_stats(
             (negative / rated) as f32,
         ),
     ];
-    if episode.attempts > 0 {
-        let attempts = episode.attempts as f32;
+    if attempts > 0 {
+        let attempts = attempts as f32;
         stats.push((
             StatField::InteractionOutOfReachRate,
             episode.out_of_reach as f32 / attempts,
@@ -934,7 +929,7 @@ fn episode_stats(
     }
     for &affordance in affordances {
         let kind = affordance as usize;
-        let (attempts, successes) = (episode.attempts_by[kind], episode.successes_by[kind]);
+        let (attempts, successes) = (episode.attempts[kind], episode.successes[kind]);
         let (attempt_rate, success_rate) = match affordance {
             Affordance::PickUp => (StatField::PickUpAttemptRate, StatField::PickUpSuccessRate),
             Affordance::Push => (StatField::PushAttemptRate, StatField::PushSuccessRate),

@@ -70,11 +70,8 @@ impl Confusion {
 
     /// Right predictions over all; `None` without objects.
     pub fn accuracy(&self) -> Option<f32> {
-        let all = self.true_positives + self.false_positives + self.true_negatives;
-        ratio(
-            self.true_positives + self.true_negatives,
-            all + self.false_negatives,
-        )
+        let right = self.true_positives + self.true_negatives;
+        ratio(right, right + self.false_positives + self.false_negatives)
     }
 
     /// True positives over predicted positives.

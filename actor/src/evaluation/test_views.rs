@@ -7,7 +7,6 @@ use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use sim::agent::{AgentState, Simulator};
 use sim::profile::RobotProfile;
-use sim::randomise::reachable_grid;
 use sim::raycast::Frame;
 use sim::renderer::Renderer;
 use sim::scene::Scene;
@@ -20,19 +19,23 @@ const HORIZONS_DEG: [f32; 3] = [0.0, 15.0, 30.0];
 const DRAWS_PER_VIEW: usize = 50;
 
 /// `count` views of `scene` as loaded, for `seed` (with the room's index
-/// among the evaluated ones, so rooms differ): random reachable grid
-/// positions, headings in 30° steps and horizons of 0°, 15° or 30°, each
+/// among the evaluated ones, so rooms differ): random positions of
+/// `reachable` (the room's reachable grid), headings in 30° steps and horizons of 0°, 15° or 30°, each
 /// kept if objects cover at least [`MIN_OBJECT_SHARE`] of it. Fewer if the
 /// room rarely shows that much.
 pub fn test_views(
     scene: &Scene,
     profile: &RobotProfile,
+    reachable: &[(f32, f32)],
     renderer: &mut Renderer,
     count: usize,
     seed: u64,
 ) -> anyhow::Result<Vec<Frame>> {
-    let reachable = reachable_grid(scene, profile)
-        .with_context(|| format!("finding where the agent fits in {}", scene.name))?;
+    anyhow::ensure!(
+        !reachable.is_empty(),
+        "no reachable position in {}",
+        scene.name
+    );
     let mut rng = StdRng::seed_from_u64(seed);
     let mut views = Vec::with_capacity(count);
     for _ in 0..count * DRAWS_PER_VIEW {
