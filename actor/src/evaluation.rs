@@ -57,7 +57,7 @@ pub fn evaluate(
     let mut frame_scores: Vec<Vec<(PixelScores, Option<f32>)>> = vec![Vec::new(); planes];
     let mut trials = Vec::new();
     let mut objects_not_viewed = Vec::new();
-    let mut confusion = vec![Confusion::default(); planes];
+    let mut scored: Vec<Vec<(f32, bool)>> = vec![Vec::new(); planes];
     let mut frames = 0;
     for (room, scene) in scenes.iter().enumerate() {
         let truth = ground_truth_planes(scene, profile, &settings.affordances);
@@ -117,7 +117,7 @@ pub fn evaluate(
                 let mean =
                     view.pixels.iter().map(|&i| p[i]).sum::<f32>() / view.pixels.len() as f32;
                 let (success, failure) = try_affordance(&view, affordance);
-                confusion[plane].add(mean >= 0.5, success);
+                scored[plane].push((mean, success));
                 trial.predicted.push(mean);
                 trial.succeeded.push(success);
                 trial.failure.push(failure.map(|f| format!("{f:?}")));
@@ -144,8 +144,8 @@ pub fn evaluate(
         })
         .collect();
     let object = names
-        .zip(confusion)
-        .map(|(affordance, c)| ObjectRow::new(affordance, c))
+        .zip(&scored)
+        .map(|(affordance, scored)| ObjectRow::new(affordance, scored))
         .collect();
     Ok(Report {
         model: settings.model.clone(),

@@ -5,8 +5,15 @@
 //! alone that is 5 + 9 + 1 + 6 = 21 actions, the paper's head.
 //!
 //! Each visible map object goes to the grid cell whose centre is nearest
-//! its pixel centroid; a cell with no object, or only objects the current
-//! U-Net is not confident about, is masked.
+//! its pixel centroid; a cell with no object is masked (the paper's mask).
+//! The current U-Net filters the cell's candidates: the cell selects its
+//! largest object among those the network is confident about, and when it
+//! is confident about none of them, the object it rates highest. The
+//! filter never masks a cell: a network that has learnt from few positives
+//! rates every object of a rare affordance low, and masking on that would
+//! stop the very attempts that could teach it otherwise (measured: a
+//! trained policy whose pick-up cells were all masked never tried a
+//! pick-up again).
 //!
 //! IntExp instead has one selection action per affordance: the object most
 //! centred in the image ([`centred_target`]).
@@ -208,7 +215,8 @@ pub struct SelectionRule {
     pub centre_fraction: f32,
     /// Objects with fewer pixels are ignored.
     pub min_pixels: usize,
-    /// Objects whose mean predicted probability is below this are filtered out.
+    /// Objects whose mean predicted probability is below this lose the cell
+    /// to any object above it.
     pub min_confidence: f32,
 }
 
@@ -241,9 +249,19 @@ impl Blob {
     }
 }
 
+/// How strongly a cell prefers one of its objects: any object the U-Net is
+/// confident about (by size) over any it is not (by mean probability).
+#[derive(Debug, Clone, Copy, PartialEq, PartialOrd)]
+enum Preference {
+    /// Mean probability below the threshold.
+    Doubtful(f32),
+    /// Mean probability at or above it (or no network): its pixel count.
+    Confident(usize),
+}
+
 /// The grid targets for a frame: `map_ids` is the frame's map-id image
 /// (`width` wide); `probabilities[k]`, when given, is the U-Net's plane for
-/// `affordances[k]`, used to filter objects it is not confident about.
+/// `affordances[k]`, used to prefer objects it is confident about.
 pub fn cell_targets(
     map_ids: &[u32],
     width: usize,
@@ -299,17 +317,24 @@ pub fn cell_targets(
     };
     let mut cells = Vec::with_capacity(affordances.len());
     for (k, &affordance) in affordances.iter().enumerate() {
-        // Per cell, the largest confident object (the lowest id on ties).
-        let mut best: [Option<(u32, &Blob)>; GRID * GRID] = [None; GRID * GRID];
+        // Per cell, the largest confident object; failing any, the most
+        // probable one (the lowest id on ties).
+        let mut best: [Option<(u32, &Blob, Preference)>; GRID * GRID] = [None; GRID * GRID];
         for (&id, blob) in &blobs {
             if blob.pixels < rule.min_pixels {
                 continue;
             }
-            let confident = probabilities.is_none()
-                || (blob.sum_probability[k] / blob.pixels as f64) as f32 >= rule.min_confidence;
-            if !confident {
-                continue;
-            }
+            let preference = match probabilities {
+                None => Preference::Confident(blob.pixels),
+                Some(_) => {
+                    let mean = (blob.sum_probability[k] / blob.pixels as f64) as f32;
+                    if mean >= rule.min_confidence {
+                        Preference::Confident(blob.pixels)
+                    } else {
+                        Preference::Doubtful(mean)
+                    }
+                }
+            };
             let (cu, cv) = blob.centroid();
             let cell = (0..GRID * GRID)
                 .min_by(|&a, &b| {
@@ -320,12 +345,12 @@ pub fn cell_targets(
                     d(a).total_cmp(&d(b))
                 })
                 .expect("nine cells");
-            if best[cell].is_none_or(|(_, b)| b.pixels < blob.pixels) {
-                best[cell] = Some((id, blob));
+            if best[cell].is_none_or(|(_, _, p)| p < preference) {
+                best[cell] = Some((id, blob, preference));
             }
         }
         let targets = best.map(|chosen| {
-            chosen.map(|(id, blob)| {
+            chosen.map(|(id, blob, _)| {
                 let p = aim(id, blob.centroid());
                 Target {
                     object: id,
@@ -504,7 +529,7 @@ mod tests {
     }
 
     #[test]
-    fn a_cell_selects_its_largest_confident_object() {
+    fn a_cell_selects_its_largest_confident_object_and_is_masked_only_when_empty() {
         // Top-left: a big object (2) and a small one (3); bottom-right: object 5.
         let ids = image(&[(2, 3, 3, 10, 10), (3, 10, 3, 12, 8), (5, 22, 22, 27, 27)]);
         let rule = SelectionRule::default();
@@ -519,5 +544,19 @@ mod tests {
             .collect();
         let t = cell_targets(&ids, 30, &[Affordance::Push], Some(&[plane]), &rule);
         assert_eq!(t.target(Affordance::Push, 0).unwrap().object, 3);
+        // Sure of nothing in the cell: the cell stays selectable and takes
+        // the object rated highest, however small.
+        let plane: Vec<f32> = ids
+            .iter()
+            .map(|&id| match id {
+                2 => 0.001,
+                3 => 0.03,
+                _ => 0.0,
+            })
+            .collect();
+        let t = cell_targets(&ids, 30, &[Affordance::Push], Some(&[plane]), &rule);
+        assert_eq!(t.target(Affordance::Push, 0).unwrap().object, 3);
+        assert_eq!(t.target(Affordance::Push, 8).unwrap().object, 5);
+        assert!(t.target(Affordance::Push, 4).is_none());
     }
 }

@@ -134,11 +134,21 @@ pub struct ObjectRow {
     pub recall: Option<f32>,
     /// [`Confusion::f1`].
     pub f1: Option<f32>,
+    /// Area under the ROC curve of the mean probability as a score for
+    /// success: how well the network ranks the objects whatever the
+    /// threshold (0.5 = chance), so a network that rates every object
+    /// below 0.5 still shows whether it has learnt which ones afford it.
+    pub auc: Option<f32>,
 }
 
 impl ObjectRow {
-    /// The row of `affordance` from its counts.
-    pub fn new(affordance: String, confusion: Confusion) -> Self {
+    /// The row of `affordance` from each tried object's mean probability
+    /// and whether trying succeeded.
+    pub fn new(affordance: String, scored: &[(f32, bool)]) -> Self {
+        let mut confusion = Confusion::default();
+        for &(probability, succeeded) in scored {
+            confusion.add(probability >= 0.5, succeeded);
+        }
         Self {
             affordance,
             confusion,
@@ -146,8 +156,30 @@ impl ObjectRow {
             precision: confusion.precision(),
             recall: confusion.recall(),
             f1: confusion.f1(),
+            auc: roc_auc(scored),
         }
     }
+}
+
+/// The probability that a random positive scores above a random negative
+/// (ties count half); `None` without both.
+fn roc_auc(scored: &[(f32, bool)]) -> Option<f32> {
+    let positives: Vec<f32> = scored.iter().filter(|s| s.1).map(|s| s.0).collect();
+    let negatives: Vec<f32> = scored.iter().filter(|s| !s.1).map(|s| s.0).collect();
+    if positives.is_empty() || negatives.is_empty() {
+        return None;
+    }
+    let wins: f64 = positives
+        .iter()
+        .flat_map(|&p| {
+            negatives.iter().map(move |&n| match p.total_cmp(&n) {
+                std::cmp::Ordering::Greater => 1.0,
+                std::cmp::Ordering::Equal => 0.5,
+                std::cmp::Ordering::Less => 0.0,
+            })
+        })
+        .sum();
+    Some((wins / (positives.len() * negatives.len()) as f64) as f32)
 }
 
 /// One object's trial: what the U-Net predicted from in front of it and
@@ -225,19 +257,20 @@ impl Report {
             self.objects
         );
         out.push_str(
-            "| affordance | accuracy | precision | recall | F1 | succeeded | predicted |\n",
+            "| affordance | accuracy | precision | recall | F1 | ROC AUC | succeeded | predicted |\n",
         );
-        out.push_str("|---|---|---|---|---|---|---|\n");
+        out.push_str("|---|---|---|---|---|---|---|---|\n");
         for row in &self.object {
             let c = row.confusion;
             let _ = writeln!(
                 out,
-                "| {} | {} | {} | {} | {} | {} | {} |",
+                "| {} | {} | {} | {} | {} | {} | {} | {} |",
                 row.affordance,
                 number(row.accuracy),
                 number(row.precision),
                 number(row.recall),
                 number(row.f1),
+                number(row.auc),
                 c.true_positives + c.false_negatives,
                 c.true_positives + c.false_positives
             );
@@ -285,6 +318,22 @@ mod tests {
         assert_eq!(c.precision(), Some(2.0 / 3.0));
         assert_eq!(c.recall(), Some(2.0 / 3.0));
         assert_eq!(c.f1(), Some(4.0 / 6.0));
+        let row = ObjectRow::new(
+            "push".into(),
+            &[(0.9, true), (0.2, true), (0.4, false), (0.1, false)],
+        );
+        assert_eq!(row.confusion.true_positives, 1);
+        assert_eq!(row.confusion.false_negatives, 1);
+        assert_eq!(row.auc, Some(0.75), "3 of the 4 pairs ranked right");
+        let low = ObjectRow::new(
+            "pick_up".into(),
+            &[(0.04, true), (0.01, false), (0.04, false)],
+        );
+        assert_eq!(
+            (low.f1, low.auc),
+            (Some(0.0), Some(0.75)),
+            "ties count half"
+        );
         let none = Confusion::default();
         assert_eq!(
             (none.accuracy(), none.precision(), none.f1()),
