@@ -55,6 +55,7 @@ pub fn evaluate(
 ) -> anyhow::Result<Report> {
     let planes = settings.affordances.len();
     let mut frame_scores: Vec<Vec<(PixelScores, Option<f32>)>> = vec![Vec::new(); planes];
+    let mut false_positives = vec![FalsePositives::default(); planes];
     let mut trials = Vec::new();
     let mut objects_not_viewed = Vec::new();
     let mut scored: Vec<Vec<(f32, bool)>> = vec![Vec::new(); planes];
@@ -64,6 +65,13 @@ pub fn evaluate(
         let affords = |plane: usize| {
             let truth = &truth;
             move |id: u32| truth.get(id as usize - 1).is_some_and(|t| t[plane])
+        };
+        let is_structure = |id: u32| {
+            id == 0
+                || scene
+                    .objects
+                    .get(id as usize - 1)
+                    .is_some_and(|o| o.object_type == "Floor")
         };
         let reachable = reachable_grid(scene, profile)
             .with_context(|| format!("finding where the agent fits in {}", scene.name))?;
@@ -86,6 +94,7 @@ pub fn evaluate(
                     .context("the network has too few planes")?;
                 let affords = affords(plane);
                 let object_accuracy = score_frame(p, &view.ids, &affords).object_accuracy;
+                false_positives[plane].add(p, &view.ids, &affords, &is_structure);
                 scores.push((pixel_scores(p, &view.ids, &affords), object_accuracy));
             }
         }
@@ -134,13 +143,14 @@ pub fn evaluate(
     let names = settings.affordances.iter().map(|a| a.as_str().to_string());
     let pixel = names
         .clone()
-        .zip(&frame_scores)
-        .map(|(affordance, scores)| PixelRow {
+        .zip(frame_scores.iter().zip(&false_positives))
+        .map(|(affordance, (scores, false_positives))| PixelRow {
             affordance,
             precision: Percentiles::of(scores.iter().map(|s| s.0.precision)),
             recall: Percentiles::of(scores.iter().map(|s| s.0.recall)),
             f1: Percentiles::of(scores.iter().map(|s| s.0.f1)),
             object_accuracy: Percentiles::of(scores.iter().map(|s| s.1)),
+            false_positives_on_structure: false_positives.on_structure_share(),
         })
         .collect();
     let object = names
@@ -157,4 +167,33 @@ pub fn evaluate(
         object,
         trials,
     })
+}
+
+/// Pixels wrongly predicted positive (threshold 0.5), and how many of them
+/// lie on the floor and walls.
+#[derive(Debug, Clone, Copy, Default)]
+struct FalsePositives {
+    all: usize,
+    on_structure: usize,
+}
+
+impl FalsePositives {
+    fn add(
+        &mut self,
+        probabilities: &[f32],
+        ids: &[u32],
+        affords: &dyn Fn(u32) -> bool,
+        is_structure: &dyn Fn(u32) -> bool,
+    ) {
+        for (&p, &id) in probabilities.iter().zip(ids) {
+            if p >= 0.5 && (id == 0 || !affords(id)) {
+                self.all += 1;
+                self.on_structure += usize::from(is_structure(id));
+            }
+        }
+    }
+
+    fn on_structure_share(&self) -> Option<f32> {
+        (self.all > 0).then(|| self.on_structure as f32 / self.all as f32)
+    }
 }

@@ -88,6 +88,7 @@ fn the_ground_truth_scores_perfectly_and_its_opposite_scores_nothing() {
             let p = p.expect("defined in some view");
             assert_eq!((p.p10, p.median, p.p90), (1.0, 1.0, 1.0), "{row:?}");
         }
+        assert_eq!(row.false_positives_on_structure, None, "no false positives");
     }
     let pick_up = &right.object[0];
     assert_eq!(pick_up.affordance, "pick_up");
@@ -100,15 +101,26 @@ fn the_ground_truth_scores_perfectly_and_its_opposite_scores_nothing() {
     let push = &right.object[1];
     assert!(push.confusion.true_positives > 0 && push.confusion.true_negatives > 0);
     assert!(push.accuracy.unwrap() >= 0.9, "{push:?}");
+    for row in &right.object {
+        assert!(row.auc.unwrap() >= 0.9, "the truth ranks well: {row:?}");
+    }
 
     let wrong = run(&scene, &profile, &oracle(0.0));
     for row in &wrong.pixel {
         let f1 = row.f1.unwrap();
         assert_eq!((f1.p10, f1.median, f1.p90), (0.0, 0.0, 0.0), "{row:?}");
+        // Positive on everything that does not afford it: floor, walls and objects.
+        let share = row.false_positives_on_structure.unwrap();
+        assert!(share > 0.05 && share < 0.95, "{row:?}");
     }
     for (w, r) in wrong.object.iter().zip(&right.object) {
         assert_eq!(w.confusion.true_positives, r.confusion.false_negatives);
         assert_eq!(w.confusion.false_negatives, r.confusion.true_positives);
         assert_eq!(w.f1.unwrap_or(0.0), 0.0);
+        let (w_auc, r_auc) = (w.auc.unwrap(), r.auc.unwrap());
+        assert!(
+            (w_auc - (1.0 - r_auc)).abs() < 1e-6,
+            "the opposite ranks oppositely: {w:?}"
+        );
     }
 }
