@@ -163,6 +163,23 @@ pub fn map_labels(map: &Map, frames: &[EpisodeFrame], affordances: &[Affordance]
         .collect()
 }
 
+/// Labels every still-unlabelled pixel that the frame's instance
+/// segmentation (`segmentations[f]`, 0 = background) calls background
+/// negative in every affordance plane: the robot only ever tries objects,
+/// and the floor and walls afford nothing it can do.
+pub fn label_background_negative(labels: &mut [Vec<u8>], segmentations: &[Vec<u32>]) {
+    for (planes, segmentation) in labels.iter_mut().zip(segmentations) {
+        let pixels = segmentation.len();
+        for plane in planes.chunks_mut(pixels.max(1)) {
+            for (label, &instance) in plane.iter_mut().zip(segmentation) {
+                if instance == 0 && *label == LABEL_UNKNOWN {
+                    *label = LABEL_NEGATIVE;
+                }
+            }
+        }
+    }
+}
+
 /// An interaction remembered as a 3-D point on its object (baselines).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct InteractionPoint {

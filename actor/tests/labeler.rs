@@ -2,8 +2,8 @@
 //! labels) and on crafted inputs for the confidence and sphere rules.
 
 use actor::labeler::{
-    confidence_labels, frame_batch, map_labels, segment_labels, sphere_labels, ConfidenceRule,
-    EpisodeFrame, InteractionPoint, SphereRule,
+    confidence_labels, frame_batch, label_background_negative, map_labels, segment_labels,
+    sphere_labels, ConfidenceRule, EpisodeFrame, InteractionPoint, SphereRule,
 };
 use actor::mapping::{class_image, instance_classes, intrinsics, map_frame};
 use mapper::{Affordance, Map, MapConfig, ObjectId, Outcome, Pose};
@@ -169,6 +169,32 @@ fn the_picked_object_is_labelled_positive_with_its_full_mask_in_every_frame_it_i
     assert_eq!(batch.n_frames(), checked);
     let balanced = frame_batch(1, &intrinsics(&e.sim.camera()), &e.frames, &labels, 2, true);
     assert_eq!(balanced.n_frames(), 0, "no negatives in this episode");
+}
+
+#[test]
+fn background_labels_make_the_floor_and_walls_negative_and_leave_objects_alone() {
+    let e = scripted_episode();
+    let mut labels = map_labels(&e.map, &e.frames, &[Affordance::PickUp, Affordance::Push]);
+    let before = labels.clone();
+    label_background_negative(&mut labels, &e.truth);
+    let pixels = e.frames[0].depth_m.len();
+    let mut background = 0;
+    for ((planes, old), truth) in labels.iter().zip(&before).zip(&e.truth) {
+        for (plane, old_plane) in planes.chunks(pixels).zip(old.chunks(pixels)) {
+            for ((&label, &old_label), &id) in plane.iter().zip(old_plane).zip(truth) {
+                if id == 0 && old_label == LABEL_UNKNOWN {
+                    assert_eq!(label, LABEL_NEGATIVE);
+                    background += 1;
+                } else {
+                    assert_eq!(label, old_label, "objects keep their labels");
+                }
+            }
+        }
+    }
+    assert!(background > 0, "the scripted room shows floor or walls");
+    // The frames showing the picked object now have both classes.
+    let balanced = frame_batch(1, &intrinsics(&e.sim.camera()), &e.frames, &labels, 2, true);
+    assert!(balanced.n_frames() >= 3, "{}", balanced.n_frames());
 }
 
 #[test]

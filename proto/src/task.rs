@@ -45,6 +45,12 @@ pub enum Method {
 }
 
 impl Method {
+    /// Whether the method sees an instance segmentation (and so knows the
+    /// background from the objects).
+    pub fn segments(self) -> bool {
+        matches!(self, Method::Ours | Method::NomapSeg)
+    }
+
     /// kebab-case name, as on the command line.
     pub fn as_str(self) -> &'static str {
         match self {
@@ -139,6 +145,12 @@ pub struct TaskSpec {
     /// Environment steps of the whole run (all actors) after which annotation
     /// by confidence starts (the paper's 400 000; method `ours` only).
     pub confidence_after_steps: u64,
+    /// Label what the segmentation calls background (floor, walls) negative
+    /// for every affordance, in every frame that gets labels (methods with
+    /// segmentation: `ours`, `nomap-seg`). Off is the paper's rule, which
+    /// labels object masks only and leaves the network free to call the
+    /// floor pushable.
+    pub background_negative: bool,
     /// GRU hidden size of the methods without a map (512 as in IntExp).
     pub memory_size: usize,
     /// The reward's α weights (`[task.reward]`).
@@ -155,6 +167,7 @@ impl Default for TaskSpec {
             episode_steps: 600,
             balanced_frames: true,
             confidence_after_steps: 400_000,
+            background_negative: false,
             memory_size: DEFAULT_MEMORY_SIZE,
             reward: RewardWeights::default(),
         }
@@ -205,6 +218,11 @@ pub enum TaskError {
     /// A GRU without units.
     #[error("task.memory_size must be at least 1 (the GRU of the methods without a map)")]
     MemorySize,
+    /// Background labels asked of a method that segments nothing.
+    #[error(
+        "task.background_negative needs a method with segmentation (ours, nomap-seg), not {0}"
+    )]
+    BackgroundWithoutSegmentation(&'static str),
 }
 
 impl TaskSpec {
@@ -234,6 +252,11 @@ impl TaskSpec {
         }
         if self.memory_size == 0 {
             return Err(TaskError::MemorySize);
+        }
+        if self.background_negative && !self.method.segments() {
+            return Err(TaskError::BackgroundWithoutSegmentation(
+                self.method.as_str(),
+            ));
         }
         Ok(())
     }
@@ -378,6 +401,16 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("task.image_size"));
+        let background = TaskSpec {
+            method: Method::NomapNoseg,
+            background_negative: true,
+            ..ok.clone()
+        };
+        assert!(background
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("task.background_negative"));
         let gru = TaskSpec {
             memory_size: 0,
             ..ok

@@ -37,8 +37,8 @@ use crate::env::affordance_model::{AffordanceModel, CameraFrame};
 use crate::env::reward::{RewardTracker, RewardWeights, StepEvent};
 use crate::env::state::{build_state, ActionHistory, State, StateConfig, StateInputs};
 use crate::labeler::{
-    apply_confidence_labels, confidence_labels, frame_batch, map_labels, segment_labels,
-    sphere_labels, ConfidenceRule, EpisodeFrame, InteractionPoint, SphereRule,
+    apply_confidence_labels, confidence_labels, frame_batch, label_background_negative, map_labels,
+    segment_labels, sphere_labels, ConfidenceRule, EpisodeFrame, InteractionPoint, SphereRule,
 };
 use crate::mapping::{class_image, instance_classes, intrinsics, map_frame};
 use crate::metrics::{annotation_rates, ground_truth_planes, map_id_consistency, score_frame};
@@ -61,6 +61,8 @@ pub struct SimEnvConfig {
     pub map: MapConfig,
     /// Send only frames with both label classes.
     pub balanced_frames: bool,
+    /// Label the segmentation's background negative ([`proto::TaskSpec::background_negative`]).
+    pub background_negative: bool,
     /// Annotate by confidence once the run has taken this many steps (all
     /// actors); `None`: never.
     pub confidence_after_steps: Option<u64>,
@@ -81,6 +83,7 @@ impl SimEnvConfig {
             selection: SelectionRule::default(),
             map: MapConfig::default(),
             balanced_frames: true,
+            background_negative: false,
             confidence_after_steps: Some(400_000),
             confidence: ConfidenceRule::default(),
             sphere: SphereRule::default(),
@@ -719,7 +722,10 @@ impl SimEnv {
             self.annotate_by_confidence(&mut episode)?;
         }
         let k = intrinsics(&episode.sim.camera());
-        let labels = self.labels(&episode, &k);
+        let mut labels = self.labels(&episode, &k);
+        if self.config.background_negative && self.config.method.segments() {
+            label_background_negative(&mut labels, &episode.truth_ids);
+        }
         if let Some((dir, prefix)) = &self.recording {
             let path = dir.join(format!("{prefix}episode{episode_id:06}.mcap"));
             self.record(&episode, &labels, &k, &path)
