@@ -112,7 +112,7 @@ impl AffordanceUnet {
 }
 
 /// Loss over labelled pixels only: binary cross-entropy (from logits) plus
-/// soft Dice. `labels` holds 1 / 0 where `known` is 1; pixels with `known`
+/// soft Dice (on planes whose batch has positive labels). `labels` holds 1 / 0 where `known` is 1; pixels with `known`
 /// 0 contribute nothing (neither value nor gradient). All `[b, a, h, w]`.
 ///
 /// Each affordance plane gets its own BCE (mean over its labelled pixels)
@@ -130,10 +130,17 @@ pub fn masked_bce_dice(logits: Tensor<4>, labels: Tensor<4>, known: Tensor<4>) -
     let p = burn::tensor::activation::sigmoid(logits) * known.clone();
     let y = labels * known;
     let intersection = per_plane(p.clone() * y.clone());
-    let dice = (intersection * 2.0 + 1.0) / (per_plane(p) + per_plane(y) + 1.0);
-    // A plane without labels has BCE 0 and Dice 1: it adds nothing.
+    let positives = per_plane(y.clone());
+    let dice = (intersection * 2.0 + 1.0) / (per_plane(p) + positives.clone() + 1.0);
+    // Dice only where the batch has positives: on a plane with negatives
+    // alone its loss is about the *sum* of the predicted probabilities, a
+    // push to zero thousands of times stronger than the BCE's mean, which
+    // for a rare affordance (most batches hold no successful pick-up)
+    // drives every probability to ~0.001 however well the network ranks.
+    let dice_loss = (dice.neg() + 1.0) * positives.greater_elem(0.0).float();
+    // A plane without labels has BCE 0 and no Dice: it adds nothing.
     let planes = labelled.greater_elem(0.0).float().sum().clamp_min(1.0);
-    (bce - dice + 1.0).sum() / planes
+    (bce + dice_loss).sum() / planes
 }
 
 #[cfg(test)]
@@ -149,5 +156,26 @@ mod tests {
         assert_eq!(out.dims(), [2, 2, 128, 128]);
         let params = net.num_params();
         assert!((880_000..960_000).contains(&params), "{params} parameters");
+    }
+
+    #[test]
+    fn a_plane_with_negatives_only_costs_its_mean_bce_and_no_dice() {
+        let device = Device::flex();
+        let shape = [2, 2, 16, 16];
+        // Plane 0: all negative; plane 1: half positive. Logits 0 (p = ½).
+        let logits = Tensor::<4>::zeros(shape, &device);
+        let mut labels = vec![0.0f32; 2 * 2 * 16 * 16];
+        for b in 0..2 {
+            let plane1 = &mut labels[(b * 2 + 1) * 256..][..256];
+            plane1[..128].fill(1.0);
+        }
+        let labels = Tensor::<4>::from_data(burn::tensor::TensorData::new(labels, shape), &device);
+        let known = Tensor::<4>::ones(shape, &device);
+        let loss = masked_bce_dice(logits, labels, known).into_scalar::<f32>();
+        let ln2 = std::f32::consts::LN_2;
+        // Plane 1's Dice: (2·128 + 1) / (256 + 256 + 1) with p = ½ over 512 pixels.
+        let dice1 = 1.0 - (2.0 * 128.0 + 1.0) / (256.0 + 256.0 + 1.0);
+        let expected = (ln2 + (ln2 + dice1)) / 2.0;
+        assert!((loss - expected).abs() < 1e-4, "{loss} vs {expected}");
     }
 }
