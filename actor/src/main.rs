@@ -67,8 +67,8 @@ struct EvaluateArgs {
     /// Checkpoint step to evaluate (default: the newest).
     #[arg(long, conflicts_with = "untrained")]
     step: Option<u64>,
-    /// Evaluate a freshly initialised network instead: the floor a trained
-    /// one must beat.
+    /// Evaluate a freshly initialised network instead (weights drawn from
+    /// --seed): the floor a trained one must beat.
     #[arg(long)]
     untrained: bool,
     /// Rooms: test (FloorPlan226–230), val (221–225) or train (201–220).
@@ -77,7 +77,8 @@ struct EvaluateArgs {
     /// Test views per room for Table 1 (the paper had 611 frames over 5 rooms).
     #[arg(long, default_value_t = 120)]
     views_per_scene: usize,
-    /// Seed of the test views (the same seed gives the same views).
+    /// Seed of the test views (the same seed gives the same views) and of
+    /// an untrained network's weights.
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Write the whole report (both tables and every object's trial) as JSON here.
@@ -213,6 +214,8 @@ fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
         "--views-per-scene must be at least 1"
     );
     let device = nets::device::open_device(nets::device::DeviceChoice::Cpu)?;
+    // An untrained network's weights follow --seed, so its floor can be repeated.
+    device.seed(args.seed);
     let mut model = AffordanceModel::new(task.affordances.len(), &device);
     let model_name = if args.untrained {
         "an untrained U-Net".to_string()
