@@ -71,7 +71,7 @@ pub fn evaluate(
                 || scene
                     .objects
                     .get(id as usize - 1)
-                    .is_some_and(|o| o.object_type == "Floor")
+                    .is_some_and(|o| o.is_floor())
         };
         let reachable = reachable_grid(scene, profile)
             .with_context(|| format!("finding where the agent fits in {}", scene.name))?;
@@ -101,7 +101,7 @@ pub fn evaluate(
         frames += views.len();
         let mut tried = 0;
         for (index, object) in scene.objects.iter().enumerate() {
-            if object.object_type == "Floor" {
+            if object.is_floor() {
                 continue;
             }
             let Some(view) = view_object(scene, profile, &reachable, index, renderer)? else {

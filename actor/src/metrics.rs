@@ -28,7 +28,7 @@ pub fn ground_truth_planes(
             affordances
                 .iter()
                 .map(|a| {
-                    object.object_type != "Floor"
+                    !object.is_floor()
                         && match a {
                             Affordance::PickUp => can_pick_up(object, profile),
                             Affordance::Push => can_push(scene, i, profile),

@@ -47,7 +47,7 @@ pub fn ground_truth(scene: &Scene, profile: &RobotProfile) -> Vec<ObjectAffordan
         .objects
         .iter()
         .enumerate()
-        .filter(|(_, o)| o.object_type != "Floor")
+        .filter(|(_, o)| !o.is_floor())
         .map(|(i, o)| ObjectAffordances {
             id: o.id.clone(),
             pick_up: can_pick_up(o, profile),

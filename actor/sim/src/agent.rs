@@ -234,7 +234,7 @@ impl Simulator {
     }
 
     fn is_floor(&self, index: usize) -> bool {
-        self.scene.objects[index].object_type == "Floor"
+        self.scene.objects[index].is_floor()
     }
 
     fn obstacle_at(&self, x: f32, y: f32) -> Option<Obstacle> {

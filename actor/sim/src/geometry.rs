@@ -160,7 +160,7 @@ impl SceneGeometry {
             if hidden == Some(index) {
                 continue;
             }
-            let structural = o.object_type == "Floor";
+            let structural = o.is_floor();
             let colours = if structural {
                 [([0.62, 0.50, 0.36], WOOD), ([0.5, 0.4, 0.3], WOOD)]
             } else {

@@ -176,7 +176,7 @@ pub fn load_scene(path: &Path) -> Result<Scene, ImportError> {
     }
     let floor = objects
         .iter()
-        .find(|o| o.object_type == "Floor")
+        .find(|o| o.is_floor())
         .ok_or_else(|| ImportError::NoFloor {
             path: path.to_owned(),
         })?;

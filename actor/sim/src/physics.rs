@@ -112,7 +112,7 @@ pub fn first_overlap(
         if i == index || ignore(i) || apart(&other.aabb_min, &other.aabb_max) {
             continue;
         }
-        let structural = other.object_type == "Floor";
+        let structural = other.is_floor();
         let s = SharedShape::compound(compound(
             &other.object_type,
             other.bounds.half_extents,
@@ -163,7 +163,7 @@ pub fn deepest_penetration(scene: &Scene, index: usize) -> f32 {
         .enumerate()
         .filter(|(i, _)| *i != index)
         .map(|(_, other)| {
-            let structural = other.object_type == "Floor";
+            let structural = other.is_floor();
             let s = SharedShape::compound(compound(
                 &other.object_type,
                 other.bounds.half_extents,
@@ -203,7 +203,7 @@ fn build(scene: &Scene, index: usize, start: &OrientedBox) -> OneBody {
         if i == index {
             continue;
         }
-        let structural = o.object_type == "Floor";
+        let structural = o.is_floor();
         let shape =
             SharedShape::compound(compound(&o.object_type, o.bounds.half_extents, structural));
         let at = pose(&box_pose(&o.bounds));

@@ -176,6 +176,12 @@ pub struct SceneObject {
 }
 
 impl SceneObject {
+    /// Whether this is the room's floor: structure, not an object anyone
+    /// interacts with (it supports, collides and renders as background).
+    pub fn is_floor(&self) -> bool {
+        self.object_type == "Floor"
+    }
+
     /// AI2-THOR's rule: anything pickupable or moveable can be pushed.
     pub fn pushable(&self) -> bool {
         self.pickupable || self.moveable
