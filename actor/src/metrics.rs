@@ -42,8 +42,9 @@ pub fn ground_truth_planes(
 /// Scores of one frame for one affordance.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FrameScores {
-    /// |predicted ∩ true| / |predicted ∪ true| over object pixels; `None`
-    /// when both are empty.
+    /// |predicted ∩ true| / |predicted ∪ true| over every pixel, structure
+    /// (instance 0) a negative like the floor, as in the paper and in
+    /// [`pixel_scores`]; `None` when both are empty.
     pub iou: Option<f32>,
     /// Fraction of visible objects whose majority-voted prediction is right;
     /// `None` when no object is visible.
@@ -59,12 +60,12 @@ pub fn score_frame(
     let (mut intersection, mut union) = (0usize, 0usize);
     let mut votes: BTreeMap<u32, (usize, usize)> = BTreeMap::new();
     for (&p, &id) in probabilities.iter().zip(instances) {
+        let (predicted, truth) = (p >= 0.5, id != 0 && affords(id));
+        intersection += usize::from(predicted && truth);
+        union += usize::from(predicted || truth);
         if id == 0 {
             continue;
         }
-        let (predicted, truth) = (p >= 0.5, affords(id));
-        intersection += usize::from(predicted && truth);
-        union += usize::from(predicted || truth);
         let v = votes.entry(id).or_default();
         v.0 += usize::from(predicted);
         v.1 += 1;
@@ -189,17 +190,23 @@ mod tests {
         // Object 1 affords (4 px), object 2 does not (4 px), structure (2 px).
         let ids = [1, 1, 1, 1, 2, 2, 2, 2, 0, 0];
         let affords = |id: u32| id == 1;
-        // Predicted: three of object 1, one of object 2, and structure (ignored).
+        // Predicted: three of object 1, one of object 2, and the structure.
         let p = [0.9, 0.9, 0.9, 0.1, 0.8, 0.2, 0.2, 0.2, 0.9, 0.9];
         let s = score_frame(&p, &ids, &affords);
-        assert_eq!(s.iou, Some(3.0 / 5.0));
+        assert_eq!(s.iou, Some(3.0 / 7.0), "structure called positive is wrong");
         assert_eq!(s.object_accuracy, Some(1.0), "both majorities are right");
         let all_yes = [0.9; 10];
         let s = score_frame(&all_yes, &ids, &affords);
-        assert_eq!(s.iou, Some(0.5));
+        assert_eq!(s.iou, Some(0.4));
         assert_eq!(s.object_accuracy, Some(0.5));
         let s = score_frame(&[0.1; 2], &[0, 0], &affords);
         assert_eq!((s.iou, s.object_accuracy), (None, None));
+        let s = score_frame(&[0.9, 0.1], &[0, 0], &affords);
+        assert_eq!(
+            (s.iou, s.object_accuracy),
+            (Some(0.0), None),
+            "a frame of structure called positive scores zero"
+        );
     }
 
     #[test]

@@ -133,9 +133,35 @@ fn an_episode_runs_labels_and_repeats_exactly() {
         StatField::InteractionAttemptRate,
         StatField::InteractionOutOfReachRate,
         StatField::InteractionUnaffordedRate,
+        StatField::PickUpIou,
+        StatField::PushIou,
+        StatField::PickUpObjectAccuracy,
+        StatField::PushObjectAccuracy,
     ] {
         let v = stats[&field];
         assert!((0.0..=1.0).contains(&v), "{field:?} = {v}");
+    }
+    for (both, pick_up, push) in [
+        (
+            StatField::AffordanceIou,
+            StatField::PickUpIou,
+            StatField::PushIou,
+        ),
+        (
+            StatField::ObjectAccuracy,
+            StatField::PickUpObjectAccuracy,
+            StatField::PushObjectAccuracy,
+        ),
+    ] {
+        let (lo, hi) = (
+            stats[&pick_up].min(stats[&push]),
+            stats[&pick_up].max(stats[&push]),
+        );
+        assert!(
+            (lo - 1e-6..=hi + 1e-6).contains(&stats[&both]),
+            "{both:?} = {} averages the planes' {lo} and {hi}",
+            stats[&both]
+        );
     }
     assert!(
         !attempts.is_empty(),

@@ -1,5 +1,6 @@
 //! `learner plot`: the paper's six training curves (Fig. 3), the episode
-//! return, the interaction attempt rate and why attempts fail, from a run's
+//! return, the interaction attempt rate and why attempts fail, and the
+//! U-Net's IoU and object-level accuracy per affordance, from a run's
 //! `history.jsonl`, as one SVG: per-episode values over environment steps
 //! (dots) and their moving average (line); or several runs' moving averages
 //! in one figure, to compare methods; or groups of repeats (seeds) as their
@@ -18,8 +19,9 @@ use crate::summary::Spread;
 /// tries an interaction (what a reward that favours navigation erodes), and
 /// the shares of attempts that fail for want of an approach (the object is
 /// beyond the arm's reach) or of a better choice (the object does not afford
-/// the interaction).
-pub const CURVES: [(&str, &str); 10] = [
+/// the interaction), and the U-Net's two scores per affordance plane (the
+/// paper's Fig. 3 shows pick up's).
+pub const CURVES: [(&str, &str); 14] = [
     ("interaction_success_rate", "interaction success rate"),
     ("interacted_object_rate", "interacted object rate"),
     (
@@ -42,6 +44,10 @@ pub const CURVES: [(&str, &str); 10] = [
         "interaction_unafforded_rate",
         "attempts failed: not afforded",
     ),
+    ("pick_up_iou", "pick-up IoU"),
+    ("push_iou", "push IoU"),
+    ("pick_up_object_accuracy", "pick-up object-level accuracy"),
+    ("push_object_accuracy", "push object-level accuracy"),
 ];
 
 /// Panels per row of the figure (two rows).

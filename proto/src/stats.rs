@@ -1,4 +1,4 @@
-//! Per-episode metrics (actor → learner): a fixed 88-byte record.
+//! Per-episode metrics (actor → learner): a fixed 104-byte record.
 //!
 //! Layout after the message header: episode_id u64, steps u32, scene_index u32,
 //! present u32 (bit i set = field i carries a value), reserved u32 (0), then one
@@ -25,9 +25,11 @@ pub enum StatField {
     InteractableAnnotationRate = 3,
     /// Pixels correctly annotated non-interactable / all pixels.
     NonInteractableAnnotationRate = 4,
-    /// Affordance IoU against ground truth, mean over frames.
+    /// Affordance IoU against ground truth, mean over frames and the
+    /// task's affordance planes.
     AffordanceIou = 5,
-    /// Object-level accuracy against ground truth, mean over frames.
+    /// Object-level accuracy against ground truth, mean over frames and the
+    /// task's affordance planes.
     ObjectAccuracy = 6,
     /// Environment steps per second of the actor over the episode.
     StepsPerSecond = 7,
@@ -60,11 +62,20 @@ pub enum StatField {
     PushAttemptRate = 14,
     /// Successful pushes / push attempts. Reported when the episode tried any.
     PushSuccessRate = 15,
+    /// [`StatField::AffordanceIou`] of the pick-up plane alone (the paper's
+    /// Fig. 3 shows pick up); reported when the task has pick up.
+    PickUpIou = 16,
+    /// [`StatField::AffordanceIou`] of the push plane alone.
+    PushIou = 17,
+    /// [`StatField::ObjectAccuracy`] of the pick-up plane alone.
+    PickUpObjectAccuracy = 18,
+    /// [`StatField::ObjectAccuracy`] of the push plane alone.
+    PushObjectAccuracy = 19,
 }
 
 impl StatField {
     /// Number of fields.
-    pub const COUNT: usize = 16;
+    pub const COUNT: usize = 20;
     /// All fields in wire order.
     pub const ALL: [StatField; Self::COUNT] = [
         StatField::EpisodeReturn,
@@ -83,6 +94,10 @@ impl StatField {
         StatField::PickUpSuccessRate,
         StatField::PushAttemptRate,
         StatField::PushSuccessRate,
+        StatField::PickUpIou,
+        StatField::PushIou,
+        StatField::PickUpObjectAccuracy,
+        StatField::PushObjectAccuracy,
     ];
 
     /// snake_case name used in metrics and JSON.
@@ -104,6 +119,10 @@ impl StatField {
             StatField::PickUpSuccessRate => "pick_up_success_rate",
             StatField::PushAttemptRate => "push_attempt_rate",
             StatField::PushSuccessRate => "push_success_rate",
+            StatField::PickUpIou => "pick_up_iou",
+            StatField::PushIou => "push_iou",
+            StatField::PickUpObjectAccuracy => "pick_up_object_accuracy",
+            StatField::PushObjectAccuracy => "push_object_accuracy",
         }
     }
 
@@ -165,7 +184,7 @@ impl EpisodeStats {
             return Err(ProtoError::OutOfRange {
                 field: "present",
                 value: present.into(),
-                allowed: "bits 0..12",
+                allowed: "only the bits of known fields, 0..StatField::COUNT",
             });
         }
         let reserved = read_u32(payload, 20);

@@ -951,6 +951,15 @@ fn episode_stats(
     if let Some(accuracy) = mean(|s| (s.accuracy, s.accuracy_frames)) {
         stats.push((StatField::ObjectAccuracy, accuracy));
     }
+    for (&affordance, sums) in affordances.iter().zip(&episode.scores) {
+        let (iou, accuracy) = match affordance {
+            Affordance::PickUp => (StatField::PickUpIou, StatField::PickUpObjectAccuracy),
+            Affordance::Push => (StatField::PushIou, StatField::PushObjectAccuracy),
+        };
+        let per_frame = |sum: f64, n: u32| (n > 0).then(|| (sum / f64::from(n)) as f32);
+        stats.extend(per_frame(sums.iou, sums.iou_frames).map(|v| (iou, v)));
+        stats.extend(per_frame(sums.accuracy, sums.accuracy_frames).map(|v| (accuracy, v)));
+    }
     if uses_map {
         let frames = episode
             .truth_ids
