@@ -303,7 +303,7 @@ fn sim_environment(task: &TaskSpec, cli: &RunArgs) -> anyhow::Result<SimEnvironm
     let config = SimEnvConfig {
         episode_steps: task.episode_steps,
         balanced_frames: task.balanced_frames,
-        background_negative: task.background_negative,
+        background_negative: task.labels_background(),
         confidence_after_steps: Some(task.confidence_after_steps),
         reward: task.reward,
         ..SimEnvConfig::paper(task.method, &task.affordances)

@@ -224,6 +224,15 @@ mod tests {
         assert!(toml::from_str::<LearnerConfig>("[task.reward]\nfail = 1.0").is_err());
         let gru: LearnerConfig = toml::from_str("[task]\nmethod = \"nomap-seg\"").unwrap();
         assert!(gru.validate().is_ok());
+        assert!(
+            gru.task.labels_background(),
+            "on by default where segments are"
+        );
+        let paper: LearnerConfig = toml::from_str("[task]\nbackground_negative = false").unwrap();
+        assert!(
+            !paper.task.labels_background(),
+            "the paper's rule is one line away"
+        );
         let bad: LearnerConfig = toml::from_str("[task]\nmemory_size = 0").unwrap();
         assert!(bad
             .validate()
