@@ -7,6 +7,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use actor::config::RunConfig;
+use actor::env::actions::SelectionRule;
 use actor::env::affordance_model::{AffordanceModel, CameraFrame};
 use actor::env::sim_env::{SimEnv, SimEnvConfig};
 use actor::env::{BanditFixture, Environment, SimEnvironment};
@@ -304,6 +305,10 @@ fn sim_environment(task: &TaskSpec, cli: &RunArgs) -> anyhow::Result<SimEnvironm
         episode_steps: task.episode_steps,
         balanced_frames: task.balanced_frames,
         background_negative: task.labels_background(),
+        selection: SelectionRule {
+            min_confidence: task.selection_confidence,
+            ..SelectionRule::default()
+        },
         confidence_after_steps: Some(task.confidence_after_steps),
         reward: task.reward,
         ..SimEnvConfig::paper(task.method, &task.affordances)

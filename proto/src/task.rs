@@ -152,6 +152,11 @@ pub struct TaskSpec {
     /// paper's rule, which labels object masks only and leaves the network
     /// free to call the floor pushable.
     pub background_negative: Option<bool>,
+    /// Object selection's filter of low-confidence objects (the paper gives
+    /// no threshold): an object whose mean predicted probability for the
+    /// affordance is below this loses its grid cell to any object above it;
+    /// a cell with none above it takes the object rated highest.
+    pub selection_confidence: f32,
     /// GRU hidden size of the methods without a map (512 as in IntExp).
     pub memory_size: usize,
     /// The reward's α weights (`[task.reward]`).
@@ -169,6 +174,7 @@ impl Default for TaskSpec {
             balanced_frames: true,
             confidence_after_steps: 400_000,
             background_negative: None,
+            selection_confidence: 0.05,
             memory_size: DEFAULT_MEMORY_SIZE,
             reward: RewardWeights::default(),
         }
@@ -202,7 +208,7 @@ impl PolicyLayout {
 }
 
 /// Why a task cannot run.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum TaskError {
     /// No affordance, or one listed twice.
     #[error("task.affordances must list pick_up and/or push, each once")]
@@ -224,6 +230,9 @@ pub enum TaskError {
         "task.background_negative needs a method with segmentation (ours, nomap-seg), not {0}"
     )]
     BackgroundWithoutSegmentation(&'static str),
+    /// A selection threshold that is not a probability.
+    #[error("task.selection_confidence {0} must be a probability, between 0 and 1")]
+    SelectionConfidence(f32),
 }
 
 impl TaskSpec {
@@ -253,6 +262,9 @@ impl TaskSpec {
         }
         if self.memory_size == 0 {
             return Err(TaskError::MemorySize);
+        }
+        if !(0.0..=1.0).contains(&self.selection_confidence) {
+            return Err(TaskError::SelectionConfidence(self.selection_confidence));
         }
         if self.background_negative == Some(true) && !self.method.segments() {
             return Err(TaskError::BackgroundWithoutSegmentation(
@@ -420,6 +432,17 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("task.background_negative"));
+        for threshold in [f32::NAN, -0.1, 1.5] {
+            let selection = TaskSpec {
+                selection_confidence: threshold,
+                ..ok.clone()
+            };
+            assert!(selection
+                .validate()
+                .unwrap_err()
+                .to_string()
+                .contains("task.selection_confidence"));
+        }
         let gru = TaskSpec {
             memory_size: 0,
             ..ok
