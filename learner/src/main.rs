@@ -29,8 +29,9 @@ enum Command {
     /// Remove shared-memory resources left by crashed learner or actor processes.
     Clean,
     /// Draw the paper's six training curves, the episode return, the
-    /// interaction attempt rate and why attempts fail (beyond reach, not
-    /// afforded) from a run's history.jsonl into an SVG; with several
+    /// interaction attempt rate, why attempts fail (beyond reach, not
+    /// afforded) and the U-Net's IoU and object-level accuracy per
+    /// affordance from a run's history.jsonl into an SVG; with several
     /// --run-dir, one line per run to compare them.
     Plot {
         /// A run directory (holds history.jsonl); repeat to compare runs.
