@@ -177,31 +177,26 @@ fn an_episode_runs_labels_and_repeats_exactly() {
         failed_share(|f| matches!(f, Failure::OutOfReach { .. })),
         "attempts that failed beyond reach"
     );
-    let unafforded = failed_share(|f| {
-        matches!(
-            f,
-            Failure::NotPickupable
-                | Failure::TooHeavy { .. }
-                | Failure::TooWide { .. }
-                | Failure::NotPushable
-                | Failure::DidNotMove { .. }
-        )
-    });
+    let unafforded = failed_share(does_not_afford);
     assert_eq!(
         stats[&StatField::InteractionUnaffordedRate],
         unafforded,
         "attempts on objects that do not afford the action"
     );
-    for (affordance, attempt_rate, success_rate) in [
+    for (affordance, attempt_rate, success_rate, out_of_reach_rate, unafforded_rate) in [
         (
             Affordance::PickUp,
             StatField::PickUpAttemptRate,
             StatField::PickUpSuccessRate,
+            StatField::PickUpOutOfReachRate,
+            StatField::PickUpUnaffordedRate,
         ),
         (
             Affordance::Push,
             StatField::PushAttemptRate,
             StatField::PushSuccessRate,
+            StatField::PushOutOfReachRate,
+            StatField::PushUnaffordedRate,
         ),
     ] {
         let tried: Vec<&ActionOutcome> = outcomes
@@ -219,6 +214,23 @@ fn an_episode_runs_labels_and_repeats_exactly() {
             stats.get(&success_rate).copied(),
             (!tried.is_empty()).then(|| succeeded as f32 / tried.len() as f32),
             "{affordance:?} successes per attempt"
+        );
+        let failed = |f: fn(&Failure) -> bool| {
+            let n = tried
+                .iter()
+                .filter(|o| o.failure.as_ref().is_some_and(f))
+                .count();
+            (!tried.is_empty()).then(|| n as f32 / tried.len() as f32)
+        };
+        assert_eq!(
+            stats.get(&out_of_reach_rate).copied(),
+            failed(|f| matches!(f, Failure::OutOfReach { .. })),
+            "{affordance:?} attempts beyond reach"
+        );
+        assert_eq!(
+            stats.get(&unafforded_rate).copied(),
+            failed(does_not_afford),
+            "{affordance:?} attempts on objects that do not afford it"
         );
     }
     assert!(batch.n_frames() <= steps + 1);
@@ -439,4 +451,16 @@ fn environments_in_lock_step_play_exactly_the_episodes_they_play_alone() {
             );
         }
     }
+}
+
+/// The failures that say the object does not afford the action tried.
+fn does_not_afford(failure: &Failure) -> bool {
+    matches!(
+        failure,
+        Failure::NotPickupable
+            | Failure::TooHeavy { .. }
+            | Failure::TooWide { .. }
+            | Failure::NotPushable
+            | Failure::DidNotMove { .. }
+    )
 }

@@ -1,4 +1,4 @@
-//! Per-episode metrics (actor → learner): a fixed 104-byte record.
+//! Per-episode metrics (actor → learner): a fixed 120-byte record.
 //!
 //! Layout after the message header: episode_id u64, steps u32, scene_index u32,
 //! present u32 (bit i set = field i carries a value), reserved u32 (0), then one
@@ -71,11 +71,22 @@ pub enum StatField {
     PickUpObjectAccuracy = 18,
     /// [`StatField::ObjectAccuracy`] of the push plane alone.
     PushObjectAccuracy = 19,
+    /// [`StatField::InteractionOutOfReachRate`] of the pick-up attempts
+    /// alone. Reported when the episode tried any.
+    PickUpOutOfReachRate = 20,
+    /// [`StatField::InteractionUnaffordedRate`] of the pick-up attempts
+    /// alone: objects that cannot be picked up, or are too heavy or wide.
+    PickUpUnaffordedRate = 21,
+    /// [`StatField::InteractionOutOfReachRate`] of the push attempts alone.
+    PushOutOfReachRate = 22,
+    /// [`StatField::InteractionUnaffordedRate`] of the push attempts alone:
+    /// static objects, or objects that did not move.
+    PushUnaffordedRate = 23,
 }
 
 impl StatField {
     /// Number of fields.
-    pub const COUNT: usize = 20;
+    pub const COUNT: usize = 24;
     /// All fields in wire order.
     pub const ALL: [StatField; Self::COUNT] = [
         StatField::EpisodeReturn,
@@ -98,6 +109,10 @@ impl StatField {
         StatField::PushIou,
         StatField::PickUpObjectAccuracy,
         StatField::PushObjectAccuracy,
+        StatField::PickUpOutOfReachRate,
+        StatField::PickUpUnaffordedRate,
+        StatField::PushOutOfReachRate,
+        StatField::PushUnaffordedRate,
     ];
 
     /// snake_case name used in metrics and JSON.
@@ -123,6 +138,10 @@ impl StatField {
             StatField::PushIou => "push_iou",
             StatField::PickUpObjectAccuracy => "pick_up_object_accuracy",
             StatField::PushObjectAccuracy => "push_object_accuracy",
+            StatField::PickUpOutOfReachRate => "pick_up_out_of_reach_rate",
+            StatField::PickUpUnaffordedRate => "pick_up_unafforded_rate",
+            StatField::PushOutOfReachRate => "push_out_of_reach_rate",
+            StatField::PushUnaffordedRate => "push_unafforded_rate",
         }
     }
 

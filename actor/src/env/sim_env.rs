@@ -196,9 +196,10 @@ struct Episode {
     attempts: [u32; Affordance::ALL.len()],
     successes: [u32; Affordance::ALL.len()],
     /// Interactions that failed because the object was beyond reach, and
-    /// because it does not afford the action ([`does_not_afford`]).
-    out_of_reach: u32,
-    unafforded: u32,
+    /// because it does not afford the action ([`does_not_afford`]), per
+    /// affordance like `attempts`.
+    out_of_reach: [u32; Affordance::ALL.len()],
+    unafforded: [u32; Affordance::ALL.len()],
     /// Interactable scene objects an interaction succeeded on.
     interacted: std::collections::BTreeSet<usize>,
     episode_return: f32,
@@ -374,8 +375,8 @@ impl SimEnv {
             scores: vec![ScoreSums::default(); self.config.affordances.len()],
             attempts: Default::default(),
             successes: Default::default(),
-            out_of_reach: 0,
-            unafforded: 0,
+            out_of_reach: [0; Affordance::ALL.len()],
+            unafforded: [0; Affordance::ALL.len()],
             interacted: Default::default(),
             episode_return: 0.0,
             reward: RewardTracker::new(self.config.reward, start),
@@ -459,8 +460,10 @@ impl SimEnv {
             episode.attempts[affordance as usize] += 1;
             episode.successes[affordance as usize] += u32::from(outcome.success);
             if let Some(failure) = &outcome.failure {
-                episode.out_of_reach += u32::from(matches!(failure, Failure::OutOfReach { .. }));
-                episode.unafforded += u32::from(does_not_afford(failure));
+                let kind = affordance as usize;
+                episode.out_of_reach[kind] +=
+                    u32::from(matches!(failure, Failure::OutOfReach { .. }));
+                episode.unafforded[kind] += u32::from(does_not_afford(failure));
             }
         }
         if let Some((affordance, Target { object, .. })) =
@@ -926,23 +929,36 @@ fn episode_stats(
         let attempts = attempts as f32;
         stats.push((
             StatField::InteractionOutOfReachRate,
-            episode.out_of_reach as f32 / attempts,
+            episode.out_of_reach.iter().sum::<u32>() as f32 / attempts,
         ));
         stats.push((
             StatField::InteractionUnaffordedRate,
-            episode.unafforded as f32 / attempts,
+            episode.unafforded.iter().sum::<u32>() as f32 / attempts,
         ));
     }
     for &affordance in affordances {
         let kind = affordance as usize;
         let (attempts, successes) = (episode.attempts[kind], episode.successes[kind]);
-        let (attempt_rate, success_rate) = match affordance {
-            Affordance::PickUp => (StatField::PickUpAttemptRate, StatField::PickUpSuccessRate),
-            Affordance::Push => (StatField::PushAttemptRate, StatField::PushSuccessRate),
+        let [attempt_rate, success_rate, out_of_reach_rate, unafforded_rate] = match affordance {
+            Affordance::PickUp => [
+                StatField::PickUpAttemptRate,
+                StatField::PickUpSuccessRate,
+                StatField::PickUpOutOfReachRate,
+                StatField::PickUpUnaffordedRate,
+            ],
+            Affordance::Push => [
+                StatField::PushAttemptRate,
+                StatField::PushSuccessRate,
+                StatField::PushOutOfReachRate,
+                StatField::PushUnaffordedRate,
+            ],
         };
         stats.push((attempt_rate, attempts as f32 / episode.steps.max(1) as f32));
         if attempts > 0 {
-            stats.push((success_rate, successes as f32 / attempts as f32));
+            let share = |n: u32| n as f32 / attempts as f32;
+            stats.push((success_rate, share(successes)));
+            stats.push((out_of_reach_rate, share(episode.out_of_reach[kind])));
+            stats.push((unafforded_rate, share(episode.unafforded[kind])));
         }
     }
     if let Some(iou) = mean(|s| (s.iou, s.iou_frames)) {
