@@ -451,7 +451,8 @@ impl SimEnv {
         // The interaction's outcome goes onto the map object that was
         // selected (or, without a map, onto its point).
         let mut interacted_instance = None;
-        if let Some(mut point) = point {
+        let evidence = tells_the_affordance(&outcome);
+        if let Some(mut point) = point.filter(|_| evidence) {
             point.success = outcome.success;
             episode.points.push(point);
         }
@@ -467,7 +468,7 @@ impl SimEnv {
             }
         }
         if let Some((affordance, Target { object, .. })) =
-            interaction.filter(|_| self.config.uses_map())
+            interaction.filter(|_| self.config.uses_map() && evidence)
         {
             let id = ObjectId(object);
             let result = if outcome.success {
@@ -855,6 +856,17 @@ fn does_not_afford(failure: &Failure) -> bool {
     )
 }
 
+/// Whether an interaction's outcome says anything about its object's
+/// affordance, so that labels may follow from it: a success, or a failure of
+/// the object itself. An arm that never reached the object (beyond reach, no
+/// room to lift it, nothing under the pixel) learnt nothing about it; the
+/// robot knows this from its own arm, and labelling such objects negative
+/// taught the U-Net that reachable pickupable objects cannot be picked up
+/// (56 % of a trained policy's failed pick-ups were beyond reach).
+fn tells_the_affordance(outcome: &sim::agent::Outcome) -> bool {
+    outcome.success || outcome.failure.as_ref().is_some_and(does_not_afford)
+}
+
 /// The paper's per-episode metrics against the simulator's ground truth:
 /// return, interaction success rate (and why attempts failed),
 /// interacted object rate, both
@@ -988,4 +1000,46 @@ fn episode_stats(
         }
     }
     stats
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_successes_and_failures_of_the_object_itself_make_labels() {
+        let failed = |failure| sim::agent::Outcome {
+            success: false,
+            failure: Some(failure),
+        };
+        let succeeded = sim::agent::Outcome {
+            success: true,
+            failure: None,
+        };
+        assert!(tells_the_affordance(&succeeded));
+        for evidence in [
+            Failure::NotPickupable,
+            Failure::TooHeavy { mass_kg: 30.0 },
+            Failure::TooWide { width_m: 0.5 },
+            Failure::NotPushable,
+            Failure::DidNotMove { moved_m: 0.01 },
+        ] {
+            assert!(
+                tells_the_affordance(&failed(evidence.clone())),
+                "{evidence:?}"
+            );
+        }
+        for no_evidence in [
+            Failure::OutOfReach { distance_m: 1.4 },
+            Failure::NothingThere,
+            Failure::NoRoom {
+                blocked_by: "Shelf".into(),
+            },
+        ] {
+            assert!(
+                !tells_the_affordance(&failed(no_evidence.clone())),
+                "{no_evidence:?}"
+            );
+        }
+    }
 }
