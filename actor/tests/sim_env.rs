@@ -104,12 +104,6 @@ fn an_episode_runs_labels_and_repeats_exactly() {
         .filter(|(_, tried)| tried.is_some())
         .map(|(o, _)| o)
         .collect();
-    let failed_share = |why: fn(&Failure) -> bool| {
-        let failed = attempts
-            .iter()
-            .filter(|o| o.failure.as_ref().is_some_and(why));
-        failed.count() as f32 / attempts.len() as f32
-    };
     println!(
         "{} of {steps} steps succeeded, return {:.1}",
         outcomes.iter().filter(|(o, _)| o.success).count(),
@@ -173,14 +167,13 @@ fn an_episode_runs_labels_and_repeats_exactly() {
         "one attempt per pick-up or push selected"
     );
     assert_eq!(
-        stats[&StatField::InteractionOutOfReachRate],
-        failed_share(|f| matches!(f, Failure::OutOfReach { .. })),
+        Some(stats[&StatField::InteractionOutOfReachRate]),
+        failed_share(&attempts, |f| matches!(f, Failure::OutOfReach { .. })),
         "attempts that failed beyond reach"
     );
-    let unafforded = failed_share(does_not_afford);
     assert_eq!(
-        stats[&StatField::InteractionUnaffordedRate],
-        unafforded,
+        Some(stats[&StatField::InteractionUnaffordedRate]),
+        failed_share(&attempts, Failure::object_does_not_afford),
         "attempts on objects that do not afford the action"
     );
     for (affordance, attempt_rate, success_rate, out_of_reach_rate, unafforded_rate) in [
@@ -215,21 +208,14 @@ fn an_episode_runs_labels_and_repeats_exactly() {
             (!tried.is_empty()).then(|| succeeded as f32 / tried.len() as f32),
             "{affordance:?} successes per attempt"
         );
-        let failed = |f: fn(&Failure) -> bool| {
-            let n = tried
-                .iter()
-                .filter(|o| o.failure.as_ref().is_some_and(f))
-                .count();
-            (!tried.is_empty()).then(|| n as f32 / tried.len() as f32)
-        };
         assert_eq!(
             stats.get(&out_of_reach_rate).copied(),
-            failed(|f| matches!(f, Failure::OutOfReach { .. })),
+            failed_share(&tried, |f| matches!(f, Failure::OutOfReach { .. })),
             "{affordance:?} attempts beyond reach"
         );
         assert_eq!(
             stats.get(&unafforded_rate).copied(),
-            failed(does_not_afford),
+            failed_share(&tried, Failure::object_does_not_afford),
             "{affordance:?} attempts on objects that do not afford it"
         );
     }
@@ -453,14 +439,11 @@ fn environments_in_lock_step_play_exactly_the_episodes_they_play_alone() {
     }
 }
 
-/// The failures that say the object does not afford the action tried.
-fn does_not_afford(failure: &Failure) -> bool {
-    matches!(
-        failure,
-        Failure::NotPickupable
-            | Failure::TooHeavy { .. }
-            | Failure::TooWide { .. }
-            | Failure::NotPushable
-            | Failure::DidNotMove { .. }
-    )
+/// The share of `tried` that failed for `why`; `None` when nothing was tried.
+fn failed_share(tried: &[&ActionOutcome], why: fn(&Failure) -> bool) -> Option<f32> {
+    let failed = tried
+        .iter()
+        .filter(|o| o.failure.as_ref().is_some_and(why))
+        .count();
+    (!tried.is_empty()).then(|| failed as f32 / tried.len() as f32)
 }

@@ -143,6 +143,22 @@ pub enum Failure {
     },
 }
 
+impl Failure {
+    /// Whether the failure lies with the object: it does not afford the
+    /// action, whatever the robot's pose (cannot be picked up, too heavy or
+    /// wide, static, did not move). The other failures say nothing about it.
+    pub fn object_does_not_afford(&self) -> bool {
+        matches!(
+            self,
+            Failure::NotPickupable
+                | Failure::TooHeavy { .. }
+                | Failure::TooWide { .. }
+                | Failure::NotPushable
+                | Failure::DidNotMove { .. }
+        )
+    }
+}
+
 /// What a step did.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Outcome {

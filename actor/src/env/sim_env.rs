@@ -196,7 +196,8 @@ struct Episode {
     attempts: [u32; Affordance::ALL.len()],
     successes: [u32; Affordance::ALL.len()],
     /// Interactions that failed because the object was beyond reach, and
-    /// because it does not afford the action ([`does_not_afford`]), per
+    /// because it does not afford the action
+    /// ([`Failure::object_does_not_afford`]), per
     /// affordance like `attempts`.
     out_of_reach: [u32; Affordance::ALL.len()],
     unafforded: [u32; Affordance::ALL.len()],
@@ -464,7 +465,7 @@ impl SimEnv {
                 let kind = affordance as usize;
                 episode.out_of_reach[kind] +=
                     u32::from(matches!(failure, Failure::OutOfReach { .. }));
-                episode.unafforded[kind] += u32::from(does_not_afford(failure));
+                episode.unafforded[kind] += u32::from(failure.object_does_not_afford());
             }
         }
         if let Some((affordance, Target { object, .. })) =
@@ -843,19 +844,6 @@ impl SimEnv {
     }
 }
 
-/// Whether an interaction failed because its object does not afford the
-/// action, whatever the robot's pose: the policy chose the wrong object.
-fn does_not_afford(failure: &Failure) -> bool {
-    matches!(
-        failure,
-        Failure::NotPickupable
-            | Failure::TooHeavy { .. }
-            | Failure::TooWide { .. }
-            | Failure::NotPushable
-            | Failure::DidNotMove { .. }
-    )
-}
-
 /// Whether an interaction's outcome says anything about its object's
 /// affordance, so that labels may follow from it: a success, or a failure of
 /// the object itself. An arm that never reached the object (beyond reach, no
@@ -864,7 +852,17 @@ fn does_not_afford(failure: &Failure) -> bool {
 /// taught the U-Net that reachable pickupable objects cannot be picked up
 /// (56 % of a trained policy's failed pick-ups were beyond reach).
 fn tells_the_affordance(outcome: &sim::agent::Outcome) -> bool {
-    outcome.success || outcome.failure.as_ref().is_some_and(does_not_afford)
+    outcome.success
+        || outcome
+            .failure
+            .as_ref()
+            .is_some_and(Failure::object_does_not_afford)
+}
+
+/// A sum of per-frame scores over its `frames`, as their mean; `None`
+/// without frames.
+fn per_frame(sum: f64, frames: u32) -> Option<f32> {
+    (frames > 0).then(|| (sum / f64::from(frames)) as f32)
 }
 
 /// The paper's per-episode metrics against the simulator's ground truth:
@@ -910,7 +908,7 @@ fn episode_stats(
             .iter()
             .map(f)
             .fold((0.0, 0), |(s, c), (x, k)| (s + x, c + k));
-        (n > 0).then(|| (sum / f64::from(n)) as f32)
+        per_frame(sum, n)
     };
     let attempts: u32 = episode.attempts.iter().sum();
     let successes: u32 = episode.successes.iter().sum();
@@ -984,7 +982,6 @@ fn episode_stats(
             Affordance::PickUp => (StatField::PickUpIou, StatField::PickUpObjectAccuracy),
             Affordance::Push => (StatField::PushIou, StatField::PushObjectAccuracy),
         };
-        let per_frame = |sum: f64, n: u32| (n > 0).then(|| (sum / f64::from(n)) as f32);
         stats.extend(per_frame(sums.iou, sums.iou_frames).map(|v| (iou, v)));
         stats.extend(per_frame(sums.accuracy, sums.accuracy_frames).map(|v| (accuracy, v)));
     }

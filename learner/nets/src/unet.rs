@@ -112,8 +112,9 @@ impl AffordanceUnet {
 }
 
 /// Loss over labelled pixels only: binary cross-entropy (from logits) plus
-/// soft Dice (on planes whose batch has positive labels). `labels` holds 1 / 0 where `known` is 1; pixels with `known`
-/// 0 contribute nothing (neither value nor gradient). All `[b, a, h, w]`.
+/// soft Dice (on planes whose batch has positive labels). `labels` holds
+/// 1 / 0 where `known` is 1; pixels with `known` 0 contribute nothing
+/// (neither value nor gradient). All `[b, a, h, w]`.
 ///
 /// Each affordance plane gets its own BCE (mean over its labelled pixels)
 /// and its own Dice, and the loss is their mean over the planes that have
