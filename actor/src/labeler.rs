@@ -46,7 +46,8 @@ pub struct ConfidenceRule {
     pub positive_above: f32,
     /// ξ_F: an object is negative when its smallest per-frame P5 is below this.
     pub negative_below: f32,
-    /// Fewest pixels of an object in a frame for that frame to count.
+    /// Fewest pixels of an object in a frame for that frame to count; pixels
+    /// of a 128 × 128 image, scaled to the frame's area ([`mapper::scaled_px`]).
     pub min_pixels: usize,
 }
 
@@ -94,7 +95,7 @@ pub fn confidence_labels(
             }
         }
         for (id, mut v) in values {
-            if v.len() < rule.min_pixels.max(1) {
+            if v.len() < mapper::scaled_px(rule.min_pixels, plane.len()) {
                 continue;
             }
             let e = extremes

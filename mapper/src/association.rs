@@ -11,9 +11,11 @@ use crate::render::RenderTarget;
 /// Settings of association.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AssociationParams {
-    /// Segments smaller than this are ignored (noise).
+    /// Segments smaller than this are ignored (noise); pixels of a
+    /// 128 × 128 frame, scaled by [`crate::Intrinsics::scaled_px`].
     pub min_segment_px: usize,
-    /// Unmatched segments at least this large become new objects.
+    /// Unmatched segments at least this large become new objects; pixels of
+    /// a 128 × 128 frame, scaled like `min_segment_px`.
     pub new_object_min_px: usize,
     /// Accept a match with at least this IoU…
     pub min_iou: f32,

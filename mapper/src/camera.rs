@@ -9,6 +9,17 @@ use nalgebra::{Point3, Vector3};
 
 use crate::Pose;
 
+/// Pixels of the frame that pixel counts in settings are given for: the
+/// paper's 128 × 128 image (see [`Intrinsics::scaled_px`]).
+pub const REFERENCE_PIXELS: usize = 128 * 128;
+
+/// `px_at_reference` pixels of a [`REFERENCE_PIXELS`] frame scaled to a
+/// frame of `frame_pixels` (rounded, at least 1).
+pub fn scaled_px(px_at_reference: usize, frame_pixels: usize) -> usize {
+    let scaled = px_at_reference as f64 * frame_pixels as f64 / REFERENCE_PIXELS as f64;
+    (scaled.round() as usize).max(1)
+}
+
 /// Pinhole intrinsics.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Intrinsics {
@@ -43,6 +54,14 @@ impl Intrinsics {
     /// Number of pixels.
     pub fn pixels(&self) -> usize {
         self.width * self.height
+    }
+
+    /// A pixel count given for a [`REFERENCE_PIXELS`] frame, scaled to this
+    /// frame's area (rounded, at least 1): the same share of the view at
+    /// any resolution, so that a small object is no more "noise" at 64 × 64
+    /// than at 128 × 128.
+    pub fn scaled_px(&self, px_at_reference: usize) -> usize {
+        scaled_px(px_at_reference, self.pixels())
     }
 
     /// Direction through pixel `(u, v)` scaled so its z is 1: `point = ray * z_depth`.

@@ -23,7 +23,7 @@ pub mod render;
 pub mod segmentation;
 pub mod tracking;
 
-pub use camera::{Frame, Intrinsics};
+pub use camera::{scaled_px, Frame, Intrinsics, REFERENCE_PIXELS};
 pub use labels::{Affordance, ObjectLabels, Outcome};
 pub use layer::{BlockIndex, Layer, Voxel, VoxelIndex};
 pub use map::{IntegrateTimings, Map, MapConfig, MapError, MapObject, ObjectId, Whereabouts};

@@ -71,7 +71,8 @@ pub struct MapConfig {
     /// An object predicted visible (at least `miss_min_rendered_px` pixels)
     /// but not matched this many frames in a row is deleted.
     pub max_misses: u32,
-    /// Rendered pixels that make an object "expected to be seen".
+    /// Rendered pixels that make an object "expected to be seen" (of a
+    /// 128 × 128 frame, scaled by [`Intrinsics::scaled_px`]).
     pub miss_min_rendered_px: usize,
 }
 
@@ -344,7 +345,7 @@ impl Map {
             instance,
             frame.depth_m,
             |d| params.valid_depth(d),
-            self.config.association.min_segment_px,
+            k.scaled_px(self.config.association.min_segment_px),
         );
         let far_m = self.visible_depth_limits(frame);
         let rendered = self.render_objects(&frame.t_world_camera, &k, Some(&far_m));
@@ -364,6 +365,7 @@ impl Map {
         let tracked_at = std::time::Instant::now();
         let merged = self.merge_copies(&candidates, &matches, &failed);
 
+        let new_object_min_px = k.scaled_px(self.config.association.new_object_min_px);
         let mut owner = vec![0u32; k.pixels()];
         let mut matched: BTreeMap<ObjectId, usize> = BTreeMap::new();
         for (segment, matched_id) in segments.iter().zip(&matches) {
@@ -372,7 +374,7 @@ impl Map {
                     let id = self.current_id(ObjectId(*id));
                     self.reidentify_later(id, segment, frame).unwrap_or(id)
                 }
-                None if segment.pixels.len() >= self.config.association.new_object_min_px => {
+                None if segment.pixels.len() >= new_object_min_px => {
                     match self.place_unmatched(segment, &rendered, frame.depth_m, &failed) {
                         Placement::New => match self.reidentify(segment, frame, None) {
                             Some(id) => id,
@@ -462,7 +464,7 @@ impl Map {
 
         let integrated_at = std::time::Instant::now();
         let glimpsed = self.glimpsed(&rendered, frame.depth_m, instance, &owner);
-        self.book_keeping(&matched, &visible, &glimpsed);
+        self.book_keeping(&k, &matched, &visible, &glimpsed);
         self.last_timings = IntegrateTimings {
             render_s: (rendered_at - started).as_secs_f64(),
             associate_s: (associated_at - rendered_at).as_secs_f64()
@@ -591,12 +593,13 @@ impl Map {
     /// deleted after a few still frames and made anew when seen properly.
     fn book_keeping(
         &mut self,
+        k: &Intrinsics,
         matched: &BTreeMap<ObjectId, usize>,
         visible: &BTreeMap<u32, usize>,
         glimpsed: &BTreeMap<u32, usize>,
     ) {
         let max_misses = self.config.max_misses;
-        let min_px = self.config.miss_min_rendered_px;
+        let min_px = k.scaled_px(self.config.miss_min_rendered_px);
         for object in self.objects.values_mut() {
             let id = object.id.0;
             if matched.contains_key(&object.id) {

@@ -55,7 +55,8 @@ pub struct GeometricParams {
     /// Pixels below this world height are floor: never joined to pixels
     /// above it, and regions mostly made of them are background.
     pub floor_height_m: f32,
-    /// Regions smaller than this many pixels are dropped (left as 0).
+    /// Regions smaller than this many pixels are dropped (left as 0); pixels
+    /// of a 128 × 128 frame, scaled by [`Intrinsics::scaled_px`].
     pub min_region_px: usize,
     /// Depths outside this range are ignored.
     pub min_depth_m: f32,
@@ -163,6 +164,7 @@ pub fn segment_geometric(
     params: &GeometricParams,
 ) -> Vec<u32> {
     let (w, h) = (k.width, k.height);
+    let min_region_px = k.scaled_px(params.min_region_px);
     let (points, normals) = points_and_normals(k, depth_m, params);
     let concave_cos = params.concave_angle_deg.to_radians().cos();
     let on_floor: Vec<bool> = points
@@ -227,7 +229,7 @@ pub fn segment_geometric(
         }
         let (n, lo, hi, on_floor) = stats[&root];
         let extent = (hi - lo).norm();
-        if n < params.min_region_px || extent > params.max_object_extent_m || on_floor * 2 > n {
+        if n < min_region_px || extent > params.max_object_extent_m || on_floor * 2 > n {
             continue;
         }
         let next = label_of.len() as u32 + 1;

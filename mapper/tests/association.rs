@@ -7,7 +7,7 @@ mod common;
 use std::collections::{BTreeMap, BTreeSet};
 
 use common::{k128, look_at, OwnedFrame, Shape};
-use mapper::{Map, MapConfig};
+use mapper::{Intrinsics, Map, MapConfig};
 use nalgebra::{Isometry3, Point3, Vector3};
 
 fn scene() -> Vec<Shape> {
@@ -599,4 +599,37 @@ fn an_object_glimpsed_as_a_sliver_is_not_deleted() {
         map.integrate(&frame.frame()).unwrap();
     }
     assert!(map.object(id).is_some(), "the glimpsed object was deleted");
+}
+
+#[test]
+fn a_small_object_is_mapped_at_the_papers_resolution_and_at_a_quarter_of_it() {
+    // A book-sized box a metre ahead of the camera, looked down at.
+    let book = vec![Shape::Box {
+        t_world_box: Isometry3::translation(1.0, 0.0, 0.05),
+        half: Vector3::new(0.12, 0.08, 0.03),
+        id: 7,
+    }];
+    let pose = look_at(Point3::new(0.0, 0.0, 0.9), Point3::new(1.0, 0.0, 0.05));
+    let defaults = MapConfig::default().association;
+    for size in [128, 64] {
+        let frame = OwnedFrame::capture(&book, pose, Intrinsics::from_fov(size, size, 90.0));
+        let pixels: Vec<usize> = (0..frame.ids.len())
+            .filter(|&p| frame.ids[p] == 7)
+            .collect();
+        // The same share of the view: enough for an object at 128 × 128,
+        // under the unscaled threshold at 64 × 64.
+        assert_eq!(
+            pixels.len() >= defaults.new_object_min_px,
+            size == 128,
+            "{} px at {size} × {size}",
+            pixels.len()
+        );
+        let mut map = Map::new(MapConfig::default());
+        let map_ids = map.integrate(&frame.frame()).unwrap();
+        assert_eq!(map.objects().len(), 1, "at {size} × {size}");
+        assert!(
+            pixels.iter().all(|&p| map_ids[p] != 0),
+            "at {size} × {size} the object's pixels have no map id"
+        );
+    }
 }

@@ -213,7 +213,8 @@ impl CellTargets {
 pub struct SelectionRule {
     /// Fraction of the image's width and height that the grid covers, centred.
     pub centre_fraction: f32,
-    /// Objects with fewer pixels are ignored.
+    /// Objects with fewer pixels are ignored; pixels of a 128 × 128 image,
+    /// scaled to the frame's area ([`mapper::scaled_px`]).
     pub min_pixels: usize,
     /// Objects whose mean predicted probability is below this lose the cell
     /// to any object above it.
@@ -270,6 +271,7 @@ pub fn cell_targets(
     rule: &SelectionRule,
 ) -> CellTargets {
     let height = map_ids.len() / width.max(1);
+    let min_pixels = mapper::scaled_px(rule.min_pixels, map_ids.len());
     // One pass over the image gathers every object's statistics.
     let mut blobs: std::collections::BTreeMap<u32, Blob> = Default::default();
     for (p, &id) in map_ids.iter().enumerate() {
@@ -321,7 +323,7 @@ pub fn cell_targets(
         // probable one (the lowest id on ties).
         let mut best: [Option<(u32, &Blob, Preference)>; GRID * GRID] = [None; GRID * GRID];
         for (&id, blob) in &blobs {
-            if blob.pixels < rule.min_pixels {
+            if blob.pixels < min_pixels {
                 continue;
             }
             let preference = match probabilities {
@@ -395,7 +397,7 @@ pub fn centred_target(
         });
     let target = nearest.and_then(|(p, &id)| {
         let pixels = ids.iter().filter(|&&m| m == id).count();
-        (pixels >= rule.min_pixels).then_some(Target {
+        (pixels >= mapper::scaled_px(rule.min_pixels, ids.len())).then_some(Target {
             object: id,
             u: p % width,
             v: p / width,
@@ -558,5 +560,24 @@ mod tests {
         assert_eq!(t.target(Affordance::Push, 0).unwrap().object, 3);
         assert_eq!(t.target(Affordance::Push, 8).unwrap().object, 5);
         assert!(t.target(Affordance::Push, 4).is_none());
+    }
+
+    #[test]
+    fn the_smallest_selectable_object_is_the_same_share_of_any_image() {
+        let rule = SelectionRule::default();
+        // 10 px at 128 × 128 are 2.5 px at 64 × 64, rounded to 3.
+        for (width, smallest) in [(128, rule.min_pixels), (64, 3)] {
+            for (pixels, selectable) in [(smallest - 1, false), (smallest, true)] {
+                let mut ids = vec![0; width * width];
+                let centre = width / 2 * width + width / 2;
+                ids[centre..centre + pixels].fill(4);
+                let t = cell_targets(&ids, width, &[Affordance::Push], None, &rule);
+                assert_eq!(
+                    t.target(Affordance::Push, 4).is_some(),
+                    selectable,
+                    "{pixels} px at {width} × {width}"
+                );
+            }
+        }
     }
 }

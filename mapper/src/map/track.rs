@@ -158,8 +158,12 @@ impl Map {
         segments: &[Segment],
         matches: &[Option<u32>],
         rendered: &RenderTarget,
-        depth_m: &[f32],
+        frame: &Frame<'_>,
     ) -> BTreeMap<ObjectId, ResidualCounts> {
+        let depth_m = frame.depth_m;
+        let min_px = frame
+            .intrinsics
+            .scaled_px(self.config.association.min_segment_px);
         let tol = self.config.association.depth_tolerance_m;
         let mut segment_of = vec![usize::MAX; depth_m.len()];
         for (s, segment) in segments.iter().enumerate() {
@@ -223,7 +227,7 @@ impl Map {
             .into_iter()
             .filter(|(_, c)| {
                 let n = c.agree + c.disagree;
-                n >= self.config.association.min_segment_px && (c.agree as f32) < trigger * n as f32
+                n >= min_px && (c.agree as f32) < trigger * n as f32
             })
             .map(|(id, c)| (ObjectId(id), c))
             .collect()
@@ -267,7 +271,7 @@ impl Map {
         matches: &mut [Option<u32>],
         rendered: &RenderTarget,
     ) -> BTreeSet<ObjectId> {
-        let residual = self.residual_candidates(segments, matches, rendered, frame.depth_m);
+        let residual = self.residual_candidates(segments, matches, rendered, frame);
         let mut candidates: BTreeMap<ObjectId, (TrackingTrigger, Notice)> = residual
             .keys()
             .map(|&id| (id, (TrackingTrigger::Residual, Notice::default())))
