@@ -304,7 +304,7 @@ fn a_candidate_replaces_the_deployed_network_only_if_better_on_validation() {
     );
     data.add_episode(
         0,
-        (0..12).map(|_| synthetic_frame(&mut rng)).collect(),
+        (0..32).map(|_| synthetic_frame(&mut rng)).collect(),
         &mut rng,
     );
     let mut trainer = UnetTrainer::new(
