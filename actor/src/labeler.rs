@@ -87,6 +87,7 @@ pub fn confidence_labels(
         .map(|o| (o.id.0, (f32::NEG_INFINITY, f32::INFINITY)))
         .collect();
     for (frame, plane) in frames.iter().zip(probabilities) {
+        let min_pixels = mapper::scaled_px(rule.min_pixels, plane.len());
         let mut values: BTreeMap<u32, Vec<f32>> = BTreeMap::new();
         for (&id, &p) in frame.map_ids.iter().zip(plane) {
             let id = map.current_id(ObjectId(id)).0;
@@ -95,7 +96,7 @@ pub fn confidence_labels(
             }
         }
         for (id, mut v) in values {
-            if v.len() < mapper::scaled_px(rule.min_pixels, plane.len()) {
+            if v.len() < min_pixels {
                 continue;
             }
             let e = extremes
