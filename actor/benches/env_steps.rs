@@ -264,11 +264,8 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
             let layout = envs[0].layout().clone();
             let space = envs[0].inner().action_space().clone();
             let net = PolicyNet::new(&layout, device);
-            let cpu = if nets::device::is_cpu(device) {
-                CpuPolicy::from_network(&net, &layout)
-            } else {
-                None
-            };
+            // As the actor: the CPU's own pass on every device.
+            let cpu = CpuPolicy::from_network(&net, &layout);
             let policy = (net, cpu);
             let bench = SeveralEnvs {
                 layout: &layout,

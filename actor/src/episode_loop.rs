@@ -65,7 +65,7 @@ pub struct LoopSummary {
 struct Policy {
     net: PolicyNet,
     /// The same weights for the CPU's own pass (`nets::policy::CpuPolicy`),
-    /// on a CPU device.
+    /// used on every device where the policy has one.
     cpu: Option<CpuPolicy>,
     layout: PolicyLayout,
     policy_version: u64,
@@ -167,11 +167,10 @@ fn load_weights(
             header.unet_version
         );
     }
-    let cpu = if nets::device::is_cpu(device) {
-        CpuPolicy::from_network(&net, layout)
-    } else {
-        None
-    };
+    // The policy is small (about 15 MFLOP a pass at 64 px): on a GPU, burn's
+    // pass is bound by its per-operation overhead, so the CPU's own pass
+    // serves every device (see docs/performance.md, "The H200").
+    let cpu = CpuPolicy::from_network(&net, layout);
     Ok(Policy {
         net,
         cpu,
@@ -204,14 +203,16 @@ struct PolicyStep {
 
 /// The policy over several environments' observations, each with its
 /// recurrent state before this step (`None` = zeros, an episode's start):
-/// one forward pass, or one per observation and thread.
+/// one per observation and thread where the policy has the CPU's own pass
+/// or runs on a CPU device, else one batched forward pass.
 fn forward_batch(
     policy: &Policy,
     inputs: &[(&Observation, Option<&[f32]>)],
     device: &Device,
     inference: lockstep::Inference,
 ) -> anyhow::Result<Vec<PolicyStep>> {
-    if inputs.len() > 1 && inference == lockstep::Inference::PerEnvironment {
+    let per_observation = policy.cpu.is_some() || inference == lockstep::Inference::PerEnvironment;
+    if inputs.len() > 1 && per_observation {
         return inputs
             .par_iter()
             .map(|input| forward(policy, std::slice::from_ref(input), device))
