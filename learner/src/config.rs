@@ -62,6 +62,12 @@ pub struct PolicyConfig {
     /// The run's seed: initial weights of both networks, minibatch
     /// shuffling and the dataset split.
     pub seed: u64,
+    /// Where PPO trains when not where the U-Net does (the learner's
+    /// `device`): `cpu` keeps the small policy on the CPU's own training
+    /// path while the U-Net trains on the GPU. On an H200 with both on the
+    /// GPU, PPO took about 1 s per 128-step update (docs/performance.md).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub device: Option<String>,
 }
 
 /// Affordance U-Net training on the global dataset of labelled frames.
@@ -124,6 +130,7 @@ impl Default for PolicyConfig {
             max_grad_norm: 0.5,
             batch_steps: 128,
             seed: 0,
+            device: None,
         }
     }
 }
@@ -168,6 +175,11 @@ impl LearnerConfig {
             .parse::<nets::device::DeviceChoice>()
             .map_err(|e| anyhow::anyhow!("device: {e}"))?;
         let p = &self.policy;
+        if let Some(device) = &p.device {
+            device
+                .parse::<nets::device::DeviceChoice>()
+                .map_err(|e| anyhow::anyhow!("policy.device: {e}"))?;
+        }
         anyhow::ensure!(p.batch_steps >= 1, "policy.batch_steps must be >= 1");
         anyhow::ensure!(
             p.epochs >= 1 && p.minibatches >= 1 && p.minibatches <= p.batch_steps,
@@ -233,6 +245,20 @@ mod tests {
             !paper.task.labels_background(),
             "the paper's rule is one line away"
         );
+        let split: LearnerConfig =
+            toml::from_str("device = \"gpu\"\n[policy]\ndevice = \"cpu\"").unwrap();
+        assert!(split.validate().is_ok());
+        assert_eq!(split.policy.device.as_deref(), Some("cpu"));
+        assert_eq!(
+            toml::from_str::<LearnerConfig>(&split.to_toml()).unwrap(),
+            split
+        );
+        let typo: LearnerConfig = toml::from_str("[policy]\ndevice = \"cuda\"").unwrap();
+        assert!(typo
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("policy.device"));
         let bad: LearnerConfig = toml::from_str("[task]\nmemory_size = 0").unwrap();
         assert!(bad
             .validate()

@@ -261,7 +261,16 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         .parse()
         .map_err(|e| anyhow::anyhow!("--device: {e}"))?;
     let device = nets::device::open_device(choice).context("opening the training device")?;
-    let mut trainers = Trainers::new(&config, &device);
+    let policy_device = match config.policy.device.as_deref() {
+        None => device.clone(),
+        Some(name) => {
+            let choice: nets::device::DeviceChoice = name
+                .parse()
+                .map_err(|e| anyhow::anyhow!("[policy] device: {e}"))?;
+            nets::device::open_device(choice).context("opening the policy's training device")?
+        }
+    };
+    let mut trainers = Trainers::new(&config, &device, &policy_device);
     let mut status = LearnerStatus::new(run_id);
     if args.resume.is_some() {
         resume(&checkpoint_dir, &mut trainers, &mut status)?;

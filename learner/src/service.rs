@@ -67,11 +67,19 @@ pub struct Trainers {
 }
 
 impl Trainers {
-    /// Fresh networks for the configured task on `device`, initialised from
-    /// the run's seed (`[policy] seed`): runs with the same seed start from
-    /// the same weights, runs with different seeds from different ones.
-    pub fn new(config: &LearnerConfig, device: &burn::prelude::Device) -> Self {
+    /// Fresh networks for the configured task, the U-Net on `device` and
+    /// the policy on `policy_device`, initialised from the run's seed
+    /// (`[policy] seed`): runs with the same seed start from the same
+    /// weights, runs with different seeds from different ones.
+    pub fn new(
+        config: &LearnerConfig,
+        device: &burn::prelude::Device,
+        policy_device: &burn::prelude::Device,
+    ) -> Self {
         device.seed(config.policy.seed);
+        if policy_device != device {
+            policy_device.seed(config.policy.seed);
+        }
         let affordance = (config.task.env == proto::EnvKind::Sim).then(|| {
             AffordanceLearner::new(
                 config.task.affordances.len(),
@@ -81,7 +89,7 @@ impl Trainers {
             )
         });
         Self {
-            policy: PolicyTrainer::new(&config.task, &config.policy, device),
+            policy: PolicyTrainer::new(&config.task, &config.policy, policy_device),
             affordance,
         }
     }

@@ -11,7 +11,7 @@ fn initial_weights(seed: u64) -> (Vec<u8>, Vec<u8>) {
     config.policy.seed = seed;
     let device =
         nets::device::open_device(nets::device::DeviceChoice::Cpu).expect("the CPU device");
-    let trainers = Trainers::new(&config, &device);
+    let trainers = Trainers::new(&config, &device, &device);
     let policy = trainers.policy.weights().expect("policy weights");
     let unet = trainers
         .affordance
