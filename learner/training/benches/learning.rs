@@ -13,8 +13,9 @@
 //! a plain timing harness rather than criterion). `AFX_BENCH_QUICK=1` runs
 //! one repeat and a 2 × 600-step PPO batch, for a smoke test;
 //! `AFX_BENCH_ONLY=ppo-default` runs only the PPO update at the learner's
-//! defaults (128 steps of 64 × 64 observations), `AFX_BENCH_ONLY=unet-train`
-//! only the U-Net training step.
+//! defaults (128 steps of 64 × 64 observations; `AFX_BENCH_PPO_STEPS=N` for
+//! another `[policy] batch_steps`), `AFX_BENCH_ONLY=unet-train` only the
+//! U-Net training step.
 
 use std::time::Instant;
 
@@ -110,12 +111,25 @@ fn ppo_batch(layout: &PolicyLayout, rows: usize, rng: &mut StdRng, device: &Devi
     }
 }
 
+/// Steps of the PPO update at the learner's defaults: `AFX_BENCH_PPO_STEPS`,
+/// else the learner's `[policy] batch_steps` (128).
+fn learner_batch_steps() -> usize {
+    std::env::var("AFX_BENCH_PPO_STEPS").map_or(128, |s| {
+        s.trim()
+            .parse()
+            .ok()
+            .filter(|&n: &usize| n >= 2)
+            .expect("AFX_BENCH_PPO_STEPS: at least 2 steps")
+    })
+}
+
 /// One PPO update at the learner's defaults (`[policy]`: 128 steps an
-/// update, 4 epochs × 2 minibatches) on 64 × 64 images, the size a 2-core
-/// machine trains at (`deploy/local.sh --image-size 64`).
+/// update unless `AFX_BENCH_PPO_STEPS` says otherwise, 4 epochs × 2
+/// minibatches) on 64 × 64 images, the size a 2-core machine trains at
+/// (`deploy/local.sh --image-size 64`).
 fn ppo_update_at_learner_defaults(repeats: usize, rng: &mut StdRng, device: &Device) -> f64 {
     let layout = policy_config_at(64);
-    let batch = ppo_batch(&layout, 128, rng, device);
+    let batch = ppo_batch(&layout, learner_batch_steps(), rng, device);
     let mut ppo = Ppo::new(
         PolicyNet::new(&layout, device),
         PpoConfig::default(),
@@ -146,7 +160,7 @@ fn main() {
     }
     if only.as_deref() != Some("unet-train") {
         results.push((
-            "ppo_update_128steps_64px_ms",
+            "ppo_update_learner_batch_64px_ms",
             ppo_update_at_learner_defaults(repeats.max(5), &mut rng, &device),
         ));
     }
