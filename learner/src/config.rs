@@ -253,17 +253,13 @@ mod tests {
             toml::from_str::<LearnerConfig>(&split.to_toml()).unwrap(),
             split
         );
-        let typo: LearnerConfig = toml::from_str("[policy]\ndevice = \"cuda\"").unwrap();
-        assert!(typo
-            .validate()
-            .unwrap_err()
-            .to_string()
-            .contains("policy.device"));
-        let bad: LearnerConfig = toml::from_str("[task]\nmemory_size = 0").unwrap();
-        assert!(bad
-            .validate()
-            .unwrap_err()
-            .to_string()
-            .contains("task.memory_size"));
+        assert!(refusal("[policy]\ndevice = \"cuda\"").contains("policy.device"));
+        assert!(refusal("[task]\nmemory_size = 0").contains("task.memory_size"));
+    }
+
+    /// Why `validate` refuses the config `text` parses to.
+    fn refusal(text: &str) -> String {
+        let config: LearnerConfig = toml::from_str(text).unwrap();
+        config.validate().unwrap_err().to_string()
     }
 }

@@ -231,6 +231,15 @@ fn load_config(args: &ServeArgs, run_dir: &Path) -> anyhow::Result<LearnerConfig
     Ok(config)
 }
 
+/// Opens the device `name` (`cpu` or `gpu`) names; `setting` says where the
+/// name came from in the error.
+fn open_named_device(name: &str, setting: &str) -> anyhow::Result<burn::prelude::Device> {
+    let choice: nets::device::DeviceChoice = name
+        .parse()
+        .map_err(|e| anyhow::anyhow!("{setting}: {e}"))?;
+    nets::device::open_device(choice).with_context(|| format!("opening the device of {setting}"))
+}
+
 fn serve(args: ServeArgs) -> anyhow::Result<()> {
     let run_dir = match (&args.resume, &args.run_dir) {
         (Some(dir), _) => {
@@ -256,19 +265,10 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
     tracing::info!("{}", config.transport.describe());
 
     let checkpoint_dir = run_dir.join("checkpoints");
-    let choice: nets::device::DeviceChoice = config
-        .device
-        .parse()
-        .map_err(|e| anyhow::anyhow!("--device: {e}"))?;
-    let device = nets::device::open_device(choice).context("opening the training device")?;
+    let device = open_named_device(&config.device, "--device")?;
     let policy_device = match config.policy.device.as_deref() {
         None => device.clone(),
-        Some(name) => {
-            let choice: nets::device::DeviceChoice = name
-                .parse()
-                .map_err(|e| anyhow::anyhow!("[policy] device: {e}"))?;
-            nets::device::open_device(choice).context("opening the policy's training device")?
-        }
+        Some(name) => open_named_device(name, "[policy] device")?,
     };
     let mut trainers = Trainers::new(&config, &device, &policy_device);
     let mut status = LearnerStatus::new(run_id);
