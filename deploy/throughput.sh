@@ -11,7 +11,10 @@ Usage: deploy/throughput.sh [options] [-- local.sh options]
 For each setting AxK, starts `deploy/local.sh --actors A --envs-per-actor K` on a
 fresh run, lets it warm up, counts the environment steps the learner receives
 over the measuring window (its /api/status), stops the run, and prints a
-Markdown table: steps/s of all actors, and per actor process.
+Markdown table: steps/s the learner took from all actors and per actor
+process, PPO updates/s, labelled frames the U-Net trainer took and skipped,
+rollout steps PPO discarded (it was behind), and messages lost in transit
+(with their share of all messages sent in the window).
 
 Options:
   --settings LIST   comma-separated AxK pairs (default 2x1,1x2)
@@ -55,9 +58,15 @@ command -v python3 >/dev/null || { echo "throughput.sh: needs python3" >&2; exit
 [[ -n "$RUNS" ]] || RUNS="runs/throughput-$(date -u +%Y%m%dT%H%M%SZ)"
 mkdir -p "$RUNS"
 
-steps() {
-  curl -fsS "http://127.0.0.1:$PORT/api/status" \
-    | python3 -c 'import json, sys; print(json.load(sys.stdin)["env_steps"])'
+# The counters of /api/status the table is made of, as one JSON line.
+counters() {
+  curl -fsS "http://127.0.0.1:$PORT/api/status" | python3 -c '
+import json, sys, time
+s = json.load(sys.stdin)
+print(json.dumps({"t": time.time(), "steps": s["env_steps"], "updates": s["updates"],
+  "frames": s["frames_received"], "skipped": s["frames_skipped"],
+  "discarded": s.get("rollout_steps_discarded", 0), "dropped": s["dropped"],
+  "messages": sum(s["received"].values())}))'
 }
 
 RUN_PID=""
@@ -93,15 +102,21 @@ for pair in "${PAIRS[@]}"; do
     exit 1
   fi
   sleep "$WARMUP"
-  s0=$(steps) t0=$(date +%s.%N)
+  c0=$(counters)
   sleep "$SECONDS_COUNTED"
-  s1=$(steps) t1=$(date +%s.%N)
+  c1=$(counters)
   stop_run
   ROWS+=("$(python3 -c "
-d = ($s1 - $s0) / ($t1 - $t0)
-print('| $actors | $envs | %.1f | %.1f |' % (d, d / $actors))")")
+import json
+a, b = json.loads('$c0'), json.loads('$c1')
+d = {k: b[k] - a[k] for k in a}
+s = d['t']
+sent = d['messages'] + d['dropped']
+print('| $actors | $envs | %.1f | %.1f | %.2f | %d / %d | %d | %d (%.2f %%) |' % (
+    d['steps'] / s, d['steps'] / s / $actors, d['updates'] / s, d['frames'], d['skipped'],
+    d['discarded'], d['dropped'], 100.0 * d['dropped'] / max(sent, 1)))")")
 done
 
-echo "| actors | environments each | steps/s, all actors | steps/s per actor process |"
-echo "|---|---|---|---|"
+echo "| actors | environments each | steps/s taken, all actors | per actor process | PPO updates/s | U-Net frames taken / skipped | rollout steps discarded | messages lost in transit |"
+echo "|---|---|---|---|---|---|---|---|"
 printf '%s\n' "${ROWS[@]}"

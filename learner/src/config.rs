@@ -59,13 +59,18 @@ pub struct PolicyConfig {
     /// actors × 600 steps; the default fits a 2-core machine's memory and
     /// time at 128 × 128 (each step's observation is ~0.4 MB as floats).
     pub batch_steps: usize,
+    /// Batches of steps that may wait for the PPO thread while it updates.
+    /// Beyond them the oldest steps are discarded and counted
+    /// (`rollout_steps_discarded`), which bounds the policy lag of what is
+    /// trained when the learner cannot keep up with the actors.
+    pub queue_batches: usize,
     /// The run's seed: initial weights of both networks, minibatch
     /// shuffling and the dataset split.
     pub seed: u64,
     /// Where PPO trains when not where the U-Net does (the learner's
     /// `device`): `cpu` keeps the small policy on the CPU's own training
-    /// path while the U-Net trains on the GPU. On an H200 with both on the
-    /// GPU, PPO took about 1 s per 128-step update (docs/performance.md).
+    /// path (on every core of the rayon pool) while the U-Net trains on the
+    /// GPU.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub device: Option<String>,
 }
@@ -129,6 +134,7 @@ impl Default for PolicyConfig {
             entropy_coef: 0.01,
             max_grad_norm: 0.5,
             batch_steps: 128,
+            queue_batches: 2,
             seed: 0,
             device: None,
         }
@@ -181,6 +187,7 @@ impl LearnerConfig {
                 .map_err(|e| anyhow::anyhow!("policy.device: {e}"))?;
         }
         anyhow::ensure!(p.batch_steps >= 1, "policy.batch_steps must be >= 1");
+        anyhow::ensure!(p.queue_batches >= 1, "policy.queue_batches must be >= 1");
         anyhow::ensure!(
             p.epochs >= 1 && p.minibatches >= 1 && p.minibatches <= p.batch_steps,
             "policy.epochs must be >= 1 and policy.minibatches in 1..=policy.batch_steps"
@@ -254,6 +261,7 @@ mod tests {
             split
         );
         assert!(refusal("[policy]\ndevice = \"cuda\"").contains("policy.device"));
+        assert!(refusal("[policy]\nqueue_batches = 0").contains("policy.queue_batches"));
         assert!(refusal("[task]\nmemory_size = 0").contains("task.memory_size"));
     }
 

@@ -5,6 +5,7 @@
 //! the `transport` crate, in the layouts of `proto`.
 
 pub mod affordance;
+pub mod bench_capacity;
 pub mod bench_transport;
 pub mod checkpoint;
 pub mod config;
@@ -12,6 +13,7 @@ pub mod history;
 pub mod http;
 pub mod metrics;
 pub mod plot;
+pub mod policy_worker;
 pub mod service;
 pub mod status;
 pub mod summary;

@@ -64,6 +64,11 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Measure how many environment steps this learner takes: a real learner
+    /// fed by synthetic actors (valid rollouts, labelled frames and stats of
+    /// the task, as fast as it takes them; no simulator), printed as a
+    /// Markdown row.
+    BenchCapacity(CapacityArgs),
     /// Measure the message path over iceoryx2 and over loopback TCP, side by side.
     BenchTransport {
         /// Scale of the run (1 = 100 x 1 MiB, 10 x 16 MiB, 10 broadcasts per transport).
@@ -114,6 +119,101 @@ struct ServeArgs {
     seed: Option<u64>,
 }
 
+#[derive(clap::Args)]
+struct CapacityArgs {
+    /// Synthetic actor processes' worth of feeds (threads, one actor id each).
+    #[arg(long, default_value_t = 4)]
+    actors: u32,
+    /// Seconds before counting (start-up, first updates, kernel compilation).
+    #[arg(long, default_value_t = 20)]
+    warmup: u64,
+    /// Seconds counted.
+    #[arg(long, default_value_t = 60, value_parser = clap::value_parser!(u64).range(1..))]
+    seconds: u64,
+    /// Steps per rollout chunk (as the actors' --chunk-steps).
+    #[arg(long, default_value_t = 16)]
+    chunk_steps: usize,
+    /// Share of each episode's steps sent back as labelled frames.
+    #[arg(long, default_value_t = 0.5)]
+    labelled_share: f64,
+    /// TOML config file, as for `serve` (its [task], [policy] and [unet] apply).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Where the networks train: cpu, or gpu (overrides the config).
+    #[arg(long)]
+    device: Option<String>,
+    /// Side of the images in pixels (overrides [task] image_size).
+    #[arg(long)]
+    image_size: Option<usize>,
+    /// Steps per episode (overrides [task] episode_steps).
+    #[arg(long)]
+    episode_steps: Option<usize>,
+    /// Method: ours, nomap-seg, nomap-noseg or intexp (overrides [task] method).
+    #[arg(long)]
+    method: Option<String>,
+    /// Steps per PPO update (overrides [policy] batch_steps).
+    #[arg(long)]
+    batch_steps: Option<usize>,
+}
+
+/// Runs `learner bench-capacity` and prints its row.
+fn bench_capacity(args: CapacityArgs) -> anyhow::Result<()> {
+    let mut config = match &args.config {
+        Some(path) => LearnerConfig::from_toml_file(path)?,
+        None => LearnerConfig::default(),
+    };
+    if let Some(device) = &args.device {
+        config.device = device.clone();
+    }
+    if let Some(size) = args.image_size {
+        config.task.image_size = size;
+    }
+    if let Some(steps) = args.episode_steps {
+        config.task.episode_steps = steps;
+    }
+    if let Some(method) = &args.method {
+        config.task.method = parse_value("--method", method)?;
+    }
+    if let Some(steps) = args.batch_steps {
+        config.policy.batch_steps = steps;
+    }
+    anyhow::ensure!(
+        (0.0..=1.0).contains(&args.labelled_share),
+        "--labelled-share must be in 0..=1"
+    );
+    config.validate()?;
+    let device = open_named_device(&config.device, "--device")?;
+    let policy_device = match config.policy.device.as_deref() {
+        None => device.clone(),
+        Some(name) => open_named_device(name, "[policy] device")?,
+    };
+    let setting = format!(
+        "{} {} px, {}-step episodes, {} feeds, PPO {} steps on {}, U-Net on {} ({})",
+        serde_json::to_value(config.task.method)?.as_str().unwrap_or("?"),
+        config.task.image_size,
+        config.task.episode_steps,
+        args.actors,
+        config.policy.batch_steps,
+        config.policy.device.as_deref().unwrap_or(&config.device),
+        config.device,
+        nets::device::backend_features()
+    );
+    eprintln!(
+        "bench-capacity: {setting}; {} s warm-up, {} s counted",
+        args.warmup, args.seconds
+    );
+    let feed = learner::bench_capacity::FeedSettings {
+        actors: args.actors,
+        chunk_steps: args.chunk_steps,
+        labelled_share: args.labelled_share,
+        warmup: std::time::Duration::from_secs(args.warmup),
+        window: std::time::Duration::from_secs(args.seconds),
+    };
+    let capacity = learner::bench_capacity::run(config, &device, &policy_device, &feed)?;
+    print!("{}", learner::bench_capacity::table(&[(setting, capacity)]));
+    Ok(())
+}
+
 /// Parses a kebab-case enum value the way the config file spells it.
 fn parse_value<T: serde::de::DeserializeOwned>(flag: &str, value: &str) -> anyhow::Result<T> {
     T::deserialize(serde::de::value::StrDeserializer::<serde::de::value::Error>::new(value))
@@ -134,6 +234,7 @@ fn main() -> anyhow::Result<()> {
             print!("{}", LearnerConfig::default().to_toml());
             Ok(())
         }
+        Command::BenchCapacity(args) => bench_capacity(args),
         Command::BenchTransport { repeats } => {
             let measurements = learner::bench_transport::run(repeats.max(1))?;
             print!("{}", learner::bench_transport::table(&measurements));

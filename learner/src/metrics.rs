@@ -82,6 +82,24 @@ pub fn render(s: &StatusSnapshot) -> String {
     );
     counter(
         &mut r,
+        "trained_steps",
+        "Environment steps that went into policy updates",
+        s.trained_steps,
+    );
+    counter(
+        &mut r,
+        "rollout_steps_discarded",
+        "Environment steps discarded, oldest first, because the PPO queue was full",
+        s.rollout_steps_discarded,
+    );
+    gauge(
+        &mut r,
+        "rollout_steps_queued",
+        "Environment steps waiting for the PPO thread",
+        s.rollout_steps_queued as f64,
+    );
+    counter(
+        &mut r,
         "frames_received",
         "Labelled frames received for U-Net training",
         s.frames_received,

@@ -15,6 +15,7 @@ use crate::affordance::{checked_frames, AffordanceLearner, UnetTrainingState};
 use crate::checkpoint;
 use crate::config::LearnerConfig;
 use crate::history::History;
+use crate::policy_worker::{PolicySnapshot, PolicyWorker};
 use crate::status::LearnerStatus;
 use crate::train::PolicyTrainer;
 use crate::unet_worker::UnetWorker;
@@ -95,13 +96,23 @@ impl Trainers {
     }
 }
 
-/// The training loop and what it owns.
+/// The receive loop and what it owns. Training runs on two threads of its
+/// own (PPO and the U-Net), so that receiving never waits for an update.
 pub struct Learner {
     shared: Arc<Shared>,
     ports: LearnerPorts,
-    trainers: Trainers,
+    /// The policy's trainer until `run` hands it to the PPO thread.
+    policy_trainer: Option<PolicyTrainer>,
+    /// The U-Net's learner until `run` hands it to the U-Net thread.
+    affordance: Option<AffordanceLearner>,
     checkpoint_dir: PathBuf,
     history: Arc<Mutex<History>>,
+    /// The PPO thread, started by `run`.
+    policy_worker: Option<PolicyWorker>,
+    /// The newest policy's weights (safetensors), broadcast and checkpointed.
+    policy_weights: Vec<u8>,
+    /// A checkpoint waits for the PPO thread's snapshot.
+    checkpoint_requested: bool,
     /// The U-Net thread (tasks with a U-Net), started by `run`.
     unet_worker: Option<UnetWorker>,
     /// The deployed U-Net's weights and temperature, broadcast and checkpointed.
@@ -129,9 +140,13 @@ impl Learner {
         Self {
             shared,
             ports,
-            trainers,
+            policy_trainer: Some(trainers.policy),
+            affordance: trainers.affordance,
             checkpoint_dir,
             history: Arc::new(Mutex::new(history)),
+            policy_worker: None,
+            policy_weights: Vec::new(),
+            checkpoint_requested: false,
             unet_worker: None,
             unet_weights: None,
             affordances,
@@ -147,7 +162,19 @@ impl Learner {
             let mut status = self.shared.status();
             status.policy_version = status.policy_version.max(1);
         }
-        if let Some(affordance) = self.trainers.affordance.take() {
+        let trainer = self
+            .policy_trainer
+            .take()
+            .context("the learner runs only once")?;
+        self.policy_weights = trainer.weights().context("serialising the policy")?;
+        let policy = &self.shared.config.policy;
+        self.policy_worker = Some(PolicyWorker::start(
+            trainer,
+            self.shared.clone(),
+            self.history.clone(),
+            policy.queue_batches.max(1) * policy.batch_steps.max(1),
+        )?);
+        if let Some(affordance) = self.affordance.take() {
             self.unet_weights = Some((
                 affordance
                     .deployed_weights()
@@ -158,13 +185,20 @@ impl Learner {
                 affordance,
                 self.shared.clone(),
                 self.history.clone(),
+                self.shared.config.unet.max_frames,
             )?);
         }
         let result = self.serve();
-        // The U-Net thread stops first (after its current round), so the
-        // final checkpoint holds its last state. Should the thread have
-        // failed, the checkpoint is still written, with the state it left
-        // after its last good round, and the failure reported after.
+        // Both training threads stop first (after their current update or
+        // round), so the final checkpoint holds their last state. Should a
+        // thread have failed, the checkpoint is still written, with the state
+        // it left after its last good round, and the failure reported after.
+        let policy = self.policy_worker.take().map(PolicyWorker::stop);
+        let (policy, policy_failure) = match policy {
+            Some(Ok(snapshot)) => (Some(snapshot), None),
+            Some(Err(e)) => (None, Some(e)),
+            None => (None, None),
+        };
         let (mut unet_training, mut unet_failure) = (None, None);
         if let Some(worker) = self.unet_worker.take() {
             tracing::info!("stopping the U-Net thread after its current round");
@@ -181,8 +215,13 @@ impl Learner {
             }
         }
         result?;
+        let Some(policy) = policy else {
+            return Err(policy_failure
+                .unwrap_or_else(|| anyhow::anyhow!("the PPO thread never started"))
+                .context("the PPO training thread failed; no final checkpoint"));
+        };
         tracing::info!("shutting down: writing a final checkpoint");
-        self.write_checkpoint(unet_training.as_ref())?;
+        self.write_checkpoint(&policy, unet_training.as_ref())?;
         unet_failure.map_or(Ok(()), Err)
     }
 
@@ -213,8 +252,16 @@ impl Learner {
                     taken.push(message.bytes().to_vec());
                 }
                 for bytes in taken {
-                    self.handle(kind, &bytes)?;
+                    self.handle(kind, bytes)?;
                 }
+            }
+            let published = self
+                .policy_worker
+                .as_ref()
+                .and_then(PolicyWorker::take_published);
+            if let Some(policy) = published {
+                self.policy_weights = policy.weights;
+                self.publish_weights()?;
             }
             if let Some(weights) = self
                 .unet_worker
@@ -232,12 +279,28 @@ impl Learner {
                 tracing::error!("the U-Net training thread stopped; shutting down");
                 break;
             }
-            if self.checkpoint_due() {
+            if self.policy_worker.as_ref().is_some_and(PolicyWorker::finished) {
+                tracing::error!("the PPO training thread stopped; shutting down");
+                break;
+            }
+            if !self.checkpoint_requested && self.checkpoint_due() {
+                if let Some(worker) = &self.policy_worker {
+                    worker.request_snapshot();
+                    self.checkpoint_requested = true;
+                }
+            }
+            let snapshot = self
+                .policy_worker
+                .as_ref()
+                .filter(|_| self.checkpoint_requested)
+                .and_then(PolicyWorker::take_snapshot);
+            if let Some(policy) = snapshot {
+                self.checkpoint_requested = false;
                 let unet_training = self
                     .unet_worker
                     .as_ref()
                     .and_then(UnetWorker::training_state);
-                self.write_checkpoint(unet_training.as_ref())?;
+                self.write_checkpoint(&policy, unet_training.as_ref())?;
             }
         }
         Ok(())
@@ -251,8 +314,8 @@ impl Learner {
         }
     }
 
-    fn handle(&mut self, kind: MessageKind, bytes: &[u8]) -> anyhow::Result<()> {
-        let decoded = decode(bytes, &self.limits(kind)).and_then(|(header, message)| {
+    fn handle(&mut self, kind: MessageKind, bytes: Vec<u8>) -> anyhow::Result<()> {
+        let decoded = decode(&bytes, &self.limits(kind)).and_then(|(header, message)| {
             if message.kind() == kind {
                 Ok((header, message))
             } else {
@@ -288,41 +351,19 @@ impl Learner {
         }
         match message {
             Message::Rollout(chunk) => {
+                let steps = chunk.n_steps();
                 self.shared
                     .status()
-                    .add_steps(header.actor_id, chunk.n_steps() as u64);
-                match self
-                    .trainers
-                    .policy
-                    .add_chunk(&chunk, header.policy_version)
-                {
-                    Ok(Some(stats)) => {
-                        let env_steps = {
-                            let mut status = self.shared.status();
-                            status.updates += 1;
-                            status.last_update = Some(stats);
-                            status.policy_version = self.trainers.policy.version();
-                            status.env_steps
-                        };
-                        self.history
-                            .lock()
-                            .unwrap_or_else(|p| p.into_inner())
-                            .record(
-                                "ppo",
-                                env_steps,
-                                serde_json::json!({
-                                    "policy_version": self.trainers.policy.version(),
-                                    "stats": stats,
-                                }),
-                            )?;
-                        self.publish_weights()?;
-                    }
-                    Ok(None) => {}
-                    Err(error) => {
-                        self.shared.status().untrainable_chunks += 1;
-                        if self.warned.insert((kind, "untrainable")) {
-                            tracing::warn!("actor {}: {error}", header.actor_id);
-                        }
+                    .add_steps(header.actor_id, steps as u64);
+                if let Some(worker) = &self.policy_worker {
+                    // The PPO thread decodes its own copy; the view's borrow ends here.
+                    let discarded = worker.offer(bytes.clone(), steps);
+                    let queued = worker.queued_steps();
+                    let mut status = self.shared.status();
+                    status.rollout_steps_discarded += discarded as u64;
+                    status.rollout_steps_queued = queued as u64;
+                    if discarded > 0 && self.warned.insert((kind, "ppo behind")) {
+                        tracing::warn!("PPO is behind the actors: discarding the oldest queued rollout steps (further ones are only counted in rollout_steps_discarded)");
                     }
                 }
             }
@@ -406,12 +447,8 @@ impl Learner {
 
     /// Both networks in one safetensors blob, names prefixed `policy.` and `unet.`.
     fn weights_blob(&self) -> anyhow::Result<Vec<u8>> {
-        let policy = self
-            .trainers
-            .policy
-            .weights()
-            .context("serialising the policy")?;
-        let mut parts: Vec<(&str, &[u8])> = vec![(proto::WEIGHTS_POLICY_PREFIX, &policy)];
+        let mut parts: Vec<(&str, &[u8])> =
+            vec![(proto::WEIGHTS_POLICY_PREFIX, &self.policy_weights)];
         let mut metadata = std::collections::HashMap::from([(
             proto::WEIGHTS_META_ENV_STEPS.to_string(),
             self.shared.status().env_steps.to_string(),
@@ -439,10 +476,12 @@ impl Learner {
         by_count || by_time
     }
 
-    /// Writes a checkpoint of both trainers; `unet_training` is the U-Net
-    /// thread's state, when the task has a U-Net.
+    /// Writes a checkpoint of both trainers: `policy` is the PPO thread's
+    /// snapshot, `unet_training` the U-Net thread's state, when the task
+    /// has a U-Net.
     fn write_checkpoint(
         &mut self,
+        policy: &PolicySnapshot,
         unet_training: Option<&UnetTrainingState>,
     ) -> anyhow::Result<()> {
         let counters = {
@@ -450,19 +489,19 @@ impl Learner {
             Counters {
                 run_id: status.run_id.clone(),
                 env_steps: status.env_steps,
-                updates: status.updates,
+                updates: policy.updates,
                 episodes: status.episodes,
-                policy_version: status.policy_version,
+                policy_version: policy.version,
                 unet_version: status.unet_version,
             }
         };
-        let weights = self.weights_blob()?;
+        // The weights broadcast may already be newer than the snapshot.
+        let published = std::mem::replace(&mut self.policy_weights, policy.weights.clone());
+        let weights = self.weights_blob();
+        self.policy_weights = published;
+        let weights = weights?;
         let counters_json = serde_json::to_vec_pretty(&counters)?;
-        let adam = self
-            .trainers
-            .policy
-            .optimizer_state()
-            .context("saving the policy optimiser's state")?;
+        let adam = &policy.optimizer;
         let adam_parameters = adam.parameter_list_json();
         let mut files: Vec<(&str, &[u8])> = vec![
             ("weights.safetensors", &weights),

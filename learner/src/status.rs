@@ -57,6 +57,13 @@ pub struct LearnerStatus {
     pub rejected: BTreeMap<(&'static str, &'static str), u64>,
     /// Chunks that were valid but could not train the policy.
     pub untrainable_chunks: u64,
+    /// Environment steps that went into policy updates.
+    pub trained_steps: u64,
+    /// Environment steps received but discarded, oldest first, because the
+    /// PPO thread's queue was full (the learner could not keep up).
+    pub rollout_steps_discarded: u64,
+    /// Environment steps waiting for the PPO thread.
+    pub rollout_steps_queued: u64,
     /// Latest update's statistics.
     pub last_update: Option<PpoStats>,
     /// Labelled frames received and queued for the U-Net.
@@ -106,6 +113,12 @@ pub struct StatusSnapshot {
     pub dropped: u64,
     /// Valid chunks that did not fit the policy's shapes.
     pub untrainable_chunks: u64,
+    /// Environment steps that went into policy updates.
+    pub trained_steps: u64,
+    /// Environment steps discarded because the PPO thread's queue was full.
+    pub rollout_steps_discarded: u64,
+    /// Environment steps waiting for the PPO thread.
+    pub rollout_steps_queued: u64,
     /// Latest update's statistics.
     pub last_update: Option<PpoStats>,
     /// Labelled frames received and queued for the U-Net.
@@ -171,6 +184,9 @@ impl LearnerStatus {
             received: BTreeMap::new(),
             rejected: BTreeMap::new(),
             untrainable_chunks: 0,
+            trained_steps: 0,
+            rollout_steps_discarded: 0,
+            rollout_steps_queued: 0,
             last_update: None,
             frames_received: 0,
             frames_skipped: 0,
@@ -295,6 +311,9 @@ impl LearnerStatus {
                 .collect(),
             dropped: actors.iter().map(|a| a.dropped).sum(),
             untrainable_chunks: self.untrainable_chunks,
+            trained_steps: self.trained_steps,
+            rollout_steps_discarded: self.rollout_steps_discarded,
+            rollout_steps_queued: self.rollout_steps_queued,
             last_update: self.last_update,
             frames_received: self.frames_received,
             frames_skipped: self.frames_skipped,

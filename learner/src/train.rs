@@ -48,7 +48,9 @@ pub enum TrainError {
 /// Steps gathered for the next update.
 #[derive(Debug, Default)]
 struct Gathered {
-    obs: Vec<f32>,
+    /// Observations as they arrived (bytes of the chunk's dtype), turned
+    /// into floats only when the batch is full, on every core.
+    obs: Vec<u8>,
     masks: Vec<u8>,
     actions: Vec<u32>,
     log_probs: Vec<f32>,
@@ -59,6 +61,33 @@ struct Gathered {
     /// Steps of each chunk, and its recurrent start state (GRU policies).
     lengths: Vec<usize>,
     start_hidden: Vec<f32>,
+}
+
+/// Observation bytes of `dtype` as floats, converted on rayon's threads.
+fn to_floats(bytes: &[u8], dtype: ObsDtype) -> Vec<f32> {
+    use rayon::prelude::*;
+    /// Values per task: large enough that scheduling costs nothing.
+    const PER_TASK: usize = 1 << 16;
+    let width = match dtype {
+        ObsDtype::U8 => 1,
+        ObsDtype::F32 => 4,
+    };
+    let mut out = vec![0.0f32; bytes.len() / width];
+    out.par_chunks_mut(PER_TASK)
+        .zip(bytes.par_chunks(PER_TASK * width))
+        .for_each(|(out, bytes)| match dtype {
+            ObsDtype::U8 => {
+                for (o, &b) in out.iter_mut().zip(bytes) {
+                    *o = proto::byte_to_unit(b);
+                }
+            }
+            ObsDtype::F32 => {
+                for (o, b) in out.iter_mut().zip(bytes.chunks_exact(4)) {
+                    *o = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+                }
+            }
+        });
+    out
 }
 
 /// The policy network, its optimiser, and the batch being gathered.
@@ -143,15 +172,7 @@ impl PolicyTrainer {
         g.lengths.push(steps);
         g.start_hidden.extend(chunk.start_hidden.iter());
         for i in 0..steps {
-            let bytes = chunk.obs(i).unwrap_or_default();
-            match chunk.obs_dtype {
-                ObsDtype::U8 => g.obs.extend(bytes.iter().map(|&b| proto::byte_to_unit(b))),
-                ObsDtype::F32 => g.obs.extend(
-                    bytes
-                        .chunks_exact(4)
-                        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
-                ),
-            }
+            g.obs.extend_from_slice(chunk.obs(i).unwrap_or_default());
             g.masks.extend_from_slice(chunk.mask(i).unwrap_or_default());
         }
         let values = chunk.values.to_vec();
@@ -183,8 +204,9 @@ impl PolicyTrainer {
             hidden,
             episode_starts: vec![0.0; rows],
         });
+        let obs = to_floats(&g.obs, self.layout.obs_dtype);
         let batch = PpoBatch {
-            input: PolicyInput::from_flat(&self.layout, &g.obs, &g.masks, rows, &self.device),
+            input: PolicyInput::from_flat(&self.layout, &obs, &g.masks, rows, &self.device),
             actions: g.actions,
             behaviour_log_probs: g.log_probs,
             values: g.values,
@@ -228,5 +250,24 @@ impl PolicyTrainer {
     /// Sets the version the next update counts from.
     pub fn set_version(&mut self, version: u64) {
         self.ppo.set_version(version);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn observation_bytes_become_the_floats_they_encode_across_task_boundaries() {
+        let n = 3 * (1 << 16) + 7;
+        let bytes: Vec<u8> = (0..n).map(|i| (i * 7 % 256) as u8).collect();
+        let floats = to_floats(&bytes, ObsDtype::U8);
+        assert_eq!(floats.len(), n);
+        for (i, (&f, &b)) in floats.iter().zip(&bytes).enumerate() {
+            assert_eq!(f, f32::from(b) / 255.0, "value {i}");
+        }
+        let values: Vec<f32> = (0..n).map(|i| i as f32 * 0.5 - 3.0).collect();
+        let encoded: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+        assert_eq!(to_floats(&encoded, ObsDtype::F32), values);
     }
 }

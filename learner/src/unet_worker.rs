@@ -1,12 +1,16 @@
 //! U-Net training on its own thread, so the policy loop keeps taking
-//! rollouts while the U-Net trains: episodes' frames go in through a bounded
-//! queue (when it is full the episode is skipped and counted, never queued
-//! without bound), and each network that passes the validation gate comes
+//! rollouts while the U-Net trains: episodes' frames go in through a queue
+//! bounded by as many frames as the dataset holds (only beyond that is an
+//! episode skipped and counted, never queued without bound: anything more
+//! would push out of the dataset frames not yet trained on anyway), the
+//! thread adds everything queued before each round, and each network that
+//! passes the validation gate comes
 //! back as safetensors bytes for the next weights broadcast. After every
 //! round the thread also leaves its training state (the network in training
 //! and Adam's moments) where checkpoints can take it without waiting.
 
-use std::sync::mpsc::{self, Receiver, SyncSender, TrySendError};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::mpsc::{self, Receiver, Sender};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 
@@ -17,15 +21,16 @@ use crate::affordance::{AffordanceLearner, UnetTrainingState};
 use crate::history::History;
 use crate::service::Shared;
 
-/// Episodes waiting for the U-Net thread at most.
-const QUEUE_EPISODES: usize = 4;
-
 /// One episode's frames, keyed uniquely over actors.
 type Episode = (u64, Vec<LabelledFrame>);
 
 /// The running U-Net thread.
 pub struct UnetWorker {
-    frames: Option<SyncSender<Episode>>,
+    frames: Option<Sender<Episode>>,
+    /// Frames sent and not yet taken by the thread.
+    queued: Arc<AtomicUsize>,
+    /// Most frames that may wait.
+    capacity: usize,
     deployed: Receiver<(Vec<u8>, f32)>,
     training: Arc<Mutex<Option<UnetTrainingState>>>,
     thread: Option<JoinHandle<anyhow::Result<()>>>,
@@ -49,13 +54,17 @@ fn capture(learner: &AffordanceLearner, slot: &Mutex<Option<UnetTrainingState>>)
 }
 
 impl UnetWorker {
-    /// Starts training `learner` on a thread of its own.
+    /// Starts training `learner` on a thread of its own, with at most
+    /// `capacity` frames waiting (at least one episode always may).
     pub fn start(
         mut learner: AffordanceLearner,
         shared: Arc<Shared>,
         history: Arc<Mutex<History>>,
+        capacity: usize,
     ) -> anyhow::Result<Self> {
-        let (frames, inbox) = mpsc::sync_channel::<Episode>(QUEUE_EPISODES);
+        let (frames, inbox) = mpsc::channel::<Episode>();
+        let queued = Arc::new(AtomicUsize::new(0));
+        let taken = queued.clone();
         let (outbox, deployed) = mpsc::channel();
         let training = Arc::new(Mutex::new(None));
         capture(&learner, &training);
@@ -65,8 +74,10 @@ impl UnetWorker {
             .spawn(move || -> anyhow::Result<()> {
                 // Ends when the loop drops its sender.
                 while let Ok((episode, batch)) = inbox.recv() {
+                    taken.fetch_sub(batch.len(), Ordering::Relaxed);
                     learner.add_episode(episode, batch);
                     while let Ok((episode, batch)) = inbox.try_recv() {
+                        taken.fetch_sub(batch.len(), Ordering::Relaxed);
                         learner.add_episode(episode, batch);
                     }
                     let Some(round) = learner.train_round() else {
@@ -101,6 +112,8 @@ impl UnetWorker {
             .context("starting the U-Net training thread")?;
         Ok(Self {
             frames: Some(frames),
+            queued,
+            capacity,
             deployed,
             training,
             thread: Some(thread),
@@ -108,12 +121,22 @@ impl UnetWorker {
     }
 
     /// Hands an episode's frames to the thread; false (and nothing queued)
-    /// when the thread is still busy with earlier episodes.
+    /// when a dataset's worth of frames is already waiting.
     pub fn offer(&self, episode: u64, frames: Vec<LabelledFrame>) -> bool {
-        match self.frames.as_ref().map(|s| s.try_send((episode, frames))) {
-            Some(Ok(())) => true,
-            Some(Err(TrySendError::Full(_) | TrySendError::Disconnected(_))) | None => false,
+        let n = frames.len();
+        let waiting = self.queued.load(Ordering::Relaxed);
+        if waiting > 0 && waiting + n > self.capacity {
+            return false;
         }
+        let Some(sender) = self.frames.as_ref() else {
+            return false;
+        };
+        self.queued.fetch_add(n, Ordering::Relaxed);
+        if sender.send((episode, frames)).is_err() {
+            self.queued.fetch_sub(n, Ordering::Relaxed);
+            return false;
+        }
+        true
     }
 
     /// The newest network that passed the gate since the last call, if any,
@@ -188,6 +211,7 @@ mod tests {
             AffordanceLearner::new(1, &settings, 1, &device),
             shared,
             Arc::new(Mutex::new(history)),
+            16,
         )
         .unwrap();
         assert!(!worker.finished());

@@ -47,6 +47,29 @@ pub fn open_device(choice: DeviceChoice) -> Result<Device, DeviceError> {
     }
 }
 
+/// The GPU backend's build options in this binary, for benchmark reports:
+/// `cpu only`, or `wgpu` followed by the `gpu-*` features it was built with.
+pub fn backend_features() -> String {
+    let mut features = Vec::new();
+    if cfg!(feature = "gpu") {
+        features.push("wgpu");
+    }
+    for (on, name) in [
+        (cfg!(feature = "gpu-fusion"), "fusion"),
+        (cfg!(feature = "gpu-autotune"), "autotune"),
+        (cfg!(feature = "gpu-vulkan"), "vulkan (SPIR-V)"),
+    ] {
+        if on {
+            features.push(name);
+        }
+    }
+    if features.is_empty() {
+        "cpu only".into()
+    } else {
+        features.join(" + ")
+    }
+}
+
 /// True for the CPU backend. Its forward pass of one sample runs on one
 /// thread and a batch costs the same per sample, so callers with several
 /// independent samples do better running them on threads of their own.

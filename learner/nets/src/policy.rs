@@ -9,6 +9,7 @@ use burn::prelude::*;
 use burn::tensor::activation::{relu, tanh};
 use burn::tensor::Bool;
 pub use proto::{ObsDtype, PolicyLayout};
+use std::sync::atomic::{AtomicU8, Ordering};
 
 mod conv_matmul;
 mod cpu;
@@ -119,15 +120,72 @@ impl ConvEncoder {
 
     /// `[batch, channels, size, size]` → `[batch, 64]`.
     ///
-    /// The convolutions run as matrix products, channels-last after the first
-    /// (`policy::conv_matmul`); the features are flattened channels first, as
-    /// burn's convolutions would give them.
+    /// On the CPU the convolutions run as matrix products, channels-last
+    /// after the first (`policy::conv_matmul`); elsewhere through burn's own
+    /// (see [`ConvPath`]). Either way the features are flattened channels
+    /// first, as burn's convolutions give them, so the weights are the same.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<2> {
+        let matrix_products = conv_path().uses_matrix_products(&x.device());
+        self.forward_with(x, matrix_products)
+    }
+
+    fn forward_with(&self, x: Tensor<4>, matrix_products: bool) -> Tensor<2> {
+        if !matrix_products {
+            let x = relu(self.conv1.forward(x));
+            let x = relu(self.conv2.forward(x));
+            let x = relu(self.conv3.forward(x));
+            return relu(self.fc.forward(x.flatten(1, 3)));
+        }
         use conv_matmul::{conv, Layout};
         let x = relu(conv(x, Layout::ChannelsFirst, &self.conv1));
         let x = relu(conv(x, Layout::ChannelsLast, &self.conv2));
         let x = relu(conv(x, Layout::ChannelsLast, &self.conv3));
         relu(self.fc.forward(x.permute([0, 3, 1, 2]).flatten(1, 3)))
+    }
+}
+
+/// How the encoders compute their strided convolutions. Both give the same
+/// values and gradients (test `encoder_paths_agree`); which is faster
+/// depends on the backend, so benchmarks compare them with [`set_conv_path`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ConvPath {
+    /// Matrix products on the CPU backend, burn's convolutions elsewhere.
+    Auto,
+    /// Always the matrix-product form (`policy::conv_matmul`).
+    MatrixProducts,
+    /// Always burn's `Conv2d`.
+    Burn,
+}
+
+impl ConvPath {
+    fn uses_matrix_products(self, device: &Device) -> bool {
+        match self {
+            Self::Auto => crate::device::is_cpu(&device.clone().inner()),
+            Self::MatrixProducts => true,
+            Self::Burn => false,
+        }
+    }
+}
+
+/// The process-wide [`ConvPath`] (`Auto` until set).
+static CONV_PATH: AtomicU8 = AtomicU8::new(0);
+
+/// Chooses how every policy encoder in this process computes its
+/// convolutions from now on.
+pub fn set_conv_path(path: ConvPath) {
+    let code = match path {
+        ConvPath::Auto => 0,
+        ConvPath::MatrixProducts => 1,
+        ConvPath::Burn => 2,
+    };
+    CONV_PATH.store(code, Ordering::Relaxed);
+}
+
+fn conv_path() -> ConvPath {
+    match CONV_PATH.load(Ordering::Relaxed) {
+        1 => ConvPath::MatrixProducts,
+        2 => ConvPath::Burn,
+        _ => ConvPath::Auto,
     }
 }
 
@@ -445,5 +503,28 @@ mod tests {
         }
         let diff: f32 = (seq.hidden.unwrap() - h).abs().max().into_scalar();
         assert!(diff < 1e-5, "{diff}");
+    }
+
+    #[test]
+    fn encoder_paths_agree() {
+        // Values and first-layer weight gradients of both convolution paths.
+        let device = Device::flex().autodiff();
+        let encoder = ConvEncoder::new(5, 64, &device);
+        let x = Tensor::<4>::random(
+            [3, 5, 64, 64],
+            burn::tensor::Distribution::Default,
+            &device,
+        );
+        let run = |matrix_products: bool| {
+            let out = encoder.forward_with(x.clone(), matrix_products);
+            let grads = (out.clone() * out.clone()).sum().backward();
+            let grad = encoder.conv1.weight.grad(&grads).expect("a gradient");
+            (out.inner(), grad)
+        };
+        let (burn_out, burn_grad) = run(false);
+        let (mm_out, mm_grad) = run(true);
+        crate::test_support::assert_close(mm_out, burn_out, "encoder outputs");
+        assert!(burn_grad.clone().abs().max().into_scalar::<f32>() > 0.0);
+        crate::test_support::assert_close(mm_grad, burn_grad, "conv1 weight gradients");
     }
 }

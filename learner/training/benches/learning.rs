@@ -16,6 +16,17 @@
 //! defaults (128 steps of 64 × 64 observations; `AFX_BENCH_PPO_STEPS=N` for
 //! another `[policy] batch_steps`), `AFX_BENCH_ONLY=unet-train` only the
 //! U-Net training step.
+//!
+//! `AFX_DEVICE=gpu` (a build with `--features nets/gpu`) runs everything on
+//! the GPU and the PyTorch reference with `--device cuda`.
+//! `AFX_BENCH_ONLY=gpu-check` runs the learner's real training shapes side by
+//! side with PyTorch: one PPO update of 1 024 steps (`AFX_BENCH_PPO_STEPS`) of
+//! the default `ours` task's observations at 64 and 128 px, 4 epochs × 2
+//! minibatches, and the U-Net training step (batch 8, 128 px).
+//! `AFX_BENCH_SIDES=64` limits the PPO update to the sides listed.
+//! `AFX_POLICY_CONV=matmul|burn` forces the policy encoders' convolution path
+//! (`nets::policy::ConvPath`; by default matrix products on the CPU, burn's
+//! convolutions on the GPU); `AFX_TORCH_REFERENCE=none` skips PyTorch.
 
 use std::time::Instant;
 
@@ -140,22 +151,143 @@ fn ppo_update_at_learner_defaults(repeats: usize, rng: &mut StdRng, device: &Dev
     })
 }
 
+/// The device `AFX_DEVICE` names (`cpu` unless it says `gpu`).
+fn bench_device() -> (Device, bool) {
+    let choice = std::env::var("AFX_DEVICE").unwrap_or_else(|_| "cpu".into());
+    let choice: nets::device::DeviceChoice = choice.parse().unwrap_or_else(|e| {
+        eprintln!("AFX_DEVICE: {e}");
+        std::process::exit(2);
+    });
+    let device = nets::device::open_device(choice).unwrap_or_else(|e| {
+        eprintln!("AFX_DEVICE: {e}");
+        std::process::exit(2);
+    });
+    (device, choice == nets::device::DeviceChoice::Gpu)
+}
+
+/// The policy of the default `ours` task (both affordances) at `side` px.
+fn ours_layout(side: usize) -> PolicyLayout {
+    proto::TaskSpec {
+        image_size: side,
+        ..proto::TaskSpec::default()
+    }
+    .layout()
+}
+
+/// The learner's training shapes (see the module's doc), with PyTorch's
+/// figures beside them.
+fn gpu_check(device: &Device, gpu: bool, rng: &mut StdRng) {
+    let quick = std::env::var_os("AFX_BENCH_QUICK").is_some();
+    let repeats = if quick { 2 } else { 5 };
+    let steps = std::env::var("AFX_BENCH_PPO_STEPS")
+        .ok()
+        .and_then(|s| s.trim().parse::<usize>().ok())
+        .filter(|&n| n >= 2)
+        .unwrap_or(1024);
+    let sides: Vec<usize> = std::env::var("AFX_BENCH_SIDES").map_or(vec![64, 128], |s| {
+        s.split(',')
+            .map(|v| v.trim().parse().expect("AFX_BENCH_SIDES: sides like 64,128"))
+            .collect()
+    });
+    let mut results: Vec<(String, f64)> = Vec::new();
+    for side in sides {
+        let layout = ours_layout(side);
+        let batch = ppo_batch(&layout, steps, rng, device);
+        let mut ppo = Ppo::new(
+            PolicyNet::new(&layout, device),
+            PpoConfig::default(),
+            device,
+        );
+        let ms = time(repeats, || {
+            ppo.update(&batch, rng);
+        });
+        results.push((format!("ppo_update_{steps}_{side}px_ms"), ms));
+        eprintln!("  {}: {ms:.1} ms", results.last().unwrap().0);
+    }
+    let frames = unet_frames(rng);
+    let refs: Vec<&LabelledFrame> = frames.iter().collect();
+    let mut trainer = UnetTrainer::new(
+        AffordanceUnet::new(4, 2, device),
+        UnetTrainingConfig::default(),
+        device,
+    );
+    results.push((
+        "unet_train_step_batch8_ms".into(),
+        time(repeats.max(5), || {
+            trainer.step(&refs);
+        }),
+    ));
+    let named: Vec<(&str, f64)> = results.iter().map(|(n, v)| (n.as_str(), *v)).collect();
+    print_results(&named, gpu);
+    let layout = ours_layout(64);
+    let list = |v: &[usize]| {
+        v.iter()
+            .map(usize::to_string)
+            .collect::<Vec<_>>()
+            .join(",")
+    };
+    compare_with_torch(
+        &named,
+        &[
+            "--gpu-check".into(),
+            "--ppo-steps".into(),
+            steps.to_string(),
+            "--image-channels".into(),
+            list(&layout.image_channels),
+            "--vector-dims".into(),
+            list(&layout.vector_dims),
+            "--actions".into(),
+            layout.n_actions.to_string(),
+            "--repeats".into(),
+            repeats.to_string(),
+            "--device".into(),
+            if gpu { "cuda" } else { "cpu" }.into(),
+        ],
+    );
+}
+
+/// Eight labelled 128 × 128 frames of random RGB-D and labels.
+fn unet_frames(rng: &mut StdRng) -> Vec<LabelledFrame> {
+    (0..8)
+        .map(|_| LabelledFrame {
+            size: [128, 128],
+            rgbd: (0..4 * 128 * 128).map(|_| rng.random::<f32>()).collect(),
+            labels: (0..2 * 128 * 128)
+                .map(|_| [0u8, 1, 255][rng.random_range(0..3)])
+                .collect(),
+        })
+        .collect()
+}
+
 fn main() {
     if std::env::args().any(|a| a == "--list") {
         return; // `cargo test --benches` asks benches to list themselves
     }
     let quick = std::env::var_os("AFX_BENCH_QUICK").is_some();
     let repeats = if quick { 1 } else { 5 };
-    let device = Device::flex();
+    let (device, gpu) = bench_device();
+    match std::env::var("AFX_POLICY_CONV").as_deref() {
+        Ok("matmul") => nets::policy::set_conv_path(nets::policy::ConvPath::MatrixProducts),
+        Ok("burn") => nets::policy::set_conv_path(nets::policy::ConvPath::Burn),
+        Ok("auto") | Err(_) => {}
+        Ok(other) => {
+            eprintln!("AFX_POLICY_CONV takes auto, matmul or burn, not {other:?}");
+            std::process::exit(2);
+        }
+    }
     let mut rng = StdRng::seed_from_u64(1);
     let mut results: Vec<(&str, f64)> = Vec::new();
 
     let only = std::env::var("AFX_BENCH_ONLY").ok();
+    if only.as_deref() == Some("gpu-check") {
+        gpu_check(&device, gpu, &mut rng);
+        return;
+    }
     if only
         .as_deref()
         .is_some_and(|o| o != "ppo-default" && o != "unet-train")
     {
-        eprintln!("AFX_BENCH_ONLY takes ppo-default or unet-train");
+        eprintln!("AFX_BENCH_ONLY takes ppo-default, unet-train or gpu-check");
         std::process::exit(2);
     }
     if only.as_deref() != Some("unet-train") {
@@ -165,20 +297,12 @@ fn main() {
         ));
     }
     if only.as_deref() == Some("ppo-default") {
-        print_results(&results);
+        print_results(&results, gpu);
         return;
     }
 
     // U-Net.
-    let frames: Vec<LabelledFrame> = (0..8)
-        .map(|_| LabelledFrame {
-            size: [128, 128],
-            rgbd: (0..4 * 128 * 128).map(|_| rng.random::<f32>()).collect(),
-            labels: (0..2 * 128 * 128)
-                .map(|_| [0u8, 1, 255][rng.random_range(0..3)])
-                .collect(),
-        })
-        .collect();
+    let frames = unet_frames(&mut rng);
     let refs: Vec<&LabelledFrame> = frames.iter().collect();
     let mut trainer = UnetTrainer::new(
         AffordanceUnet::new(4, 2, &device),
@@ -192,7 +316,7 @@ fn main() {
         }),
     ));
     if only.is_some() {
-        print_results(&results);
+        print_results(&results, gpu);
         return;
     }
     let unet = trainer.inference_net(&device);
@@ -288,33 +412,47 @@ fn main() {
         }),
     ));
 
-    print_results(&results);
-    compare_with_torch(&results, envs, repeats);
+    print_results(&results, gpu);
+    compare_with_torch(
+        &results,
+        &[
+            "--envs".into(),
+            envs.to_string(),
+            "--repeats".into(),
+            repeats.to_string(),
+            "--device".into(),
+            if gpu { "cuda" } else { "cpu" }.into(),
+        ],
+    );
 }
 
 /// Prints each measurement's median.
-fn print_results(results: &[(&str, f64)]) {
+fn print_results(results: &[(&str, f64)], gpu: bool) {
+    let backend = if gpu { "wgpu (GPU)" } else { "flex (CPU)" };
     println!(
-        "burn 0.22.1 flex (CPU, {} threads available):",
-        std::thread::available_parallelism().map_or(1, |n| n.get())
+        "burn 0.22.1 {backend}, {} CPU threads available, features: {}:",
+        std::thread::available_parallelism().map_or(1, |n| n.get()),
+        nets::device::backend_features()
     );
     for (name, ms) in results {
         println!("  {name}: median {ms:.1} ms");
     }
 }
 
-/// Runs the PyTorch reference and prints ours / theirs per measurement.
-fn compare_with_torch(ours: &[(&str, f64)], envs: usize, repeats: usize) {
-    let script =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/torch_reference.py");
+/// Runs the PyTorch reference with `args` and prints ours / theirs per
+/// measurement. `AFX_TORCH_REFERENCE` names the script where the bench runs
+/// away from its source tree (a GPU machine with the binary alone).
+fn compare_with_torch(ours: &[(&str, f64)], args: &[String]) {
+    if std::env::var_os("AFX_TORCH_REFERENCE").is_some_and(|v| v == "none") {
+        return;
+    }
+    let script = std::env::var_os("AFX_TORCH_REFERENCE").map_or_else(
+        || std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/torch_reference.py"),
+        std::path::PathBuf::from,
+    );
     let output = std::process::Command::new("python3")
         .arg(&script)
-        .args([
-            "--envs",
-            &envs.to_string(),
-            "--repeats",
-            &repeats.to_string(),
-        ])
+        .args(args)
         .output();
     let text = match output {
         Ok(o) if o.status.success() => String::from_utf8_lossy(&o.stdout).into_owned(),

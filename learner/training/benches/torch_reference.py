@@ -63,9 +63,9 @@ class Head(nn.Module):
 
 
 class Policy(nn.Module):
-    def __init__(self, image_channels=(4, 4, 2), vector_dims=(50, 1), n_actions=8):
+    def __init__(self, image_channels=(4, 4, 2), vector_dims=(50, 1), n_actions=8, size=128):
         super().__init__()
-        self.images = nn.ModuleList(ConvEncoder(c) for c in image_channels)
+        self.images = nn.ModuleList(ConvEncoder(c, size) for c in image_channels)
         self.vectors = nn.ModuleList(VectorEncoder(d) for d in vector_dims)
         fused = 64 * (len(image_channels) + len(vector_dims))
         self.actor = Head(fused, n_actions)
@@ -126,16 +126,67 @@ def timed(repeats, f):
     return statistics.median(out)
 
 
+def ppo_update_fn(policy, rows, image_channels, vector_dims, n_actions, size, dev, sync):
+    """One PPO update (4 epochs x 2 minibatches) on `rows` random steps, as a closure."""
+    images = [torch.rand(rows, c, size, size, device=dev) for c in image_channels]
+    vectors = [torch.rand(rows, d, device=dev) for d in vector_dims]
+    mask = torch.ones(rows, n_actions, dtype=torch.bool, device=dev)
+    actions = torch.randint(0, n_actions, (rows,), device=dev)
+    old_lp = torch.full((rows,), -float(torch.log(torch.tensor(float(n_actions)))), device=dev)
+    old_v, returns = torch.rand(rows, device=dev), torch.rand(rows, device=dev)
+    adv_all = torch.rand(rows, device=dev) - 0.5
+    popt = torch.optim.Adam(policy.parameters(), lr=2e-4, eps=1e-5)
+
+    def ppo_update():
+        for _ in range(4):
+            order = torch.randperm(rows, device=dev)
+            for idx in order.chunk(2):
+                lp, v = policy([t[idx] for t in images], [t[idx] for t in vectors], mask[idx])
+                new = lp.gather(1, actions[idx, None]).squeeze(1)
+                ratio = (new - old_lp[idx]).exp()
+                adv = adv_all[idx]
+                adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+                pg = torch.max(-adv * ratio, -adv * ratio.clamp(0.8, 1.2)).mean()
+                vc = old_v[idx] + (v - old_v[idx]).clamp(-0.2, 0.2)
+                vl = 0.5 * torch.max((v - returns[idx]) ** 2, (vc - returns[idx]) ** 2).mean()
+                ent = -(lp.exp() * lp).sum(1).mean()
+                loss = pg - 0.01 * ent + 0.5 * vl
+                popt.zero_grad()
+                loss.backward()
+                nn.utils.clip_grad_norm_(policy.parameters(), 0.5)
+                popt.step()
+        sync()
+
+    return ppo_update
+
+
+def ints(text):
+    return tuple(int(x) for x in text.split(","))
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", type=int, default=8)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--device", default="cpu")
+    parser.add_argument("--gpu-check", action="store_true",
+                        help="only the learner's training shapes: PPO at 64 and 128 px, U-Net step")
+    parser.add_argument("--ppo-steps", type=int, default=1024)
+    parser.add_argument("--image-channels", type=ints, default=(4, 4, 2))
+    parser.add_argument("--vector-dims", type=ints, default=(50, 1))
+    parser.add_argument("--actions", type=int, default=8)
     args = parser.parse_args()
     dev = torch.device(args.device)
     sync = (lambda: torch.cuda.synchronize()) if dev.type == "cuda" else (lambda: None)
     torch.manual_seed(1)
     results = {}
+
+    if args.gpu_check:
+        for size in (64, 128):
+            policy = Policy(args.image_channels, args.vector_dims, args.actions, size).to(dev)
+            update = ppo_update_fn(policy, args.ppo_steps, args.image_channels, args.vector_dims,
+                                   args.actions, size, dev, sync)
+            results[f"ppo_update_{args.ppo_steps}_{size}px_ms"] = timed(args.repeats, update)
 
     unet = Unet().to(dev)
     opt = torch.optim.Adam(unet.parameters(), lr=1e-3, weight_decay=1e-4)
@@ -149,7 +200,10 @@ def main():
         opt.step()
         sync()
 
-    results["unet_train_step_batch8_ms"] = timed(args.repeats, unet_step)
+    results["unet_train_step_batch8_ms"] = timed(max(args.repeats, 5), unet_step)
+    if args.gpu_check:
+        report(results, dev)
+        return
     one = x[:1]
 
     def unet_infer():
@@ -178,36 +232,15 @@ def main():
     results["policy_inference_1step_ms"] = timed(max(args.repeats, 5), policy_infer)
 
     rows = args.envs * 600
-    images, vectors, mask = inputs(rows)
-    actions = torch.randint(0, 8, (rows,), device=dev)
-    old_lp = torch.full((rows,), -float(torch.log(torch.tensor(8.0))), device=dev)
-    old_v, returns = torch.rand(rows, device=dev), torch.rand(rows, device=dev)
-    adv_all = torch.rand(rows, device=dev) - 0.5
-    popt = torch.optim.Adam(policy.parameters(), lr=2e-4, eps=1e-5)
-
-    def ppo_update():
-        for _ in range(4):
-            order = torch.randperm(rows, device=dev)
-            for idx in order.chunk(2):
-                lp, v = policy([t[idx] for t in images], [t[idx] for t in vectors], mask[idx])
-                new = lp.gather(1, actions[idx, None]).squeeze(1)
-                ratio = (new - old_lp[idx]).exp()
-                adv = adv_all[idx]
-                adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-                pg = torch.max(-adv * ratio, -adv * ratio.clamp(0.8, 1.2)).mean()
-                vc = old_v[idx] + (v - old_v[idx]).clamp(-0.2, 0.2)
-                vl = 0.5 * torch.max((v - returns[idx]) ** 2, (vc - returns[idx]) ** 2).mean()
-                ent = -(lp.exp() * lp).sum(1).mean()
-                loss = pg - 0.01 * ent + 0.5 * vl
-                popt.zero_grad()
-                loss.backward()
-                nn.utils.clip_grad_norm_(policy.parameters(), 0.5)
-                popt.step()
-        sync()
+    ppo_update = ppo_update_fn(policy, rows, (4, 4, 2), (50, 1), 8, 128, dev, sync)
 
     name = f"ppo_update_{args.envs}x600_ms"
     results[name] = timed(1, ppo_update)  # one warm-up, one timed: an update takes minutes on a CPU
 
+    report(results, dev)
+
+
+def report(results, dev):
     print(f"pytorch {torch.__version__} ({dev}, {torch.get_num_threads()} threads):")
     for k, v in results.items():
         print(f"  {k}: median {v:.1f} ms")

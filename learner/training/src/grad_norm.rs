@@ -1,50 +1,115 @@
 //! Gradient clipping by the global norm over all parameters (as PyTorch's
 //! `clip_grad_norm_`, which CleanRL's PPO uses). Burn's own clipping works
 //! per tensor, which changes the update's direction.
+//!
+//! The norm stays a tensor on the device: reading it back (once per
+//! parameter, as this module first did) made every minibatch wait for the
+//! GPU some fifty times; now the caller reads it when it wants the figure.
 
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::GradientsParams;
 use burn::prelude::*;
 
-struct SquaredNorm<'a> {
+/// Collects each parameter's squared gradient norm, as a one-element tensor.
+struct SquaredNorms<'a> {
     grads: &'a GradientsParams,
-    sum: f64,
+    parts: Vec<Tensor<1>>,
 }
 
-impl ModuleVisitor for SquaredNorm<'_> {
+impl ModuleVisitor for SquaredNorms<'_> {
     fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
         if let Some(g) = self.grads.get::<D>(param.id) {
-            let s: f32 = g.square().sum().into_scalar::<f32>();
-            self.sum += f64::from(s);
+            self.parts.push(g.square().sum());
         }
     }
 }
 
+/// Multiplies every gradient by a one-element tensor.
 struct Scale<'a> {
     grads: &'a mut GradientsParams,
-    factor: f32,
+    factor: Tensor<1>,
 }
 
 impl ModuleVisitor for Scale<'_> {
     fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
         if let Some(g) = self.grads.remove::<D>(param.id) {
-            self.grads.register(param.id, g * self.factor);
+            let factor = self.factor.clone().reshape([1; D]);
+            self.grads.register(param.id, g * factor);
         }
     }
 }
 
-/// Scales all gradients of `module` so their joint L2 norm is at most
-/// `max_norm`; returns the norm before clipping.
-pub fn clip_global_norm<M: Module>(module: &M, grads: &mut GradientsParams, max_norm: f32) -> f32 {
-    let mut norm = SquaredNorm { grads, sum: 0.0 };
-    module.visit(&mut norm);
-    let total = norm.sum.sqrt() as f32;
-    if total > max_norm {
-        let mut scale = Scale {
-            grads,
-            factor: max_norm / (total + 1e-6),
-        };
-        module.visit(&mut scale);
+/// Scales `grads` so that their global L2 norm is at most `max_norm` and
+/// returns the norm before scaling, as a one-element tensor on the
+/// gradients' device (no read-back). Gradients already within the limit are
+/// multiplied by exactly 1.
+pub fn clip_global_norm<M: Module>(
+    module: &M,
+    grads: &mut GradientsParams,
+    max_norm: f32,
+) -> Option<Tensor<1>> {
+    let mut norms = SquaredNorms {
+        grads,
+        parts: Vec::new(),
+    };
+    module.visit(&mut norms);
+    if norms.parts.is_empty() {
+        return None;
     }
-    total
+    let total = Tensor::cat(norms.parts, 0).sum().sqrt();
+    // min(1, max / (norm + 1e-6)), computed on the device.
+    let factor = (total.clone() + 1e-6)
+        .recip()
+        .mul_scalar(max_norm)
+        .clamp_max(1.0);
+    let mut scale = Scale { grads, factor };
+    module.visit(&mut scale);
+    Some(total)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::nn::{Linear, LinearConfig};
+
+    /// Gradients of `sum(w · x) · k` for a small linear layer, with their
+    /// expected norm computed on the host.
+    fn grads(k: f32) -> (Linear, GradientsParams, f64) {
+        let device = Device::flex().autodiff();
+        let layer = LinearConfig::new(3, 2).init(&device);
+        let x = Tensor::<2>::from_floats([[1.0, -2.0, 0.5]], &device);
+        let loss = layer.forward(x).sum() * k;
+        let grads = GradientsParams::from_grads(loss.backward(), &layer);
+        // d/dW = k · x per output (2 × 3), d/db = k per output.
+        let expected = (2.0 * (1.0 + 4.0 + 0.25) + 2.0) * f64::from(k * k);
+        (layer, grads, expected.sqrt())
+    }
+
+    fn norm_after(layer: &Linear, grads: &GradientsParams) -> f64 {
+        let mut norms = SquaredNorms {
+            grads,
+            parts: Vec::new(),
+        };
+        layer.visit(&mut norms);
+        norms
+            .parts
+            .into_iter()
+            .map(|t| f64::from(t.into_scalar::<f32>()))
+            .sum::<f64>()
+            .sqrt()
+    }
+
+    #[test]
+    fn large_gradients_are_scaled_to_the_limit_and_small_ones_kept() {
+        let (layer, mut g, expected) = grads(10.0);
+        let before = clip_global_norm(&layer, &mut g, 0.5).unwrap();
+        let before = f64::from(before.into_scalar::<f32>());
+        assert!((before - expected).abs() < 1e-4 * expected, "{before} vs {expected}");
+        assert!((norm_after(&layer, &g) - 0.5).abs() < 1e-5);
+
+        let (layer, mut g, expected) = grads(0.01);
+        let before = clip_global_norm(&layer, &mut g, 0.5).unwrap();
+        assert!((f64::from(before.into_scalar::<f32>()) - expected).abs() < 1e-6);
+        assert!((norm_after(&layer, &g) - expected).abs() < 1e-7, "unchanged");
+    }
 }

@@ -207,7 +207,9 @@ pub struct PpoStats {
 }
 
 /// The clipped PPO loss for one minibatch. `log_probs` is `[b, actions]`,
-/// the rest `[b]`. Returns the scalar loss (differentiable) and its parts.
+/// the rest `[b]`. Returns the scalar loss (differentiable) and its parts as
+/// one detached tensor in [`LossTerms::read`]'s order, left on the device so
+/// that a minibatch never waits for a read-back.
 #[allow(clippy::too_many_arguments)]
 pub fn ppo_loss(
     log_probs: Tensor<2>,
@@ -218,7 +220,7 @@ pub fn ppo_loss(
     advantages: Tensor<1>,
     returns: Tensor<1>,
     config: &PpoConfig,
-) -> (Tensor<1>, LossTerms) {
+) -> (Tensor<1>, Tensor<1>) {
     let [b, _] = log_probs.dims();
     let new_log_probs: Tensor<1> = log_probs
         .clone()
@@ -246,17 +248,29 @@ pub fn ppo_loss(
         .mean();
     let loss =
         policy.clone() - entropy.clone() * config.entropy_coef + value.clone() * config.value_coef;
-    let scalar = |t: Tensor<1>| -> f32 { t.into_scalar::<f32>() };
     let approx_kl = ((ratio.clone() - 1.0) - log_ratio).mean();
     let clip_fraction = (ratio - 1.0).abs().greater_elem(config.clip).float().mean();
-    let terms = LossTerms {
-        policy: scalar(policy.detach()),
-        value: scalar(value.detach()),
-        entropy: scalar(entropy.detach()),
-        approx_kl: scalar(approx_kl.detach()),
-        clip_fraction: scalar(clip_fraction),
-    };
+    let terms = Tensor::cat(vec![policy, value, entropy, approx_kl, clip_fraction], 0).inner();
     (loss, terms)
+}
+
+impl LossTerms {
+    /// Values in a terms tensor of [`ppo_loss`].
+    pub const LEN: usize = 5;
+
+    /// Reads a terms tensor of [`ppo_loss`] (or a mean of several) back to
+    /// the host: one read-back.
+    pub fn read(terms: Tensor<1>) -> Self {
+        let v: Vec<f32> = terms.into_data().convert::<f32>().try_into_vec::<f32>().unwrap_or_default();
+        let at = |i: usize| v.get(i).copied().unwrap_or(f32::NAN);
+        Self {
+            policy: at(0),
+            value: at(1),
+            entropy: at(2),
+            approx_kl: at(3),
+            clip_fraction: at(4),
+        }
+    }
 }
 
 /// A fresh Adam optimiser with the run's settings.
@@ -409,7 +423,7 @@ impl Ppo {
         };
         let per_minibatch = units.len().div_ceil(c.minibatches.max(1));
         let mut order: Vec<usize> = (0..units.len()).collect();
-        let mut sums = PpoStats::default();
+        let mut sums: Option<Tensor<1>> = None;
         let mut count = 0usize;
         for _ in 0..c.epochs {
             order.shuffle(rng);
@@ -443,20 +457,31 @@ impl Ppo {
                     &c,
                 );
                 let mut grads = GradientsParams::from_grads(loss.backward(), &self.net);
-                let norm = clip_global_norm(&self.net, &mut grads, c.max_grad_norm);
+                let norm = clip_global_norm(&self.net, &mut grads, c.max_grad_norm)
+                    .map_or_else(|| Tensor::zeros([1], &device), Tensor::inner);
                 self.net = self
                     .optimizer
                     .step(c.learning_rate, self.net.clone(), grads);
-                sums.policy_loss += terms.policy;
-                sums.value_loss += terms.value;
-                sums.entropy += terms.entropy;
-                sums.approx_kl += terms.approx_kl;
-                sums.clip_fraction += terms.clip_fraction;
-                sums.grad_norm += norm;
+                // Summed on the device and read back once, after the update.
+                let step = Tensor::cat(vec![terms, norm.inner()], 0);
+                sums = Some(match sums {
+                    Some(sum) => sum + step,
+                    None => step,
+                });
                 count += 1;
             }
         }
-        let k = count.max(1) as f32;
+        let (terms, grad_norm) = match sums {
+            Some(sums) => {
+                let means = sums / count as f32;
+                let norm = means.clone().slice(LossTerms::LEN..LossTerms::LEN + 1);
+                (
+                    LossTerms::read(means.slice(0..LossTerms::LEN)),
+                    norm.into_scalar::<f32>(),
+                )
+            }
+            None => (LossTerms::default(), 0.0),
+        };
         let lags: Vec<u64> = batch
             .policy_versions
             .iter()
@@ -464,12 +489,12 @@ impl Ppo {
             .collect();
         self.version += 1;
         PpoStats {
-            policy_loss: sums.policy_loss / k,
-            value_loss: sums.value_loss / k,
-            entropy: sums.entropy / k,
-            approx_kl: sums.approx_kl / k,
-            clip_fraction: sums.clip_fraction / k,
-            grad_norm: sums.grad_norm / k,
+            policy_loss: terms.policy,
+            value_loss: terms.value,
+            entropy: terms.entropy,
+            approx_kl: terms.approx_kl,
+            clip_fraction: terms.clip_fraction,
+            grad_norm,
             explained_variance: explained_variance(&batch.values, &batch.returns),
             mean_policy_lag: lags.iter().sum::<u64>() as f32 / lags.len().max(1) as f32,
             max_policy_lag: lags.iter().copied().max().unwrap_or(0),

@@ -10,7 +10,7 @@ use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use training::gae::gae;
 use training::optimizer_state::OptimizerState;
-use training::ppo::{mask_tensor, ppo_loss, Ppo, PpoBatch, PpoConfig, Sequences};
+use training::ppo::{mask_tensor, ppo_loss, LossTerms, Ppo, PpoBatch, PpoConfig, Sequences};
 
 fn cpu() -> Device {
     Device::flex()
@@ -85,6 +85,7 @@ fn loss_pieces_match_an_f64_reference() {
         t(&returns),
         &config,
     );
+    let terms = LossTerms::read(terms);
 
     let eps = f64::from(config.clip);
     let (mut pg, mut vl, mut ent, mut kl, mut cf) = (0.0, 0.0, 0.0, 0.0, 0.0);

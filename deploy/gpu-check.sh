@@ -1,0 +1,142 @@
+#!/usr/bin/env bash
+# The checks to run first whenever a GPU machine is lent: agreement, training
+# speed beside PyTorch, learner capacity, whole-system throughput. One
+# Markdown report. See `deploy/gpu-check.sh --help`.
+set -uo pipefail
+
+usage() {
+  cat <<'USAGE'
+Usage: deploy/gpu-check.sh --bin-dir DIR [options]
+
+Runs, one after the other, each under a time limit (about 8 minutes in all):
+  1. the CPU/GPU agreement test (DIR/gpu_matches_cpu);
+  2. the training benchmark beside PyTorch on the same GPU (DIR/learning with
+     AFX_BENCH_ONLY=gpu-check: PPO update of 1024 steps at 64 and 128 px, U-Net
+     training step; needs python3 with torch for the PyTorch column);
+  3. the learner's capacity with synthetic actors (`learner bench-capacity`)
+     at 64 px (100-step episodes) and 128 px (600-step episodes);
+  4. deploy/throughput.sh: the whole system, `ours`, 1x16 and 2x8 at 64 px with
+     the CPU renderer and 1x16 at 128 px with the GPU renderer.
+and writes every result into one Markdown report.
+
+DIR holds the binaries built here with the GPU backend:
+  cargo build --release -p learner -p actor --features nets/gpu
+  cargo build --release -p training --bench learning --features nets/gpu
+  cargo build --release -p nets --test gpu_matches_cpu --features nets/gpu
+(copy target/release/{learner,actor} and the deps/learning-*, deps/gpu_matches_cpu-*
+executables into DIR as learning and gpu_matches_cpu).
+
+Options:
+  --bin-dir DIR   the binaries (required)
+  --data DIR      shared data for the actors (default ../shared/data)
+  --out FILE      the report (default gpu-check.md)
+  --logs DIR      full logs of every step (default gpu-check-logs)
+  --skip LIST     comma-separated steps to leave out: agreement, training,
+                  capacity, throughput
+  --quick         shorter windows (a smoke test of the script itself)
+  -h, --help      this help
+USAGE
+}
+
+BIN="" DATA="" OUT_FILE="gpu-check.md" LOGS="gpu-check-logs" SKIP="" QUICK=0
+while [[ $# -gt 0 ]]; do
+  case "$1" in
+    --bin-dir) BIN="${2:?--bin-dir needs a directory}"; shift 2 ;;
+    --data) DATA="${2:?--data needs a directory}"; shift 2 ;;
+    --out) OUT_FILE="${2:?--out needs a file}"; shift 2 ;;
+    --logs) LOGS="${2:?--logs needs a directory}"; shift 2 ;;
+    --skip) SKIP="${2:?--skip needs a list}"; shift 2 ;;
+    --quick) QUICK=1; shift ;;
+    -h|--help) usage; exit 0 ;;
+    *) echo "gpu-check.sh: unknown argument '$1'" >&2; usage >&2; exit 2 ;;
+  esac
+done
+[[ -n "$BIN" ]] || { echo "gpu-check.sh: --bin-dir is required" >&2; usage >&2; exit 2; }
+BIN="$(cd "$BIN" 2>/dev/null && pwd)" || { echo "gpu-check.sh: no directory $BIN" >&2; exit 2; }
+REPO="$(cd "$(dirname "$0")/.." && pwd)"
+[[ -n "$DATA" ]] || DATA="$REPO/../shared/data"
+mkdir -p "$LOGS"
+LOGS="$(cd "$LOGS" && pwd)"
+skipped() { [[ ",$SKIP," == *",$1,"* ]]; }
+
+if [[ $QUICK -eq 1 ]]; then
+  CAP_WARMUP=5 CAP_SECONDS=10 TP_WARMUP=15 TP_SECONDS=15 BENCH_QUICK=1
+else
+  CAP_WARMUP=15 CAP_SECONDS=30 TP_WARMUP=35 TP_SECONDS=45 BENCH_QUICK=1
+fi
+
+REPORT=()
+add() { REPORT+=("$@"); }
+section() { printf '\n=== %s (%(%H:%M:%S)T)\n' "$1" -1 >&2; add "" "## $1" ""; }
+# Runs a step under a time limit, its output into LOG; says how it ended.
+limited() { # seconds log command...
+  local limit=$1 log=$2; shift 2
+  timeout --signal=TERM --kill-after=15 "$limit" "$@" >"$log" 2>&1
+  local rc=$?
+  [[ $rc -eq 124 ]] && echo "(stopped at its ${limit} s limit)" >>"$log"
+  return $rc
+}
+
+add "# GPU check" "" \
+  "$(date -u +%Y-%m-%dT%H:%MZ), commit $(git -C "$REPO" rev-parse --short HEAD 2>/dev/null || echo unknown)" \
+  "" "GPU: $(nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader 2>/dev/null || echo 'nvidia-smi not found')" \
+  "CPU: $(nproc) cores"
+
+if ! skipped agreement; then
+  section "CPU/GPU agreement (gpu_matches_cpu)"
+  if limited 120 "$LOGS/agreement.log" "$BIN/gpu_matches_cpu" --test-threads 1; then
+    add "passed: $(grep -E '^test result' "$LOGS/agreement.log" | tail -1)"
+  else
+    add "FAILED:" '```' "$(tail -n 15 "$LOGS/agreement.log")" '```'
+  fi
+fi
+
+if ! skipped training; then
+  section "Training steps beside PyTorch (same GPU)"
+  AFX_DEVICE=gpu AFX_BENCH_ONLY=gpu-check AFX_BENCH_QUICK=$BENCH_QUICK \
+    AFX_TORCH_REFERENCE="$REPO/learner/training/benches/torch_reference.py" \
+    limited 240 "$LOGS/training.log" "$BIN/learning"
+  add '```' "$(grep -vE '^\s*$' "$LOGS/training.log" | grep -E 'burn|pytorch|median|ours /|skipped|stopped|error|panic' | tail -n 20)" '```'
+fi
+
+if ! skipped capacity; then
+  section "Learner capacity, synthetic actors (learner bench-capacity)"
+  header_done=0
+  for setting in "64 100 4" "128 600 4"; do
+    read -r side steps feeds <<<"$setting"
+    log="$LOGS/capacity-${side}px.log"
+    limited $((CAP_WARMUP + CAP_SECONDS + 90)) "$log" "$BIN/learner" bench-capacity --device gpu \
+      --image-size "$side" --episode-steps "$steps" --actors "$feeds" \
+      --warmup "$CAP_WARMUP" --seconds "$CAP_SECONDS"
+    if grep -q '^| setting' "$log"; then
+      [[ $header_done -eq 1 ]] || add "$(grep -A1 '^| setting' "$log")"
+      header_done=1
+      add "$(grep -A2 '^| setting' "$log" | tail -n 1)"
+    else
+      add "${side} px: FAILED: $(tail -n 3 "$log" | tr '\n' ' ')"
+    fi
+  done
+fi
+
+if ! skipped throughput; then
+  section "Whole system, ours (deploy/throughput.sh)"
+  for setting in "1x16,2x8 64 100 cpu" "1x16 128 600 gpu"; do
+    read -r pairs side steps renderer <<<"$setting"
+    log="$LOGS/throughput-${side}px.log"
+    n=$(tr ',' '\n' <<<"$pairs" | wc -l)
+    limited $(( n * (TP_WARMUP + TP_SECONDS + 60) )) "$log" "$REPO/deploy/throughput.sh" \
+      --settings "$pairs" --warmup "$TP_WARMUP" --seconds "$TP_SECONDS" \
+      --runs-dir "$LOGS/runs-${side}px" -- --bin-dir "$BIN" --device gpu --data "$DATA" \
+      --image-size "$side" --episode-steps "$steps" --renderer "$renderer"
+    add "${side} px, ${steps}-step episodes, ${renderer} renderer:" ""
+    if grep -q '^| actors' "$log"; then
+      add "$(grep -A20 '^| actors' "$log")" ""
+    else
+      add "FAILED: $(tail -n 5 "$log" | tr '\n' ' ')" ""
+    fi
+  done
+fi
+
+printf '%s\n' "${REPORT[@]}" >"$OUT_FILE"
+cat "$OUT_FILE"
+echo "report: $OUT_FILE; logs: $LOGS" >&2

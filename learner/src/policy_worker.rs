@@ -1,0 +1,411 @@
+//! PPO on a thread of its own, so that the receive loop never waits for an
+//! update. The loop hands each valid rollout chunk over without blocking;
+//! chunks wait in a queue bounded in steps (`[policy] queue_steps`) while an
+//! update runs. When the queue is full the oldest chunks are discarded and
+//! counted (`rollout_steps_discarded`): they are the stalest, so a learner
+//! that cannot keep up trains on fresh data with a bounded policy lag instead
+//! of falling ever further behind. After each update the thread hands the
+//! new weights back for the next broadcast; on request, between updates, it
+//! hands over what a checkpoint needs.
+
+use std::collections::{HashSet, VecDeque};
+use std::sync::mpsc::{self, Receiver, Sender};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+
+use anyhow::Context;
+use proto::{decode, Limits, Message};
+use training::optimizer_state::OptimizerState;
+
+use crate::history::History;
+use crate::service::Shared;
+use crate::train::PolicyTrainer;
+
+/// One rollout message as it arrived, validated by the receive loop.
+struct QueuedChunk {
+    bytes: Vec<u8>,
+    steps: usize,
+}
+
+#[derive(Default)]
+struct InboxState {
+    chunks: VecDeque<QueuedChunk>,
+    steps: usize,
+    snapshot_requested: bool,
+    stop: bool,
+}
+
+/// The queue between the receive loop and the PPO thread.
+struct Inbox {
+    state: Mutex<InboxState>,
+    changed: Condvar,
+    /// Most steps queued; older chunks are discarded beyond it.
+    capacity: usize,
+}
+
+impl Inbox {
+    fn new(capacity: usize) -> Self {
+        Self {
+            state: Mutex::new(InboxState::default()),
+            changed: Condvar::new(),
+            capacity: capacity.max(1),
+        }
+    }
+
+    fn lock(&self) -> MutexGuard<'_, InboxState> {
+        self.state.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Queues a chunk, discarding the oldest ones beyond the capacity (never
+    /// the newest); returns the steps discarded.
+    fn push(&self, chunk: QueuedChunk) -> usize {
+        let mut state = self.lock();
+        state.steps += chunk.steps;
+        state.chunks.push_back(chunk);
+        let mut discarded = 0;
+        while state.steps > self.capacity && state.chunks.len() > 1 {
+            if let Some(old) = state.chunks.pop_front() {
+                state.steps -= old.steps;
+                discarded += old.steps;
+            }
+        }
+        drop(state);
+        self.changed.notify_one();
+        discarded
+    }
+}
+
+/// What the PPO thread takes in one go.
+struct Taken {
+    chunks: Vec<QueuedChunk>,
+    snapshot: bool,
+    stop: bool,
+}
+
+/// The policy after an update, for the next weights broadcast.
+pub struct PublishedPolicy {
+    /// Its version.
+    pub version: u64,
+    /// Its weights as safetensors bytes (PyTorch names, no prefix).
+    pub weights: Vec<u8>,
+}
+
+/// What a checkpoint needs of the policy, taken between two updates.
+pub struct PolicySnapshot {
+    /// The policy's version.
+    pub version: u64,
+    /// Updates done when it was taken.
+    pub updates: u64,
+    /// Its weights as safetensors bytes.
+    pub weights: Vec<u8>,
+    /// Adam's state.
+    pub optimizer: OptimizerState,
+}
+
+/// The running PPO thread.
+pub struct PolicyWorker {
+    inbox: Arc<Inbox>,
+    published: Receiver<PublishedPolicy>,
+    snapshots: Receiver<PolicySnapshot>,
+    thread: Option<JoinHandle<anyhow::Result<PolicySnapshot>>>,
+}
+
+fn snapshot(trainer: &PolicyTrainer, shared: &Shared) -> anyhow::Result<PolicySnapshot> {
+    Ok(PolicySnapshot {
+        version: trainer.version(),
+        updates: shared.status().updates,
+        weights: trainer.weights().context("serialising the policy")?,
+        optimizer: trainer
+            .optimizer_state()
+            .context("saving the policy optimiser's state")?,
+    })
+}
+
+impl PolicyWorker {
+    /// Starts training `trainer` on a thread of its own, with at most
+    /// `queue_steps` steps waiting (at least one chunk always waits).
+    pub fn start(
+        mut trainer: PolicyTrainer,
+        shared: Arc<Shared>,
+        history: Arc<Mutex<History>>,
+        queue_steps: usize,
+    ) -> anyhow::Result<Self> {
+        let inbox = Arc::new(Inbox::new(queue_steps));
+        let (publish, published) = mpsc::channel();
+        let (snapshot_out, snapshots) = mpsc::channel();
+        let thread_inbox = inbox.clone();
+        let thread = std::thread::Builder::new()
+            .name("ppo-training".into())
+            .spawn(move || {
+                run(
+                    &mut trainer,
+                    &thread_inbox,
+                    &shared,
+                    &history,
+                    &publish,
+                    &snapshot_out,
+                )?;
+                snapshot(&trainer, &shared)
+            })
+            .context("starting the PPO training thread")?;
+        Ok(Self {
+            inbox,
+            published,
+            snapshots,
+            thread: Some(thread),
+        })
+    }
+
+    /// Queues a validated rollout message of `steps` steps; never blocks.
+    /// Returns the steps discarded to make room (the oldest chunks').
+    pub fn offer(&self, bytes: Vec<u8>, steps: usize) -> usize {
+        self.inbox.push(QueuedChunk { bytes, steps })
+    }
+
+    /// Steps waiting for the PPO thread.
+    pub fn queued_steps(&self) -> usize {
+        self.inbox.lock().steps
+    }
+
+    /// The newest policy published since the last call, if any.
+    pub fn take_published(&self) -> Option<PublishedPolicy> {
+        self.published.try_iter().last()
+    }
+
+    /// Asks for a [`PolicySnapshot`] after the current update; it arrives
+    /// through [`PolicyWorker::take_snapshot`].
+    pub fn request_snapshot(&self) {
+        self.inbox.lock().snapshot_requested = true;
+        self.inbox.changed.notify_one();
+    }
+
+    /// A snapshot asked for earlier, once it is there.
+    pub fn take_snapshot(&self) -> Option<PolicySnapshot> {
+        self.snapshots.try_iter().last()
+    }
+
+    /// True once the thread has ended, which before [`PolicyWorker::stop`]
+    /// means it failed.
+    pub fn finished(&self) -> bool {
+        self.thread.as_ref().is_none_or(JoinHandle::is_finished)
+    }
+
+    /// Stops the thread after its current update (chunks still queued are
+    /// dropped) and returns the final snapshot, or its error.
+    pub fn stop(mut self) -> anyhow::Result<PolicySnapshot> {
+        self.inbox.lock().stop = true;
+        self.inbox.changed.notify_one();
+        match self.thread.take().map(JoinHandle::join) {
+            Some(Ok(result)) => result,
+            Some(Err(_)) => Err(anyhow::anyhow!("the PPO training thread panicked")),
+            None => Err(anyhow::anyhow!("the PPO training thread was already stopped")),
+        }
+    }
+}
+
+/// Waits for work, then takes queued chunks up to `need` steps (at least one).
+fn take(inbox: &Inbox, need: usize) -> Taken {
+    let mut state = inbox.lock();
+    while state.chunks.is_empty() && !state.snapshot_requested && !state.stop {
+        state = inbox
+            .changed
+            .wait(state)
+            .unwrap_or_else(|p| p.into_inner());
+    }
+    let mut chunks = Vec::new();
+    let mut steps = 0;
+    if !state.stop {
+        while steps < need.max(1) {
+            let Some(chunk) = state.chunks.pop_front() else {
+                break;
+            };
+            state.steps -= chunk.steps;
+            steps += chunk.steps;
+            chunks.push(chunk);
+        }
+    }
+    Taken {
+        chunks,
+        snapshot: std::mem::take(&mut state.snapshot_requested),
+        stop: state.stop,
+    }
+}
+
+/// The thread's loop: gather, update, publish.
+fn run(
+    trainer: &mut PolicyTrainer,
+    inbox: &Inbox,
+    shared: &Shared,
+    history: &Mutex<History>,
+    publish: &Sender<PublishedPolicy>,
+    snapshots: &Sender<PolicySnapshot>,
+) -> anyhow::Result<()> {
+    let t = &shared.config.transport;
+    let limits = Limits {
+        max_actors: t.max_actors,
+        max_payload_len: t.max_bytes(proto::MessageKind::Rollout) as u64,
+    };
+    let batch_steps = shared.config.policy.batch_steps;
+    let mut warned = HashSet::new();
+    loop {
+        let taken = take(inbox, batch_steps.saturating_sub(trainer.pending_steps()));
+        shared.status().rollout_steps_queued = inbox.lock().steps as u64;
+        if taken.snapshot {
+            // The receiver is gone only while the learner shuts down.
+            let _ = snapshots.send(snapshot(trainer, shared)?);
+        }
+        if taken.stop {
+            return Ok(());
+        }
+        for chunk in taken.chunks {
+            let Ok((header, Message::Rollout(view))) = decode(&chunk.bytes, &limits) else {
+                continue; // the receive loop validated it: cannot happen
+            };
+            let rows = trainer.pending_steps() + view.n_steps();
+            match trainer.add_chunk(&view, header.policy_version) {
+                Ok(Some(stats)) => {
+                    let version = trainer.version();
+                    let env_steps = {
+                        let mut status = shared.status();
+                        status.updates += 1;
+                        status.last_update = Some(stats);
+                        status.policy_version = version;
+                        status.trained_steps += rows as u64;
+                        status.env_steps
+                    };
+                    history.lock().unwrap_or_else(|p| p.into_inner()).record(
+                        "ppo",
+                        env_steps,
+                        serde_json::json!({ "policy_version": version, "stats": stats }),
+                    )?;
+                    let weights = trainer.weights().context("serialising the policy")?;
+                    if publish.send(PublishedPolicy { version, weights }).is_err() {
+                        return Ok(());
+                    }
+                }
+                Ok(None) => {}
+                Err(error) => {
+                    shared.status().untrainable_chunks += 1;
+                    if warned.insert(header.actor_id) {
+                        tracing::warn!(
+                            "actor {}: {error} (further ones are only counted)",
+                            header.actor_id
+                        );
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::atomic::AtomicBool;
+    use std::time::{Duration, Instant};
+
+    use proto::{MessageHeader, RolloutChunk};
+
+    use super::*;
+    use crate::config::LearnerConfig;
+    use crate::status::LearnerStatus;
+
+    fn chunk(tag: u8, steps: usize) -> QueuedChunk {
+        QueuedChunk {
+            bytes: vec![tag],
+            steps,
+        }
+    }
+
+    #[test]
+    fn a_full_queue_discards_its_oldest_chunks_but_never_the_newest() {
+        let inbox = Inbox::new(10);
+        assert_eq!(inbox.push(chunk(1, 4)), 0);
+        assert_eq!(inbox.push(chunk(2, 4)), 0);
+        assert_eq!(inbox.push(chunk(3, 4)), 4, "12 > 10: the oldest goes");
+        assert_eq!(inbox.lock().steps, 8);
+        assert_eq!(inbox.push(chunk(4, 30)), 8, "everything older goes");
+        let state = inbox.lock();
+        assert_eq!(state.steps, 30);
+        assert_eq!(state.chunks.len(), 1);
+        assert_eq!(state.chunks[0].bytes, vec![4]);
+        drop(state);
+        let taken = take(&inbox, 5);
+        assert_eq!(taken.chunks.len(), 1);
+        assert_eq!(inbox.lock().steps, 0);
+    }
+
+    /// A bandit-fixture rollout message of `steps` steps from actor 0.
+    fn rollout(config: &LearnerConfig, steps: usize, sequence: u64) -> Vec<u8> {
+        let layout = config.task.layout();
+        let chunk = RolloutChunk {
+            episode_id: sequence,
+            first_step: 0,
+            n_actions: layout.n_actions as u32,
+            obs_dtype: layout.obs_dtype,
+            obs_elems: layout.obs_len() as u32,
+            obs: proto::obs_bytes_from_f32(&vec![0.5; steps * layout.obs_len()]),
+            actions: (0..steps).map(|i| (i % layout.n_actions) as u32).collect(),
+            masks: vec![1; steps * layout.n_actions],
+            log_probs: vec![-(layout.n_actions as f32).ln(); steps],
+            values: vec![0.0; steps],
+            rewards: (0..steps).map(|i| (i % 2) as f32).collect(),
+            dones: vec![0; steps],
+            bootstrap_value: 0.0,
+            start_hidden: Vec::new(),
+        };
+        let header = MessageHeader {
+            actor_id: 0,
+            policy_version: 1,
+            sequence,
+            ..MessageHeader::default()
+        };
+        proto::encode(&chunk, header)
+    }
+
+    #[test]
+    fn updates_publish_weights_and_a_snapshot_comes_between_updates() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut config = LearnerConfig::default();
+        config.task.env = proto::EnvKind::BanditFixture;
+        config.policy.batch_steps = 8;
+        let device = burn::prelude::Device::flex();
+        let mut trainer = PolicyTrainer::new(&config.task, &config.policy, &device);
+        trainer.set_version(1);
+        let shared = Arc::new(Shared {
+            status: Mutex::new(LearnerStatus::new("test".into())),
+            shutdown: AtomicBool::new(false),
+            config: config.clone(),
+            run_dir: dir.path().into(),
+        });
+        let history = Arc::new(Mutex::new(History::open(dir.path()).unwrap()));
+        let worker = PolicyWorker::start(trainer, shared.clone(), history, 64).unwrap();
+        for sequence in 1..=4 {
+            assert_eq!(worker.offer(rollout(&config, 4, sequence), 4), 0);
+        }
+        let deadline = Instant::now() + Duration::from_secs(60);
+        let mut versions = Vec::new();
+        while versions.last() != Some(&3) {
+            assert!(Instant::now() < deadline, "two updates never came: {versions:?}");
+            if let Some(published) = worker.take_published() {
+                assert!(!published.weights.is_empty());
+                versions.push(published.version);
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        worker.request_snapshot();
+        let snapshot = loop {
+            assert!(Instant::now() < deadline, "no snapshot");
+            if let Some(snapshot) = worker.take_snapshot() {
+                break snapshot;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        };
+        assert_eq!((snapshot.version, snapshot.updates), (3, 2));
+        let status = shared.status();
+        assert_eq!((status.updates, status.trained_steps), (2, 16));
+        assert_eq!(status.policy_version, 3);
+        drop(status);
+        let last = worker.stop().unwrap();
+        assert_eq!(last.version, 3);
+    }
+}
