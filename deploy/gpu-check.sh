@@ -8,7 +8,7 @@ usage() {
   cat <<'USAGE'
 Usage: deploy/gpu-check.sh --bin-dir DIR [options]
 
-Runs, one after the other, each under a time limit (about 8 minutes in all):
+Runs, one after the other, each under a time limit (about 7 minutes in all):
   1. the CPU/GPU agreement test (DIR/gpu_matches_cpu);
   2. the training benchmark beside PyTorch on the same GPU (DIR/learning with
      AFX_BENCH_ONLY=gpu-check: PPO update of 1024 steps at 64 and 128 px, U-Net
@@ -62,7 +62,7 @@ skipped() { [[ ",$SKIP," == *",$1,"* ]]; }
 if [[ $QUICK -eq 1 ]]; then
   CAP_WARMUP=5 CAP_SECONDS=10 TP_WARMUP=15 TP_SECONDS=15 BENCH_QUICK=1
 else
-  CAP_WARMUP=15 CAP_SECONDS=30 TP_WARMUP=35 TP_SECONDS=45 BENCH_QUICK=1
+  CAP_WARMUP=10 CAP_SECONDS=20 TP_WARMUP=30 TP_SECONDS=30 BENCH_QUICK=1
 fi
 
 REPORT=()
@@ -95,7 +95,7 @@ if ! skipped training; then
   section "Training steps beside PyTorch (same GPU)"
   AFX_DEVICE=gpu AFX_BENCH_ONLY=gpu-check AFX_BENCH_QUICK=$BENCH_QUICK \
     AFX_TORCH_REFERENCE="$REPO/learner/training/benches/torch_reference.py" \
-    limited 240 "$LOGS/training.log" "$BIN/learning"
+    limited 150 "$LOGS/training.log" "$BIN/learning"
   add '```' "$(grep -vE '^\s*$' "$LOGS/training.log" | grep -E 'burn|pytorch|median|ours /|skipped|stopped|error|panic' | tail -n 20)" '```'
 fi
 

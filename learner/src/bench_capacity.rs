@@ -20,8 +20,7 @@ use rand::{Rng, SeedableRng};
 use transport::ActorPorts;
 
 use crate::config::LearnerConfig;
-use crate::history::History;
-use crate::service::{Learner, Shared, Trainers};
+use crate::service::{Shared, Trainers};
 use crate::status::LearnerStatus;
 
 /// How the synthetic actors feed the learner.
@@ -138,36 +137,7 @@ fn run_in(
         config,
         run_dir: run_dir.clone(),
     });
-    let (opened_tx, opened_rx) = std::sync::mpsc::channel();
-    let learner_shared = shared.clone();
-    let learner = std::thread::Builder::new()
-        .name("learner".into())
-        .spawn(move || -> anyhow::Result<()> {
-            let ports = match transport::LearnerPorts::open(&learner_shared.config.transport) {
-                Ok(ports) => ports,
-                Err(e) => {
-                    let _ = opened_tx.send(Err(e));
-                    return Ok(());
-                }
-            };
-            let _ = opened_tx.send(Ok(()));
-            let history = History::open(&run_dir)?;
-            let result = Learner::new(
-                learner_shared.clone(),
-                ports,
-                trainers,
-                run_dir.join("checkpoints"),
-                history,
-            )
-            .run();
-            learner_shared.shutdown.store(true, Ordering::Relaxed);
-            result
-        })
-        .context("starting the learner thread")?;
-    opened_rx
-        .recv()
-        .context("the learner thread died while opening its services")?
-        .context("opening the learner's shared-memory services")?;
+    let learner = crate::service::spawn(shared.clone(), trainers, run_dir.join("checkpoints"))?;
 
     let stop = Arc::new(AtomicBool::new(false));
     let actors: Vec<_> = (0..feed.actors)

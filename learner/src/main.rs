@@ -9,7 +9,7 @@ use std::sync::{Arc, Mutex};
 use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
 use learner::config::LearnerConfig;
-use learner::service::{resume, Learner, Shared, Trainers};
+use learner::service::{resume, Shared, Trainers};
 use learner::status::LearnerStatus;
 use tracing_subscriber::EnvFilter;
 
@@ -399,39 +399,7 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         })?;
     let addr: SocketAddr = listener.local_addr()?;
 
-    // iceoryx2 ports are not Send: the training thread opens its own and
-    // reports whether that worked before the endpoint is announced.
-    let loop_shared = shared.clone();
-    let history_dir = run_dir.clone();
-    let (opened_tx, opened_rx) = std::sync::mpsc::channel();
-    let training = std::thread::Builder::new()
-        .name("training".into())
-        .spawn(move || {
-            let ports = match transport::LearnerPorts::open(&loop_shared.config.transport) {
-                Ok(ports) => ports,
-                Err(e) => {
-                    let _ = opened_tx.send(Err(e));
-                    return Ok(());
-                }
-            };
-            let _ = opened_tx.send(Ok(()));
-            let result = learner::history::History::open(&history_dir).and_then(|history| {
-                Learner::new(
-                    loop_shared.clone(),
-                    ports,
-                    trainers,
-                    checkpoint_dir,
-                    history,
-                )
-                .run()
-            });
-            loop_shared.shutdown.store(true, Ordering::Relaxed);
-            result
-        })?;
-    opened_rx
-        .recv()
-        .context("the training thread died while opening the shared-memory services")?
-        .context("opening the shared-memory services (is another learner running with the same service prefix?)")?;
+    let training = learner::service::spawn(shared.clone(), trainers, checkpoint_dir)?;
     std::fs::write(run_dir.join("http.addr"), addr.to_string()).context("writing http.addr")?;
     println!("metrics: http://{addr}/metrics  status: http://{addr}/api/status");
 

@@ -249,7 +249,8 @@ fn run(
     let mut warned = HashSet::new();
     loop {
         let taken = take(inbox, batch_steps.saturating_sub(trainer.pending_steps()));
-        shared.status().rollout_steps_queued = inbox.lock().steps as u64;
+        let queued = inbox.lock().steps as u64;
+        shared.status().rollout_steps_queued = queued;
         if taken.snapshot {
             // The receiver is gone only while the learner shuts down.
             let _ = snapshots.send(snapshot(trainer, shared)?);

@@ -1,4 +1,7 @@
-//! The learner's main loop: receive → validate → train → publish → checkpoint.
+//! The learner's receive loop: receive → validate → hand over → publish →
+//! checkpoint. Training runs on two threads of its own, PPO
+//! (`policy_worker`) and the U-Net (`unet_worker`), so that the loop keeps
+//! taking messages while either updates.
 
 use std::collections::HashSet;
 use std::path::PathBuf;
@@ -349,23 +352,14 @@ impl Learner {
                 "messages lost in transit"
             );
         }
+        let mut rollout_steps = None;
         match message {
             Message::Rollout(chunk) => {
                 let steps = chunk.n_steps();
                 self.shared
                     .status()
                     .add_steps(header.actor_id, steps as u64);
-                if let Some(worker) = &self.policy_worker {
-                    // The PPO thread decodes its own copy; the view's borrow ends here.
-                    let discarded = worker.offer(bytes.clone(), steps);
-                    let queued = worker.queued_steps();
-                    let mut status = self.shared.status();
-                    status.rollout_steps_discarded += discarded as u64;
-                    status.rollout_steps_queued = queued as u64;
-                    if discarded > 0 && self.warned.insert((kind, "ppo behind")) {
-                        tracing::warn!("PPO is behind the actors: discarding the oldest queued rollout steps (further ones are only counted in rollout_steps_discarded)");
-                    }
-                }
+                rollout_steps = Some(steps);
             }
             Message::Stats(stats) => {
                 let env_steps = {
@@ -422,6 +416,18 @@ impl Learner {
                 }
             }
             Message::Weights(_) => {}
+        }
+        // The message's views borrow `bytes` until here; the PPO thread
+        // decodes its own (moved, not copied) bytes.
+        if let (Some(steps), Some(worker)) = (rollout_steps, &self.policy_worker) {
+            let discarded = worker.offer(bytes, steps);
+            let queued = worker.queued_steps();
+            let mut status = self.shared.status();
+            status.rollout_steps_discarded += discarded as u64;
+            status.rollout_steps_queued = queued as u64;
+            if discarded > 0 && self.warned.insert((kind, "ppo behind")) {
+                tracing::warn!("PPO is behind the actors: discarding the oldest queued rollout steps (further ones are only counted in rollout_steps_discarded)");
+            }
         }
         Ok(())
     }
@@ -533,6 +539,41 @@ impl Learner {
         tracing::info!(dir = %dir.display(), updates = counters.updates, "checkpoint written");
         Ok(())
     }
+}
+
+/// Starts the learner on a thread of its own and returns once its
+/// shared-memory services are open. iceoryx2 ports are not `Send`, so the
+/// thread opens its own; the history goes into the run directory. The
+/// thread sets `shutdown` when it ends, whatever the reason.
+pub fn spawn(
+    shared: Arc<Shared>,
+    trainers: Trainers,
+    checkpoint_dir: PathBuf,
+) -> anyhow::Result<std::thread::JoinHandle<anyhow::Result<()>>> {
+    let (opened_tx, opened_rx) = std::sync::mpsc::channel();
+    let thread = std::thread::Builder::new()
+        .name("learner".into())
+        .spawn(move || {
+            let ports = match LearnerPorts::open(&shared.config.transport) {
+                Ok(ports) => ports,
+                Err(e) => {
+                    let _ = opened_tx.send(Err(e));
+                    return Ok(());
+                }
+            };
+            let _ = opened_tx.send(Ok(()));
+            let result = History::open(&shared.run_dir).and_then(|history| {
+                Learner::new(shared.clone(), ports, trainers, checkpoint_dir, history).run()
+            });
+            shared.shutdown.store(true, Ordering::Relaxed);
+            result
+        })
+        .context("starting the learner thread")?;
+    opened_rx
+        .recv()
+        .context("the learner thread died while opening the shared-memory services")?
+        .context("opening the shared-memory services (is another learner running with the same service prefix?)")?;
+    Ok(thread)
 }
 
 /// Checkpoint file with the policy optimiser's record (burnpack).

@@ -16,6 +16,7 @@
 //! - [`device`]: `--device cpu|gpu` at run time;
 //! - [`sample`]: the masked categorical draw the actor acts with.
 
+mod conv_matmul;
 pub mod device;
 mod masked_categorical;
 pub mod policy;

@@ -11,7 +11,6 @@ use burn::tensor::Bool;
 pub use proto::{ObsDtype, PolicyLayout};
 use std::sync::atomic::{AtomicU8, Ordering};
 
-mod conv_matmul;
 mod cpu;
 
 pub use cpu::{CpuPolicy, CpuPolicyStep};
@@ -120,13 +119,12 @@ impl ConvEncoder {
 
     /// `[batch, channels, size, size]` → `[batch, 64]`.
     ///
-    /// On the CPU the convolutions run as matrix products, channels-last
-    /// after the first (`policy::conv_matmul`); elsewhere through burn's own
-    /// (see [`ConvPath`]). Either way the features are flattened channels
-    /// first, as burn's convolutions give them, so the weights are the same.
+    /// The convolutions run as matrix products, channels-last after the
+    /// first (`conv_matmul`), unless [`ConvPath::Burn`] says burn's own.
+    /// Either way the features are flattened channels first, as burn's
+    /// convolutions give them, so the weights are the same.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<2> {
-        let matrix_products = conv_path().uses_matrix_products(&x.device());
-        self.forward_with(x, matrix_products)
+        self.forward_with(x, conv_path() == ConvPath::Auto)
     }
 
     fn forward_with(&self, x: Tensor<4>, matrix_products: bool) -> Tensor<2> {
@@ -136,36 +134,28 @@ impl ConvEncoder {
             let x = relu(self.conv3.forward(x));
             return relu(self.fc.forward(x.flatten(1, 3)));
         }
-        use conv_matmul::{conv, Layout};
-        let x = relu(conv(x, Layout::ChannelsFirst, &self.conv1));
-        let x = relu(conv(x, Layout::ChannelsLast, &self.conv2));
-        let x = relu(conv(x, Layout::ChannelsLast, &self.conv3));
+        use crate::conv_matmul::{conv, Layout, Product};
+        let product = Product::for_device(&x.device());
+        let x = relu(conv(x, Layout::ChannelsFirst, &self.conv1, product));
+        let x = relu(conv(x, Layout::ChannelsLast, &self.conv2, product));
+        let x = relu(conv(x, Layout::ChannelsLast, &self.conv3, product));
         relu(self.fc.forward(x.permute([0, 3, 1, 2]).flatten(1, 3)))
     }
 }
 
-/// How the encoders compute their strided convolutions. Both give the same
-/// values and gradients (test `encoder_paths_agree`); which is faster
-/// depends on the backend, so benchmarks compare them with [`set_conv_path`].
+/// How the networks compute their convolutions: the policy encoders'
+/// strided ones, and in training on a GPU the U-Net's 3 × 3 ones. Both forms
+/// give the same values and gradients (tests `encoder_paths_agree`,
+/// `conv_matmul`'s); benchmarks compare their speed with [`set_conv_path`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ConvPath {
-    /// Matrix products on the CPU backend, burn's convolutions elsewhere.
+    /// As matrix products (`conv_matmul`): one over the batch on the CPU,
+    /// one per image on a GPU. (On the CPU the U-Net keeps its own operation.)
     Auto,
-    /// Always the matrix-product form (`policy::conv_matmul`).
-    MatrixProducts,
-    /// Always burn's `Conv2d`.
+    /// burn's `Conv2d` (a direct convolution on the GPU backend).
     Burn,
 }
 
-impl ConvPath {
-    fn uses_matrix_products(self, device: &Device) -> bool {
-        match self {
-            Self::Auto => crate::device::is_cpu(&device.clone().inner()),
-            Self::MatrixProducts => true,
-            Self::Burn => false,
-        }
-    }
-}
 
 /// The process-wide [`ConvPath`] (`Auto` until set).
 static CONV_PATH: AtomicU8 = AtomicU8::new(0);
@@ -173,18 +163,13 @@ static CONV_PATH: AtomicU8 = AtomicU8::new(0);
 /// Chooses how every policy encoder in this process computes its
 /// convolutions from now on.
 pub fn set_conv_path(path: ConvPath) {
-    let code = match path {
-        ConvPath::Auto => 0,
-        ConvPath::MatrixProducts => 1,
-        ConvPath::Burn => 2,
-    };
-    CONV_PATH.store(code, Ordering::Relaxed);
+    CONV_PATH.store(u8::from(path == ConvPath::Burn), Ordering::Relaxed);
 }
 
-fn conv_path() -> ConvPath {
+/// The process-wide [`ConvPath`].
+pub(crate) fn conv_path() -> ConvPath {
     match CONV_PATH.load(Ordering::Relaxed) {
-        1 => ConvPath::MatrixProducts,
-        2 => ConvPath::Burn,
+        1 => ConvPath::Burn,
         _ => ConvPath::Auto,
     }
 }

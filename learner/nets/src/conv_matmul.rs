@@ -1,13 +1,22 @@
-//! The encoders' strided convolutions as one matrix product each.
+//! Convolutions as one matrix product each: the policy encoders' strided
+//! ones everywhere, and the U-Net's 3 × 3 ones on the GPU.
 //!
 //! burn's CPU backend computes a convolution, and the gradient of its
 //! weights, through a general im2col that re-indexes every element; in a PPO
-//! update those two took 87 % of the learner's training thread. A valid
-//! convolution with kernel `k` and stride `s` is the same as cutting the
-//! input into `s × s` blocks (space to depth) and convolving the blocks with
-//! a `⌈k/s⌉ × ⌈k/s⌉` kernel at stride 1: one matrix product of the blocks
-//! with every tap, then a sum of shifted slices. Its gradients are matrix
-//! products, copies and slices, which every backend does well.
+//! update those two took 87 % of the learner's training thread. Its GPU
+//! backend (wgpu, no autotuning) runs a direct convolution whose weight
+//! gradient gives each thread one weight and a loop over every output of the
+//! batch: 57 % of a PPO update's GPU time, a 1 024-step update at 128 px 56
+//! times PyTorch's (docs/performance.md). A valid convolution with kernel
+//! `k` and stride `s` is the same as cutting the input into `s × s` blocks
+//! (space to depth) and convolving the blocks with a `⌈k/s⌉ × ⌈k/s⌉` kernel
+//! at stride 1: one matrix product of the blocks with every tap, then a sum
+//! of shifted slices. Its gradients are matrix products, copies and slices,
+//! which every backend does well. On the GPU the product runs per image
+//! ([`Product::PerImage`]): the weight gradient is then a batch of small
+//! products, one per image, summed, instead of one product whose inner
+//! dimension is every block of the batch, which a GPU cannot spread over
+//! its cores.
 
 use burn::nn::conv::Conv2d;
 use burn::prelude::*;
@@ -15,18 +24,39 @@ use burn::tensor::ops::PadMode;
 
 /// How an input's axes are ordered.
 #[derive(Debug, Clone, Copy)]
-pub(super) enum Layout {
+pub(crate) enum Layout {
     /// `[batch, channels, height, width]`, as observations arrive.
     ChannelsFirst,
     /// `[batch, height, width, channels]`, as [`conv`] returns its output.
     ChannelsLast,
 }
 
+/// How the blocks meet the taps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Product {
+    /// One product over every block of the batch (best on the CPU).
+    Batch,
+    /// One product per image, the weights broadcast (best on a GPU).
+    PerImage,
+}
+
+impl Product {
+    /// The better form on `device`.
+    pub(crate) fn for_device(device: &Device) -> Self {
+        if crate::device::is_cpu(&device.clone().inner()) {
+            Self::Batch
+        } else {
+            Self::PerImage
+        }
+    }
+}
+
 /// `conv`'s valid convolution (square kernel and stride, no dilation or
-/// groups, as [`super::ConvEncoder`] builds them) of `x`, laid out as
-/// `layout` says; the output is channels-last. Taking the first layer's
-/// input channels first saves a copy of the largest input.
-pub(super) fn conv(x: Tensor<4>, layout: Layout, conv: &Conv2d) -> Tensor<4> {
+/// groups, as [`crate::policy::ConvEncoder`] builds them) of `x`, laid out
+/// as `layout` says; the output is channels-last. Taking the first layer's
+/// input channels first saves a copy of the largest input. `conv`'s own
+/// padding is not applied: pad `x` first (as [`same_conv3x3`] does).
+pub(crate) fn conv(x: Tensor<4>, layout: Layout, conv: &Conv2d, product: Product) -> Tensor<4> {
     let [out_channels, in_channels, kernel, _] = conv.weight.dims();
     let stride = conv.stride[0];
     let [batch, height, width, channels] = match (layout, x.dims()) {
@@ -94,10 +124,15 @@ pub(super) fn conv(x: Tensor<4>, layout: Layout, conv: &Conv2d) -> Tensor<4> {
         .reshape([out_channels, in_channels, taps, stride, taps, stride])
         .permute([3, 5, 1, 2, 4, 0])
         .reshape([block, taps * taps * out_channels]);
-    let products =
-        blocks
-            .matmul(weight)
-            .reshape([batch, blocks_h, blocks_w, taps * taps * out_channels]);
+    let columns = taps * taps * out_channels;
+    let products = match product {
+        Product::Batch => blocks.matmul(weight),
+        Product::PerImage => blocks
+            .reshape([batch, blocks_h * blocks_w, block])
+            .matmul(weight.unsqueeze_dim::<3>(0))
+            .reshape([batch * blocks_h * blocks_w, columns]),
+    }
+    .reshape([batch, blocks_h, blocks_w, columns]);
     // Output (y, x) sums tap (i, j) of block (y + i, x + j).
     let mut out = (0..taps)
         .flat_map(|i| (0..taps).map(move |j| (i, j)))
@@ -120,6 +155,18 @@ pub(super) fn conv(x: Tensor<4>, layout: Layout, conv: &Conv2d) -> Tensor<4> {
     out.reshape([batch, out_h, out_w, out_channels])
 }
 
+/// `layer`'s 3 × 3, stride-1, same-padded convolution of channels-first `x`
+/// as matrix products (the U-Net's on a GPU), channels first again.
+pub(crate) fn same_conv3x3(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+    let product = Product::for_device(&x.device());
+    same_conv3x3_with(layer, x, product)
+}
+
+fn same_conv3x3_with(layer: &Conv2d, x: Tensor<4>, product: Product) -> Tensor<4> {
+    let x = x.pad([(1, 1), (1, 1)], PadMode::Constant(0.0));
+    conv(x, Layout::ChannelsFirst, layer, product).permute([0, 3, 1, 2])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -131,12 +178,16 @@ mod tests {
     /// matrix-product form against burn's convolution, for one shape.
     fn check(channels: usize, out: usize, kernel: usize, stride: usize, h: usize, w: usize) {
         for layout in [Layout::ChannelsFirst, Layout::ChannelsLast] {
-            check_layout(layout, channels, out, kernel, stride, h, w);
+            for product in [Product::Batch, Product::PerImage] {
+                check_layout(layout, product, channels, out, kernel, stride, h, w);
+            }
         }
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn check_layout(
         layout: Layout,
+        product: Product,
         channels: usize,
         out: usize,
         kernel: usize,
@@ -162,9 +213,9 @@ mod tests {
 
         let x_ours = input.clone().detach().require_grad();
         let ours = match layout {
-            Layout::ChannelsFirst => super::conv(x_ours.clone(), layout, &conv),
+            Layout::ChannelsFirst => super::conv(x_ours.clone(), layout, &conv, product),
             Layout::ChannelsLast => {
-                super::conv(x_ours.clone().permute([0, 2, 3, 1]), layout, &conv)
+                super::conv(x_ours.clone().permute([0, 2, 3, 1]), layout, &conv, product)
             }
         }
         .permute([0, 3, 1, 2]);
@@ -173,7 +224,8 @@ mod tests {
         let burn = conv.forward(x_burn.clone());
         let burn_grads = (burn.clone() * weights).sum().backward();
 
-        let shape = format!("({layout:?}, {channels}→{out}, k{kernel}/s{stride}, {h}×{w})");
+        let shape =
+            format!("({layout:?}, {product:?}, {channels}→{out}, k{kernel}/s{stride}, {h}×{w})");
         assert_close(ours, burn, &format!("outputs {shape}"));
         assert_close(
             x_ours.grad(&ours_grads).expect("gradient"),
@@ -207,5 +259,42 @@ mod tests {
         check(3, 5, 3, 2, 9, 12);
         check(2, 4, 2, 3, 11, 10);
         check(2, 4, 3, 1, 7, 9);
+    }
+
+    #[test]
+    fn same_3x3_convolutions_give_burns_values_and_gradients() {
+        // The U-Net's first layer and a deeper one, odd and even sides.
+        let shapes = [(4, 24, 16, 16), (24, 48, 9, 7), (3, 5, 1, 1)];
+        for ((channels, out, h, w), product) in shapes
+            .into_iter()
+            .flat_map(|s| [(s, Product::Batch), (s, Product::PerImage)])
+        {
+            let device = Device::flex().autodiff();
+            let conv = Conv2dConfig::new([channels, out], [3, 3])
+                .with_padding(burn::nn::PaddingConfig2d::Same)
+                .init(&device);
+            let input =
+                Tensor::<4>::random([2, channels, h, w], Distribution::Normal(0.0, 1.0), &device);
+            let weights =
+                Tensor::<4>::random([2, out, h, w], Distribution::Normal(0.0, 1.0), &device);
+            let x_ours = input.clone().detach().require_grad();
+            let ours = super::same_conv3x3_with(&conv, x_ours.clone(), product);
+            let ours_grads = (ours.clone() * weights.clone()).sum().backward();
+            let x_burn = input.detach().require_grad();
+            let burn = conv.forward(x_burn.clone());
+            let burn_grads = (burn.clone() * weights).sum().backward();
+            let shape = format!("({product:?}, {channels}→{out}, {h}×{w})");
+            assert_close(ours, burn, &format!("outputs {shape}"));
+            assert_close(
+                x_ours.grad(&ours_grads).expect("gradient"),
+                x_burn.grad(&burn_grads).expect("gradient"),
+                &format!("input gradients {shape}"),
+            );
+            assert_close(
+                conv.weight.grad(&ours_grads).expect("gradient"),
+                conv.weight.grad(&burn_grads).expect("gradient"),
+                &format!("weight gradients {shape}"),
+            );
+        }
     }
 }
