@@ -116,8 +116,7 @@ pub fn run(
     config.checkpoint_every_updates = 0;
     config.checkpoint_interval_s = 0.0;
     let run_dir = std::env::temp_dir().join(format!("afx-capacity-{id}"));
-    std::fs::create_dir_all(&run_dir)
-        .with_context(|| format!("creating {}", run_dir.display()))?;
+    std::fs::create_dir_all(&run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
     let result = run_in(config, device, policy_device, feed, run_dir.clone());
     let _ = std::fs::remove_dir_all(&run_dir);
     result
@@ -228,7 +227,11 @@ fn learner_ready(shared: &Shared, actor_id: u32, sent: u64, window: u64, room: u
     let accepted = status
         .actors
         .get(&actor_id)
-        .and_then(|a| a.received.get(proto::MessageKind::Rollout.as_str()).copied())
+        .and_then(|a| {
+            a.received
+                .get(proto::MessageKind::Rollout.as_str())
+                .copied()
+        })
         .unwrap_or(0);
     sent < accepted + window && status.rollout_steps_queued <= room
 }
@@ -284,10 +287,18 @@ fn synthetic_actor(
         height: side as u32,
         width: side as u32,
         n_affordances: planes as u32,
-        depth_m: (0..n * pixels).map(|_| rng.random_range(0.2..5.0)).collect(),
+        depth_m: (0..n * pixels)
+            .map(|_| rng.random_range(0.2..5.0))
+            .collect(),
         rgb: (0..n * pixels * 3).map(|_| rng.random()).collect(),
         labels: (0..n * pixels * planes)
-            .map(|_| [proto::LABEL_NEGATIVE, proto::LABEL_POSITIVE, proto::LABEL_UNKNOWN][rng.random_range(0..3)])
+            .map(|_| {
+                [
+                    proto::LABEL_NEGATIVE,
+                    proto::LABEL_POSITIVE,
+                    proto::LABEL_UNKNOWN,
+                ][rng.random_range(0..3)]
+            })
             .collect(),
     };
     let mut parts: Vec<FrameBatch> = Vec::new();
@@ -326,8 +337,8 @@ fn synthetic_actor(
                 part.episode_id = episode;
                 ports.publish(&*part, version(), 0)?;
             }
-            let stats = EpisodeStats::new(episode, step as u32, 0)
-                .with(StatField::EpisodeReturn, 0.0);
+            let stats =
+                EpisodeStats::new(episode, step as u32, 0).with(StatField::EpisodeReturn, 0.0);
             ports.publish(&stats, version(), 0)?;
             episode += 1;
             step = 0;

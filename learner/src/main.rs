@@ -189,7 +189,9 @@ fn bench_capacity(args: CapacityArgs) -> anyhow::Result<()> {
     };
     let setting = format!(
         "{} {} px, {}-step episodes, {} feeds, PPO {} steps on {}, U-Net on {} ({})",
-        serde_json::to_value(config.task.method)?.as_str().unwrap_or("?"),
+        serde_json::to_value(config.task.method)?
+            .as_str()
+            .unwrap_or("?"),
         config.task.image_size,
         config.task.episode_steps,
         args.actors,

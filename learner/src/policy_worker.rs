@@ -198,7 +198,9 @@ impl PolicyWorker {
         match self.thread.take().map(JoinHandle::join) {
             Some(Ok(result)) => result,
             Some(Err(_)) => Err(anyhow::anyhow!("the PPO training thread panicked")),
-            None => Err(anyhow::anyhow!("the PPO training thread was already stopped")),
+            None => Err(anyhow::anyhow!(
+                "the PPO training thread was already stopped"
+            )),
         }
     }
 }
@@ -207,10 +209,7 @@ impl PolicyWorker {
 fn take(inbox: &Inbox, need: usize) -> Taken {
     let mut state = inbox.lock();
     while state.chunks.is_empty() && !state.snapshot_requested && !state.stop {
-        state = inbox
-            .changed
-            .wait(state)
-            .unwrap_or_else(|p| p.into_inner());
+        state = inbox.changed.wait(state).unwrap_or_else(|p| p.into_inner());
     }
     let mut chunks = Vec::new();
     let mut steps = 0;
@@ -386,7 +385,10 @@ mod tests {
         let deadline = Instant::now() + Duration::from_secs(60);
         let mut versions = Vec::new();
         while versions.last() != Some(&3) {
-            assert!(Instant::now() < deadline, "two updates never came: {versions:?}");
+            assert!(
+                Instant::now() < deadline,
+                "two updates never came: {versions:?}"
+            );
             if let Some(published) = worker.take_published() {
                 assert!(!published.weights.is_empty());
                 versions.push(published.version);

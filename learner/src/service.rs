@@ -282,7 +282,11 @@ impl Learner {
                 tracing::error!("the U-Net training thread stopped; shutting down");
                 break;
             }
-            if self.policy_worker.as_ref().is_some_and(PolicyWorker::finished) {
+            if self
+                .policy_worker
+                .as_ref()
+                .is_some_and(PolicyWorker::finished)
+            {
                 tracing::error!("the PPO training thread stopped; shutting down");
                 break;
             }

@@ -1,5 +1,4 @@
-//! Convolutions as one matrix product each: the policy encoders' strided
-//! ones everywhere, and the U-Net's 3 × 3 ones on the GPU.
+//! The policy encoders' strided convolutions as one matrix product each.
 //!
 //! burn's CPU backend computes a convolution, and the gradient of its
 //! weights, through a general im2col that re-indexes every element; in a PPO
@@ -54,8 +53,7 @@ impl Product {
 /// `conv`'s valid convolution (square kernel and stride, no dilation or
 /// groups, as [`crate::policy::ConvEncoder`] builds them) of `x`, laid out
 /// as `layout` says; the output is channels-last. Taking the first layer's
-/// input channels first saves a copy of the largest input. `conv`'s own
-/// padding is not applied: pad `x` first (as [`same_conv3x3`] does).
+/// input channels first saves a copy of the largest input.
 pub(crate) fn conv(x: Tensor<4>, layout: Layout, conv: &Conv2d, product: Product) -> Tensor<4> {
     let [out_channels, in_channels, kernel, _] = conv.weight.dims();
     let stride = conv.stride[0];
@@ -155,18 +153,6 @@ pub(crate) fn conv(x: Tensor<4>, layout: Layout, conv: &Conv2d, product: Product
     out.reshape([batch, out_h, out_w, out_channels])
 }
 
-/// `layer`'s 3 × 3, stride-1, same-padded convolution of channels-first `x`
-/// as matrix products (the U-Net's on a GPU), channels first again.
-pub(crate) fn same_conv3x3(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
-    let product = Product::for_device(&x.device());
-    same_conv3x3_with(layer, x, product)
-}
-
-fn same_conv3x3_with(layer: &Conv2d, x: Tensor<4>, product: Product) -> Tensor<4> {
-    let x = x.pad([(1, 1), (1, 1)], PadMode::Constant(0.0));
-    conv(x, Layout::ChannelsFirst, layer, product).permute([0, 3, 1, 2])
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -259,42 +245,5 @@ mod tests {
         check(3, 5, 3, 2, 9, 12);
         check(2, 4, 2, 3, 11, 10);
         check(2, 4, 3, 1, 7, 9);
-    }
-
-    #[test]
-    fn same_3x3_convolutions_give_burns_values_and_gradients() {
-        // The U-Net's first layer and a deeper one, odd and even sides.
-        let shapes = [(4, 24, 16, 16), (24, 48, 9, 7), (3, 5, 1, 1)];
-        for ((channels, out, h, w), product) in shapes
-            .into_iter()
-            .flat_map(|s| [(s, Product::Batch), (s, Product::PerImage)])
-        {
-            let device = Device::flex().autodiff();
-            let conv = Conv2dConfig::new([channels, out], [3, 3])
-                .with_padding(burn::nn::PaddingConfig2d::Same)
-                .init(&device);
-            let input =
-                Tensor::<4>::random([2, channels, h, w], Distribution::Normal(0.0, 1.0), &device);
-            let weights =
-                Tensor::<4>::random([2, out, h, w], Distribution::Normal(0.0, 1.0), &device);
-            let x_ours = input.clone().detach().require_grad();
-            let ours = super::same_conv3x3_with(&conv, x_ours.clone(), product);
-            let ours_grads = (ours.clone() * weights.clone()).sum().backward();
-            let x_burn = input.detach().require_grad();
-            let burn = conv.forward(x_burn.clone());
-            let burn_grads = (burn.clone() * weights).sum().backward();
-            let shape = format!("({product:?}, {channels}→{out}, {h}×{w})");
-            assert_close(ours, burn, &format!("outputs {shape}"));
-            assert_close(
-                x_ours.grad(&ours_grads).expect("gradient"),
-                x_burn.grad(&burn_grads).expect("gradient"),
-                &format!("input gradients {shape}"),
-            );
-            assert_close(
-                conv.weight.grad(&ours_grads).expect("gradient"),
-                conv.weight.grad(&burn_grads).expect("gradient"),
-                &format!("weight gradients {shape}"),
-            );
-        }
     }
 }

@@ -143,19 +143,18 @@ impl ConvEncoder {
     }
 }
 
-/// How the networks compute their convolutions: the policy encoders'
-/// strided ones, and in training on a GPU the U-Net's 3 × 3 ones. Both forms
+/// How the policy encoders compute their strided convolutions. Both forms
 /// give the same values and gradients (tests `encoder_paths_agree`,
 /// `conv_matmul`'s); benchmarks compare their speed with [`set_conv_path`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ConvPath {
     /// As matrix products (`conv_matmul`): one over the batch on the CPU,
-    /// one per image on a GPU. (On the CPU the U-Net keeps its own operation.)
+    /// one per image on a GPU, where it took half the time of burn's (a
+    /// 1 024-step PPO update at 128 px: 1.65 against 3.39 s on an H200).
     Auto,
     /// burn's `Conv2d` (a direct convolution on the GPU backend).
     Burn,
 }
-
 
 /// The process-wide [`ConvPath`] (`Auto` until set).
 static CONV_PATH: AtomicU8 = AtomicU8::new(0);
@@ -167,7 +166,7 @@ pub fn set_conv_path(path: ConvPath) {
 }
 
 /// The process-wide [`ConvPath`].
-pub(crate) fn conv_path() -> ConvPath {
+fn conv_path() -> ConvPath {
     match CONV_PATH.load(Ordering::Relaxed) {
         1 => ConvPath::Burn,
         _ => ConvPath::Auto,
@@ -495,11 +494,7 @@ mod tests {
         // Values and first-layer weight gradients of both convolution paths.
         let device = Device::flex().autodiff();
         let encoder = ConvEncoder::new(5, 64, &device);
-        let x = Tensor::<4>::random(
-            [3, 5, 64, 64],
-            burn::tensor::Distribution::Default,
-            &device,
-        );
+        let x = Tensor::<4>::random([3, 5, 64, 64], burn::tensor::Distribution::Default, &device);
         let run = |matrix_products: bool| {
             let out = encoder.forward_with(x.clone(), matrix_products);
             let grads = (out.clone() * out.clone()).sum().backward();

@@ -19,10 +19,10 @@
 //!   input.
 //!
 //! The images of a batch run in parallel on rayon's threads.
-//! Tensors elsewhere (the GPU) take, in training, the matrix-product form
-//! (`conv_matmul::same_conv3x3`, whose weight gradient a GPU spreads over its
-//! cores; [`crate::policy::ConvPath::Burn`] turns it off), and in inference
-//! burn's own `Conv2d`; then the ReLU.
+//! Tensors elsewhere (the GPU) take burn's own `Conv2d` and ReLU. (The
+//! matrix-product form the policy encoders train with on a GPU, padded, with
+//! nine taps per image, made the U-Net's training step slower there: 173
+//! against 151 ms; docs/notes/2026-11-26-gpu-learner.md.)
 
 use std::borrow::Cow;
 use std::sync::Arc;
@@ -59,9 +59,6 @@ pub(crate) fn conv3x3_relu(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
         if let Some(out) = untracked_on_cpu(&x, &weight, &bias) {
             return out;
         }
-    }
-    if x.is_autodiff() && crate::policy::conv_path() == crate::policy::ConvPath::Auto {
-        return relu(crate::conv_matmul::same_conv3x3(layer, x));
     }
     relu(layer.forward(x))
 }

@@ -186,7 +186,11 @@ fn gpu_check(device: &Device, gpu: bool, rng: &mut StdRng) {
         .unwrap_or(1024);
     let sides: Vec<usize> = std::env::var("AFX_BENCH_SIDES").map_or(vec![64, 128], |s| {
         s.split(',')
-            .map(|v| v.trim().parse().expect("AFX_BENCH_SIDES: sides like 64,128"))
+            .map(|v| {
+                v.trim()
+                    .parse()
+                    .expect("AFX_BENCH_SIDES: sides like 64,128")
+            })
             .collect()
     });
     let mut results: Vec<(String, f64)> = Vec::new();
@@ -220,12 +224,7 @@ fn gpu_check(device: &Device, gpu: bool, rng: &mut StdRng) {
     let named: Vec<(&str, f64)> = results.iter().map(|(n, v)| (n.as_str(), *v)).collect();
     print_results(&named, gpu);
     let layout = ours_layout(64);
-    let list = |v: &[usize]| {
-        v.iter()
-            .map(usize::to_string)
-            .collect::<Vec<_>>()
-            .join(",")
-    };
+    let list = |v: &[usize]| v.iter().map(usize::to_string).collect::<Vec<_>>().join(",");
     compare_with_torch(
         &named,
         &[

@@ -9,6 +9,10 @@ minibatches, clipped losses, Adam, global grad-norm clipping). Prints one
 `name: median X ms` line per measurement, on CPU unless --device says otherwise.
 
 Usage: python3 learner/training/benches/torch_reference.py [--envs 8] [--repeats 5] [--device cpu]
+       python3 learner/training/benches/torch_reference.py --gpu-check --ppo-steps 1024 \
+           --image-channels 10,8,8 --vector-dims 160,1 --actions 30 --device cuda
+(--gpu-check: only the learner's training shapes, PPO at 64 and 128 px and the U-Net step, as
+`AFX_BENCH_ONLY=gpu-check cargo bench -p training` runs them and passes the task's shapes.)
 Needs `pip install torch` (CPU wheels: https://download.pytorch.org/whl/cpu).
 """
 

@@ -104,12 +104,18 @@ mod tests {
         let (layer, mut g, expected) = grads(10.0);
         let before = clip_global_norm(&layer, &mut g, 0.5).unwrap();
         let before = f64::from(before.into_scalar::<f32>());
-        assert!((before - expected).abs() < 1e-4 * expected, "{before} vs {expected}");
+        assert!(
+            (before - expected).abs() < 1e-4 * expected,
+            "{before} vs {expected}"
+        );
         assert!((norm_after(&layer, &g) - 0.5).abs() < 1e-5);
 
         let (layer, mut g, expected) = grads(0.01);
         let before = clip_global_norm(&layer, &mut g, 0.5).unwrap();
         assert!((f64::from(before.into_scalar::<f32>()) - expected).abs() < 1e-6);
-        assert!((norm_after(&layer, &g) - expected).abs() < 1e-7, "unchanged");
+        assert!(
+            (norm_after(&layer, &g) - expected).abs() < 1e-7,
+            "unchanged"
+        );
     }
 }

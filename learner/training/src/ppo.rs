@@ -261,7 +261,11 @@ impl LossTerms {
     /// Reads a terms tensor of [`ppo_loss`] (or a mean of several) back to
     /// the host: one read-back.
     pub fn read(terms: Tensor<1>) -> Self {
-        let v: Vec<f32> = terms.into_data().convert::<f32>().try_into_vec::<f32>().unwrap_or_default();
+        let v: Vec<f32> = terms
+            .into_data()
+            .convert::<f32>()
+            .try_into_vec::<f32>()
+            .unwrap_or_default();
         let at = |i: usize| v.get(i).copied().unwrap_or(f32::NAN);
         Self {
             policy: at(0),
