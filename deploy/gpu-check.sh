@@ -14,7 +14,8 @@ Runs, one after the other, each under a time limit (about 7 minutes in all):
      AFX_BENCH_ONLY=gpu-check: PPO update of 1024 steps at 64 and 128 px, U-Net
      training step; needs python3 with torch for the PyTorch column);
   3. the learner's capacity with synthetic actors (`learner bench-capacity`)
-     at 64 px (100-step episodes) and 128 px (600-step episodes);
+     at 64 px (100-step episodes; PPO batches of 128 and 1024 steps) and
+     128 px (600-step episodes, 1024-step batches);
   4. deploy/throughput.sh: the whole system, `ours`, 1x16 and 2x8 at 64 px with
      the CPU renderer and 1x16 at 128 px with the GPU renderer.
 and writes every result into one Markdown report.
@@ -102,18 +103,19 @@ fi
 if ! skipped capacity; then
   section "Learner capacity, synthetic actors (learner bench-capacity)"
   header_done=0
-  for setting in "64 100 4" "128 600 4"; do
-    read -r side steps feeds <<<"$setting"
-    log="$LOGS/capacity-${side}px.log"
+  # The learner's default PPO batch, and the 1024 steps a GPU wants (README).
+  for setting in "64 100 4 128" "64 100 4 1024" "128 600 4 1024"; do
+    read -r side steps feeds batch <<<"$setting"
+    log="$LOGS/capacity-${side}px-${batch}.log"
     limited $((CAP_WARMUP + CAP_SECONDS + 90)) "$log" "$BIN/learner" bench-capacity --device gpu \
-      --image-size "$side" --episode-steps "$steps" --actors "$feeds" \
+      --image-size "$side" --episode-steps "$steps" --actors "$feeds" --batch-steps "$batch" \
       --warmup "$CAP_WARMUP" --seconds "$CAP_SECONDS"
     if grep -q '^| setting' "$log"; then
       [[ $header_done -eq 1 ]] || add "$(grep -A1 '^| setting' "$log")"
       header_done=1
       add "$(grep -A2 '^| setting' "$log" | tail -n 1)"
     else
-      add "${side} px: FAILED: $(tail -n 3 "$log" | tr '\n' ' ')"
+      add "${side} px, ${batch}-step batches: FAILED: $(tail -n 3 "$log" | tr '\n' ' ')"
     fi
   done
 fi
