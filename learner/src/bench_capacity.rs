@@ -39,7 +39,7 @@ pub struct FeedSettings {
 }
 
 /// What the learner took in the counted window, per second.
-#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+#[derive(Debug, Clone, Copy, Default)]
 pub struct Capacity {
     /// Environment steps accepted from rollout chunks.
     pub steps_per_s: f64,

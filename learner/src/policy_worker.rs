@@ -1,7 +1,7 @@
 //! PPO on a thread of its own, so that the receive loop never waits for an
 //! update. The loop hands each valid rollout chunk over without blocking;
-//! chunks wait in a queue bounded in steps (`[policy] queue_steps`) while an
-//! update runs. When the queue is full the oldest chunks are discarded and
+//! chunks wait in a queue bounded in steps (`[policy] queue_batches` batches)
+//! while an update runs. When the queue is full the oldest chunks are discarded and
 //! counted (`rollout_steps_discarded`): they are the stalest, so a learner
 //! that cannot keep up trains on fresh data with a bounded policy lag instead
 //! of falling ever further behind. After each update the thread hands the

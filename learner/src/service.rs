@@ -441,7 +441,7 @@ impl Learner {
             let status = self.shared.status();
             (status.policy_version, status.unet_version)
         };
-        let blob = self.weights_blob()?;
+        let blob = self.weights_blob(&self.policy_weights)?;
         match self
             .ports
             .publish_weights(policy_version, unet_version, &blob)?
@@ -455,10 +455,10 @@ impl Learner {
         Ok(())
     }
 
-    /// Both networks in one safetensors blob, names prefixed `policy.` and `unet.`.
-    fn weights_blob(&self) -> anyhow::Result<Vec<u8>> {
-        let mut parts: Vec<(&str, &[u8])> =
-            vec![(proto::WEIGHTS_POLICY_PREFIX, &self.policy_weights)];
+    /// Both networks in one safetensors blob, names prefixed `policy.` and
+    /// `unet.`: `policy` (safetensors bytes) and the deployed U-Net.
+    fn weights_blob(&self, policy: &[u8]) -> anyhow::Result<Vec<u8>> {
+        let mut parts: Vec<(&str, &[u8])> = vec![(proto::WEIGHTS_POLICY_PREFIX, policy)];
         let mut metadata = std::collections::HashMap::from([(
             proto::WEIGHTS_META_ENV_STEPS.to_string(),
             self.shared.status().env_steps.to_string(),
@@ -505,11 +505,8 @@ impl Learner {
                 unet_version: status.unet_version,
             }
         };
-        // The weights broadcast may already be newer than the snapshot.
-        let published = std::mem::replace(&mut self.policy_weights, policy.weights.clone());
-        let weights = self.weights_blob();
-        self.policy_weights = published;
-        let weights = weights?;
+        // The snapshot's weights: the broadcast may already be newer.
+        let weights = self.weights_blob(&policy.weights)?;
         let counters_json = serde_json::to_vec_pretty(&counters)?;
         let adam = &policy.optimizer;
         let adam_parameters = adam.parameter_list_json();

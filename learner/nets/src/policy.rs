@@ -9,7 +9,7 @@ use burn::prelude::*;
 use burn::tensor::activation::{relu, tanh};
 use burn::tensor::Bool;
 pub use proto::{ObsDtype, PolicyLayout};
-use std::sync::atomic::{AtomicU8, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 
 mod cpu;
 
@@ -156,20 +156,21 @@ pub enum ConvPath {
     Burn,
 }
 
-/// The process-wide [`ConvPath`] (`Auto` until set).
-static CONV_PATH: AtomicU8 = AtomicU8::new(0);
+/// Whether the process-wide [`ConvPath`] is `Burn` (`Auto` until set).
+static BURN_CONV: AtomicBool = AtomicBool::new(false);
 
 /// Chooses how every policy encoder in this process computes its
 /// convolutions from now on.
 pub fn set_conv_path(path: ConvPath) {
-    CONV_PATH.store(u8::from(path == ConvPath::Burn), Ordering::Relaxed);
+    BURN_CONV.store(path == ConvPath::Burn, Ordering::Relaxed);
 }
 
 /// The process-wide [`ConvPath`].
 fn conv_path() -> ConvPath {
-    match CONV_PATH.load(Ordering::Relaxed) {
-        1 => ConvPath::Burn,
-        _ => ConvPath::Auto,
+    if BURN_CONV.load(Ordering::Relaxed) {
+        ConvPath::Burn
+    } else {
+        ConvPath::Auto
     }
 }
 
