@@ -4,17 +4,23 @@
 //! recall, F1 and object accuracy per frame, as median and 10th / 90th
 //! percentile). Table 2 places the robot in front of every object, tries
 //! each affordance there, and scores the network's object-level prediction
-//! (the mean of its pixels) against what happened.
+//! (the mean of its pixels) against what happened. Both tables also score
+//! predicting everything positive on the same views and objects, the floor
+//! a network must beat.
 
 mod object_trials;
 mod report;
+mod selection;
 mod test_views;
 mod weights;
 
-pub use object_trials::{try_affordance, view_object, ObjectView};
-pub use report::{Confusion, ObjectRow, ObjectTrial, Percentiles, PixelRow, Report};
+pub use object_trials::{sight_object, try_affordance, ObjectView, Sighting, SEARCH_RADIUS_M};
+pub use report::{
+    Confusion, ObjectRow, ObjectTrial, Percentiles, PixelRow, Reference, Report, ScoredBy,
+};
+pub use selection::{Candidate, Selection, RULE as SELECTION_RULE};
 pub use test_views::{test_views, MIN_OBJECT_SHARE};
-pub use weights::{load_checkpoint_unet, CheckpointUnet};
+pub use weights::{checkpoint_steps, load_checkpoint_unet, CheckpointUnet};
 
 use anyhow::Context;
 use proto::Affordance;
@@ -56,8 +62,10 @@ pub fn evaluate(
     let planes = settings.affordances.len();
     let mut frame_scores: Vec<Vec<(PixelScores, Option<f32>)>> = vec![Vec::new(); planes];
     let mut false_positives = vec![FalsePositives::default(); planes];
+    let mut all_positive_scores: Vec<Vec<(PixelScores, Option<f32>)>> = vec![Vec::new(); planes];
+    let mut all_positive_false = vec![FalsePositives::default(); planes];
     let mut trials = Vec::new();
-    let mut objects_not_viewed = Vec::new();
+    let mut objects_unseen = Vec::new();
     let mut scored: Vec<Vec<(f32, bool)>> = vec![Vec::new(); planes];
     let mut frames = 0;
     for (room, scene) in scenes.iter().enumerate() {
@@ -88,25 +96,41 @@ pub fn evaluate(
         )?;
         for view in &views {
             let probabilities = predict(view);
-            for (plane, scores) in frame_scores.iter_mut().enumerate() {
+            let everything = vec![1.0; view.ids.len()];
+            for plane in 0..planes {
                 let p = probabilities
                     .get(plane)
                     .context("the network has too few planes")?;
                 let affords = affords(plane);
-                let object_accuracy = score_frame(p, &view.ids, &affords).object_accuracy;
-                false_positives[plane].add(p, &view.ids, &affords, &is_structure);
-                scores.push((pixel_scores(p, &view.ids, &affords), object_accuracy));
+                for (p, scores, false_positives) in [
+                    (p, &mut frame_scores[plane], &mut false_positives[plane]),
+                    (
+                        &everything,
+                        &mut all_positive_scores[plane],
+                        &mut all_positive_false[plane],
+                    ),
+                ] {
+                    let object_accuracy = score_frame(p, &view.ids, &affords).object_accuracy;
+                    false_positives.add(p, &view.ids, &affords, &is_structure);
+                    scores.push((pixel_scores(p, &view.ids, &affords), object_accuracy));
+                }
             }
         }
         frames += views.len();
         let mut tried = 0;
+        let mut judged = 0;
         for (index, object) in scene.objects.iter().enumerate() {
             if object.is_floor() {
                 continue;
             }
-            let Some(view) = view_object(scene, profile, &reachable, index, renderer)? else {
-                objects_not_viewed.push(format!("{}/{}", scene.name, object.id));
-                continue;
+            let (view, scored_by) = match sight_object(scene, profile, &reachable, index, renderer)?
+            {
+                Sighting::Reachable(view) => (view, ScoredBy::Trial),
+                Sighting::OutOfReach(view) => (view, ScoredBy::GroundTruth),
+                Sighting::Unseen => {
+                    objects_unseen.push(format!("{}/{}", scene.name, object.id));
+                    continue;
+                }
             };
             let probabilities = predict(&view.frame);
             let mut trial = ObjectTrial {
@@ -116,6 +140,7 @@ pub fn evaluate(
                 pixels: view.pixels.len(),
                 distance_m: view.distance_m,
                 predicted: Vec::with_capacity(planes),
+                scored_by,
                 succeeded: Vec::with_capacity(planes),
                 failure: Vec::with_capacity(planes),
             };
@@ -125,47 +150,74 @@ pub fn evaluate(
                     .context("the network has too few planes")?;
                 let mean =
                     view.pixels.iter().map(|&i| p[i]).sum::<f32>() / view.pixels.len() as f32;
-                let (success, failure) = try_affordance(&view, affordance);
+                let (success, failure) = match scored_by {
+                    ScoredBy::Trial => try_affordance(&view, affordance),
+                    ScoredBy::GroundTruth => (truth[index][plane], None),
+                };
                 scored[plane].push((mean, success));
                 trial.predicted.push(mean);
                 trial.succeeded.push(success);
                 trial.failure.push(failure.map(|f| format!("{f:?}")));
             }
             trials.push(trial);
-            tried += 1;
+            match scored_by {
+                ScoredBy::Trial => tried += 1,
+                ScoredBy::GroundTruth => judged += 1,
+            }
         }
         progress(&format!(
-            "{}: {} test views, {tried} objects tried",
+            "{}: {} test views, {tried} objects tried, {judged} judged by the ground truth (out of reach)",
             scene.name,
             views.len()
         ));
     }
-    let names = settings.affordances.iter().map(|a| a.as_str().to_string());
-    let pixel = names
-        .clone()
-        .zip(frame_scores.iter().zip(&false_positives))
-        .map(|(affordance, (scores, false_positives))| PixelRow {
-            affordance,
-            precision: Percentiles::of(scores.iter().map(|s| s.0.precision)),
-            recall: Percentiles::of(scores.iter().map(|s| s.0.recall)),
-            f1: Percentiles::of(scores.iter().map(|s| s.0.f1)),
-            object_accuracy: Percentiles::of(scores.iter().map(|s| s.1)),
-            false_positives_on_structure: false_positives.on_structure_share(),
-        })
+    let names: Vec<String> = settings
+        .affordances
+        .iter()
+        .map(|a| a.as_str().to_string())
         .collect();
-    let object = names
-        .zip(&scored)
-        .map(|(affordance, scored)| ObjectRow::new(affordance, scored))
+    let pixel_rows = |scores: &[Vec<(PixelScores, Option<f32>)>],
+                      false_positives: &[FalsePositives]| {
+        names
+            .iter()
+            .zip(scores.iter().zip(false_positives))
+            .map(|(affordance, (scores, false_positives))| PixelRow {
+                affordance: affordance.clone(),
+                precision: Percentiles::of(scores.iter().map(|s| s.0.precision)),
+                recall: Percentiles::of(scores.iter().map(|s| s.0.recall)),
+                f1: Percentiles::of(scores.iter().map(|s| s.0.f1)),
+                object_accuracy: Percentiles::of(scores.iter().map(|s| s.1)),
+                false_positives_on_structure: false_positives.on_structure_share(),
+            })
+            .collect::<Vec<_>>()
+    };
+    let object_rows = |scored: &[Vec<(f32, bool)>]| {
+        names
+            .iter()
+            .zip(scored)
+            .map(|(affordance, scored)| ObjectRow::new(affordance.clone(), scored))
+            .collect::<Vec<_>>()
+    };
+    let everything: Vec<Vec<(f32, bool)>> = scored
+        .iter()
+        .map(|s| s.iter().map(|&(_, truth)| (1.0, truth)).collect())
         .collect();
     Ok(Report {
         model: settings.model.clone(),
+        checkpoint_step: None,
+        selection: None,
         scenes: scenes.iter().map(|s| s.name.clone()).collect(),
         frames,
-        pixel,
-        objects: trials.len() + objects_not_viewed.len(),
-        objects_not_viewed,
-        object,
+        pixel: pixel_rows(&frame_scores, &false_positives),
+        objects: trials.len() + objects_unseen.len(),
+        objects_unseen,
+        object: object_rows(&scored),
         trials,
+        all_positive: Reference {
+            name: "all positive".into(),
+            pixel: pixel_rows(&all_positive_scores, &all_positive_false),
+            object: object_rows(&everything),
+        },
     })
 }
 

@@ -1,6 +1,7 @@
 //! The actor process as a library: the [`env::Environment`] interface, the
 //! episode loop that acts with the broadcast policy and streams rollouts and
-//! stats to the learner, and the actor's configuration.
+//! stats to the learner, and the actor's configuration; and the test
+//! evaluation of its networks with the comparison page built from it.
 //!
 //! It never trains: weights only arrive from the learner.
 
@@ -12,4 +13,5 @@ pub mod labeler;
 pub mod mapping;
 pub mod metrics;
 pub mod recording;
+pub mod results;
 pub mod sim_view;

@@ -19,7 +19,6 @@ use proto::{EnvKind, TaskSpec};
 use sim::ithor::SceneSet;
 use sim::profile::RobotProfile;
 use sim::renderer::{Renderer, RendererChoice};
-use sim::scenes::SceneSource;
 
 /// Where the simulator's rooms come from.
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -57,6 +56,25 @@ enum Command {
     /// placed in front of every object and each affordance tried there, the
     /// object-level prediction (mean over its pixels) against the outcome.
     Evaluate(EvaluateArgs),
+    /// Writes the comparison `deploy/reproduce.sh` ran (its --root) as one
+    /// Markdown page: Tables 1 and 2 per method over seeds beside the
+    /// floors and the paper's numbers, whether the paper's ordering holds,
+    /// and each run's course. Fails if any run is missing or incomplete.
+    Results(ResultsArgs),
+}
+
+#[derive(Args)]
+struct ResultsArgs {
+    /// The comparison's root directory (with reproduce.json).
+    #[arg(long)]
+    root: PathBuf,
+    /// The page to write.
+    #[arg(long, default_value = "docs/results.md")]
+    out: PathBuf,
+    /// The training curves' SVG, as the page should link it (relative to
+    /// the page).
+    #[arg(long)]
+    curves: Option<String>,
 }
 
 #[derive(Args)]
@@ -66,23 +84,32 @@ struct EvaluateArgs {
     #[arg(long)]
     run_dir: PathBuf,
     /// Checkpoint step to evaluate (default: the newest).
-    #[arg(long, conflicts_with = "untrained")]
+    #[arg(long, conflicts_with_all = ["untrained", "select"])]
     step: Option<u64>,
-    /// Evaluate a freshly initialised network instead (weights drawn from
-    /// --seed): the floor a trained one must beat.
-    #[arg(long)]
-    untrained: bool,
+    /// Choose the checkpoint on the validation rooms (FloorPlan221–225):
+    /// score every checkpoint of the run there, then evaluate only the best
+    /// on --scenes (test by default). The report says how each scored.
+    #[arg(long, conflicts_with = "untrained")]
+    select: bool,
+    /// Validation views per room when choosing with --select.
+    #[arg(long, default_value_t = 120)]
+    val_views_per_scene: usize,
+    /// Evaluate a freshly initialised network instead, its weights drawn
+    /// from SEED (default: --seed): the floor a trained one must beat.
+    #[arg(long, value_name = "SEED", num_args = 0..=1)]
+    untrained: Option<Option<u64>>,
     /// Rooms: test (FloorPlan226–230), val (221–225) or train (201–220).
     #[arg(long, default_value = "test")]
     scenes: SceneSet,
     /// Test views per room for Table 1 (the paper had 611 frames over 5 rooms).
     #[arg(long, default_value_t = 120)]
     views_per_scene: usize,
-    /// Seed of the test views (the same seed gives the same views) and of
-    /// an untrained network's weights.
+    /// Seed of the test views: the same seed gives the same views (and
+    /// objects), whatever network is evaluated.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Write the whole report (both tables and every object's trial) as JSON here.
+    /// Write the whole report (both tables, the all-positive reference,
+    /// the selection and every object's trial) as JSON here.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
     /// The robot and renderer: pass the ones the run trained with.
@@ -176,6 +203,7 @@ fn main() -> anyhow::Result<()> {
     match cli.command {
         Some(Command::SimView(args)) => sim_view(args),
         Some(Command::Evaluate(args)) => evaluate(args),
+        Some(Command::Results(args)) => results(args),
         None => run_actor(cli.run),
     }
 }
@@ -211,17 +239,61 @@ fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
         task.env
     );
     anyhow::ensure!(
-        args.views_per_scene > 0,
-        "--views-per-scene must be at least 1"
+        args.views_per_scene > 0 && args.val_views_per_scene > 0,
+        "--views-per-scene and --val-views-per-scene must be at least 1"
+    );
+    anyhow::ensure!(
+        !(args.select && matches!(args.scenes, SceneSet::Val)),
+        "--select chooses the checkpoint on the validation rooms; evaluate it on others \
+         (--scenes test, the default)"
     );
     let device = nets::device::open_device(nets::device::DeviceChoice::Cpu)?;
-    // An untrained network's weights follow --seed, so its floor can be repeated.
-    device.seed(args.seed);
     let mut model = AffordanceModel::new(task.affordances.len(), &device);
-    let model_name = if args.untrained {
-        "an untrained U-Net".to_string()
-    } else {
-        let unet = actor::evaluation::load_checkpoint_unet(&args.run_dir, args.step)?;
+    let mut profile = RobotProfile::load(&args.sim.profile)?;
+    profile.image_size = task.image_size;
+    let rooms = args.sim.data.join("ithor-livingrooms");
+    let load_rooms = |set: SceneSet| {
+        sim::ithor::load_set(&rooms, set).with_context(|| {
+            format!(
+                "loading the rooms from {} (set --data or AFX_DATA to the shared data directory)",
+                rooms.display()
+            )
+        })
+    };
+    let scenes = load_rooms(args.scenes)?;
+    let mut renderer = Renderer::open(args.sim.renderer)?;
+    let mut run = |model: &AffordanceModel, scenes: &[sim::scene::Scene], views, name: &str| {
+        let predict = |frame: &sim::raycast::Frame| {
+            model.predict(&CameraFrame {
+                rgb: &frame.rgb,
+                depth_m: &frame.depth_m,
+                height: frame.height,
+                width: frame.width,
+            })
+        };
+        let settings = actor::evaluation::EvaluationSettings {
+            model: name.to_string(),
+            affordances: task.affordances.clone(),
+            views_per_scene: views,
+            seed: args.seed,
+        };
+        eprintln!(
+            "evaluate: {name} in {} rooms at {} px with {}",
+            scenes.len(),
+            task.image_size,
+            renderer.describe()
+        );
+        actor::evaluation::evaluate(
+            scenes,
+            &profile,
+            &mut renderer,
+            &predict,
+            &settings,
+            &mut |line| eprintln!("evaluate: {line}"),
+        )
+    };
+    let load = |model: &mut AffordanceModel, step: Option<u64>| {
+        let unet = actor::evaluation::load_checkpoint_unet(&args.run_dir, step)?;
         model.load_weights(unet.weights).with_context(|| {
             format!(
                 "loading the U-Net of step {} (made for {:?} at {} px?)",
@@ -229,51 +301,58 @@ fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
             )
         })?;
         model.temperature = unet.temperature;
-        format!(
+        let name = format!(
             "the U-Net of {} at step {}",
             args.run_dir.display(),
             unet.step
+        );
+        anyhow::Ok((unet.step, name))
+    };
+    let report = if let Some(seed) = args.untrained {
+        // An untrained network's weights follow its seed, so its floor can be repeated.
+        let seed = seed.unwrap_or(args.seed);
+        device.seed(seed);
+        model = AffordanceModel::new(task.affordances.len(), &device);
+        let name = format!("an untrained U-Net (seed {seed})");
+        run(&model, &scenes, args.views_per_scene, &name)?
+    } else if args.select {
+        let steps = actor::evaluation::checkpoint_steps(&args.run_dir)?;
+        anyhow::ensure!(
+            !steps.is_empty(),
+            "{} has no checkpoint to choose from",
+            args.run_dir.display()
+        );
+        let val = load_rooms(SceneSet::Val)?;
+        let mut candidates = Vec::with_capacity(steps.len());
+        for (i, &step) in steps.iter().enumerate() {
+            let (_, name) = load(&mut model, Some(step))?;
+            let report = run(&model, &val, args.val_views_per_scene, &name)?;
+            let candidate = actor::evaluation::Candidate::of(step, &report);
+            eprintln!(
+                "evaluate: validation {}/{}: step {step} scores {:.3}",
+                i + 1,
+                steps.len(),
+                candidate.score
+            );
+            candidates.push(candidate);
+        }
+        let selection = actor::evaluation::Selection::choose(
+            val.iter().map(|s| s.name.clone()).collect(),
+            args.val_views_per_scene,
+            candidates,
         )
+        .context("no checkpoint was scored")?;
+        let (step, name) = load(&mut model, Some(selection.chosen_step))?;
+        let mut report = run(&model, &scenes, args.views_per_scene, &name)?;
+        report.checkpoint_step = Some(step);
+        report.selection = Some(selection);
+        report
+    } else {
+        let (step, name) = load(&mut model, args.step)?;
+        let mut report = run(&model, &scenes, args.views_per_scene, &name)?;
+        report.checkpoint_step = Some(step);
+        report
     };
-    let mut profile = RobotProfile::load(&args.sim.profile)?;
-    profile.image_size = task.image_size;
-    let rooms = args.sim.data.join("ithor-livingrooms");
-    let scenes = sim::ithor::load_set(&rooms, args.scenes).with_context(|| {
-        format!(
-            "loading the rooms from {} (set --data or AFX_DATA to the shared data directory)",
-            rooms.display()
-        )
-    })?;
-    let mut renderer = Renderer::open(args.sim.renderer)?;
-    let predict = |frame: &sim::raycast::Frame| {
-        model.predict(&CameraFrame {
-            rgb: &frame.rgb,
-            depth_m: &frame.depth_m,
-            height: frame.height,
-            width: frame.width,
-        })
-    };
-    let settings = actor::evaluation::EvaluationSettings {
-        model: model_name,
-        affordances: task.affordances.clone(),
-        views_per_scene: args.views_per_scene,
-        seed: args.seed,
-    };
-    eprintln!(
-        "evaluate: {} in {} rooms at {} px with {}",
-        settings.model,
-        scenes.len(),
-        task.image_size,
-        renderer.describe()
-    );
-    let report = actor::evaluation::evaluate(
-        &scenes,
-        &profile,
-        &mut renderer,
-        &predict,
-        &settings,
-        &mut |line| eprintln!("evaluate: {line}"),
-    )?;
     print!("{}", report.to_markdown());
     if let Some(path) = &args.json {
         let text = serde_json::to_string_pretty(&report)?;
@@ -283,20 +362,31 @@ fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+fn results(args: ResultsArgs) -> anyhow::Result<()> {
+    let comparison = actor::results::load(&args.root)?;
+    let page = actor::results::render(&comparison, args.curves.as_deref());
+    std::fs::write(&args.out, page).with_context(|| format!("writing {}", args.out.display()))?;
+    eprintln!(
+        "results: {} runs of {} into {}",
+        comparison.runs.len(),
+        args.root.display(),
+        args.out.display()
+    );
+    Ok(())
+}
+
 /// The simulator environment for `task`.
 fn sim_environment(task: &TaskSpec, cli: &RunArgs) -> anyhow::Result<SimEnvironment> {
     let mut profile = RobotProfile::load(&cli.sim.profile)?;
     profile.image_size = task.image_size;
-    let rooms = cli.sim.data.join("ithor-livingrooms");
-    let source = SceneSource::open(
-        matches!(cli.scenes, Scenes::Ithor).then_some(rooms.as_path()),
-        SceneSet::Train,
-        &cli.sim.data.join("ithor-object-types.tsv"),
+    let source = actor::env::training_rooms(
+        &cli.sim.data,
+        matches!(cli.scenes, Scenes::Ithor),
         &profile,
     )
     .with_context(|| {
         format!(
-            "opening the rooms under {} (set --data or AFX_DATA to the shared data directory)",
+            "opening the training rooms under {} (set --data or AFX_DATA to the shared data directory)",
             cli.sim.data.display()
         )
     })?;

@@ -9,9 +9,11 @@ pub mod sim_env;
 mod sim_environment;
 pub mod state;
 pub mod threads;
+mod training_rooms;
 
 pub use bandit_fixture::BanditFixture;
 pub use sim_environment::SimEnvironment;
+pub use training_rooms::training_rooms;
 
 use anyhow::Context;
 use proto::{FrameBatch, PolicyLayout, StatField};

@@ -4,12 +4,14 @@
 
 use std::fmt::Write as _;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
+
+use super::selection::Selection;
 
 /// Median and 10th / 90th percentiles of a per-frame score (linear
 /// interpolation between order statistics), over the frames where it is
 /// defined.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Percentiles {
     /// 50th percentile.
     pub median: f32,
@@ -45,7 +47,7 @@ impl Percentiles {
 }
 
 /// Counts of object-level predictions against outcomes.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Confusion {
     /// Predicted to afford, and the attempt succeeded.
     pub true_positives: usize,
@@ -104,7 +106,7 @@ fn ratio(num: usize, den: usize) -> Option<f32> {
 }
 
 /// Table 1's row for one affordance.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PixelRow {
     /// The affordance (`pick_up`, `push`).
     pub affordance: String,
@@ -124,7 +126,7 @@ pub struct PixelRow {
 }
 
 /// Table 2's row for one affordance.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ObjectRow {
     /// The affordance (`pick_up`, `push`).
     pub affordance: String,
@@ -189,7 +191,7 @@ fn roc_auc(scored: &[(f32, bool)]) -> Option<f32> {
 
 /// One object's trial: what the U-Net predicted from in front of it and
 /// what trying each affordance there did.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ObjectTrial {
     /// The room.
     pub scene: String,
@@ -203,17 +205,48 @@ pub struct ObjectTrial {
     pub distance_m: f32,
     /// Per affordance (plane order), the mean probability over its pixels.
     pub predicted: Vec<f32>,
-    /// Per affordance, whether trying it succeeded.
+    /// How the outcome was found.
+    pub scored_by: ScoredBy,
+    /// Per affordance, whether trying it succeeded (for an object judged by
+    /// the ground truth: whether the robot could).
     pub succeeded: Vec<bool>,
-    /// Per affordance, why it failed (`None` on success).
+    /// Per affordance, why it failed (`None` on success, and for an object
+    /// judged by the ground truth).
     pub failure: Vec<Option<String>>,
 }
 
+/// Where Table 2's outcome for an object came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ScoredBy {
+    /// The robot tried each affordance on it.
+    Trial,
+    /// No reachable position brings it within reach: the simulator's rules
+    /// for the robot (pickupable, payload, gripper width, movable) decide.
+    GroundTruth,
+}
+
+/// The scores of a fixed prediction that needs no network, beside which a
+/// network's scores mean something.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Reference {
+    /// What the reference predicts.
+    pub name: String,
+    /// Its Table 1 rows.
+    pub pixel: Vec<PixelRow>,
+    /// Its Table 2 rows.
+    pub object: Vec<ObjectRow>,
+}
+
 /// Everything one evaluation measured.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Report {
     /// What was evaluated (a checkpoint, or an untrained network).
     pub model: String,
+    /// The checkpoint's environment step (`None` for an untrained network).
+    pub checkpoint_step: Option<u64>,
+    /// How the checkpoint was chosen on the validation rooms, when it was.
+    pub selection: Option<Selection>,
     /// The rooms.
     pub scenes: Vec<String>,
     /// Test frames scored (Table 1).
@@ -222,66 +255,95 @@ pub struct Report {
     pub pixel: Vec<PixelRow>,
     /// Objects of the rooms (the floor excluded).
     pub objects: usize,
-    /// Objects no pose within reach showed well enough to try (left out of Table 2).
-    pub objects_not_viewed: Vec<String>,
-    /// Table 2, one row per affordance.
+    /// Objects no reachable position shows (`room/id`): the only ones left
+    /// out of Table 2.
+    pub objects_unseen: Vec<String>,
+    /// Table 2, one row per affordance, over every object in
+    /// [`Report::trials`].
     pub object: Vec<ObjectRow>,
-    /// Every tried object.
+    /// Every scored object, tried or judged by the ground truth.
     pub trials: Vec<ObjectTrial>,
+    /// Predicting every pixel and object positive, on the same views and
+    /// objects: the floor that recall alone reaches.
+    pub all_positive: Reference,
 }
 
 impl Report {
-    /// Tables 1 and 2 as Markdown.
+    /// Tables 1 and 2 as Markdown, the network's rows beside the
+    /// all-positive reference's.
     pub fn to_markdown(&self) -> String {
         let mut out = String::new();
         let rooms = self.scenes.join(", ");
-        let _ = writeln!(
-            out,
-            "Evaluation of {} in {rooms}\n\nTable 1: per-frame pixel scores on {} test frames, \
-             median [10th, 90th percentile] (frames where defined)\n",
-            self.model, self.frames
-        );
-        out.push_str(
-            "| affordance | precision | recall | F1 | object accuracy | false positives on floor & walls |\n",
-        );
-        out.push_str("|---|---|---|---|---|---|\n");
-        for row in &self.pixel {
-            let _ = writeln!(
-                out,
-                "| {} | {} | {} | {} | {} | {} |",
-                row.affordance,
-                cell(row.precision),
-                cell(row.recall),
-                cell(row.f1),
-                cell(row.object_accuracy),
-                number(row.false_positives_on_structure)
-            );
+        let _ = writeln!(out, "Evaluation of {} in {rooms}\n", self.model);
+        if let Some(selection) = &self.selection {
+            let _ = writeln!(out, "{}\n", selection.describe());
         }
         let _ = writeln!(
             out,
-            "\nTable 2: object-level prediction (mean over the object's pixels ≥ 0.5) against \
-             trying it, {} of {} objects tried\n",
-            self.trials.len(),
-            self.objects
+            "Table 1: per-frame pixel scores on {} test frames, median [10th, 90th percentile] \
+             (frames where defined)\n",
+            self.frames
         );
         out.push_str(
-            "| affordance | accuracy | precision | recall | F1 | ROC AUC | succeeded | predicted |\n",
+            "| prediction | affordance | precision | recall | F1 | object accuracy | false positives on floor & walls |\n",
         );
-        out.push_str("|---|---|---|---|---|---|---|---|\n");
-        for row in &self.object {
-            let c = row.confusion;
-            let _ = writeln!(
-                out,
-                "| {} | {} | {} | {} | {} | {} | {} | {} |",
-                row.affordance,
-                number(row.accuracy),
-                number(row.precision),
-                number(row.recall),
-                number(row.f1),
-                number(row.auc),
-                c.true_positives + c.false_negatives,
-                c.true_positives + c.false_positives
-            );
+        out.push_str("|---|---|---|---|---|---|---|\n");
+        let reference = &self.all_positive;
+        for (name, rows) in [
+            ("network", &self.pixel),
+            (&reference.name, &reference.pixel),
+        ] {
+            for row in rows {
+                let _ = writeln!(
+                    out,
+                    "| {name} | {} | {} | {} | {} | {} | {} |",
+                    row.affordance,
+                    cell(row.precision),
+                    cell(row.recall),
+                    cell(row.f1),
+                    cell(row.object_accuracy),
+                    number(row.false_positives_on_structure)
+                );
+            }
+        }
+        let judged = self
+            .trials
+            .iter()
+            .filter(|t| t.scored_by == ScoredBy::GroundTruth)
+            .count();
+        let _ = writeln!(
+            out,
+            "\nTable 2: object-level prediction (mean over the object's pixels ≥ 0.5) against \
+             trying it: {} of {} objects, {} tried, {judged} out of reach from every position and \
+             judged by the simulator's ground truth, {} in view from no reachable position\n",
+            self.trials.len(),
+            self.objects,
+            self.trials.len() - judged,
+            self.objects_unseen.len()
+        );
+        out.push_str(
+            "| prediction | affordance | accuracy | precision | recall | F1 | ROC AUC | succeeded | predicted |\n",
+        );
+        out.push_str("|---|---|---|---|---|---|---|---|---|\n");
+        for (name, rows) in [
+            ("network", &self.object),
+            (&reference.name, &reference.object),
+        ] {
+            for row in rows {
+                let c = row.confusion;
+                let _ = writeln!(
+                    out,
+                    "| {name} | {} | {} | {} | {} | {} | {} | {} | {} |",
+                    row.affordance,
+                    number(row.accuracy),
+                    number(row.precision),
+                    number(row.recall),
+                    number(row.f1),
+                    number(row.auc),
+                    c.true_positives + c.false_negatives,
+                    c.true_positives + c.false_positives
+                );
+            }
         }
         out
     }

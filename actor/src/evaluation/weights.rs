@@ -17,9 +17,8 @@ pub struct CheckpointUnet {
     pub temperature: f32,
 }
 
-/// Reads the U-Net of `run_dir/checkpoints/<step>/weights.safetensors`,
-/// the newest step when `step` is `None`.
-pub fn load_checkpoint_unet(run_dir: &Path, step: Option<u64>) -> anyhow::Result<CheckpointUnet> {
+/// The steps of `run_dir`'s checkpoints, oldest first.
+pub fn checkpoint_steps(run_dir: &Path) -> anyhow::Result<Vec<u64>> {
     let root = run_dir.join("checkpoints");
     let entries = std::fs::read_dir(&root).with_context(|| {
         format!(
@@ -32,6 +31,14 @@ pub fn load_checkpoint_unet(run_dir: &Path, step: Option<u64>) -> anyhow::Result
         .filter_map(|e| e.ok()?.file_name().to_str()?.parse().ok())
         .collect();
     steps.sort_unstable();
+    Ok(steps)
+}
+
+/// Reads the U-Net of `run_dir/checkpoints/<step>/weights.safetensors`,
+/// the newest step when `step` is `None`.
+pub fn load_checkpoint_unet(run_dir: &Path, step: Option<u64>) -> anyhow::Result<CheckpointUnet> {
+    let root = run_dir.join("checkpoints");
+    let steps = checkpoint_steps(run_dir)?;
     let step = match step {
         Some(s) if steps.contains(&s) => s,
         Some(s) => anyhow::bail!(

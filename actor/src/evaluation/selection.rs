@@ -1,0 +1,151 @@
+//! Honest model selection: every kept checkpoint of a run is scored on the
+//! validation rooms (FloorPlan221–225), and only the one they choose is
+//! scored on the test rooms, once. Choosing among checkpoints by their test
+//! scores would report the best of several draws as if it were one.
+
+use std::fmt::Write as _;
+
+use serde::{Deserialize, Serialize};
+
+use super::report::Report;
+
+/// What the selection maximises, in words (every report that used it says so).
+pub const RULE: &str = "the mean over affordances of Table 1's median pixel F1 and Table 2's \
+                        F1 on the validation rooms (an undefined score counts 0); a tie goes to \
+                        the later checkpoint";
+
+/// One checkpoint's validation scores.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Candidate {
+    /// The checkpoint's environment step.
+    pub step: u64,
+    /// The score [`RULE`] describes.
+    pub score: f32,
+    /// Per affordance, Table 1's median pixel F1.
+    pub pixel_f1: Vec<Option<f32>>,
+    /// Per affordance, Table 2's F1.
+    pub object_f1: Vec<Option<f32>>,
+}
+
+impl Candidate {
+    /// The candidate of checkpoint `step` from its validation report.
+    pub fn of(step: u64, report: &Report) -> Self {
+        let pixel_f1: Vec<Option<f32>> = report
+            .pixel
+            .iter()
+            .map(|row| row.f1.map(|p| p.median))
+            .collect();
+        let object_f1: Vec<Option<f32>> = report.object.iter().map(|row| row.f1).collect();
+        let terms: Vec<f32> = pixel_f1
+            .iter()
+            .chain(&object_f1)
+            .map(|f| f.unwrap_or(0.0))
+            .collect();
+        let score = if terms.is_empty() {
+            0.0
+        } else {
+            terms.iter().sum::<f32>() / terms.len() as f32
+        };
+        Self {
+            step,
+            score,
+            pixel_f1,
+            object_f1,
+        }
+    }
+}
+
+/// How a run's checkpoint was chosen.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Selection {
+    /// [`RULE`].
+    pub rule: String,
+    /// The validation rooms.
+    pub scenes: Vec<String>,
+    /// Validation views per room (Table 1).
+    pub views_per_scene: usize,
+    /// Every checkpoint scored, in step order.
+    pub candidates: Vec<Candidate>,
+    /// The checkpoint chosen.
+    pub chosen_step: u64,
+}
+
+impl Selection {
+    /// The best of `candidates` by [`RULE`]; `None` without any.
+    pub fn choose(
+        scenes: Vec<String>,
+        views_per_scene: usize,
+        mut candidates: Vec<Candidate>,
+    ) -> Option<Self> {
+        candidates.sort_by_key(|c| c.step);
+        // `max_by` keeps the last of equal maxima: the later step.
+        let chosen_step = candidates
+            .iter()
+            .max_by(|a, b| a.score.total_cmp(&b.score))?
+            .step;
+        Some(Self {
+            rule: RULE.to_string(),
+            scenes,
+            views_per_scene,
+            candidates,
+            chosen_step,
+        })
+    }
+
+    /// One paragraph for a report: the rule and each checkpoint's score.
+    pub fn describe(&self) -> String {
+        let mut out = format!(
+            "Checkpoint chosen on the validation rooms ({}, {} views each) by {}: step {}. \
+             Scores:",
+            self.scenes.join(", "),
+            self.views_per_scene,
+            self.rule,
+            self.chosen_step
+        );
+        for c in &self.candidates {
+            let _ = write!(out, " {} → {:.3};", c.step, c.score);
+        }
+        out.pop();
+        out.push('.');
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn candidate(step: u64, score: f32) -> Candidate {
+        Candidate {
+            step,
+            score,
+            pixel_f1: vec![Some(score)],
+            object_f1: vec![Some(score)],
+        }
+    }
+
+    #[test]
+    fn the_best_score_wins_and_a_tie_goes_to_the_later_checkpoint() {
+        let scenes = vec!["FloorPlan221".to_string()];
+        let chosen = |c: Vec<Candidate>| Selection::choose(scenes.clone(), 4, c).unwrap();
+        let best = chosen(vec![
+            candidate(30, 0.2),
+            candidate(10, 0.5),
+            candidate(20, 0.4),
+        ]);
+        assert_eq!(best.chosen_step, 10);
+        assert_eq!(
+            best.candidates.iter().map(|c| c.step).collect::<Vec<_>>(),
+            vec![10, 20, 30],
+            "in step order"
+        );
+        let tie = chosen(vec![
+            candidate(10, 0.5),
+            candidate(30, 0.5),
+            candidate(20, 0.1),
+        ]);
+        assert_eq!(tie.chosen_step, 30);
+        assert!(tie.describe().contains("step 30") && tie.describe().contains("20 → 0.100"));
+        assert_eq!(Selection::choose(scenes, 4, Vec::new()), None);
+    }
+}
