@@ -2,6 +2,9 @@
 # Starts one learner and N actors on this host, supervises the actors, and shuts
 # everything down cleanly on Ctrl-C. See `deploy/local.sh --help`.
 set -euo pipefail
+# The whole script is one block, read before it runs: editing the file
+# while a run is under way cannot change what this run executes.
+{
 
 usage() {
   cat <<'USAGE'
@@ -236,3 +239,5 @@ if [[ ! -e "$STOP_FILE" ]]; then
   "$BIN/learner" clean >/dev/null 2>&1 || true
   exit 1
 fi
+exit
+}

@@ -3,6 +3,9 @@
 # on the validation rooms, scores it once on the test rooms, and writes the
 # comparison page. Resumable: rerun the same command. See --help.
 set -euo pipefail
+# The whole script is one block, read before it runs: editing the file
+# while a run is under way cannot change what this run executes.
+{
 
 usage() {
   cat <<'USAGE'
@@ -49,6 +52,7 @@ that the comparison itself decides (--method, --seed, --max-steps, --run-dir,
 USAGE
 }
 
+ARGS="$*"
 METHODS=ours,nomap-seg,nomap-noseg,intexp,ours-paper-labels SEEDS=0,1,2 STEPS=60000
 ROOT=runs/reproduce CHECKPOINTS=6 CONFIDENCE_FRACTION=0.4 VIEWS=120 VAL_VIEWS=120
 VIEWS_SEED=0 RENDERER=cpu DATA=../shared/data REPORT=docs/results.md BIN=""
@@ -100,6 +104,9 @@ done
 [[ -d "$DATA/ithor-livingrooms" ]] || fail "no ithor-livingrooms/ under --data $DATA (the shared data directory)"
 DATA=$(cd "$DATA" && pwd)
 
+# --root and --report are relative to where the command was run.
+[[ "$ROOT" == /* ]] || ROOT="$PWD/$ROOT"
+[[ "$REPORT" == /* ]] || REPORT="$PWD/$REPORT"
 cd "$(dirname "$0")/.."
 REPO=$(pwd)
 if [[ -z "$BIN" ]]; then
@@ -140,17 +147,17 @@ if [[ -f "$MANIFEST" ]]; then
   wanted:  $WANTED
 use another --root, or the same options"
 else
-  python3 - "$WANTED" "$MANIFEST" "deploy/reproduce.sh $*" "$MACHINE" "$COMMIT" <<'PY'
+  python3 - "$WANTED" "$MANIFEST" "$MACHINE" "$COMMIT" <<'PY'
 import json, sys, datetime
-wanted, path, command, machine, commit = sys.argv[1:]
+wanted, path, machine, commit = sys.argv[1:]
 d = json.loads(wanted)
-d.update(command=command, machine=machine, commit=commit,
+d.update(command="", machine=machine, commit=commit,
          started=datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"))
 json.dump(d, open(path, "w"), indent=2)
 PY
 fi
-# The manifest's command is the one that started it; show the real one.
-python3 - "$MANIFEST" "deploy/reproduce.sh --methods $METHODS --seeds $SEEDS --steps $STEPS --root ${ROOT#"$REPO"/} -- ${LOCAL_OPTIONS[*]}" <<'PY'
+# The page quotes the latest command (any command that gets here asked for the same settings).
+python3 - "$MANIFEST" "deploy/reproduce.sh $ARGS" <<'PY'
 import json, sys
 path, command = sys.argv[1:]
 d = json.load(open(path)); d["command"] = command; json.dump(d, open(path, "w"), indent=2)
@@ -306,3 +313,5 @@ CURVES="$REPORT_DIR/results-curves.svg"
 "$BIN/learner" plot "${PLOT_ARGS[@]}" --out "$CURVES"
 "$BIN/actor" results --root "$ROOT" --out "$REPORT" --curves "$(basename "$CURVES")"
 echo "done: $REPORT (curves: $CURVES)"
+exit
+}

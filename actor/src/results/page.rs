@@ -91,9 +91,9 @@ pub fn render(comparison: &Comparison, curves: Option<&str>) -> String {
          on at 400 k steps of its ~1 M, so every evaluated `ours` network has both of its \
          labelling mechanisms).\n\
          - **Model selection**: every run's kept checkpoints were scored on the validation rooms \
-         (FloorPlan221–225, {} views each) and the best by {} is the only one scored on the test \
-         rooms (FloorPlan226–230), once. No setting was chosen on test scores. Actors train only \
-         in FloorPlan201–220 (`actor/tests/training_rooms.rs`).\n\
+         (FloorPlan221–225, {} views each), and the best of them (by {}) is the only one scored \
+         on the test rooms (FloorPlan226–230), once. No setting was chosen on test scores. \
+         Actors train only in FloorPlan201–220 (`actor/tests/training_rooms.rs`).\n\
          - **Test set**: Table 1 on {} views ({} per room, view seed {}, the same for every run); \
          Table 2 over {} objects: {} tried from the nearest position that reaches them, {} out \
          of reach from every position and judged by the simulator's ground truth for the robot, \

@@ -1,0 +1,110 @@
+//! `deploy/reproduce.sh` as a user runs it, on a tiny budget (one method,
+//! one seed, a few hundred steps at 64 px, the built binaries): it trains
+//! to the budget, chooses the checkpoint on the validation rooms, scores
+//! the test rooms and the untrained floor, and writes the page; run again,
+//! it skips what is done; asked for other settings in the same root, it
+//! refuses.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use system_tests::{bin, scratch_dir};
+
+fn reproduce(root: &Path, report: &Path, steps: &str, port: u16) -> Output {
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let data = repo.join("../shared/data");
+    let bin_dir = bin("actor").parent().expect("binary dir").to_path_buf();
+    Command::new(repo.join("deploy/reproduce.sh"))
+        .args(["--methods", "ours", "--seeds", "3", "--steps", steps])
+        .args(["--checkpoints", "2", "--views-per-scene", "2"])
+        .args(["--val-views-per-scene", "2", "--root"])
+        .arg(root)
+        .arg("--report")
+        .arg(report)
+        .arg("--bin-dir")
+        .arg(&bin_dir)
+        .arg("--data")
+        .arg(&data)
+        .args([
+            "--",
+            "--actors",
+            "1",
+            "--image-size",
+            "64",
+            "--episode-steps",
+            "16",
+        ])
+        .args(["--port", &port.to_string()])
+        .output()
+        .expect("running deploy/reproduce.sh")
+}
+
+fn text(output: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    )
+}
+
+#[test]
+fn a_tiny_comparison_trains_chooses_on_validation_and_writes_the_page() {
+    let dir = scratch_dir("reproduce-sh");
+    let root = dir.join("root");
+    let report = dir.join("docs/results.md");
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("a free port")
+        .port();
+    let first = reproduce(&root, &report, "200", port);
+    let log = text(&first);
+    assert!(first.status.success(), "{log}");
+    let run = root.join("ours-seed3");
+    assert!(run.join("trained").exists(), "{log}");
+    let test: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(run.join("eval/test.json")).expect("the test report"),
+    )
+    .expect("JSON");
+    let selection = &test["selection"];
+    let candidates = selection["candidates"].as_array().expect("candidates");
+    assert!(
+        candidates.len() >= 2,
+        "every checkpoint is a candidate: {selection}"
+    );
+    assert_eq!(
+        selection["scenes"][0], "FloorPlan221",
+        "chosen on validation"
+    );
+    assert_eq!(
+        test["scenes"][0], "FloorPlan226",
+        "scored on the test rooms"
+    );
+    assert_eq!(test["checkpoint_step"], selection["chosen_step"]);
+    assert!(test["checkpoint_step"].as_u64().unwrap() > 0);
+    assert!(root.join("floors/untrained-seed3.json").exists());
+    let page = std::fs::read_to_string(&report).expect("the results page");
+    for expected in [
+        "| **ours** |",
+        "| floor: untrained U-Net |",
+        "| floor: all positive |",
+        "| paper: Ours |",
+        "Not tested: `nomap-seg` was not among the methods run",
+        "| ours-seed3 |",
+        "![training curves](results-curves.svg)",
+    ] {
+        assert!(page.contains(expected), "{expected} in:\n{page}");
+    }
+    assert!(dir.join("docs/results-curves.svg").exists());
+
+    let again = reproduce(&root, &report, "200", port);
+    let log = text(&again);
+    assert!(again.status.success(), "{log}");
+    assert!(
+        log.contains("ours seed 3: trained") && log.contains("ours seed 3: evaluated"),
+        "a finished run is skipped: {log}"
+    );
+
+    let other = reproduce(&root, &report, "400", port);
+    assert!(!other.status.success());
+    assert!(text(&other).contains("other settings"), "{}", text(&other));
+}
