@@ -72,6 +72,8 @@ pub struct Comparison {
     pub runs: Vec<RunResult>,
     /// The untrained network's test report per seed.
     pub untrained: Vec<(u64, Report)>,
+    /// The first run's `config.toml` (every setting), when it has one.
+    pub first_config: Option<String>,
 }
 
 /// A run's directory under the comparison's root.
@@ -149,10 +151,14 @@ pub fn load(root: &Path) -> anyhow::Result<Comparison> {
             first.scenes
         );
     }
+    let first_config =
+        std::fs::read_to_string(run_dir(root, &runs[0].variant, runs[0].seed).join("config.toml"))
+            .ok();
     Ok(Comparison {
         manifest,
         runs,
         untrained,
+        first_config,
     })
 }
 

@@ -91,6 +91,7 @@ fn a_tiny_comparison_trains_chooses_on_validation_and_writes_the_page() {
         "Not tested: `nomap-seg` was not among the methods run",
         "| ours-seed3 |",
         "![training curves](results-curves.svg)",
+        "## Settings",
     ] {
         assert!(page.contains(expected), "{expected} in:\n{page}");
     }

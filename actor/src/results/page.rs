@@ -137,6 +137,17 @@ pub fn render(comparison: &Comparison, curves: Option<&str>) -> String {
     }
     runs_table(&mut out, comparison);
     differences(&mut out, comparison);
+    if let Some(config) = &comparison.first_config {
+        let _ = writeln!(
+            out,
+            "## Settings\n\nEvery setting of `{}-seed{}` (`config.toml` in its run directory); the \
+             other runs differ in `[task] method`, `background_negative` and `[policy] seed`.\n\n\
+             <details><summary>config.toml</summary>\n\n```toml\n{}\n```\n\n</details>\n",
+            comparison.runs[0].variant,
+            comparison.runs[0].seed,
+            config.trim_end()
+        );
+    }
     out
 }
 
@@ -304,52 +315,76 @@ fn ordering(out: &mut String, comparison: &Comparison) {
         "The paper's claim on pick up: ours > NoMap+Seg > NoMap+NoSeg ≈ IntExp. Means over \
          seeds; \"clearly\" means the seeds' ranges do not overlap.\n"
     );
-    for (name, score) in &scores {
-        let s: Vec<Option<Spread>> = needed
-            .iter()
-            .map(|v| spread_of(comparison, v, score.as_ref()))
-            .collect();
-        let mean = |i: usize| s[i].map_or(0.0, |s| s.mean);
-        let above = |a: usize, b: usize| mean(a) > mean(b);
-        let clearly = |a: usize, b: usize| match (s[a], s[b]) {
-            (Some(x), Some(y)) => x.min > y.max,
-            (Some(_), None) => true,
-            _ => false,
-        };
-        let holds = above(0, 1) && above(1, 2) && above(1, 3);
-        let mut verdicts = Vec::new();
-        for (a, b) in [(0, 1), (1, 2), (1, 3)] {
-            verdicts.push(format!(
-                "{} {} {}{}",
-                needed[a],
-                if above(a, b) { ">" } else { "≤" },
-                needed[b],
-                if clearly(a, b) { " (clearly)" } else { "" }
-            ));
+    // `ours` as run here, and under the paper's label rule when that ran.
+    let tops = ["ours", "ours-paper-labels"]
+        .into_iter()
+        .filter(|v| variants.iter().any(|x| x == v));
+    for top in tops {
+        let methods = [top, "nomap-seg", "nomap-noseg", "intexp"];
+        for (name, score) in &scores {
+            let _ = writeln!(
+                out,
+                "{}",
+                verdict(comparison, &methods, name, score.as_ref())
+            );
         }
-        let overlap = match (s[2], s[3]) {
-            (Some(x), Some(y)) => x.min <= y.max && y.min <= x.max,
-            (None, None) => true,
-            _ => false,
-        };
-        let _ = writeln!(
-            out,
-            "- **{name}** — ours {:.2}, nomap-seg {:.2}, nomap-noseg {:.2}, intexp {:.2}: the \
-             ordering **{}** ({}; nomap-noseg and intexp {}).",
-            mean(0),
-            mean(1),
-            mean(2),
-            mean(3),
-            if holds { "holds" } else { "does not hold" },
-            verdicts.join(", "),
-            if overlap {
-                "overlap, ≈ as in the paper"
-            } else {
-                "do not overlap"
-            }
-        );
     }
     out.push('\n');
+}
+
+/// One line on whether `methods[0] > methods[1] > methods[2] ≈ methods[3]`
+/// holds on `score`.
+fn verdict(
+    comparison: &Comparison,
+    methods: &[&str; 4],
+    name: &str,
+    score: &dyn Fn(&Report) -> Option<f32>,
+) -> String {
+    let s: Vec<Option<Spread>> = methods
+        .iter()
+        .map(|v| spread_of(comparison, v, score))
+        .collect();
+    let mean = |i: usize| s[i].map_or(0.0, |s| s.mean);
+    let above = |a: usize, b: usize| mean(a) > mean(b);
+    let clearly = |a: usize, b: usize| match (s[a], s[b]) {
+        (Some(x), Some(y)) => x.min > y.max,
+        (Some(_), None) => true,
+        _ => false,
+    };
+    let holds = above(0, 1) && above(1, 2) && above(1, 3);
+    let verdicts: Vec<String> = [(0, 1), (1, 2), (1, 3)]
+        .iter()
+        .map(|&(a, b)| {
+            format!(
+                "{} {} {}{}",
+                methods[a],
+                if above(a, b) { ">" } else { "≤" },
+                methods[b],
+                if clearly(a, b) { " (clearly)" } else { "" }
+            )
+        })
+        .collect();
+    let overlap = match (s[2], s[3]) {
+        (Some(x), Some(y)) => x.min <= y.max && y.min <= x.max,
+        (None, None) => true,
+        _ => false,
+    };
+    format!(
+        "- **{name}** — {} {:.2}, nomap-seg {:.2}, nomap-noseg {:.2}, intexp {:.2}: the ordering \
+         **{}** ({}; nomap-noseg and intexp {}).",
+        methods[0],
+        mean(0),
+        mean(1),
+        mean(2),
+        mean(3),
+        if holds { "holds" } else { "does not hold" },
+        verdicts.join(", "),
+        if overlap {
+            "overlap, ≈ as in the paper"
+        } else {
+            "do not overlap"
+        }
+    )
 }
 
 fn runs_table(out: &mut String, comparison: &Comparison) {
