@@ -213,14 +213,15 @@ remaining_steps_besides() {
 fmt_duration() { printf '%dh%02dm' $(($1 / 3600)) $(($1 % 3600 / 60)); }
 
 train() {
-  local index=$1 v=$2 s=$3 dir="$ROOT/$2-seed$3" args
+  local index=$1 v=$2 s=$3 dir="$ROOT/$2-seed$3" args learner_args
   local method; method=$(variant_method "$v")
   if [[ -e "$dir/trained" ]]; then
     echo "[$index/$TOTAL] $v seed $s: trained"; return 0
   fi
   if [[ -n "$(newest_checkpoint "$dir")" ]]; then
     echo "[$index/$TOTAL] $v seed $s: resuming from step $(newest_checkpoint "$dir")"
-    args=(--run-dir "$dir" --resume)
+    # A resumed run keeps the settings saved in its config.toml.
+    args=(--run-dir "$dir" --resume) learner_args=()
   else
     if [[ -e "$dir" ]]; then
       local aside="$ROOT/abandoned/$v-seed$s-$(date -u +%Y%m%dT%H%M%SZ)"
@@ -229,10 +230,11 @@ train() {
     fi
     echo "[$index/$TOTAL] $v seed $s: training $STEPS steps"
     args=(--run-dir "$dir" --method "$method" --seed "$s")
+    learner_args=(-- --config "$(variant_config "$v")")
   fi
   mkdir -p "$dir/logs"
   "$REPO/deploy/local.sh" "${args[@]}" --max-steps "$STEPS" --renderer "$RENDERER" --data "$DATA" \
-    --bin-dir "$BIN" "${LOCAL_OPTIONS[@]}" -- --config "$(variant_config "$v")" \
+    --bin-dir "$BIN" "${LOCAL_OPTIONS[@]}" "${learner_args[@]}" \
     >>"$dir/logs/local.log" 2>&1 &
   CURRENT_PID=$!
   local start_s=$SECONDS start_steps="" steps rate eta_run eta_all left

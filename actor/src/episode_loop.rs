@@ -25,6 +25,9 @@ use crate::env::affordance_model::AffordanceModel;
 use crate::env::{lockstep, Environment, EpisodeEnd, Observation, StepOutcome};
 
 mod free_running;
+mod rejected_weights;
+
+use rejected_weights::RejectedWeights;
 
 /// Settings of one actor's loop.
 #[derive(Debug, Clone)]
@@ -59,6 +62,8 @@ pub struct LoopSummary {
     pub policy_version: u64,
     /// Newest U-Net version used.
     pub unet_version: u64,
+    /// Weights messages refused as invalid (the actor kept its weights).
+    pub weights_rejected: u64,
 }
 
 /// The broadcast policy the actor acts with.
@@ -439,6 +444,7 @@ struct Actor<'a> {
     /// Episodes started over all slots (their ids).
     started: u64,
     backoff: Backoff,
+    rejected_weights: RejectedWeights,
 }
 
 impl<'a> Actor<'a> {
@@ -447,6 +453,7 @@ impl<'a> Actor<'a> {
         LoopSummary {
             policy_version: self.policy.policy_version,
             unet_version: self.policy.unet_version,
+            weights_rejected: self.rejected_weights.count(),
             ..self.summary
         }
     }
@@ -481,22 +488,35 @@ impl<'a> Actor<'a> {
 
     /// Takes the newest weights, if the learner sent any since the last
     /// look; returns the run's environment steps they came with, which the
-    /// environments must be told.
+    /// environments must be told. Invalid weights are counted and skipped:
+    /// the actor keeps the ones it has.
     fn refresh_weights(&mut self) -> anyhow::Result<Option<u64>> {
         let Some(message) = self.ports.take_latest_weights()? else {
             return Ok(None);
         };
         let layout = self.policy.layout.clone();
         let mut model = self.model.write().unwrap_or_else(PoisonError::into_inner);
-        self.policy = load_weights(
+        match load_weights(
             &message,
             self.transport,
             &layout,
             model.as_mut(),
             self.device,
             Some(&self.policy),
-        )?;
-        Ok(self.policy.env_steps)
+        ) {
+            Ok(policy) => {
+                self.policy = policy;
+                Ok(self.policy.env_steps)
+            }
+            Err(error) => {
+                self.rejected_weights.reject(
+                    self.settings.actor_id,
+                    &error,
+                    Some(self.policy.policy_version),
+                );
+                Ok(None)
+            }
+        }
     }
 
     /// The id of the next episode to start; `None` once `max_episodes` have started.
@@ -758,18 +778,35 @@ pub fn run(
         settings.weights_timeout.as_secs_f64(),
         transport.service_prefix
     );
-    let first = ports.wait_for_weights(settings.weights_timeout)?;
-    let Some(first) = first else {
-        bail!(
-            "no weights from a learner on service prefix {:?} within {:.0} s: start the learner first (deploy/local.sh does), or check --learner and the transport config",
-            transport.service_prefix,
-            settings.weights_timeout.as_secs_f64()
-        );
-    };
+    let deadline = Instant::now() + settings.weights_timeout;
+    let mut rejected_weights = RejectedWeights::default();
     let mut model = model;
-    let policy = load_weights(&first, transport, &layout, model.as_mut(), device, None)?;
+    let policy = loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        let Some(first) = ports.wait_for_weights(left)? else {
+            if let Some(reason) = rejected_weights.last() {
+                bail!(
+                    "no valid weights on service prefix {:?} within {:.0} s: {} weights messages \
+                     were refused, the last because {reason}",
+                    transport.service_prefix,
+                    settings.weights_timeout.as_secs_f64(),
+                    rejected_weights.count()
+                );
+            }
+            bail!(
+                "no weights from a learner on service prefix {:?} within {:.0} s: start the learner first (deploy/local.sh does), or check --learner and the transport config",
+                transport.service_prefix,
+                settings.weights_timeout.as_secs_f64()
+            );
+        };
+        match load_weights(&first, transport, &layout, model.as_mut(), device, None) {
+            Ok(policy) => break policy,
+            Err(error) => {
+                rejected_weights.reject(settings.actor_id, &error, None);
+            }
+        }
+    };
     let model = RwLock::new(model);
-    drop(first);
     eprintln!(
         "actor {}: got policy version {}, U-Net version {}; {} environment(s)",
         settings.actor_id,
@@ -800,6 +837,7 @@ pub fn run(
         summary: LoopSummary::default(),
         started: 0,
         backoff: Backoff::default(),
+        rejected_weights,
     };
     if free_running::suits(&actor, slots.len()) {
         eprintln!(

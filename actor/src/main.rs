@@ -477,14 +477,15 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
         envs, model, &mut ports, &transport, &settings, &device, &stop,
     )?;
     eprintln!(
-        "actor {}: stopped after {} episodes, {} steps; {} messages delivered, {} dropped; policy version {}, U-Net version {}",
+        "actor {}: stopped after {} episodes, {} steps; {} messages delivered, {} dropped; policy version {}, U-Net version {}; {} weights messages refused",
         actor_id,
         summary.episodes,
         summary.steps,
         summary.delivered,
         summary.dropped,
         summary.policy_version,
-        summary.unet_version
+        summary.unet_version,
+        summary.weights_rejected
     );
     Ok(())
 }

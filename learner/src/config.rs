@@ -159,6 +159,26 @@ impl Default for UnetConfig {
 }
 
 impl LearnerConfig {
+    /// The config to resume a run with: `given` (from `--config` and flags:
+    /// checkpoint cadence, learning rates and the like may change on resume)
+    /// with the run's `saved` `[task]` and seed, which its checkpoints were
+    /// made for. Returns what `given` tried to change of those, so the
+    /// caller can say it was ignored; a resume can never turn a run into
+    /// another (its networks would not load, and its `config.toml` would
+    /// stop describing it).
+    pub fn for_resume(mut self, saved: &Self) -> (Self, Vec<&'static str>) {
+        let mut ignored = Vec::new();
+        if self.task != saved.task {
+            ignored.push("[task]");
+            self.task = saved.task.clone();
+        }
+        if self.policy.seed != saved.policy.seed {
+            ignored.push("[policy] seed");
+            self.policy.seed = saved.policy.seed;
+        }
+        (self, ignored)
+    }
+
     /// Reads a TOML file; unknown keys are errors so typos never pass silently.
     pub fn from_toml_file(path: &std::path::Path) -> anyhow::Result<Self> {
         use anyhow::Context;
@@ -263,6 +283,23 @@ mod tests {
         assert!(refusal("[policy]\ndevice = \"cuda\"").contains("policy.device"));
         assert!(refusal("[policy]\nqueue_batches = 0").contains("policy.queue_batches"));
         assert!(refusal("[task]\nmemory_size = 0").contains("task.memory_size"));
+    }
+
+    #[test]
+    fn a_resume_keeps_the_runs_task_and_seed_and_takes_the_rest() {
+        let saved: LearnerConfig =
+            toml::from_str("[task]\nmethod = \"nomap-seg\"\nimage_size = 64\n[policy]\nseed = 2")
+                .unwrap();
+        // A config written for a fresh run: the default task and seed, new checkpoint cadence.
+        let given: LearnerConfig =
+            toml::from_str("keep_checkpoints = 20\n[task]\nconfidence_after_steps = 5").unwrap();
+        let (resumed, ignored) = given.for_resume(&saved);
+        assert_eq!(resumed.task, saved.task);
+        assert_eq!(resumed.policy.seed, 2);
+        assert_eq!(resumed.keep_checkpoints, 20);
+        assert_eq!(ignored, vec!["[task]", "[policy] seed"]);
+        let (same, ignored) = saved.clone().for_resume(&saved);
+        assert_eq!((same, ignored), (saved, Vec::<&str>::new()));
     }
 
     /// Why `validate` refuses the config `text` parses to.

@@ -330,6 +330,17 @@ fn load_config(args: &ServeArgs, run_dir: &Path) -> anyhow::Result<LearnerConfig
     if let Some(seed) = args.seed {
         config.policy.seed = seed;
     }
+    if args.resume.is_some() && saved.exists() {
+        let (resumed, ignored) = config.for_resume(&LearnerConfig::from_toml_file(&saved)?);
+        for what in ignored {
+            eprintln!(
+                "learner: resuming keeps the run's {what} from {} (its checkpoints were made \
+                 for it); the one given is ignored",
+                saved.display()
+            );
+        }
+        config = resumed;
+    }
     config.validate()?;
     Ok(config)
 }
