@@ -41,6 +41,12 @@ Options:
   --seed N          the run's seed (default 0): initial networks, rooms, actions;
                     runs that differ only in --seed are independent repeats
   --port PORT       HTTP port of the learner's metrics endpoint (default 9464)
+  --progress-every S
+                    print a progress line every S seconds (default 10; 0 = every
+                    poll, about 2 s): steps and steps/s, mean return and
+                    interaction success of the last 100 episodes, the U-Net's
+                    validation IoU, PPO's KL and entropy, actors alive,
+                    messages dropped, time to --max-steps
   --debug           use debug builds (faster to build, slower to run)
   --bin-dir DIR     use the learner and actor binaries in DIR; build nothing
   -h, --help        this help
@@ -51,6 +57,7 @@ ignores SIGINT).
 USAGE
 }
 
+PROGRESS_EVERY=10
 ACTORS="" ENVS=1 RUN_DIR="" RESUME=0 PORT=9464 PROFILE=release BIN="" SEED=0 MAX_STEPS=
 TASK_ARGS=() ACTOR_ARGS=() LEARNER_DEVICE=() METHOD=ours ENV_KIND=sim
 EXTRA=()
@@ -69,6 +76,7 @@ while [[ $# -gt 0 ]]; do
     --renderer) ACTOR_ARGS+=(--renderer "${2:?--renderer needs a value}"); shift 2 ;;
     --device) DEVICE="${2:?--device needs a value}"; ACTOR_ARGS+=(--device "$DEVICE"); LEARNER_DEVICE=(--device "$DEVICE"); shift 2 ;;
     --port) PORT="${2:?--port needs a number}"; shift 2 ;;
+    --progress-every) PROGRESS_EVERY="${2:?--progress-every needs a number of seconds}"; shift 2 ;;
     --max-steps) MAX_STEPS="${2:?--max-steps needs a number}"; shift 2 ;;
     --seed) SEED="${2:?--seed needs a number}"; TASK_ARGS+=(--seed "$SEED"); shift 2 ;;
     --debug) PROFILE=debug; shift ;;
@@ -82,6 +90,7 @@ done
 [[ "$ENVS" =~ ^[1-9][0-9]*$ && "$ENVS" -le 256 ]] || { echo "local.sh: --envs-per-actor needs an integer in 1..256, got '$ENVS'" >&2; exit 2; }
 [[ -z "$MAX_STEPS" || "$MAX_STEPS" =~ ^[1-9][0-9]*$ ]] || { echo "local.sh: --max-steps needs a positive integer, got '$MAX_STEPS'" >&2; exit 2; }
 [[ "$SEED" =~ ^[0-9]+$ ]] || { echo "local.sh: --seed needs a non-negative integer, got '$SEED'" >&2; exit 2; }
+[[ "$PROGRESS_EVERY" =~ ^[0-9]+$ ]] || { echo "local.sh: --progress-every needs a whole number of seconds, got '$PROGRESS_EVERY'" >&2; exit 2; }
 if [[ $RESUME -eq 1 && -z "$RUN_DIR" ]]; then
   echo "local.sh: --resume needs --run-dir DIR (the run to resume)" >&2; exit 2
 fi
@@ -216,8 +225,54 @@ run_steps() {
   curl -fsS --max-time 5 "http://$ADDR/api/status" 2>/dev/null | grep -o '"env_steps":[0-9]*' | head -n 1 | cut -d: -f2
 }
 
+# One progress line from the learner's status and its last 100 episodes;
+# prints the line, then "steps seconds" for the next line's rate.
+PROGRESS_PY='
+import datetime, json, sys
+status = json.loads(sys.stdin.readline())
+history = json.loads(sys.stdin.readline() or "{}")
+actors, max_steps, now, last_steps, last_s = sys.argv[1:6]
+now, last_s = float(now), float(last_s)
+steps = int(status.get("env_steps") or 0)
+rate = (steps - int(last_steps)) / (now - last_s) if last_steps and now > last_s else None
+episodes = [r.get("stats") or {} for r in history.get("records") or []]
+def mean(key):
+    v = [e[key] for e in episodes if isinstance(e.get(key), (int, float))]
+    return sum(v) / len(v) if v else None
+def f(x, digits=2):
+    return "-" if x is None else "%.*f" % (digits, x)
+unet, update = status.get("last_unet") or {}, status.get("last_update") or {}
+parts = ["%d steps%s" % (steps, "" if rate is None else " (%.0f/s)" % rate),
+         "last %d episodes: return %s, success %s" % (len(episodes),
+             f(mean("episode_return"), 1), f(mean("interaction_success_rate"))),
+         "U-Net val IoU %s" % f(unet.get("deployed_iou")),
+         "PPO KL %s, entropy %s" % (f(update.get("approx_kl"), 4), f(update.get("entropy"))),
+         "actors %s/%s" % (status.get("actors_alive", 0), actors),
+         "dropped %s" % status.get("dropped", 0)]
+if int(max_steps) > 0 and rate:
+    left = max(int(max_steps) - steps, 0) / rate
+    parts.append("%dh%02dm to --max-steps" % (left // 3600, left % 3600 // 60))
+print(datetime.datetime.now().strftime("%H:%M:%S"), " | ".join(parts))
+print(steps, now)
+'
+LAST_PROGRESS_S=$SECONDS LAST_STEPS="" LAST_STEPS_S=0
+[[ $PROGRESS_EVERY -gt 0 ]] || LAST_PROGRESS_S=-1
+print_progress() {
+  local status history out
+  status=$(curl -fsS --max-time 5 "http://$ADDR/api/status" 2>/dev/null) || return 0
+  history=$(curl -fsS --max-time 5 "http://$ADDR/api/history?kind=episode&last=100" 2>/dev/null) || history='{}'
+  out=$({ printf '%s\n' "$status"; printf '%s\n' "$history"; } \
+    | python3 -c "$PROGRESS_PY" "$ACTORS" "${MAX_STEPS:-0}" "$SECONDS" "$LAST_STEPS" "$LAST_STEPS_S" 2>/dev/null) || return 0
+  echo "${out%$'\n'*}"
+  read -r LAST_STEPS LAST_STEPS_S <<<"${out##*$'\n'}"
+}
+
 [[ -z "$MAX_STEPS" ]] || echo "stops after $MAX_STEPS environment steps"
 while kill -0 "$LEARNER_PID" 2>/dev/null; do
+  if [[ $((SECONDS - LAST_PROGRESS_S)) -ge $PROGRESS_EVERY ]]; then
+    LAST_PROGRESS_S=$SECONDS
+    print_progress
+  fi
   if [[ -n "$MAX_STEPS" ]]; then
     steps=$(run_steps || true)
     if [[ -n "$steps" && "$steps" -ge "$MAX_STEPS" ]]; then

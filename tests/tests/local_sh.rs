@@ -2,8 +2,8 @@
 //! already built binaries (`--bin-dir`): it brings up the learner and two
 //! actors, and a stop, whichever processes it reaches, ends every process
 //! of the run with a final checkpoint and exit status 0, as does reaching
-//! `--max-steps`. Also `deploy/throughput.sh`, which measures runs of
-//! `local.sh`.
+//! `--max-steps`, printing progress lines meanwhile. Also
+//! `deploy/throughput.sh`, which measures runs of `local.sh`.
 
 use std::fs::File;
 use std::os::unix::process::CommandExt;
@@ -230,7 +230,16 @@ fn sigterm_that_also_kills_the_actor_supervisors_still_stops_the_learner() {
 fn max_steps_stops_the_run_cleanly_once_it_has_taken_them() {
     let dir = scratch_dir("local-sh-max-steps");
     let max_steps = 3000;
-    let (launch, _) = start(&dir, "max", &["--max-steps", &max_steps.to_string()]);
+    let (launch, _) = start(
+        &dir,
+        "max",
+        &[
+            "--max-steps",
+            &max_steps.to_string(),
+            "--progress-every",
+            "0",
+        ],
+    );
     let run_dir = launch.run_dir.clone();
     let log_path = launch.log.clone();
     assert_stopped_cleanly(launch);
@@ -239,6 +248,22 @@ fn max_steps_stops_the_run_cleanly_once_it_has_taken_them() {
         log.contains(&format!("(--max-steps {max_steps})")),
         "the script did not say why it stopped:\n{log}"
     );
+    // Progress while it ran: one line per poll with every field.
+    let progress = log
+        .lines()
+        .find(|l| l.contains(" steps") && l.contains("| actors "))
+        .unwrap_or_else(|| panic!("no progress line:\n{log}"));
+    for field in [
+        "last ",
+        "episodes: return ",
+        "success ",
+        "U-Net val IoU ",
+        "PPO KL ",
+        "entropy ",
+        "dropped ",
+    ] {
+        assert!(progress.contains(field), "{field} in {progress}");
+    }
     // Checkpoints are named by the run's environment steps.
     let steps = std::fs::read_dir(run_dir.join("checkpoints"))
         .expect("the run's checkpoints")
