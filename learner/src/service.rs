@@ -248,10 +248,25 @@ impl Learner {
                 MessageKind::Rollout,
             ] {
                 let mut taken = Vec::new();
-                while taken.len() < per_pass {
+                let max_bytes = self.shared.config.transport.max_bytes(kind);
+                for _ in 0..per_pass {
                     let Some(message) = self.ports.receive(kind)? else {
                         break;
                     };
+                    // The length comes from shared memory any process may
+                    // write: check it before copying a byte (a lying length
+                    // would otherwise allocate whatever it claims).
+                    let len = message.bytes().len();
+                    if len > max_bytes {
+                        self.reject(
+                            kind,
+                            proto::ProtoError::PayloadTooLarge {
+                                len: len as u64,
+                                limit: max_bytes as u64,
+                            },
+                        );
+                        continue;
+                    }
                     taken.push(message.bytes().to_vec());
                 }
                 for bytes in taken {
@@ -321,6 +336,14 @@ impl Learner {
         }
     }
 
+    /// Counts a malformed message of `kind`, warning once per reason.
+    fn reject(&mut self, kind: MessageKind, error: proto::ProtoError) {
+        self.shared.status().reject(kind, error.reason());
+        if self.warned.insert((kind, error.reason())) {
+            tracing::warn!(service = proto::service::for_kind(kind), "rejected a malformed message: {error} (further ones of this kind are only counted)");
+        }
+    }
+
     fn handle(&mut self, kind: MessageKind, bytes: Vec<u8>) -> anyhow::Result<()> {
         let decoded = decode(&bytes, &self.limits(kind)).and_then(|(header, message)| {
             if message.kind() == kind {
@@ -335,10 +358,7 @@ impl Learner {
         let (header, message) = match decoded {
             Ok(ok) => ok,
             Err(error) => {
-                self.shared.status().reject(kind, error.reason());
-                if self.warned.insert((kind, error.reason())) {
-                    tracing::warn!(service = proto::service::for_kind(kind), "rejected a malformed message: {error} (further ones of this kind are only counted)");
-                }
+                self.reject(kind, error);
                 return Ok(());
             }
         };

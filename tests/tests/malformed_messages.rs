@@ -81,3 +81,106 @@ fn malformed_messages_are_counted_and_the_learner_carries_on() {
         Some(200)
     );
 }
+
+/// The learner's peak resident memory (`VmHWM`), in bytes.
+fn peak_rss(pid: u32) -> u64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).expect("/proc status");
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))
+        .and_then(|v| v.trim().strip_suffix("kB"))
+        .and_then(|kb| kb.trim().parse::<u64>().ok())
+        .expect("VmHWM in /proc status")
+        * 1024
+}
+
+#[test]
+fn oversized_messages_are_refused_before_the_learner_copies_them() {
+    use iceoryx2::prelude::*;
+
+    let dir = scratch_dir("oversized");
+    let prefix = format!("it-big-{}", std::process::id());
+    let run_dir = dir.join("run");
+    let learner = Learner::start(
+        &run_dir,
+        &[
+            "--run-dir".into(),
+            run_dir.display().to_string(),
+            "--service-prefix".into(),
+            prefix.clone(),
+        ],
+        dir.join("learner.log"),
+    );
+    let pid = learner.process.child.id();
+    // An outsider with its own node and a publisher on the rollouts service
+    // that sends four times the service's largest message (16 MiB), four times.
+    let node = NodeBuilder::new()
+        .create::<ipc::Service>()
+        .expect("an iceoryx2 node");
+    let name: ServiceName = proto::service::name(&prefix, proto::service::ROLLOUTS)
+        .as_str()
+        .try_into()
+        .expect("service name");
+    let service = node
+        .service_builder(&name)
+        .publish_subscribe::<[u8]>()
+        .open()
+        .expect("opening the rollouts service");
+    let size = 4 * TransportConfig::default().max_rollout_bytes;
+    let publisher = service
+        .publisher_builder()
+        .initial_max_slice_len(size)
+        .max_loaned_samples(1)
+        .create()
+        .expect("a publisher slot");
+    let before = peak_rss(pid);
+    let sends = 4;
+    for _ in 0..sends {
+        let mut sample = publisher.loan_slice(size).expect("loaning 64 MiB");
+        sample.payload_mut()[..4].copy_from_slice(b"AFX1");
+        sample.send().expect("sending");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    // Rejected for whatever reason first, so that a learner that copies
+    // before it checks fails on its memory, not on a label.
+    let rejected = |metrics: &str| -> f64 {
+        metrics
+            .lines()
+            .filter(|l| l.starts_with("afx_messages_rejected_total{service=\"rollouts\""))
+            .filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok())
+            .sum()
+    };
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    let metrics = loop {
+        let metrics = learner.metrics();
+        if rejected(&metrics) == sends as f64 {
+            break metrics;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "{sends} oversized messages not all refused after 20 s:\n{}",
+            metrics
+                .lines()
+                .filter(|l| l.starts_with("afx_messages_rejected"))
+                .collect::<Vec<_>>()
+                .join("\n")
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let grown = peak_rss(pid).saturating_sub(before);
+    assert!(
+        grown < size as u64,
+        "the learner's peak memory grew by {grown} bytes for {sends} messages of {size}: \
+         it copied what it should have refused"
+    );
+    let reason = "afx_messages_rejected_total{service=\"rollouts\",reason=\"too_large\"}";
+    assert_eq!(
+        metric_value(&metrics, reason),
+        Some(sends as f64),
+        "{metrics}"
+    );
+    assert_eq!(
+        system_tests::http_get(&learner.addr, "/healthz").map(|r| r.0),
+        Some(200)
+    );
+}
