@@ -4,7 +4,7 @@ use std::time::{Duration, Instant};
 
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
-use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use proto::{MessageHeader, MessageKind, Payload};
@@ -56,7 +56,25 @@ impl ActorPorts {
                 .override_sample_preallocation(move |worst| worst.min(pool))
                 .create()
                 .map_err(|e| {
-                    TransportError::new("create publisher", proto::service::for_kind(kind), e)
+                    let service = proto::service::for_kind(kind);
+                    match e {
+                        PublisherCreateError::ExceedsMaxSupportedPublishers => {
+                            TransportError::explained(
+                                "create publisher",
+                                service,
+                                format!(
+                                    "all {} publisher slots of the service are taken ([transport] \
+                                 max_actors {} + spare_ports {}): other processes hold them. \
+                                 `learner clean` frees the slots of crashed processes; raise \
+                                 max_actors or spare_ports in the run's config for more",
+                                    config.max_actors as usize + config.spare_ports as usize,
+                                    config.max_actors,
+                                    config.spare_ports
+                                ),
+                            )
+                        }
+                        other => TransportError::new("create publisher", service, other),
+                    }
                 })?;
             Ok(Upstream {
                 kind,

@@ -20,4 +20,13 @@ impl TransportError {
             detail: format!("{detail:?}"),
         }
     }
+
+    /// A failure whose `detail` is already an explanation in words.
+    pub(crate) fn explained(action: &'static str, subject: &str, detail: String) -> Self {
+        Self {
+            action,
+            subject: subject.to_string(),
+            detail,
+        }
+    }
 }

@@ -1,0 +1,67 @@
+//! When other processes hold every publisher slot of a service, an actor
+//! that cannot join says which service, how many slots it has and which
+//! settings raise them, instead of iceoryx2's bare error name.
+
+use std::time::Duration;
+
+use iceoryx2::prelude::*;
+use system_tests::{bandit_config, scratch_dir, start_actor, Learner};
+
+#[test]
+fn an_actor_without_a_publisher_slot_says_what_holds_them_and_what_to_raise() {
+    let dir = scratch_dir("slots");
+    let prefix = format!("it-slots-{}", std::process::id());
+    let run_dir = dir.join("run");
+    let bandit = bandit_config(&dir, &prefix, "");
+    let _learner = Learner::start(
+        &run_dir,
+        &[
+            "--config".into(),
+            bandit.display().to_string(),
+            "--run-dir".into(),
+            run_dir.display().to_string(),
+            "--service-prefix".into(),
+            prefix.clone(),
+        ],
+        dir.join("learner.log"),
+    );
+    // An outsider takes every slot of the rollouts service: max_actors 4 + 2 spares.
+    let node = NodeBuilder::new()
+        .create::<ipc::Service>()
+        .expect("an iceoryx2 node");
+    let name: ServiceName = proto::service::name(&prefix, proto::service::ROLLOUTS)
+        .as_str()
+        .try_into()
+        .expect("service name");
+    let service = node
+        .service_builder(&name)
+        .publish_subscribe::<[u8]>()
+        .open()
+        .expect("opening the rollouts service");
+    let mut held = Vec::new();
+    while let Ok(publisher) = service
+        .publisher_builder()
+        .initial_max_slice_len(64)
+        .create()
+    {
+        held.push(publisher);
+        assert!(held.len() <= 64, "the service should have a publisher limit");
+    }
+    assert_eq!(held.len(), 6, "max_actors 4 + spare_ports 2");
+
+    let config = run_dir.join("config.toml").display().to_string();
+    let mut actor = start_actor(0, &prefix, &dir, &["--config", &config]);
+    let status = actor
+        .wait_exit(Duration::from_secs(30))
+        .expect("the actor gives up at once");
+    assert!(!status.success());
+    let log = actor.log_text();
+    for words in [
+        "\"rollouts\"",
+        "all 6 publisher slots",
+        "max_actors 4 + spare_ports 2",
+        "learner clean",
+    ] {
+        assert!(log.contains(words), "{words} in:\n{log}");
+    }
+}
