@@ -45,7 +45,10 @@ fn an_actor_without_a_publisher_slot_says_what_holds_them_and_what_to_raise() {
         .create()
     {
         held.push(publisher);
-        assert!(held.len() <= 64, "the service should have a publisher limit");
+        assert!(
+            held.len() <= 64,
+            "the service should have a publisher limit"
+        );
     }
     assert_eq!(held.len(), 6, "max_actors 4 + spare_ports 2");
 

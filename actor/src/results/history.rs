@@ -60,7 +60,8 @@ impl HistorySummary {
             .filter_map(|r| r["env_steps"].as_u64())
             .max()
             .context("no record has env_steps")?;
-        // `time_s` restarts at 0 when a run resumes: sum each segment's end.
+        // Learners before 2026-11-26 restarted `time_s` at 0 on resume (now it
+        // continues): summing each segment's end reads both.
         let (mut wall_s, mut segment_end) = (0.0, 0.0);
         for time in records.iter().filter_map(|r| r["time_s"].as_f64()) {
             if time < segment_end {
