@@ -32,7 +32,8 @@ Options:
   --episode-steps N steps per episode (default 600, the paper's)
   --data DIR        shared data (iTHOR rooms, object catalogue); default ../shared/data
   --scenes S        ithor (the 20 training rooms, default) or generated
-  --renderer R      gpu (wgpu: a GPU or Mesa lavapipe, default) or cpu
+  --renderer R      auto (default: gpu when a Vulkan adapter exists, else cpu),
+                    gpu (wgpu: a GPU or Mesa lavapipe) or cpu (ray casting)
   --device D        where learner and actors run the networks: cpu (default) or
                     gpu (binaries built with --features nets/gpu; see README)
   --max-steps N     stop as on Ctrl-C (final checkpoint) once the run has taken
@@ -161,15 +162,29 @@ ADDR=$(cat "$RUN_DIR/http.addr")
 curl -fsS --retry 20 --retry-delay 0 --retry-connrefused "http://$ADDR/healthz" >/dev/null \
   || { echo "local.sh: the learner's endpoint http://$ADDR does not answer; see $LOGS/learner.log" >&2; kill "$LEARNER_PID"; exit 1; }
 
+SETUP_FAILED="$LOGS/.setup-failed"
+rm -f "$SETUP_FAILED"
 supervise_actor() {
-  local id=$1 restarts=0 backoff=1 code
+  local id=$1 restarts=0 backoff=1 code log start
+  log="$LOGS/actor-$id.log"
   while :; do
+    start=$(stat -c %s "$log" 2>/dev/null || echo 0)
     "$BIN/actor" --actor-id "$id" --learner "$PREFIX" --config "$RUN_DIR/config.toml" --seed "$SEED" --envs "$ENVS" "${ACTOR_ARGS[@]}" \
-      >>"$LOGS/actor-$id.log" 2>&1 &
+      >>"$log" 2>&1 &
     echo $! >"$LOGS/actor-$id.pid"
     code=0; wait $! || code=$?
     [[ -e "$STOP_FILE" ]] && return 0
     if [[ $code -eq 0 ]]; then echo "actor $id finished"; return 0; fi
+    # An error exit before the first weights is a setup problem (data, Vulkan,
+    # config), not a crash: restarting would only repeat it.
+    if [[ $code -lt 128 ]] && ! tail -c +"$((start + 1))" "$log" | grep -q "got policy version"; then
+      {
+        echo "local.sh: actor $id exited with status $code before it received its first weights: a setup problem, not a crash, so it is not restarted. The end of $log:"
+        tail -c +"$((start + 1))" "$log" | tail -n 15 | sed 's/^/    /'
+      } >&2
+      touch "$SETUP_FAILED"
+      return 1
+    fi
     restarts=$((restarts + 1))
     echo "actor $id exited with status $code; restart #$restarts in ${backoff}s (log: $LOGS/actor-$id.log)"
     sleep "$backoff"
@@ -209,6 +224,7 @@ shutdown() {
   "$BIN/learner" clean >/dev/null 2>&1 || true
   rm -f "$STOP_FILE" "$LOGS"/actor-*.pid
   echo "stopped (learner exit status $code). Resume with: deploy/local.sh --actors $ACTORS --run-dir $RUN_DIR --resume"
+  [[ ! -e "$SETUP_FAILED" ]] || code=1
   exit "$code"
 }
 trap shutdown INT TERM
@@ -269,6 +285,10 @@ print_progress() {
 
 [[ -z "$MAX_STEPS" ]] || echo "stops after $MAX_STEPS environment steps"
 while kill -0 "$LEARNER_PID" 2>/dev/null; do
+  if [[ -e "$SETUP_FAILED" ]]; then
+    echo "local.sh: stopping the run: fix the problem above, then start it again" >&2
+    shutdown
+  fi
   if [[ $((SECONDS - LAST_PROGRESS_S)) -ge $PROGRESS_EVERY ]]; then
     LAST_PROGRESS_S=$SECONDS
     print_progress

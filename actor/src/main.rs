@@ -127,8 +127,9 @@ struct SimArgs {
     /// Robot profile: a shipped name (default, weak-arm) or a TOML file.
     #[arg(long, default_value = "default")]
     profile: String,
-    /// Renderer: gpu (wgpu: a GPU or Mesa lavapipe) or cpu (ray casting).
-    #[arg(long, default_value = "gpu")]
+    /// Renderer: auto (gpu when a Vulkan adapter exists, else cpu), gpu
+    /// (wgpu: a GPU or Mesa lavapipe) or cpu (ray casting).
+    #[arg(long, default_value = "auto")]
     renderer: RendererChoice,
 }
 

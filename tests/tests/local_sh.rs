@@ -332,3 +332,35 @@ fn throughput_sh_measures_each_setting_and_stops_its_runs() {
         );
     }
 }
+
+#[test]
+fn an_actor_that_fails_before_its_first_weights_stops_the_run_with_its_log() {
+    let dir = scratch_dir("local-sh-setup");
+    // Every actor rejects its own arguments: a setup problem restarts cannot fix.
+    let (mut launch, _) = start(&dir, "setup", &["--renderer", "bogus"]);
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let status = loop {
+        if let Some(status) = launch.script.try_wait().expect("waiting for the script") {
+            break status;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "deploy/local.sh kept restarting actors that cannot start:\n{}",
+            std::fs::read_to_string(&launch.log).unwrap_or_default()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let log = std::fs::read_to_string(&launch.log).unwrap_or_default();
+    assert!(!status.success(), "{status}:\n{log}");
+    for words in [
+        "before it received its first weights",
+        "unknown renderer `bogus`",
+        "stopping the run",
+    ] {
+        assert!(log.contains(words), "{words} in:\n{log}");
+    }
+    assert!(!log.contains("restart #"), "no restart:\n{log}");
+    wait_for(Duration::from_secs(5), "no process of the run left", || {
+        survivors(&launch.prefix).is_empty().then_some(())
+    });
+}
