@@ -264,6 +264,12 @@ fn max_steps_stops_the_run_cleanly_once_it_has_taken_them() {
     ] {
         assert!(progress.contains(field), "{field} in {progress}");
     }
+    // Logs written to files carry no terminal colour codes.
+    for name in ["learner.log", "actor-0.log"] {
+        let text = std::fs::read_to_string(run_dir.join("logs").join(name)).unwrap_or_default();
+        assert!(!text.is_empty(), "{name} is empty");
+        assert!(!text.contains('\x1b'), "colour codes in {name}:\n{text}");
+    }
     // Checkpoints are named by the run's environment steps.
     let steps = std::fs::read_dir(run_dir.join("checkpoints"))
         .expect("the run's checkpoints")
