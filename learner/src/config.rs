@@ -302,6 +302,27 @@ mod tests {
         assert_eq!((same, ignored), (saved, Vec::<&str>::new()));
     }
 
+    #[test]
+    fn the_shipped_presets_load_and_say_what_they_promise() {
+        let preset = |name: &str| {
+            let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../configs")
+                .join(name);
+            let config = LearnerConfig::from_toml_file(&path).unwrap();
+            config.validate().unwrap();
+            config
+        };
+        let paper = preset("paper.toml");
+        assert_eq!(paper.task.affordances, vec![proto::Affordance::PickUp]);
+        assert_eq!((paper.task.image_size, paper.task.episode_steps), (128, 600));
+        assert!(!paper.task.labels_background());
+        assert_eq!(paper.task.confidence_after_steps, 400_000);
+        let w = paper.task.reward;
+        assert_eq!((w.navigation, w.interaction, w.failure), (1.0, 1.0, 1.0));
+        let small = preset("small-cpu.toml");
+        assert_eq!((small.task.image_size, small.task.episode_steps), (64, 100));
+    }
+
     /// Why `validate` refuses the config `text` parses to.
     fn refusal(text: &str) -> String {
         let config: LearnerConfig = toml::from_str(text).unwrap();
