@@ -314,7 +314,10 @@ mod tests {
         };
         let paper = preset("paper.toml");
         assert_eq!(paper.task.affordances, vec![proto::Affordance::PickUp]);
-        assert_eq!((paper.task.image_size, paper.task.episode_steps), (128, 600));
+        assert_eq!(
+            (paper.task.image_size, paper.task.episode_steps),
+            (128, 600)
+        );
         assert!(!paper.task.labels_background());
         assert_eq!(paper.task.confidence_after_steps, 400_000);
         let w = paper.task.reward;

@@ -1,11 +1,12 @@
-//! The HTTP edge: `/metrics`, `/api/status`, `/api/history`, `/healthz`.
-//! Handlers only render the shared status or read the run's history file.
+//! The HTTP edge: the live page at `/`, `/metrics`, `/api/status`,
+//! `/api/history`, `/api/config`, `/healthz`. Handlers only render the
+//! shared status or read the run's history file.
 
 use std::sync::Arc;
 
 use axum::extract::{Query, State};
 use axum::http::{header, StatusCode};
-use axum::response::IntoResponse;
+use axum::response::{Html, IntoResponse};
 use axum::routing::get;
 use axum::{Json, Router};
 
@@ -14,11 +15,26 @@ use crate::service::Shared;
 /// The router over the shared learner state.
 pub fn router(shared: Arc<Shared>) -> Router {
     Router::new()
+        .route("/", get(|| async { Html(LIVE_PAGE) }))
         .route("/metrics", get(metrics))
         .route("/api/status", get(status))
         .route("/api/history", get(history))
+        .route("/api/config", get(config))
         .route("/healthz", get(|| async { "ok\n" }))
         .with_state(shared)
+}
+
+/// The live page: the training curves, updated from `/api/history` every
+/// 5 s, the actors, the run's config. One file compiled into the binary,
+/// nothing fetched from elsewhere, so it works offline.
+const LIVE_PAGE: &str = include_str!("live_page.html");
+
+/// The run's config as the learner runs it (TOML).
+async fn config(State(shared): State<Arc<Shared>>) -> impl IntoResponse {
+    (
+        [(header::CONTENT_TYPE, "text/plain; charset=utf-8")],
+        shared.config.to_toml(),
+    )
 }
 
 async fn metrics(State(shared): State<Arc<Shared>>) -> impl IntoResponse {
