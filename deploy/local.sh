@@ -230,6 +230,7 @@ shutdown() {
 trap shutdown INT TERM
 
 echo "run:      $RUN_DIR"
+echo "live:     http://$ADDR/   (training curves, actors, config; open in a browser)"
 echo "metrics:  http://$ADDR/metrics"
 echo "status:   http://$ADDR/api/status   (curl -s http://$ADDR/api/status)"
 echo "actors:   $ACTORS x $ENV_KIND ($METHOD), logs in $LOGS; Ctrl-C to stop"
