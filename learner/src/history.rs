@@ -4,8 +4,10 @@
 //! (`time_s`, which a resumed run continues rather than restarts) and the
 //! wall-clock time (`unix_time_s`). Appended (a resumed run continues the
 //! file) and flushed per record, so curves survive a crash; `learner plot`
-//! draws them and `/api/history` serves them.
+//! draws them and `/api/history` serves them. The same numbers go to
+//! TensorBoard event files beside it (`RUN_DIR/tensorboard/`).
 
+use std::collections::{BTreeMap, VecDeque};
 use std::fs::{File, OpenOptions};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -15,10 +17,12 @@ use anyhow::Context;
 use serde::Serialize;
 use serde_json::{json, Value};
 
+use crate::tensorboard::EventWriter;
+
 /// File name of the history inside a run directory.
 pub const HISTORY_FILE: &str = "history.jsonl";
 
-/// An open history file.
+/// An open history file, with the TensorBoard scalars that mirror it.
 pub struct History {
     path: PathBuf,
     file: File,
@@ -26,6 +30,69 @@ pub struct History {
     /// Training seconds of the run before this learner started (its
     /// history's last `time_s`).
     earlier_s: f64,
+    /// `None` once writing them failed (the history itself carries on).
+    scalars: Option<Scalars>,
+}
+
+/// Episodes in each running mean written to TensorBoard.
+const EPISODE_WINDOW: usize = 100;
+
+/// The history's records as TensorBoard scalars: every episode metric as
+/// its mean over the last 100 episodes (`episode/…`), every PPO update's
+/// and U-Net round's numbers (`ppo/…`, `unet/…`), and environment steps per
+/// second between PPO updates (`throughput/env_steps_per_s`).
+struct Scalars {
+    writer: EventWriter,
+    episodes: BTreeMap<String, VecDeque<f64>>,
+    last_update: Option<(u64, f64)>,
+}
+
+impl Scalars {
+    fn add(&mut self, kind: &str, step: u64, record: &Value) -> anyhow::Result<()> {
+        let numbers = |object: &Value, prefix: &str| -> Vec<(String, f32)> {
+            object
+                .as_object()
+                .map(|o| {
+                    o.iter()
+                        .filter_map(|(k, v)| Some((format!("{prefix}/{k}"), v.as_f64()? as f32)))
+                        .collect()
+                })
+                .unwrap_or_default()
+        };
+        let scalars = match kind {
+            "episode" => {
+                let mut means = Vec::new();
+                for (name, value) in record["stats"].as_object().into_iter().flatten() {
+                    let Some(value) = value.as_f64().filter(|v| v.is_finite()) else {
+                        continue;
+                    };
+                    let window = self.episodes.entry(name.clone()).or_default();
+                    window.push_back(value);
+                    if window.len() > EPISODE_WINDOW {
+                        window.pop_front();
+                    }
+                    let mean = window.iter().sum::<f64>() / window.len() as f64;
+                    means.push((format!("episode/{name}"), mean as f32));
+                }
+                means
+            }
+            "ppo" => {
+                let mut scalars = numbers(&record["stats"], "ppo");
+                let time = record["time_s"].as_f64().unwrap_or(0.0);
+                if let Some((last_step, last_time)) = self.last_update {
+                    if time > last_time && step >= last_step {
+                        let rate = (step - last_step) as f64 / (time - last_time);
+                        scalars.push(("throughput/env_steps_per_s".into(), rate as f32));
+                    }
+                }
+                self.last_update = Some((step, time));
+                scalars
+            }
+            "unet" => numbers(&record["round"], "unet"),
+            _ => Vec::new(),
+        };
+        self.writer.scalars(step, &scalars)
+    }
 }
 
 impl History {
@@ -38,11 +105,23 @@ impl History {
             .append(true)
             .open(&path)
             .with_context(|| format!("opening {}", path.display()))?;
+        let scalars = match EventWriter::create(run_dir) {
+            Ok(writer) => Some(Scalars {
+                writer,
+                episodes: BTreeMap::new(),
+                last_update: None,
+            }),
+            Err(e) => {
+                tracing::warn!("no TensorBoard scalars for this run: {e:#}");
+                None
+            }
+        };
         Ok(Self {
             path,
             file,
             started: Instant::now(),
             earlier_s,
+            scalars,
         })
     }
 
@@ -70,7 +149,14 @@ impl History {
         line.push(b'\n');
         self.file
             .write_all(&line)
-            .with_context(|| format!("appending to {} (is the disk full?)", self.path.display()))
+            .with_context(|| format!("appending to {} (is the disk full?)", self.path.display()))?;
+        if let Some(scalars) = &mut self.scalars {
+            if let Err(e) = scalars.add(kind, env_steps, &record) {
+                tracing::warn!("stopped writing TensorBoard scalars: {e:#}");
+                self.scalars = None;
+            }
+        }
+        Ok(())
     }
 }
 
@@ -168,6 +254,85 @@ mod tests {
         std::fs::write(&path, format!("nonsense\n{text}\n")).unwrap();
         let err = read_records(dir.path(), None).unwrap_err().to_string();
         assert!(err.contains("line 1"), "{err}");
+    }
+
+    #[test]
+    fn tensorboard_reads_the_scalars_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut history = History::open(dir.path()).unwrap();
+        for i in 0..150u64 {
+            history
+                .record(
+                    "episode",
+                    (i + 1) * 10,
+                    json!({"stats": {"episode_return": i as f64, "interaction_success_rate": 0.5}}),
+                )
+                .unwrap();
+            if i % 50 == 49 {
+                history
+                    .record(
+                        "ppo",
+                        (i + 1) * 10,
+                        json!({"stats": {"entropy": 1.5, "approx_kl": 0.01}}),
+                    )
+                    .unwrap();
+            }
+        }
+        history
+            .record(
+                "unet",
+                1500,
+                json!({"round": {"train_loss": 0.25, "replaced": true}}),
+            )
+            .unwrap();
+        drop(history);
+        // TensorBoard's own reader, independent of the writer.
+        let script = "import sys\n\
+            from tensorboard.backend.event_processing.event_accumulator import EventAccumulator\n\
+            acc = EventAccumulator(sys.argv[1]); acc.Reload()\n\
+            r = acc.Scalars('episode/episode_return')\n\
+            print(len(r), r[-1].step, r[-1].value)\n\
+            print(' '.join(sorted(acc.Tags()['scalars'])))\n";
+        let out = std::process::Command::new("python3")
+            .args(["-c", script])
+            .arg(dir.path().join(crate::tensorboard::TENSORBOARD_DIR))
+            .output();
+        let required = std::env::var_os("AFX_REQUIRE_PYTHON_CHECKS").is_some();
+        let out = match out {
+            Ok(out) if out.status.success() => String::from_utf8_lossy(&out.stdout).to_string(),
+            Ok(out)
+                if !required
+                    && String::from_utf8_lossy(&out.stderr).contains("ModuleNotFoundError") =>
+            {
+                eprintln!(
+                    "skipping the TensorBoard read-back: `pip install tensorboard` to run it"
+                );
+                return;
+            }
+            Ok(out) => panic!("{}", String::from_utf8_lossy(&out.stderr)),
+            Err(e) if !required => {
+                eprintln!("skipping the TensorBoard read-back: python3 not runnable ({e})");
+                return;
+            }
+            Err(e) => panic!("python3: {e}"),
+        };
+        let mut lines = out.lines();
+        assert_eq!(
+            lines.next(),
+            Some("150 1500 99.5"),
+            "150 points; the last is the mean of returns 50..=149"
+        );
+        let tags = lines.next().unwrap_or_default();
+        for tag in [
+            "episode/episode_return",
+            "episode/interaction_success_rate",
+            "ppo/entropy",
+            "ppo/approx_kl",
+            "throughput/env_steps_per_s",
+            "unet/train_loss",
+        ] {
+            assert!(tags.split(' ').any(|t| t == tag), "{tag} in {tags}");
+        }
     }
 
     #[test]

@@ -1,5 +1,6 @@
 //! The learner process as a library: configuration, validation of incoming
-//! messages, the policy update (PPO), U-Net training on labelled frames, checkpoints, and the HTTP metrics edge.
+//! messages, the policy update (PPO), U-Net training on labelled frames, checkpoints, the run's
+//! history (JSON lines and TensorBoard scalars), and the HTTP edge (live page, metrics, status).
 //!
 //! It never runs a simulator or a map; it only sees what actors send through
 //! the `transport` crate, in the layouts of `proto`.
@@ -17,5 +18,6 @@ pub mod policy_worker;
 pub mod service;
 pub mod status;
 pub mod summary;
+pub mod tensorboard;
 pub mod train;
 pub mod unet_worker;
