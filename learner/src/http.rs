@@ -37,15 +37,42 @@ async fn config(State(shared): State<Arc<Shared>>) -> impl IntoResponse {
     )
 }
 
-async fn metrics(State(shared): State<Arc<Shared>>) -> impl IntoResponse {
-    let snapshot = shared.status().snapshot(shared.config.actor_timeout_s);
-    (
-        [(
-            header::CONTENT_TYPE,
-            "application/openmetrics-text; version=1.0.0; charset=utf-8",
-        )],
-        crate::metrics::render(&snapshot),
-    )
+/// OpenMetrics for a scraper whose `Accept` asks for it (Prometheus does),
+/// the classic text format for everything else (`promtool`, `curl`).
+async fn metrics(
+    State(shared): State<Arc<Shared>>,
+    headers: axum::http::HeaderMap,
+) -> impl IntoResponse {
+    let (snapshot, timings) = {
+        let status = shared.status();
+        (
+            status.snapshot(shared.config.actor_timeout_s),
+            status.timings.clone(),
+        )
+    };
+    let text = crate::metrics::render(&snapshot, &timings);
+    let openmetrics = headers
+        .get_all(header::ACCEPT)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .any(|v| v.contains("application/openmetrics-text"));
+    if openmetrics {
+        (
+            [(
+                header::CONTENT_TYPE,
+                "application/openmetrics-text; version=1.0.0; charset=utf-8",
+            )],
+            text,
+        )
+    } else {
+        (
+            [(
+                header::CONTENT_TYPE,
+                "text/plain; version=0.0.4; charset=utf-8",
+            )],
+            crate::metrics::to_classic(&text),
+        )
+    }
 }
 
 async fn status(State(shared): State<Arc<Shared>>) -> impl IntoResponse {

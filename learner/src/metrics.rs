@@ -1,7 +1,12 @@
-//! Prometheus text rendering of a [`StatusSnapshot`].
+//! Prometheus text rendering of a [`StatusSnapshot`], one metric per
+//! quantity with its unit in the name (`afx_episode_return`,
+//! `afx_ppo_approx_kl`, `afx_ppo_update_duration_seconds`, …).
 //!
 //! The registry is built fresh from one snapshot per scrape: nothing is counted
-//! twice, and `/metrics` agrees with `/api/status` by construction.
+//! twice, and `/metrics` agrees with `/api/status` by construction. It is
+//! served as OpenMetrics to a scraper that asks for it and in the classic
+//! text format otherwise ([`to_classic`]), which is what `promtool` and
+//! older scrapers read.
 
 use std::sync::atomic::AtomicU64;
 
@@ -11,7 +16,7 @@ use prometheus_client::metrics::family::Family;
 use prometheus_client::metrics::gauge::Gauge;
 use prometheus_client::registry::Registry;
 
-use crate::status::StatusSnapshot;
+use crate::status::{StatusSnapshot, Timings, EPISODE_WINDOW};
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 struct KindLabel {
@@ -30,8 +35,9 @@ struct ActorLabel {
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-struct FieldLabel {
-    field: String,
+struct BuildLabel {
+    version: String,
+    backend: String,
 }
 
 fn counter(registry: &mut Registry, name: &str, help: &str, value: u64) {
@@ -46,9 +52,21 @@ fn gauge(registry: &mut Registry, name: &str, help: &str, value: f64) {
     registry.register(name, help, g);
 }
 
-/// Renders the snapshot in the Prometheus text exposition format.
-pub fn render(s: &StatusSnapshot) -> String {
+/// Renders the snapshot and the timing histograms as OpenMetrics text.
+pub fn render(s: &StatusSnapshot, timings: &Timings) -> String {
     let mut r = Registry::with_prefix("afx");
+    let build = Family::<BuildLabel, Gauge<f64, AtomicU64>>::default();
+    build
+        .get_or_create(&BuildLabel {
+            version: env!("CARGO_PKG_VERSION").into(),
+            backend: nets::device::backend_features(),
+        })
+        .set(1.0);
+    r.register(
+        "build_info",
+        "The learner's version and network backend (always 1)",
+        build,
+    );
     counter(
         &mut r,
         "env_steps",
@@ -201,64 +219,226 @@ pub fn render(s: &StatusSnapshot) -> String {
         actor_steps,
     );
 
-    let episode = Family::<FieldLabel, Gauge<f64, AtomicU64>>::default();
-    for (field, &v) in &s.last_episode {
-        episode
-            .get_or_create(&FieldLabel {
-                field: field.clone(),
-            })
-            .set(f64::from(v));
-    }
-    r.register(
-        "last_episode",
-        "Metrics of the most recently reported episode",
-        episode,
-    );
-
-    if let Some(u) = &s.last_update {
-        let update = Family::<FieldLabel, Gauge<f64, AtomicU64>>::default();
-        for (field, v) in [
-            ("policy_loss", u.policy_loss),
-            ("value_loss", u.value_loss),
-            ("entropy", u.entropy),
-            ("approx_kl", u.approx_kl),
-            ("clip_fraction", u.clip_fraction),
-            ("explained_variance", u.explained_variance),
-            ("grad_norm", u.grad_norm),
-            ("mean_policy_lag", u.mean_policy_lag),
-        ] {
-            update
-                .get_or_create(&FieldLabel {
-                    field: field.into(),
-                })
-                .set(f64::from(v));
-        }
-        r.register("ppo", "Statistics of the latest policy update", update);
-    }
-
-    if let Some(u) = &s.last_unet {
-        let unet = Family::<FieldLabel, Gauge<f64, AtomicU64>>::default();
-        for (field, v) in [
-            ("train_loss", u.train_loss),
-            ("validation_loss", u.candidate_loss),
-            ("validation_iou", u.candidate_iou),
-            ("deployed_validation_loss", u.deployed_loss),
-            ("deployed_validation_iou", u.deployed_iou),
-        ] {
-            unet.get_or_create(&FieldLabel {
-                field: field.into(),
-            })
-            .set(f64::from(v));
-        }
-        r.register(
-            "unet",
-            "Statistics of the latest U-Net training round",
-            unet,
+    for (field, &mean) in &s.episode_means {
+        let name = field.strip_prefix("episode_").unwrap_or(field);
+        gauge(
+            &mut r,
+            &format!("episode_{name}"),
+            &format!(
+                "Mean of the episodes' {field} over the last {EPISODE_WINDOW} that reported it"
+            ),
+            f64::from(mean),
         );
     }
+    if let Some(u) = &s.last_update {
+        for (field, v, help) in [
+            ("policy_loss", u.policy_loss, "PPO's clipped policy loss"),
+            ("value_loss", u.value_loss, "PPO's value loss"),
+            ("entropy", u.entropy, "the policy's entropy (nats)"),
+            (
+                "approx_kl",
+                u.approx_kl,
+                "approximate KL divergence from the acting policy",
+            ),
+            (
+                "clip_fraction",
+                u.clip_fraction,
+                "share of samples whose ratio was clipped",
+            ),
+            (
+                "explained_variance",
+                u.explained_variance,
+                "variance of the returns the critic explains",
+            ),
+            (
+                "grad_norm",
+                u.grad_norm,
+                "global gradient norm before clipping",
+            ),
+            (
+                "mean_policy_lag",
+                u.mean_policy_lag,
+                "mean policy versions between acting and training",
+            ),
+        ] {
+            gauge(
+                &mut r,
+                &format!("ppo_{field}"),
+                &format!("Latest policy update: {help}"),
+                f64::from(v),
+            );
+        }
+    }
+    if let Some(u) = &s.last_unet {
+        for (field, v, help) in [
+            ("train_loss", u.train_loss, "training loss"),
+            (
+                "validation_loss",
+                u.candidate_loss,
+                "the candidate's validation loss",
+            ),
+            (
+                "validation_iou",
+                u.candidate_iou,
+                "the candidate's validation IoU",
+            ),
+            (
+                "deployed_validation_loss",
+                u.deployed_loss,
+                "the deployed network's validation loss",
+            ),
+            (
+                "deployed_validation_iou",
+                u.deployed_iou,
+                "the deployed network's validation IoU",
+            ),
+        ] {
+            gauge(
+                &mut r,
+                &format!("unet_{field}"),
+                &format!("Latest U-Net round: {help}"),
+                f64::from(v),
+            );
+        }
+    }
+    r.register(
+        "ppo_update_duration_seconds",
+        "Time one PPO update took (every epoch and minibatch of one batch)",
+        timings.ppo_update.clone(),
+    );
+    r.register(
+        "unet_round_duration_seconds",
+        "Time one U-Net round took (training steps, validation, calibration)",
+        timings.unet_round.clone(),
+    );
 
     let mut out = String::new();
     // Writing into a String cannot fail.
     let _ = prometheus_client::encoding::text::encode(&mut out, &r);
     out
+}
+
+/// The classic Prometheus text format (0.0.4) of OpenMetrics text from
+/// [`render`]: a counter's `# HELP` and `# TYPE` name its `_total` sample,
+/// `# UNIT` and `# EOF` go, and so do `_created` samples.
+pub fn to_classic(openmetrics: &str) -> String {
+    let mut counters = std::collections::HashSet::new();
+    for line in openmetrics.lines() {
+        if let Some(name) = line
+            .strip_prefix("# TYPE ")
+            .and_then(|rest| rest.strip_suffix(" counter"))
+        {
+            counters.insert(name.to_string());
+        }
+    }
+    let mut out = String::with_capacity(openmetrics.len());
+    for line in openmetrics.lines() {
+        if line == "# EOF" || line.starts_with("# UNIT ") {
+            continue;
+        }
+        let renamed = ["# HELP ", "# TYPE "].iter().find_map(|prefix| {
+            let rest = line.strip_prefix(prefix)?;
+            let (name, tail) = rest.split_once(' ')?;
+            counters
+                .contains(name)
+                .then(|| format!("{prefix}{name}_total {tail}"))
+        });
+        match renamed {
+            Some(line) => out.push_str(&line),
+            None if counters.iter().any(|c| {
+                line.strip_prefix(c.as_str())
+                    .is_some_and(|rest| rest.starts_with("_created"))
+            }) =>
+            {
+                continue
+            }
+            None => out.push_str(line),
+        }
+        out.push('\n');
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::status::LearnerStatus;
+
+    #[test]
+    fn every_metric_the_grafana_dashboard_plots_is_served() {
+        let mut status = LearnerStatus::new("run".into());
+        let mut stats = proto::EpisodeStats::new(1, 100, 0);
+        for field in proto::StatField::ALL {
+            stats = stats.with(field, 0.5);
+        }
+        status.add_episode(&stats);
+        status.accept(0, proto::MessageKind::Rollout, 1, 0);
+        status.reject(proto::MessageKind::Rollout, "bad_magic");
+        status.last_update = Some(Default::default());
+        status.last_unet = Some(crate::affordance::UnetRound {
+            train_loss: 0.5,
+            candidate_loss: 0.5,
+            candidate_iou: 0.5,
+            deployed_loss: 0.5,
+            deployed_iou: 0.5,
+            replaced: true,
+            temperature: 1.0,
+            frames: (1, 1, 1),
+        });
+        status.timings.ppo_update.observe(0.2);
+        let served = to_classic(&render(&status.snapshot(10.0), &status.timings));
+        let dashboard = std::fs::read_to_string(
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../deploy/grafana-dashboard.json"),
+        )
+        .unwrap();
+        let dashboard: serde_json::Value = serde_json::from_str(&dashboard).unwrap();
+        let mut names = Vec::new();
+        for panel in dashboard["panels"].as_array().unwrap() {
+            for target in panel["targets"].as_array().unwrap() {
+                let expr = target["expr"].as_str().unwrap();
+                let mut rest = expr;
+                while let Some(at) = rest.find("afx_") {
+                    let name: String = rest[at..]
+                        .chars()
+                        .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+                        .collect();
+                    rest = &rest[at + name.len()..];
+                    names.push(name);
+                }
+            }
+        }
+        assert!(names.len() >= 15, "{names:?}");
+        for name in names {
+            assert!(
+                served
+                    .lines()
+                    .any(|l| l.starts_with(&format!("{name} "))
+                        || l.starts_with(&format!("{name}{{"))),
+                "the dashboard plots {name}, which /metrics does not serve:\n{served}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_classic_format_names_each_counters_total_and_drops_openmetrics_lines() {
+        let openmetrics = "# HELP afx_env_steps Environment steps.\n\
+                           # TYPE afx_env_steps counter\n\
+                           afx_env_steps_total 12\n\
+                           afx_env_steps_created 1.7e9\n\
+                           # HELP afx_uptime_seconds Seconds.\n\
+                           # TYPE afx_uptime_seconds gauge\n\
+                           # UNIT afx_uptime_seconds seconds\n\
+                           afx_uptime_seconds 3.5\n\
+                           # EOF\n";
+        assert_eq!(
+            to_classic(openmetrics),
+            "# HELP afx_env_steps_total Environment steps.\n\
+             # TYPE afx_env_steps_total counter\n\
+             afx_env_steps_total 12\n\
+             # HELP afx_uptime_seconds Seconds.\n\
+             # TYPE afx_uptime_seconds gauge\n\
+             afx_uptime_seconds 3.5\n"
+        );
+    }
 }

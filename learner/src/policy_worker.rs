@@ -262,11 +262,17 @@ fn run(
                 continue; // the receive loop validated it: cannot happen
             };
             let rows = trainer.pending_steps() + view.n_steps();
+            // The chunk that fills the batch runs the update.
+            let started = std::time::Instant::now();
             match trainer.add_chunk(&view, header.policy_version) {
                 Ok(Some(stats)) => {
                     let version = trainer.version();
                     let env_steps = {
                         let mut status = shared.status();
+                        status
+                            .timings
+                            .ppo_update
+                            .observe(started.elapsed().as_secs_f64());
                         status.updates += 1;
                         status.last_update = Some(stats);
                         status.policy_version = version;

@@ -2,9 +2,10 @@
 //! One struct behind a mutex; `/api/status` and `/metrics` both render the same
 //! [`StatusSnapshot`], so they always agree.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 use std::time::Instant;
 
+use prometheus_client::metrics::histogram::{exponential_buckets, Histogram};
 use proto::{EpisodeStats, MessageKind};
 use serde::Serialize;
 
@@ -76,8 +77,36 @@ pub struct LearnerStatus {
     pub last_unet: Option<UnetRound>,
     /// Latest episode's reported metrics.
     pub last_episode: BTreeMap<&'static str, f32>,
+    /// Each metric of the last [`EPISODE_WINDOW`] episodes that reported it.
+    recent_episodes: BTreeMap<&'static str, VecDeque<f32>>,
     /// Per-actor state, by actor id.
     pub actors: BTreeMap<u32, ActorState>,
+    /// How long updates and rounds take (shared handles: `/metrics` registers clones).
+    pub timings: Timings,
+}
+
+/// Episodes in the means `/metrics` and `/api/status` report.
+pub const EPISODE_WINDOW: usize = 100;
+
+/// Durations of the learner's two kinds of training work, as Prometheus
+/// histograms (seconds).
+#[derive(Debug, Clone)]
+pub struct Timings {
+    /// One PPO update (every epoch and minibatch of one batch).
+    pub ppo_update: Histogram,
+    /// One U-Net round (its training steps, validation and calibration).
+    pub unet_round: Histogram,
+}
+
+impl Default for Timings {
+    fn default() -> Self {
+        // 10 ms to about 80 s in factors of 2.
+        let buckets = || Histogram::new(exponential_buckets(0.01, 2.0, 14));
+        Self {
+            ppo_update: buckets(),
+            unet_round: buckets(),
+        }
+    }
 }
 
 /// A consistent copy of the status for rendering.
@@ -131,6 +160,8 @@ pub struct StatusSnapshot {
     pub last_unet: Option<UnetRound>,
     /// Latest episode's metrics.
     pub last_episode: BTreeMap<String, f32>,
+    /// Each episode metric's mean over the last 100 episodes that reported it.
+    pub episode_means: BTreeMap<String, f32>,
     /// Every actor ever seen.
     pub actors: Vec<ActorSnapshot>,
 }
@@ -193,7 +224,9 @@ impl LearnerStatus {
             unet_rounds: 0,
             last_unet: None,
             last_episode: BTreeMap::new(),
+            recent_episodes: BTreeMap::new(),
             actors: BTreeMap::new(),
+            timings: Timings::default(),
         }
     }
 
@@ -249,6 +282,11 @@ impl LearnerStatus {
         self.episodes += 1;
         for (field, value) in stats.present() {
             self.last_episode.insert(field.as_str(), value);
+            let recent = self.recent_episodes.entry(field.as_str()).or_default();
+            recent.push_back(value);
+            if recent.len() > EPISODE_WINDOW {
+                recent.pop_front();
+            }
         }
     }
 
@@ -323,6 +361,12 @@ impl LearnerStatus {
                 .last_episode
                 .iter()
                 .map(|(k, v)| (k.to_string(), *v))
+                .collect(),
+            episode_means: self
+                .recent_episodes
+                .iter()
+                .filter(|(_, v)| !v.is_empty())
+                .map(|(k, v)| (k.to_string(), v.iter().sum::<f32>() / v.len() as f32))
                 .collect(),
             actors,
         }

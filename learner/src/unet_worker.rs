@@ -80,12 +80,15 @@ impl UnetWorker {
                         taken.fetch_sub(batch.len(), Ordering::Relaxed);
                         learner.add_episode(episode, batch);
                     }
+                    let started = std::time::Instant::now();
                     let Some(round) = learner.train_round() else {
                         continue;
                     };
+                    let seconds = started.elapsed().as_secs_f64();
                     capture(&learner, &slot);
                     let (env_steps, unet_version) = {
                         let mut status = shared.status();
+                        status.timings.unet_round.observe(seconds);
                         status.unet_rounds += 1;
                         status.last_unet = Some(round);
                         if round.replaced {

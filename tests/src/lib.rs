@@ -155,9 +155,22 @@ impl Learner {
         serde_json::from_str(&body).expect("status is JSON")
     }
 
-    /// `/metrics` text.
+    /// `/metrics` text in the classic Prometheus format (what a client
+    /// that does not ask for OpenMetrics gets).
     pub fn metrics(&self) -> String {
         let (code, body) = http_get(&self.addr, "/metrics").expect("learner answers /metrics");
+        assert_eq!(code, 200);
+        body
+    }
+
+    /// `/metrics` as OpenMetrics, asked for the way Prometheus asks.
+    pub fn openmetrics(&self) -> String {
+        let (code, body) = http_get_accepting(
+            &self.addr,
+            "/metrics",
+            "application/openmetrics-text;version=1.0.0,text/plain;version=0.0.4;q=0.5",
+        )
+        .expect("learner answers /metrics");
         assert_eq!(code, 200);
         body
     }
@@ -201,9 +214,18 @@ fn now_ms() -> u128 {
 
 /// A plain HTTP/1.0 GET; `None` if the connection fails.
 pub fn http_get(addr: &str, path: &str) -> Option<(u16, String)> {
+    http_get_accepting(addr, path, "*/*")
+}
+
+/// [`http_get`] with an `Accept` header.
+pub fn http_get_accepting(addr: &str, path: &str, accept: &str) -> Option<(u16, String)> {
     let mut stream = TcpStream::connect(addr).ok()?;
     stream.set_read_timeout(Some(Duration::from_secs(5))).ok()?;
-    write!(stream, "GET {path} HTTP/1.0\r\nHost: {addr}\r\n\r\n").ok()?;
+    write!(
+        stream,
+        "GET {path} HTTP/1.0\r\nHost: {addr}\r\nAccept: {accept}\r\n\r\n"
+    )
+    .ok()?;
     let mut response = String::new();
     stream.read_to_string(&mut response).ok()?;
     let (head, body) = response.split_once("\r\n\r\n")?;

@@ -15,6 +15,41 @@ fn rollouts_of(status: &serde_json::Value, id: u64) -> u64 {
         .unwrap_or(0)
 }
 
+/// Checks the classic exposition with `promtool check metrics`, Prometheus's
+/// own linter. Returns false (and says so) without promtool, unless
+/// `AFX_REQUIRE_PROMTOOL` is set (CI installs Debian's `prometheus`).
+fn promtool_accepts(metrics: &str) -> bool {
+    use std::io::Write;
+    let child = Command::new("promtool")
+        .args(["check", "metrics"])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn();
+    let mut child = match child {
+        Ok(child) => child,
+        Err(e) if std::env::var_os("AFX_REQUIRE_PROMTOOL").is_none() => {
+            eprintln!("skipping promtool check metrics: {e} (`apt-get install prometheus`)");
+            return true;
+        }
+        Err(e) => panic!("promtool: {e}"),
+    };
+    child
+        .stdin
+        .take()
+        .expect("stdin")
+        .write_all(metrics.as_bytes())
+        .expect("feeding promtool");
+    let out = child.wait_with_output().expect("promtool");
+    assert!(
+        out.status.success(),
+        "promtool check metrics: {}{}\n---\n{metrics}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    true
+}
+
 /// Parses the exposition with the Python `prometheus_client` OpenMetrics
 /// parser, an independent reader. Returns false (and says so) when Python or
 /// the package is missing, unless the CI demands it.
@@ -123,7 +158,20 @@ fn learner_serves_three_actors_and_survives_a_killed_one() {
     let before = learner.status();
     let metrics = learner.metrics();
     let after = learner.status();
-    assert!(python_parses(&metrics));
+    assert!(python_parses(&learner.openmetrics()));
+    assert!(promtool_accepts(&metrics));
+    for name in [
+        "afx_build_info",
+        "afx_episode_return",
+        "afx_ppo_entropy",
+        "afx_ppo_approx_kl",
+        "afx_ppo_update_duration_seconds_count",
+    ] {
+        assert!(
+            metrics.lines().any(|l| l.starts_with(name)),
+            "{name} missing from /metrics:\n{metrics}"
+        );
+    }
     for (metric, field) in [
         ("afx_env_steps_total", "env_steps"),
         ("afx_policy_updates_total", "updates"),
@@ -276,5 +324,27 @@ fn an_actor_with_several_environments_stops_after_max_episodes() {
     assert!(ids.iter().all(|&id| id < 5), "{history}");
     if complete {
         assert_eq!(ids, [0, 1, 2, 3, 4], "{history}");
+    }
+}
+
+#[test]
+fn the_shipped_prometheus_config_is_valid() {
+    let config = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/prometheus.yml");
+    match Command::new("promtool")
+        .arg("check")
+        .arg("config")
+        .arg(&config)
+        .output()
+    {
+        Ok(out) => assert!(
+            out.status.success(),
+            "promtool check config: {}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        ),
+        Err(e) if std::env::var_os("AFX_REQUIRE_PROMTOOL").is_none() => {
+            eprintln!("skipping promtool check config: {e} (`apt-get install prometheus`)")
+        }
+        Err(e) => panic!("promtool: {e}"),
     }
 }
