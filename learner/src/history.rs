@@ -165,6 +165,11 @@ impl History {
 /// leaves a torn last line; appending after it would make it a damaged line
 /// in the middle, which no reader skips, so it is cut off (one record lost).
 fn repair(path: &Path) -> anyhow::Result<f64> {
+    // Only a regular file has a last record (a device such as /dev/full
+    // would read forever).
+    if !std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
+        return Ok(0.0);
+    }
     let text = match std::fs::read(path) {
         Ok(text) => text,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(0.0),
