@@ -186,7 +186,7 @@ struct RunArgs {
     #[command(flatten)]
     sim: SimArgs,
     /// Where the networks infer: cpu, or gpu in a build with `--features nets/gpu`.
-    #[arg(long, default_value = "cpu")]
+    #[arg(long, default_value = "cpu", value_parser = ["cpu", "gpu"])]
     device: String,
     /// Record every episode to an MCAP file in this directory (created):
     /// RGB, depth, instance ids, map ids, labels, camera poses, actions and

@@ -98,13 +98,13 @@ struct ServeArgs {
     #[arg(long)]
     max_actors: Option<u32>,
     /// Where the networks train: cpu, or gpu in a build with `--features nets/gpu` (overrides the config).
-    #[arg(long)]
+    #[arg(long, value_parser = ["cpu", "gpu"])]
     device: Option<String>,
     /// Method: ours, nomap-seg, nomap-noseg or intexp (overrides [task] method).
-    #[arg(long, conflicts_with = "resume")]
+    #[arg(long, conflicts_with = "resume", value_parser = ["ours", "nomap-seg", "nomap-noseg", "intexp"])]
     method: Option<String>,
     /// Actors' environment: sim, or bandit-fixture (a wiring test) (overrides [task] env).
-    #[arg(long, conflicts_with = "resume")]
+    #[arg(long, conflicts_with = "resume", value_parser = ["sim", "bandit-fixture"])]
     env: Option<String>,
     /// Side of the camera images and maps in pixels, a multiple of 16 (overrides [task] image_size).
     #[arg(long, conflicts_with = "resume")]
@@ -140,7 +140,7 @@ struct CapacityArgs {
     #[arg(long)]
     config: Option<PathBuf>,
     /// Where the networks train: cpu, or gpu (overrides the config).
-    #[arg(long)]
+    #[arg(long, value_parser = ["cpu", "gpu"])]
     device: Option<String>,
     /// Side of the images in pixels (overrides [task] image_size).
     #[arg(long)]
@@ -149,7 +149,7 @@ struct CapacityArgs {
     #[arg(long)]
     episode_steps: Option<usize>,
     /// Method: ours, nomap-seg, nomap-noseg or intexp (overrides [task] method).
-    #[arg(long)]
+    #[arg(long, value_parser = ["ours", "nomap-seg", "nomap-noseg", "intexp"])]
     method: Option<String>,
     /// Steps per PPO update (overrides [policy] batch_steps).
     #[arg(long)]

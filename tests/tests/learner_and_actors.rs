@@ -155,6 +155,15 @@ fn learner_serves_three_actors_and_survives_a_killed_one() {
 
     // /metrics and /api/status render the same state: counters read from
     // /metrics lie between two status reads taken around it.
+    // Per-update and per-episode metrics exist once an update and an episode have.
+    wait_for(
+        Duration::from_secs(30),
+        "a PPO update and an episode",
+        || {
+            let s = learner.status();
+            (s["updates"].as_u64() >= Some(1) && s["episodes"].as_u64() >= Some(1)).then_some(())
+        },
+    );
     let before = learner.status();
     let metrics = learner.metrics();
     let after = learner.status();
