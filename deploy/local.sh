@@ -34,6 +34,9 @@ Options:
   --scenes S        ithor (the 20 training rooms, default) or generated
   --renderer R      auto (default: gpu when a Vulkan adapter exists, else cpu),
                     gpu (wgpu: a GPU or Mesa lavapipe) or cpu (ray casting)
+  --record DIR      each actor records episodes as MCAP files for Foxglove in
+                    DIR (actorN_step<run steps>_episode<id>.mcap; never overwritten)
+  --record-every N  with --record, only every N-th episode (default 1)
   --device D        where learner and actors run the networks: cpu (default) or
                     gpu (binaries built with --features nets/gpu; see README)
   --max-steps N     stop as on Ctrl-C (final checkpoint) once the run has taken
@@ -75,6 +78,8 @@ while [[ $# -gt 0 ]]; do
     --data) ACTOR_ARGS+=(--data "$(cd "${2:?--data needs a directory}" && pwd)"); shift 2 ;;
     --scenes) ACTOR_ARGS+=(--scenes "${2:?--scenes needs a value}"); shift 2 ;;
     --renderer) ACTOR_ARGS+=(--renderer "${2:?--renderer needs a value}"); shift 2 ;;
+    --record) mkdir -p "${2:?--record needs a directory}"; ACTOR_ARGS+=(--record "$(cd "$2" && pwd)"); shift 2 ;;
+    --record-every) ACTOR_ARGS+=(--record-every "${2:?--record-every needs a number}"); shift 2 ;;
     --device) DEVICE="${2:?--device needs a value}"; ACTOR_ARGS+=(--device "$DEVICE"); LEARNER_DEVICE=(--device "$DEVICE"); shift 2 ;;
     --port) PORT="${2:?--port needs a number}"; shift 2 ;;
     --progress-every) PROGRESS_EVERY="${2:?--progress-every needs a number of seconds}"; shift 2 ;;

@@ -193,6 +193,10 @@ struct RunArgs {
     /// rewards, in schemas Foxglove opens.
     #[arg(long, value_name = "DIR")]
     record: Option<PathBuf>,
+    /// With --record, record only every N-th episode (a recording is tens
+    /// of megabytes).
+    #[arg(long, default_value_t = 1, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    record_every: u64,
 }
 
 fn main() -> anyhow::Result<()> {
@@ -414,7 +418,11 @@ fn sim_environment(task: &TaskSpec, cli: &RunArgs) -> anyhow::Result<SimEnvironm
     if let Some(dir) = &cli.record {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("creating the --record directory {}", dir.display()))?;
-        env.record_to(dir.clone(), format!("actor{}_", cli.actor_id.unwrap_or(0)));
+        env.record_to(
+            dir.clone(),
+            format!("actor{}_", cli.actor_id.unwrap_or(0)),
+            cli.record_every,
+        );
     }
     SimEnvironment::new(env, task)
 }

@@ -261,11 +261,26 @@ fn a_recorded_episode_holds_every_frame_label_and_step() {
     let steps = 6;
     let mut env = environment(steps);
     let dir = std::env::temp_dir().join(format!("afx-record-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    env.record_to(dir.clone(), "test_".into());
+    env.record_to(dir.clone(), "test_".into(), 2);
+    env.set_global_steps(1234);
     run(&mut env, &unet(), 3, steps);
     env.finish_episode(7).unwrap();
-    let bytes = std::fs::read(dir.join("test_episode000007.mcap")).unwrap();
+    // Every second episode: 7 is not recorded, 8 is, and 8 again (a
+    // restarted actor's) goes beside it instead of over it.
+    assert_eq!(
+        std::fs::read_dir(&dir).unwrap().count(),
+        0,
+        "episode 7 skipped"
+    );
+    for _ in 0..2 {
+        run(&mut env, &unet(), 3, steps);
+        env.finish_episode(8).unwrap();
+    }
+    let first = dir.join("test_step000001234_episode000008.mcap");
+    assert!(dir.join("test_step000001234_episode000008_2.mcap").exists());
+    let bytes = std::fs::read(first).unwrap();
     let mut counts = std::collections::BTreeMap::<String, usize>::new();
     for message in mcap::MessageStream::new(&bytes).unwrap() {
         let message = message.unwrap();

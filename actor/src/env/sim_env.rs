@@ -146,8 +146,34 @@ pub struct SimEnv {
     episode: Option<Episode>,
     timings: StepTimings,
     global_steps: u64,
-    /// Where episodes are recorded, and the file-name prefix.
-    recording: Option<(std::path::PathBuf, String)>,
+    /// Where episodes are recorded, if they are.
+    recording: Option<Recording>,
+}
+
+/// Which episodes go to MCAP files, and where.
+#[derive(Debug, Clone)]
+struct Recording {
+    dir: std::path::PathBuf,
+    /// File-name prefix (the actor's).
+    prefix: String,
+    /// Every how many episodes one is recorded.
+    every: u64,
+}
+
+impl Recording {
+    /// The file for episode `id` ending at the run's `global_steps`: named
+    /// by both, and never one that exists (a restarted actor counts its
+    /// episodes from 0 again).
+    fn path(&self, global_steps: u64, id: u64) -> std::path::PathBuf {
+        let stem = format!("{}step{global_steps:09}_episode{id:06}", self.prefix);
+        let mut path = self.dir.join(format!("{stem}.mcap"));
+        let mut n = 1;
+        while path.exists() {
+            n += 1;
+            path = self.dir.join(format!("{stem}_{n}.mcap"));
+        }
+        path
+    }
 }
 
 /// A frame rendered (and integrated into the map) that waits for the
@@ -279,9 +305,15 @@ impl SimEnv {
         }
     }
 
-    /// Records every episode from now on to `dir/{prefix}episode{id:06}.mcap`.
-    pub fn record_to(&mut self, dir: std::path::PathBuf, prefix: String) {
-        self.recording = Some((dir, prefix));
+    /// Records every `every`-th episode (by id) from now on to
+    /// `dir/{prefix}step{run steps:09}_episode{id:06}.mcap`, the run's
+    /// steps being those the learner last reported ([`SimEnv::set_global_steps`]).
+    pub fn record_to(&mut self, dir: std::path::PathBuf, prefix: String, every: u64) {
+        self.recording = Some(Recording {
+            dir,
+            prefix,
+            every: every.max(1),
+        });
     }
 
     /// The run's steps over all actors (from the learner): annotation by
@@ -731,10 +763,18 @@ impl SimEnv {
         if self.config.background_negative && self.config.method.segments() {
             label_background_negative(&mut labels, &episode.truth_ids);
         }
-        if let Some((dir, prefix)) = &self.recording {
-            let path = dir.join(format!("{prefix}episode{episode_id:06}.mcap"));
-            self.record(&episode, &labels, &k, &path)
-                .with_context(|| format!("recording the episode (--record {})", dir.display()))?;
+        if let Some(recording) = self
+            .recording
+            .as_ref()
+            .filter(|r| episode_id % r.every == 0)
+        {
+            let path = recording.path(self.global_steps, episode_id);
+            self.record(&episode, &labels, &k, &path).with_context(|| {
+                format!(
+                    "recording the episode (--record {})",
+                    recording.dir.display()
+                )
+            })?;
         }
         Ok(EpisodeSummary {
             stats: episode_stats(
