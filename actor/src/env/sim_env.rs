@@ -766,7 +766,7 @@ impl SimEnv {
         if let Some(recording) = self
             .recording
             .as_ref()
-            .filter(|r| episode_id % r.every == 0)
+            .filter(|r| episode_id.is_multiple_of(r.every))
         {
             let path = recording.path(self.global_steps, episode_id);
             self.record(&episode, &labels, &k, &path).with_context(|| {
