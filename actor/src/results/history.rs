@@ -18,6 +18,9 @@ pub struct Tenth {
     pub interacted_object_rate: Option<f64>,
     /// Successful / attempted interactions.
     pub success_rate: Option<f64>,
+    /// Pick-up attempts per step (a policy that gives up picking up stops
+    /// producing positive pick-up labels).
+    pub pick_up_attempt_rate: Option<f64>,
 }
 
 /// A run's course.
@@ -71,7 +74,7 @@ impl HistorySummary {
         }
         wall_s += segment_end;
         let episodes: Vec<&Value> = records.iter().filter(|r| r["kind"] == "episode").collect();
-        let mut sums = vec![[(0.0, 0usize); 3]; 10];
+        let mut sums = vec![[(0.0, 0usize); 4]; 10];
         let mut counts = [0usize; 10];
         for episode in &episodes {
             let at = episode["env_steps"].as_u64().unwrap_or(0);
@@ -82,6 +85,7 @@ impl HistorySummary {
                 "interaction_attempt_rate",
                 "interacted_object_rate",
                 "interaction_success_rate",
+                "pick_up_attempt_rate",
             ]) {
                 if let Some(value) = stats[field].as_f64().filter(|v| v.is_finite()) {
                     sum.0 += value;
@@ -98,6 +102,7 @@ impl HistorySummary {
                 attempt_rate: mean(s[0]),
                 interacted_object_rate: mean(s[1]),
                 success_rate: mean(s[2]),
+                pick_up_attempt_rate: mean(s[3]),
             })
             .collect();
         let entropies: Vec<f64> = records

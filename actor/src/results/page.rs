@@ -392,10 +392,11 @@ fn runs_table(out: &mut String, comparison: &Comparison) {
         out,
         "## Runs\n\nEach run's chosen checkpoint and validation score, and whether it kept \
          exploring: episode means of the interacted-object rate and the interaction attempt \
-         rate in the first, best and last tenth of its steps, and the policy's entropy at its \
-         first and last update. \"Stopped exploring\" marks a last tenth below half the best.\n\n\
-         | run | steps | wall time | chosen step (val score) | interacted-object rate: first / best / last tenth | attempts per step: first / best / last | entropy first → last | |\n\
-         |---|---|---|---|---|---|---|---|"
+         rate in the first, best and last tenth of its steps (and of the pick-up attempts alone), \
+         and the policy's entropy at its first and last update. \"Stopped exploring\" marks a \
+         last tenth below half the best.\n\n\
+         | run | steps | wall time | chosen step (val score) | interacted-object rate: first / best / last tenth | attempts per step: first / best / last | pick-up attempts per step: first / best / last | entropy first → last | |\n\
+         |---|---|---|---|---|---|---|---|---|"
     );
     for run in &comparison.runs {
         let h = &run.history;
@@ -423,13 +424,14 @@ fn runs_table(out: &mut String, comparison: &Comparison) {
         };
         let _ = writeln!(
             out,
-            "| {}-seed{} | {} | {:.0} min | {chosen} | {} | {} | {} | {} |",
+            "| {}-seed{} | {} | {:.0} min | {chosen} | {} | {} | {} | {} | {} |",
             run.variant,
             run.seed,
             h.steps,
             h.wall_s / 60.0,
             triple(&|t| t.interacted_object_rate),
             triple(&|t| t.attempt_rate),
+            triple(&|t| t.pick_up_attempt_rate),
             h.entropy
                 .map_or("–".into(), |(a, b)| format!("{a:.2} → {b:.2}")),
             if h.collapsed() {
