@@ -30,6 +30,11 @@ struct RejectLabel {
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+struct ServiceLabel {
+    service: String,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 struct ActorLabel {
     actor: String,
 }
@@ -175,6 +180,20 @@ pub fn render(s: &StatusSnapshot, timings: &Timings) -> String {
         "messages_received",
         "Valid messages accepted, per kind",
         received,
+    );
+
+    let publishers = Family::<ServiceLabel, Gauge<f64, AtomicU64>>::default();
+    for (service, &n) in &s.publishers {
+        publishers
+            .get_or_create(&ServiceLabel {
+                service: service.clone(),
+            })
+            .set(n as f64);
+    }
+    r.register(
+        "service_publishers",
+        "Publishers on each actor-to-learner service (slots taken of max_actors + spare_ports)",
+        publishers,
     );
 
     let rejected = Family::<RejectLabel, Counter>::default();

@@ -291,6 +291,7 @@ impl Learner {
             }
             if last_maintenance.elapsed() > Duration::from_millis(250) {
                 self.ports.maintain();
+                self.shared.status().publishers = self.ports.publishers().into_iter().collect();
                 last_maintenance = Instant::now();
             }
             if self.unet_worker.as_ref().is_some_and(UnetWorker::finished) {

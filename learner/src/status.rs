@@ -81,6 +81,8 @@ pub struct LearnerStatus {
     recent_episodes: BTreeMap<&'static str, VecDeque<f32>>,
     /// Per-actor state, by actor id.
     pub actors: BTreeMap<u32, ActorState>,
+    /// Publishers on each actor→learner service (slots taken).
+    pub publishers: BTreeMap<&'static str, usize>,
     /// How long updates and rounds take (shared handles: `/metrics` registers clones).
     pub timings: Timings,
 }
@@ -164,6 +166,9 @@ pub struct StatusSnapshot {
     pub episode_means: BTreeMap<String, f32>,
     /// Every actor ever seen.
     pub actors: Vec<ActorSnapshot>,
+    /// Publishers on each actor→learner service: actors, and anything else
+    /// holding one of its `max_actors + spare_ports` slots.
+    pub publishers: BTreeMap<String, usize>,
 }
 
 /// One row of rejected-message counts.
@@ -226,6 +231,7 @@ impl LearnerStatus {
             last_episode: BTreeMap::new(),
             recent_episodes: BTreeMap::new(),
             actors: BTreeMap::new(),
+            publishers: BTreeMap::new(),
             timings: Timings::default(),
         }
     }
@@ -359,6 +365,11 @@ impl LearnerStatus {
             last_unet: self.last_unet,
             last_episode: self
                 .last_episode
+                .iter()
+                .map(|(k, v)| (k.to_string(), *v))
+                .collect(),
+            publishers: self
+                .publishers
                 .iter()
                 .map(|(k, v)| (k.to_string(), *v))
                 .collect(),

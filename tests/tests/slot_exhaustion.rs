@@ -1,6 +1,7 @@
 //! When other processes hold every publisher slot of a service, an actor
 //! that cannot join says which service, how many slots it has and which
-//! settings raise them, instead of iceoryx2's bare error name.
+//! settings raise them, instead of iceoryx2's bare error name; the learner
+//! reports how many publishers each service has.
 
 use std::time::Duration;
 
@@ -13,7 +14,7 @@ fn an_actor_without_a_publisher_slot_says_what_holds_them_and_what_to_raise() {
     let prefix = format!("it-slots-{}", std::process::id());
     let run_dir = dir.join("run");
     let bandit = bandit_config(&dir, &prefix, "");
-    let _learner = Learner::start(
+    let learner = Learner::start(
         &run_dir,
         &[
             "--config".into(),
@@ -51,6 +52,17 @@ fn an_actor_without_a_publisher_slot_says_what_holds_them_and_what_to_raise() {
         );
     }
     assert_eq!(held.len(), 6, "max_actors 4 + spare_ports 2");
+    // The learner reports who holds the slots.
+    system_tests::wait_for(Duration::from_secs(10), "the publisher count", || {
+        (learner.status()["publishers"]["rollouts"] == 6).then_some(())
+    });
+    assert_eq!(
+        system_tests::metric_value(
+            &learner.metrics(),
+            "afx_service_publishers{service=\"rollouts\"}"
+        ),
+        Some(6.0)
+    );
 
     let config = run_dir.join("config.toml").display().to_string();
     let mut actor = start_actor(0, &prefix, &dir, &["--config", &config]);

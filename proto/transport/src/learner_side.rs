@@ -9,6 +9,7 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 use iceoryx2::sample::Sample;
+use iceoryx2::service::port_factory::publish_subscribe;
 use proto::{MessageHeader, MessageKind, WeightsBlob, LEARNER_ID};
 
 use crate::config::TransportConfig;
@@ -31,9 +32,14 @@ impl ReceivedMessage {
     }
 }
 
+/// A publish-subscribe service of byte messages.
+type ByteService = publish_subscribe::PortFactory<Ipc, [u8], ()>;
+
 /// Everything the learner process reads from and writes to.
 pub struct LearnerPorts {
     node: Node<Ipc>,
+    /// The actor→learner services, kept to count their publishers.
+    upstream: [(MessageKind, ByteService); 3],
     rollouts: Subscriber<Ipc, [u8], ()>,
     frames: Subscriber<Ipc, [u8], ()>,
     stats: Subscriber<Ipc, [u8], ()>,
@@ -50,19 +56,27 @@ impl LearnerPorts {
     pub fn open(config: &TransportConfig) -> Result<Self, TransportError> {
         crate::remove_dead_nodes()?;
         let node = open_node("learner")?;
-        let subscriber = |kind: MessageKind| -> Result<Subscriber<Ipc, [u8], ()>, TransportError> {
-            let service = open_pubsub(&node, config, kind)?;
+        let upstream = [
+            MessageKind::Rollout,
+            MessageKind::Frames,
+            MessageKind::Stats,
+        ]
+        .map(|kind| open_pubsub(&node, config, kind).map(|service| (kind, service)));
+        let [rollouts, frames, stats] = upstream;
+        let upstream = [rollouts?, frames?, stats?];
+        let subscriber = |i: usize| -> Result<Subscriber<Ipc, [u8], ()>, TransportError> {
+            let (kind, service) = &upstream[i];
             service
                 .subscriber_builder()
                 .buffer_size(config.learner_buffer)
                 .create()
                 .map_err(|e| {
-                    TransportError::new("create subscriber", proto::service::for_kind(kind), e)
+                    TransportError::new("create subscriber", proto::service::for_kind(*kind), e)
                 })
         };
-        let rollouts = subscriber(MessageKind::Rollout)?;
-        let frames = subscriber(MessageKind::Frames)?;
-        let stats = subscriber(MessageKind::Stats)?;
+        let rollouts = subscriber(0)?;
+        let frames = subscriber(1)?;
+        let stats = subscriber(2)?;
         let weights_service = open_pubsub(&node, config, MessageKind::Weights)?;
         let pool = config.max_actors as usize + 4;
         let weights = weights_service
@@ -87,6 +101,7 @@ impl LearnerPorts {
             })?;
         Ok(Self {
             node,
+            upstream,
             rollouts,
             frames,
             stats,
@@ -157,6 +172,21 @@ impl LearnerPorts {
         // Waking is best effort: actors also poll the weights subscriber.
         let _ = self.weights_ready.notify();
         Ok(Delivery::Delivered(delivered))
+    }
+
+    /// How many publishers each actor→learner service has now (actors and
+    /// anything else holding a slot): the slots left are
+    /// `max_actors + spare_ports` minus these.
+    pub fn publishers(&self) -> Vec<(&'static str, usize)> {
+        self.upstream
+            .iter()
+            .map(|(kind, service)| {
+                (
+                    proto::service::for_kind(*kind),
+                    service.dynamic_config().number_of_publishers(),
+                )
+            })
+            .collect()
     }
 
     /// Periodic upkeep: hands the newest weights to subscribers that joined
