@@ -391,7 +391,7 @@ mod tests {
             stats = stats.with(field, 0.5);
         }
         status.add_episode(&stats);
-        status.accept(0, proto::MessageKind::Rollout, 1, 0);
+        let _ = status.accept(0, proto::MessageKind::Rollout, 1, 0);
         status.reject(proto::MessageKind::Rollout, "bad_magic");
         status.last_update = Some(Default::default());
         status.last_unet = Some(crate::affordance::UnetRound {

@@ -363,12 +363,25 @@ impl Learner {
                 return Ok(());
             }
         };
-        let lost = self.shared.status().accept(
+        let accepted = self.shared.status().accept(
             header.actor_id,
             kind,
             header.sequence,
             header.policy_version,
         );
+        let Some(lost) = accepted else {
+            const REASON: &str = "sequence_out_of_window";
+            self.shared.status().reject(kind, REASON);
+            if self.warned.insert((kind, REASON)) {
+                tracing::warn!(
+                    service = proto::service::for_kind(kind),
+                    actor = header.actor_id,
+                    sequence = header.sequence,
+                    "refused a message whose sequence number no loss explains (further ones are only counted)"
+                );
+            }
+            return Ok(());
+        };
         if lost > 0 {
             tracing::debug!(
                 actor = header.actor_id,

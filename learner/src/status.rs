@@ -87,6 +87,11 @@ pub struct LearnerStatus {
     pub timings: Timings,
 }
 
+/// Farthest ahead of an actor's next sequence number (per kind) a message
+/// may be: a million lost messages is hours of an actor's output, so a
+/// larger jump is a forged number, refused rather than counted as losses.
+pub const SEQUENCE_WINDOW: u64 = 1_000_000;
+
 /// Episodes in the means `/metrics` and `/api/status` report.
 pub const EPISODE_WINDOW: usize = 100;
 
@@ -237,14 +242,23 @@ impl LearnerStatus {
     }
 
     /// Records an accepted message and returns how many of the actor's earlier
-    /// messages of this kind were lost (sequence gap).
+    /// messages of this kind were lost (sequence gap); `None`, recording
+    /// nothing, for a sequence number more than [`SEQUENCE_WINDOW`] ahead of
+    /// the actor's next one, which no loss explains (a forged message).
     pub fn accept(
         &mut self,
         actor_id: u32,
         kind: MessageKind,
         sequence: u64,
         policy_version: u64,
-    ) -> u64 {
+    ) -> Option<u64> {
+        let expected = self
+            .actors
+            .get(&actor_id)
+            .and_then(|a| a.next_sequence.get(kind.as_str()).copied());
+        if expected.is_some_and(|e| sequence > e.saturating_add(SEQUENCE_WINDOW)) {
+            return None;
+        }
         let now = Instant::now();
         let current = self.policy_version;
         let actor = self.actors.entry(actor_id).or_insert_with(|| ActorState {
@@ -272,7 +286,7 @@ impl LearnerStatus {
             actor.policy_version = policy_version;
             actor.policy_lag = current.saturating_sub(policy_version);
         }
-        lost
+        Some(lost)
     }
 
     /// Adds environment steps from an accepted chunk.
@@ -381,5 +395,39 @@ impl LearnerStatus {
                 .collect(),
             actors,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gaps_count_as_losses_and_a_jump_beyond_the_window_is_refused() {
+        let mut status = LearnerStatus::new("run".into());
+        let kind = MessageKind::Rollout;
+        assert_eq!(status.accept(0, kind, 1, 0), Some(0));
+        assert_eq!(
+            status.accept(0, kind, 5, 0),
+            Some(3),
+            "2, 3 and 4 were lost"
+        );
+        assert_eq!(status.accept(0, kind, 10_000_000, 0), None, "forged");
+        assert_eq!(status.actors[&0].dropped, 3, "not counted as losses");
+        assert_eq!(
+            status.accept(0, kind, 6, 0),
+            Some(0),
+            "the real stream goes on"
+        );
+        assert_eq!(
+            status.accept(0, kind, 1, 0),
+            Some(0),
+            "a restarted actor starts at 1"
+        );
+        assert_eq!(
+            status.accept(1, kind, 10_000_000, 0),
+            Some(0),
+            "a first message sets where an actor starts"
+        );
     }
 }

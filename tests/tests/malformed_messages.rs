@@ -1,5 +1,6 @@
 //! Malformed messages on every actor→learner service are counted in /metrics
-//! and do not stop the learner.
+//! and do not stop the learner; so are valid ones with a forged sequence
+//! number, and oversized ones, which are refused before they are copied.
 
 use std::time::Duration;
 
@@ -75,6 +76,38 @@ fn malformed_messages_are_counted_and_the_learner_carries_on() {
         Duration::from_secs(10),
         "the valid stats to be accepted",
         || (learner.status()["episodes"] == 1).then_some(()),
+    );
+
+    // A valid message whose sequence number jumps ten million ahead is a
+    // forgery, not ten million losses: refused, and nothing counted as lost.
+    let forged = encode(
+        &EpisodeStats::new(2, 10, 0).with(StatField::EpisodeReturn, 1234.5),
+        MessageHeader {
+            actor_id: 0,
+            sequence: 10_000_000,
+            ..Default::default()
+        },
+    );
+    ports
+        .publish_raw(MessageKind::Stats, &forged)
+        .expect("send");
+    let reason = "afx_messages_rejected_total{service=\"stats\",reason=\"sequence_out_of_window\"}";
+    let metrics = wait_for(
+        Duration::from_secs(10),
+        "the forged sequence refused",
+        || {
+            let m = learner.metrics();
+            (metric_value(&m, reason) == Some(1.0)).then_some(m)
+        },
+    );
+    assert_eq!(
+        metric_value(&metrics, "afx_messages_dropped_total"),
+        Some(0.0)
+    );
+    assert_eq!(
+        learner.status()["episodes"],
+        1,
+        "the forged episode is not counted"
     );
     assert_eq!(
         system_tests::http_get(&learner.addr, "/healthz").map(|r| r.0),
