@@ -5,7 +5,7 @@
 
 use std::fmt::Write as _;
 
-use super::paper::{affordance_index, PAPER};
+use super::paper::{affordance_index, PaperRow, PAPER};
 use super::{Comparison, RunResult};
 use crate::evaluation::{ObjectRow, PixelRow, Report, ScoredBy};
 
@@ -166,50 +166,20 @@ fn table_1(out: &mut String, comparison: &Comparison, affordances: &[String]) {
          walls count as negatives) and object accuracy; each run's median over the views, then \
          mean [min, max] over seeds.\n"
     );
-    for (plane, affordance) in affordances.iter().enumerate() {
-        let _ = writeln!(
-            out,
-            "### {affordance}\n\n| | precision | recall | F1 | object accuracy |\n|---|---|---|---|---|"
-        );
-        let mut row = |name: &str, reports: &[&Report], reference: bool| {
-            let numbers: Vec<[Option<f32>; 4]> = reports
-                .iter()
-                .map(|r| {
-                    let rows = if reference {
-                        &r.all_positive.pixel
-                    } else {
-                        &r.pixel
-                    };
-                    pixel_numbers(&rows[plane])
-                })
-                .collect();
-            let cells: Vec<String> = (0..4)
-                .map(|i| cell(&numbers.iter().map(|n| n[i]).collect::<Vec<_>>()))
-                .collect();
-            let _ = writeln!(out, "| {name} | {} |", cells.join(" | "));
+    let numbers = |r: &Report, reference: bool, plane: usize| {
+        let rows = if reference {
+            &r.all_positive.pixel
+        } else {
+            &r.pixel
         };
-        for variant in &comparison.manifest.variants {
-            let reports: Vec<&Report> = variant_runs(comparison, variant)
-                .iter()
-                .map(|r| &r.report)
-                .collect();
-            row(&format!("**{variant}**"), &reports, false);
-        }
-        let untrained: Vec<&Report> = comparison.untrained.iter().map(|(_, r)| r).collect();
-        row("floor: untrained U-Net", &untrained, false);
-        row("floor: all positive", &[&comparison.runs[0].report], true);
-        if let Some(index) = affordance_index(affordance) {
-            for paper in &PAPER {
-                let n = paper.pixel[index];
-                let _ = writeln!(
-                    out,
-                    "| paper: {} | {:.2} | {:.2} | {:.2} | {:.2} |",
-                    paper.name, n[0], n[1], n[2], n[3]
-                );
-            }
-        }
-        out.push('\n');
-    }
+        pixel_numbers(&rows[plane]).to_vec()
+    };
+    let paper = |row: &PaperRow, index: usize| {
+        let n = row.pixel[index];
+        format!("{:.2} | {:.2} | {:.2} | {:.2}", n[0], n[1], n[2], n[3])
+    };
+    let columns = "precision | recall | F1 | object accuracy";
+    table(out, comparison, affordances, columns, &numbers, &paper);
 }
 
 fn table_2(out: &mut String, comparison: &Comparison, affordances: &[String]) {
@@ -219,25 +189,46 @@ fn table_2(out: &mut String, comparison: &Comparison, affordances: &[String]) {
          pixels ≥ 0.5) against trying it (or, out of reach, the ground truth); ROC AUC ranks \
          the mean probability (0.5 is chance). Mean [min, max] over seeds.\n"
     );
+    let numbers = |r: &Report, reference: bool, plane: usize| {
+        let rows = if reference {
+            &r.all_positive.object
+        } else {
+            &r.object
+        };
+        object_numbers(&rows[plane]).to_vec()
+    };
+    let paper = |row: &PaperRow, index: usize| {
+        let n = row.object[index];
+        format!("{:.2} | {:.2} | {:.2} | {:.2} | –", n[0], n[1], n[2], n[3])
+    };
+    let columns = "accuracy | precision | recall | F1 | ROC AUC";
+    table(out, comparison, affordances, columns, &numbers, &paper);
+}
+
+/// One table per affordance: a row per variant (mean [min, max] over its
+/// seeds of `numbers`), the floors, and the paper's rows (`paper`).
+fn table(
+    out: &mut String,
+    comparison: &Comparison,
+    affordances: &[String],
+    columns: &str,
+    numbers: &dyn Fn(&Report, bool, usize) -> Vec<Option<f32>>,
+    paper: &dyn Fn(&PaperRow, usize) -> String,
+) {
+    let width = columns.split('|').count();
     for (plane, affordance) in affordances.iter().enumerate() {
         let _ = writeln!(
             out,
-            "### {affordance}\n\n| | accuracy | precision | recall | F1 | ROC AUC |\n|---|---|---|---|---|---|"
+            "### {affordance}\n\n| | {columns} |\n|---|{}",
+            "---|".repeat(width)
         );
         let mut row = |name: &str, reports: &[&Report], reference: bool| {
-            let numbers: Vec<[Option<f32>; 5]> = reports
+            let values: Vec<Vec<Option<f32>>> = reports
                 .iter()
-                .map(|r| {
-                    let rows = if reference {
-                        &r.all_positive.object
-                    } else {
-                        &r.object
-                    };
-                    object_numbers(&rows[plane])
-                })
+                .map(|r| numbers(r, reference, plane))
                 .collect();
-            let cells: Vec<String> = (0..5)
-                .map(|i| cell(&numbers.iter().map(|n| n[i]).collect::<Vec<_>>()))
+            let cells: Vec<String> = (0..width)
+                .map(|i| cell(&values.iter().map(|n| n[i]).collect::<Vec<_>>()))
                 .collect();
             let _ = writeln!(out, "| {name} | {} |", cells.join(" | "));
         };
@@ -252,13 +243,8 @@ fn table_2(out: &mut String, comparison: &Comparison, affordances: &[String]) {
         row("floor: untrained U-Net", &untrained, false);
         row("floor: all positive", &[&comparison.runs[0].report], true);
         if let Some(index) = affordance_index(affordance) {
-            for paper in &PAPER {
-                let n = paper.object[index];
-                let _ = writeln!(
-                    out,
-                    "| paper: {} | {:.2} | {:.2} | {:.2} | {:.2} | – |",
-                    paper.name, n[0], n[1], n[2], n[3]
-                );
+            for row in &PAPER {
+                let _ = writeln!(out, "| paper: {} | {} |", row.name, paper(row, index));
             }
         }
         out.push('\n');
