@@ -205,6 +205,9 @@ fn table_2(out: &mut String, comparison: &Comparison, affordances: &[String]) {
     table(out, comparison, affordances, columns, &numbers, &paper);
 }
 
+/// A table's numbers of one report: `(report, all-positive reference?, plane)`.
+type RowNumbers = dyn Fn(&Report, bool, usize) -> Vec<Option<f32>>;
+
 /// One table per affordance: a row per variant (mean [min, max] over its
 /// seeds of `numbers`), the floors, and the paper's rows (`paper`).
 fn table(
@@ -212,7 +215,7 @@ fn table(
     comparison: &Comparison,
     affordances: &[String],
     columns: &str,
-    numbers: &dyn Fn(&Report, bool, usize) -> Vec<Option<f32>>,
+    numbers: &RowNumbers,
     paper: &dyn Fn(&PaperRow, usize) -> String,
 ) {
     let width = columns.split('|').count();
