@@ -241,3 +241,56 @@ pub fn metric_value(text: &str, name_and_labels: &str) -> Option<f64> {
             .and_then(|v| v.trim().parse().ok())
     })
 }
+
+impl Learner {
+    /// Starts a learner of the bandit fixture on services `prefix`, its run
+    /// in `dir/run` and its log in `dir/learner.log`; returns it with the
+    /// run's `config.toml`, which actors are started with.
+    pub fn start_bandit(dir: &Path, prefix: &str) -> (Self, String) {
+        let run_dir = dir.join("run");
+        let bandit = bandit_config(dir, prefix, "");
+        let learner = Self::start(
+            &run_dir,
+            &[
+                "--config".into(),
+                bandit.display().to_string(),
+                "--run-dir".into(),
+                run_dir.display().to_string(),
+                "--service-prefix".into(),
+                prefix.into(),
+            ],
+            dir.join("learner.log"),
+        );
+        (learner, run_dir.join("config.toml").display().to_string())
+    }
+}
+
+/// A publish-subscribe service of the run on `prefix`, opened by name the
+/// way any process of the same user could (its own iceoryx2 node, which
+/// must live as long as the service).
+pub fn open_as_outsider(
+    prefix: &str,
+    service: &str,
+) -> (
+    iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>,
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<
+        iceoryx2::prelude::ipc::Service,
+        [u8],
+        (),
+    >,
+) {
+    use iceoryx2::prelude::*;
+    let node = NodeBuilder::new()
+        .create::<ipc::Service>()
+        .expect("an iceoryx2 node");
+    let name: ServiceName = proto::service::name(prefix, service)
+        .as_str()
+        .try_into()
+        .expect("service name");
+    let factory = node
+        .service_builder(&name)
+        .publish_subscribe::<[u8]>()
+        .open()
+        .unwrap_or_else(|e| panic!("opening the {service} service: {e:?}"));
+    (node, factory)
+}

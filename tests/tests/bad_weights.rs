@@ -5,8 +5,7 @@
 
 use std::time::{Duration, Instant};
 
-use iceoryx2::prelude::*;
-use system_tests::{bandit_config, scratch_dir, start_actor, wait_for, Learner};
+use system_tests::{scratch_dir, start_actor, wait_for, Learner};
 
 /// Environment steps actor 0 has sent, from the learner's view.
 fn rollouts_of_actor_0(learner: &Learner) -> u64 {
@@ -21,21 +20,7 @@ fn rollouts_of_actor_0(learner: &Learner) -> u64 {
 fn garbage_on_the_weights_service_is_skipped_and_the_actor_carries_on() {
     let dir = scratch_dir("bad-weights");
     let prefix = format!("it-badw-{}", std::process::id());
-    let run_dir = dir.join("run");
-    let bandit = bandit_config(&dir, &prefix, "");
-    let learner = Learner::start(
-        &run_dir,
-        &[
-            "--config".into(),
-            bandit.display().to_string(),
-            "--run-dir".into(),
-            run_dir.display().to_string(),
-            "--service-prefix".into(),
-            prefix.clone(),
-        ],
-        dir.join("learner.log"),
-    );
-    let config = run_dir.join("config.toml").display().to_string();
+    let (learner, config) = Learner::start_bandit(&dir, &prefix);
     let mut actor = start_actor(0, &prefix, &dir, &["--config", &config]);
     wait_for(
         Duration::from_secs(30),
@@ -44,18 +29,7 @@ fn garbage_on_the_weights_service_is_skipped_and_the_actor_carries_on() {
     );
 
     // An outsider: its own node, the weights service opened by name.
-    let node = NodeBuilder::new()
-        .create::<ipc::Service>()
-        .expect("an iceoryx2 node");
-    let name: ServiceName = proto::service::name(&prefix, proto::service::WEIGHTS)
-        .as_str()
-        .try_into()
-        .expect("service name");
-    let service = node
-        .service_builder(&name)
-        .publish_subscribe::<[u8]>()
-        .open()
-        .expect("opening the weights service");
+    let (_node, service) = system_tests::open_as_outsider(&prefix, proto::service::WEIGHTS);
     let publisher = service
         .publisher_builder()
         .initial_max_slice_len(4096)

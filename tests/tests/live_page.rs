@@ -9,7 +9,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
-use system_tests::{bandit_config, http_get, scratch_dir, start_actor, wait_for, Learner};
+use system_tests::{http_get, scratch_dir, start_actor, wait_for, Learner};
 
 /// The Chromium binary, if one is installed.
 fn chromium() -> Option<String> {
@@ -41,21 +41,7 @@ fn headless(browser: &str, url: &str, args: &[&str], profile: &Path) -> std::pro
 fn the_live_page_draws_the_curves_in_a_browser() {
     let dir = scratch_dir("live-page");
     let prefix = format!("it-live-{}", std::process::id());
-    let run_dir = dir.join("run");
-    let bandit = bandit_config(&dir, &prefix, "");
-    let learner = Learner::start(
-        &run_dir,
-        &[
-            "--config".into(),
-            bandit.display().to_string(),
-            "--run-dir".into(),
-            run_dir.display().to_string(),
-            "--service-prefix".into(),
-            prefix.clone(),
-        ],
-        dir.join("learner.log"),
-    );
-    let config = run_dir.join("config.toml").display().to_string();
+    let (learner, config) = Learner::start_bandit(&dir, &prefix);
     let _actors: Vec<_> = (0..2)
         .map(|id| start_actor(id, &prefix, &dir, &["--config", &config]))
         .collect();

@@ -129,8 +129,6 @@ fn peak_rss(pid: u32) -> u64 {
 
 #[test]
 fn oversized_messages_are_refused_before_the_learner_copies_them() {
-    use iceoryx2::prelude::*;
-
     let dir = scratch_dir("oversized");
     let prefix = format!("it-big-{}", std::process::id());
     let run_dir = dir.join("run");
@@ -147,18 +145,7 @@ fn oversized_messages_are_refused_before_the_learner_copies_them() {
     let pid = learner.process.child.id();
     // An outsider with its own node and a publisher on the rollouts service
     // that sends four times the service's largest message (16 MiB), four times.
-    let node = NodeBuilder::new()
-        .create::<ipc::Service>()
-        .expect("an iceoryx2 node");
-    let name: ServiceName = proto::service::name(&prefix, proto::service::ROLLOUTS)
-        .as_str()
-        .try_into()
-        .expect("service name");
-    let service = node
-        .service_builder(&name)
-        .publish_subscribe::<[u8]>()
-        .open()
-        .expect("opening the rollouts service");
+    let (_node, service) = system_tests::open_as_outsider(&prefix, proto::service::ROLLOUTS);
     let size = 4 * TransportConfig::default().max_rollout_bytes;
     let publisher = service
         .publisher_builder()

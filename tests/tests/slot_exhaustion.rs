@@ -5,40 +5,15 @@
 
 use std::time::Duration;
 
-use iceoryx2::prelude::*;
-use system_tests::{bandit_config, scratch_dir, start_actor, Learner};
+use system_tests::{scratch_dir, start_actor, Learner};
 
 #[test]
 fn an_actor_without_a_publisher_slot_says_what_holds_them_and_what_to_raise() {
     let dir = scratch_dir("slots");
     let prefix = format!("it-slots-{}", std::process::id());
-    let run_dir = dir.join("run");
-    let bandit = bandit_config(&dir, &prefix, "");
-    let learner = Learner::start(
-        &run_dir,
-        &[
-            "--config".into(),
-            bandit.display().to_string(),
-            "--run-dir".into(),
-            run_dir.display().to_string(),
-            "--service-prefix".into(),
-            prefix.clone(),
-        ],
-        dir.join("learner.log"),
-    );
+    let (learner, config) = Learner::start_bandit(&dir, &prefix);
     // An outsider takes every slot of the rollouts service: max_actors 4 + 2 spares.
-    let node = NodeBuilder::new()
-        .create::<ipc::Service>()
-        .expect("an iceoryx2 node");
-    let name: ServiceName = proto::service::name(&prefix, proto::service::ROLLOUTS)
-        .as_str()
-        .try_into()
-        .expect("service name");
-    let service = node
-        .service_builder(&name)
-        .publish_subscribe::<[u8]>()
-        .open()
-        .expect("opening the rollouts service");
+    let (_node, service) = system_tests::open_as_outsider(&prefix, proto::service::ROLLOUTS);
     let mut held = Vec::new();
     while let Ok(publisher) = service
         .publisher_builder()
@@ -64,7 +39,6 @@ fn an_actor_without_a_publisher_slot_says_what_holds_them_and_what_to_raise() {
         Some(6.0)
     );
 
-    let config = run_dir.join("config.toml").display().to_string();
     let mut actor = start_actor(0, &prefix, &dir, &["--config", &config]);
     let status = actor
         .wait_exit(Duration::from_secs(30))
