@@ -157,6 +157,12 @@ struct RunArgs {
     /// [task] tables are read, so the actor runs what the learner trains.
     #[arg(long)]
     config: Option<PathBuf>,
+    /// The run's join key (the learner writes RUN_DIR/join.key when it
+    /// starts): the actor proves with it that it belongs to the run, and the
+    /// learner refuses messages from actors that do not. Default: join.key
+    /// beside --config.
+    #[arg(long, value_name = "FILE")]
+    join_key: Option<PathBuf>,
     /// Steps per rollout chunk sent to the learner.
     #[arg(long, default_value_t = 16)]
     chunk_steps: usize,
@@ -427,6 +433,32 @@ fn sim_environment(task: &TaskSpec, cli: &RunArgs) -> anyhow::Result<SimEnvironm
     SimEnvironment::new(env, task)
 }
 
+/// Reads the run's join key (`--join-key`, or join.key beside `--config`),
+/// waiting up to `--weights-timeout-s` for a learner that is still starting
+/// to write it.
+fn read_join_key(cli: &RunArgs) -> anyhow::Result<proto::JoinKey> {
+    let path = match (&cli.join_key, &cli.config) {
+        (Some(path), _) => path.clone(),
+        (None, Some(config)) => config.with_file_name(transport::JOIN_KEY_FILE),
+        (None, None) => anyhow::bail!(
+            "no join key: pass --config RUN_DIR/config.toml (the key is read from beside it) or \
+             --join-key RUN_DIR/{}; the learner writes both when it starts",
+            transport::JOIN_KEY_FILE
+        ),
+    };
+    let deadline = std::time::Instant::now() + Duration::from_secs_f64(cli.weights_timeout_s);
+    while !path.exists() && std::time::Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    transport::read_join_key(&path).with_context(|| {
+        format!(
+            "the actor needs the run's join key (is the learner of this run started? its run \
+             directory holds {})",
+            transport::JOIN_KEY_FILE
+        )
+    })
+}
+
 fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
     let Some(actor_id) = cli.actor_id else {
         anyhow::bail!("--actor-id is required (see --help)");
@@ -478,7 +510,8 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
         .collect::<anyhow::Result<Vec<_>>>()?;
     let model =
         (task.env == EnvKind::Sim).then(|| AffordanceModel::new(task.affordances.len(), &device));
-    let mut ports = transport::ActorPorts::open(&transport, actor_id).context(
+    let join_key = read_join_key(&cli)?;
+    let mut ports = transport::ActorPorts::open(&transport, actor_id, join_key).context(
         "opening the shared-memory services (same --learner prefix and config as the learner?)",
     )?;
     let settings = LoopSettings {

@@ -246,7 +246,8 @@ fn synthetic_actor(
     let config = &shared.config;
     let task = &config.task;
     let layout = task.layout();
-    let mut ports = ActorPorts::open(&config.transport, actor_id)
+    let key = transport::read_join_key(&shared.run_dir.join(transport::JOIN_KEY_FILE))?;
+    let mut ports = ActorPorts::open(&config.transport, actor_id, key)
         .with_context(|| format!("synthetic actor {actor_id}: opening its ports"))?;
     let mut rng = StdRng::seed_from_u64(u64::from(actor_id));
     let steps = feed.chunk_steps.max(1);

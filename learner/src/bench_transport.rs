@@ -72,6 +72,12 @@ fn limits(max: usize) -> Limits {
     }
 }
 
+/// The benchmark's actors talk to raw ports, not to a learner that checks
+/// joins: any key will do.
+fn bench_key() -> proto::JoinKey {
+    proto::JoinKey::from_bytes([0; proto::JOIN_KEY_LEN])
+}
+
 fn config(tag: &str, max: usize) -> TransportConfig {
     TransportConfig {
         service_prefix: format!("afx-bench-{}-{tag}", std::process::id()),
@@ -127,7 +133,7 @@ fn iceoryx_upstream(size: usize, count: usize) -> anyhow::Result<(f64, f64)> {
         Ok(())
     });
     ready_rx.recv()?;
-    let mut actor = ActorPorts::open(&cfg, 0)?;
+    let mut actor = ActorPorts::open(&cfg, 0, bench_key())?;
     let send = |actor: &mut ActorPorts| -> anyhow::Result<()> {
         while actor.publish(&chunk, 1, 0)? == Delivery::Dropped {
             std::thread::yield_now();
@@ -234,7 +240,7 @@ fn iceoryx_broadcast(size: usize, subscribers: u32, count: usize) -> anyhow::Res
     for id in 0..subscribers {
         let (cfg, ready_tx, ack_tx) = (cfg.clone(), ready_tx.clone(), ack_tx.clone());
         threads.push(std::thread::spawn(move || -> anyhow::Result<()> {
-            let actor = ActorPorts::open(&cfg, id)?;
+            let actor = ActorPorts::open(&cfg, id, bench_key())?;
             ready_tx.send(())?;
             let mut seen = 0;
             while seen < count {

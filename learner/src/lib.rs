@@ -12,6 +12,7 @@ pub mod checkpoint;
 pub mod config;
 pub mod history;
 pub mod http;
+pub mod membership;
 pub mod metrics;
 pub mod plot;
 pub mod policy_worker;

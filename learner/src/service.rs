@@ -10,7 +10,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use proto::{decode, Limits, Message, MessageKind};
+use proto::{decode, Join, JoinKey, Limits, Message, MessageKind};
 use serde::{Deserialize, Serialize};
 use transport::{Delivery, LearnerPorts};
 
@@ -18,6 +18,7 @@ use crate::affordance::{checked_frames, AffordanceLearner, UnetTrainingState};
 use crate::checkpoint;
 use crate::config::LearnerConfig;
 use crate::history::History;
+use crate::membership::{Joined, Membership};
 use crate::policy_worker::{PolicySnapshot, PolicyWorker};
 use crate::status::LearnerStatus;
 use crate::train::PolicyTrainer;
@@ -121,19 +122,23 @@ pub struct Learner {
     /// The deployed U-Net's weights and temperature, broadcast and checkpointed.
     unet_weights: Option<(Vec<u8>, f32)>,
     affordances: usize,
+    /// Which publishers speak for which actor id.
+    membership: Membership,
     warned: HashSet<(MessageKind, &'static str)>,
     last_checkpoint: Instant,
     updates_at_checkpoint: u64,
 }
 
 impl Learner {
-    /// Builds the loop over open ports and a (possibly restored) trainer.
+    /// Builds the loop over open ports and a (possibly restored) trainer;
+    /// actors join with `join_key`.
     pub fn new(
         shared: Arc<Shared>,
         ports: LearnerPorts,
         mut trainers: Trainers,
         checkpoint_dir: PathBuf,
         history: History,
+        join_key: JoinKey,
     ) -> Self {
         trainers
             .policy
@@ -153,6 +158,7 @@ impl Learner {
             unet_worker: None,
             unet_weights: None,
             affordances,
+            membership: Membership::new(join_key),
             warned: HashSet::new(),
             last_checkpoint: Instant::now(),
             updates_at_checkpoint,
@@ -267,10 +273,10 @@ impl Learner {
                         );
                         continue;
                     }
-                    taken.push(message.bytes().to_vec());
+                    taken.push((message.origin(), message.bytes().to_vec()));
                 }
-                for bytes in taken {
-                    self.handle(kind, bytes)?;
+                for (origin, bytes) in taken {
+                    self.handle(kind, origin, bytes)?;
                 }
             }
             let published = self
@@ -345,9 +351,11 @@ impl Learner {
         }
     }
 
-    fn handle(&mut self, kind: MessageKind, bytes: Vec<u8>) -> anyhow::Result<()> {
+    /// Validates a message of the service that carries `kind`, which came
+    /// through the publisher `origin`, and uses it.
+    fn handle(&mut self, kind: MessageKind, origin: u128, bytes: Vec<u8>) -> anyhow::Result<()> {
         let decoded = decode(&bytes, &self.limits(kind)).and_then(|(header, message)| {
-            if message.kind() == kind {
+            if proto::service::for_kind(message.kind()) == proto::service::for_kind(kind) {
                 Ok((header, message))
             } else {
                 Err(proto::ProtoError::WrongKind {
@@ -363,6 +371,22 @@ impl Learner {
                 return Ok(());
             }
         };
+        if let Message::Join(join) = &message {
+            self.join(header.actor_id, join, origin);
+            return Ok(());
+        }
+        if let Err(reason) = self.membership.admit(header.actor_id, kind, origin) {
+            self.shared.status().reject(kind, reason);
+            if self.warned.insert((kind, reason)) {
+                tracing::warn!(
+                    service = proto::service::for_kind(kind),
+                    actor = header.actor_id,
+                    "refused a message ({reason}): only the publishers that joined as an actor id \
+                     speak for it (further ones are only counted)"
+                );
+            }
+            return Ok(());
+        }
         let accepted = self.shared.status().accept(
             header.actor_id,
             kind,
@@ -453,7 +477,7 @@ impl Learner {
                     }
                 }
             }
-            Message::Weights(_) => {}
+            Message::Weights(_) | Message::Join(_) => {}
         }
         // The message's views borrow `bytes` until here; the PPO thread
         // decodes its own (moved, not copied) bytes.
@@ -468,6 +492,31 @@ impl Learner {
             }
         }
         Ok(())
+    }
+
+    /// Records an actor's join, or counts why it is refused.
+    fn join(&mut self, actor_id: u32, join: &Join, origin: u128) {
+        match self.membership.join(actor_id, join, origin) {
+            Ok(Joined::New) => tracing::info!(actor = actor_id, "actor joined"),
+            Ok(Joined::Again) => {
+                tracing::info!(
+                    actor = actor_id,
+                    "actor joined again from new publishers (restarted)"
+                )
+            }
+            Ok(Joined::Unchanged) => {}
+            Err(reason) => {
+                self.shared.status().reject(MessageKind::Join, reason);
+                if self.warned.insert((MessageKind::Join, reason)) {
+                    tracing::warn!(
+                        actor = actor_id,
+                        "refused a join ({reason}): a join must carry a proof made with the run's \
+                         join key and come through the stats publisher it names (further ones are \
+                         only counted)"
+                    );
+                }
+            }
+        }
     }
 
     fn publish_weights(&mut self) -> anyhow::Result<()> {
@@ -585,6 +634,10 @@ pub fn spawn(
     trainers: Trainers,
     checkpoint_dir: PathBuf,
 ) -> anyhow::Result<std::thread::JoinHandle<anyhow::Result<()>>> {
+    let key_file = shared.run_dir.join(transport::JOIN_KEY_FILE);
+    let join_key = transport::load_or_create_join_key(&key_file).context(
+        "preparing the run's join key (actors prove with it that they belong to the run)",
+    )?;
     let (opened_tx, opened_rx) = std::sync::mpsc::channel();
     let thread = std::thread::Builder::new()
         .name("learner".into())
@@ -598,7 +651,15 @@ pub fn spawn(
             };
             let _ = opened_tx.send(Ok(()));
             let result = History::open(&shared.run_dir).and_then(|history| {
-                Learner::new(shared.clone(), ports, trainers, checkpoint_dir, history).run()
+                Learner::new(
+                    shared.clone(),
+                    ports,
+                    trainers,
+                    checkpoint_dir,
+                    history,
+                    join_key,
+                )
+                .run()
             });
             shared.shutdown.store(true, Ordering::Relaxed);
             result

@@ -6,7 +6,7 @@ use crate::ProtoError;
 /// `b"AFX1"` read as a little-endian `u32`: marks our messages.
 pub const MAGIC: u32 = u32::from_le_bytes(*b"AFX1");
 /// Bumped whenever any layout in this crate changes.
-pub const SCHEMA_VERSION: u16 = 4;
+pub const SCHEMA_VERSION: u16 = 5;
 /// The `actor_id` the learner writes into the messages it sends.
 pub const LEARNER_ID: u32 = u32::MAX;
 /// Encoded size of [`MessageHeader`] in bytes.
@@ -24,15 +24,19 @@ pub enum MessageKind {
     Stats = 3,
     /// Versioned network parameters (learner → actors).
     Weights = 4,
+    /// An actor's proof that it may speak for its id (actor → learner, on
+    /// the stats service; see [`crate::Join`]).
+    Join = 5,
 }
 
 impl MessageKind {
     /// All kinds, in wire order.
-    pub const ALL: [MessageKind; 4] = [
+    pub const ALL: [MessageKind; 5] = [
         MessageKind::Rollout,
         MessageKind::Frames,
         MessageKind::Stats,
         MessageKind::Weights,
+        MessageKind::Join,
     ];
 
     /// Parses the wire value.
@@ -42,6 +46,7 @@ impl MessageKind {
             2 => Ok(Self::Frames),
             3 => Ok(Self::Stats),
             4 => Ok(Self::Weights),
+            5 => Ok(Self::Join),
             other => Err(ProtoError::UnknownKind(other)),
         }
     }
@@ -53,6 +58,7 @@ impl MessageKind {
             Self::Frames => "frames",
             Self::Stats => "stats",
             Self::Weights => "weights",
+            Self::Join => "join",
         }
     }
 }

@@ -13,6 +13,7 @@ mod arrays;
 mod error;
 mod frames;
 mod header;
+mod join;
 mod message;
 mod rollout;
 pub mod service;
@@ -24,6 +25,7 @@ pub use arrays::{F32Array, U32Array};
 pub use error::ProtoError;
 pub use frames::{FrameBatch, FrameBatchView, LABEL_NEGATIVE, LABEL_POSITIVE, LABEL_UNKNOWN};
 pub use header::{MessageHeader, MessageKind, HEADER_LEN, LEARNER_ID, MAGIC, SCHEMA_VERSION};
+pub use join::{Join, JoinKey, JoinKeyError, JOIN_KEY_LEN, JOIN_PAYLOAD_LEN};
 pub use message::{decode, encode, encode_into, encoded_len, Limits, Message, Payload};
 pub use rollout::{
     byte_to_unit, obs_bytes_from_f32, unit_to_byte, ObsDtype, RolloutChunk, RolloutView,

@@ -2,6 +2,7 @@
 
 use crate::frames::FrameBatchView;
 use crate::header::{MessageHeader, MessageKind, HEADER_LEN, LEARNER_ID, MAGIC, SCHEMA_VERSION};
+use crate::join::Join;
 use crate::rollout::RolloutView;
 use crate::stats::EpisodeStats;
 use crate::weights::WeightsView;
@@ -37,6 +38,8 @@ pub enum Message<'a> {
     Stats(EpisodeStats),
     /// See [`WeightsView`].
     Weights(WeightsView<'a>),
+    /// See [`Join`].
+    Join(Join),
 }
 
 impl Message<'_> {
@@ -47,6 +50,7 @@ impl Message<'_> {
             Message::Frames(_) => MessageKind::Frames,
             Message::Stats(_) => MessageKind::Stats,
             Message::Weights(_) => MessageKind::Weights,
+            Message::Join(_) => MessageKind::Join,
         }
     }
 }
@@ -133,6 +137,7 @@ pub fn decode<'a>(
         MessageKind::Frames => Message::Frames(FrameBatchView::parse(payload)?),
         MessageKind::Stats => Message::Stats(EpisodeStats::parse(payload)?),
         MessageKind::Weights => Message::Weights(WeightsView::parse(payload)?),
+        MessageKind::Join => Message::Join(Join::parse(payload)?),
     };
     Ok((header, message))
 }

@@ -26,12 +26,13 @@ pub fn name(prefix: &str, suffix: &str) -> String {
     format!("{prefix}/{suffix}")
 }
 
-/// The publish-subscribe service that carries `kind`.
+/// The publish-subscribe service that carries `kind` (joins travel with
+/// the stats, the service every actor publishes on least often).
 pub fn for_kind(kind: MessageKind) -> &'static str {
     match kind {
         MessageKind::Rollout => ROLLOUTS,
         MessageKind::Frames => FRAMES,
-        MessageKind::Stats => STATS,
+        MessageKind::Stats | MessageKind::Join => STATS,
         MessageKind::Weights => WEIGHTS,
     }
 }

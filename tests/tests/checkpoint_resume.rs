@@ -74,7 +74,12 @@ fn resume_after_kill_and_fall_back_past_a_corrupt_checkpoint() {
         0,
         &prefix,
         &dir,
-        &["--config", &config.display().to_string()],
+        &[
+            "--config",
+            &config.display().to_string(),
+            "--join-key",
+            &run_dir.join("join.key").display().to_string(),
+        ],
     );
     wait_for(
         Duration::from_secs(30),

@@ -27,7 +27,9 @@ fn malformed_messages_are_counted_and_the_learner_carries_on() {
         service_prefix: prefix,
         ..TransportConfig::default()
     };
-    let mut ports = ActorPorts::open(&config, 0).expect("open actor ports");
+    // A process of the run: it holds the join key the learner wrote.
+    let key = transport::read_join_key(&run_dir.join(transport::JOIN_KEY_FILE)).expect("the key");
+    let mut ports = ActorPorts::open(&config, 0, key).expect("open actor ports");
 
     let valid = encode(
         &EpisodeStats::new(1, 10, 0).with(StatField::EpisodeReturn, 2.0),

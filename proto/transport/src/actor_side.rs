@@ -7,12 +7,19 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
-use proto::{MessageHeader, MessageKind, Payload};
+use proto::{Join, JoinKey, MessageHeader, MessageKind, Payload};
 
 use crate::config::TransportConfig;
 use crate::learner_side::ReceivedMessage;
 use crate::services::{open_event, open_pubsub, wakeup_service, weights_ready_service};
 use crate::{open_node, Delivery, Ipc, TransportError};
+
+/// How often an actor repeats a join that reached the learner: a learner
+/// that restarted after the actor learns who it is within this time.
+const JOIN_REFRESH: Duration = Duration::from_secs(2);
+/// How soon an actor retries a join that reached no learner (none was
+/// connected, or its queue was full).
+const JOIN_RETRY: Duration = Duration::from_millis(50);
 
 struct Upstream {
     kind: MessageKind,
@@ -25,6 +32,10 @@ struct Upstream {
 pub struct ActorPorts {
     actor_id: u32,
     upstream: [Upstream; 3],
+    join_key: JoinKey,
+    /// When the next join is due (see [`JOIN_REFRESH`], [`JOIN_RETRY`]).
+    join_due: Instant,
+    joins_sent: u64,
     weights: Subscriber<Ipc, [u8], ()>,
     wakeup: Notifier<Ipc>,
     weights_ready: Listener<Ipc>,
@@ -32,8 +43,15 @@ pub struct ActorPorts {
 }
 
 impl ActorPorts {
-    /// Opens the actor's side of the run described by `config`.
-    pub fn open(config: &TransportConfig, actor_id: u32) -> Result<Self, TransportError> {
+    /// Opens the actor's side of the run described by `config` and joins
+    /// the run as `actor_id` with the run's `join_key` (see [`proto::Join`]);
+    /// the join is repeated while publishing, so a learner that starts later
+    /// still learns who this actor is.
+    pub fn open(
+        config: &TransportConfig,
+        actor_id: u32,
+        join_key: JoinKey,
+    ) -> Result<Self, TransportError> {
         if actor_id >= config.max_actors {
             return Err(TransportError::new(
                 "open actor ports",
@@ -105,14 +123,46 @@ impl ActorPorts {
             .map_err(|e| {
                 TransportError::new("create listener", proto::service::WEIGHTS_READY, e)
             })?;
-        Ok(Self {
+        let mut ports = Self {
             actor_id,
             upstream,
+            join_key,
+            join_due: Instant::now(),
+            joins_sent: 0,
             weights,
             wakeup,
             weights_ready,
             _node: node,
-        })
+        };
+        ports.join()?;
+        Ok(ports)
+    }
+
+    /// The iceoryx2 ids of this actor's rollouts, frames and stats
+    /// publishers: the learner accepts this actor's messages only from them.
+    pub fn publisher_ids(&self) -> [u128; 3] {
+        self.upstream.each_ref().map(|u| u.publisher.id().value())
+    }
+
+    /// Sends this actor's join (see [`proto::Join`]) on the stats service.
+    fn join(&mut self) -> Result<(), TransportError> {
+        let join = Join::new(&self.join_key, self.actor_id, self.publisher_ids());
+        self.joins_sent += 1;
+        let header = MessageHeader {
+            actor_id: self.actor_id,
+            sequence: self.joins_sent,
+            ..MessageHeader::default()
+        };
+        self.join_due = Instant::now() + JOIN_RETRY;
+        let up = self.upstream_mut(MessageKind::Join)?;
+        let Some(mut sample) = crate::loan_zeroed(&up.publisher, proto::encoded_len(&join)) else {
+            return Ok(());
+        };
+        proto::encode_into(&join, header, sample.payload_mut());
+        if let Delivery::Delivered(_) = self.send(MessageKind::Join, sample)? {
+            self.join_due = Instant::now() + JOIN_REFRESH;
+        }
+        Ok(())
     }
 
     /// Encodes `payload` straight into shared memory and sends it to the
@@ -124,6 +174,9 @@ impl ActorPorts {
         policy_version: u64,
         unet_version: u64,
     ) -> Result<Delivery, TransportError> {
+        if Instant::now() >= self.join_due {
+            self.join()?;
+        }
         let actor_id = self.actor_id;
         let up = self.upstream_mut(P::KIND)?;
         let len = proto::encoded_len(payload);
@@ -167,10 +220,12 @@ impl ActorPorts {
         self.send(kind, sample)
     }
 
+    /// The publisher of the service that carries `kind`.
     fn upstream_mut(&mut self, kind: MessageKind) -> Result<&mut Upstream, TransportError> {
+        let service = proto::service::for_kind(kind);
         self.upstream
             .iter_mut()
-            .find(|u| u.kind == kind)
+            .find(|u| proto::service::for_kind(u.kind) == service)
             .ok_or_else(|| {
                 TransportError::new(
                     "publish",

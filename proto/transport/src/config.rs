@@ -47,7 +47,7 @@ impl TransportConfig {
         match kind {
             proto::MessageKind::Rollout => self.max_rollout_bytes,
             proto::MessageKind::Frames => self.max_frames_bytes,
-            proto::MessageKind::Stats => self.max_stats_bytes,
+            proto::MessageKind::Stats | proto::MessageKind::Join => self.max_stats_bytes,
             proto::MessageKind::Weights => self.max_weights_bytes,
         }
     }

@@ -30,6 +30,13 @@ impl ReceivedMessage {
     pub fn bytes(&self) -> &[u8] {
         self.0.payload()
     }
+
+    /// The iceoryx2 id of the publisher the message came through: known to
+    /// the receiving side, not taken from the message, so a sender cannot
+    /// choose it.
+    pub fn origin(&self) -> u128 {
+        self.0.origin().value()
+    }
 }
 
 /// A publish-subscribe service of byte messages.
@@ -128,7 +135,7 @@ impl LearnerPorts {
         let subscriber = match kind {
             MessageKind::Rollout => &self.rollouts,
             MessageKind::Frames => &self.frames,
-            MessageKind::Stats => &self.stats,
+            MessageKind::Stats | MessageKind::Join => &self.stats,
             MessageKind::Weights => return Ok(None),
         };
         subscriber

@@ -17,6 +17,7 @@ mod actor_side;
 mod cleanup;
 mod config;
 mod error;
+mod join_key;
 mod learner_side;
 mod services;
 
@@ -24,6 +25,7 @@ pub use actor_side::ActorPorts;
 pub use cleanup::remove_dead_nodes;
 pub use config::TransportConfig;
 pub use error::TransportError;
+pub use join_key::{load_or_create_join_key, read_join_key, JoinKeyFileError, JOIN_KEY_FILE};
 pub use learner_side::{LearnerPorts, ReceivedMessage};
 
 /// What happened to a message handed to a publisher.

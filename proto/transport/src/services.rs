@@ -26,13 +26,15 @@ pub(crate) fn open_pubsub(
         // Many actors publish, one learner (plus spares) subscribes; no history,
         // no overflow: a full learner buffer discards the newest message, and
         // the publisher counts it.
-        MessageKind::Rollout | MessageKind::Frames | MessageKind::Stats => builder
-            .max_publishers(actors + spare)
-            .max_subscribers(config.upstream_subscribers())
-            .subscriber_max_buffer_size(config.learner_buffer)
-            .subscriber_max_borrowed_samples(1)
-            .history_size(0)
-            .enable_safe_overflow(false),
+        MessageKind::Rollout | MessageKind::Frames | MessageKind::Stats | MessageKind::Join => {
+            builder
+                .max_publishers(actors + spare)
+                .max_subscribers(config.upstream_subscribers())
+                .subscriber_max_buffer_size(config.learner_buffer)
+                .subscriber_max_borrowed_samples(1)
+                .history_size(0)
+                .enable_safe_overflow(false)
+        }
         // One learner publishes to every actor; newest weights win; history 1
         // for late joiners.
         MessageKind::Weights => builder

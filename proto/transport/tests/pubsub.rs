@@ -1,9 +1,10 @@
-//! The transport between real iceoryx2 nodes in one process: delivery,
-//! late-joiner weights, and bounded, counted drops under backpressure.
+//! The transport between real iceoryx2 nodes in one process: joins and
+//! the publisher a message came through, delivery, late-joiner weights, and
+//! bounded, counted drops under backpressure.
 
 use std::time::Duration;
 
-use proto::{decode, EpisodeStats, Limits, Message, MessageKind, StatField};
+use proto::{decode, EpisodeStats, JoinKey, Limits, Message, MessageKind, StatField};
 use transport::{ActorPorts, Delivery, LearnerPorts, TransportConfig};
 
 fn config(test: &str) -> TransportConfig {
@@ -18,6 +19,10 @@ fn config(test: &str) -> TransportConfig {
     }
 }
 
+fn key() -> JoinKey {
+    JoinKey::from_bytes([3; proto::JOIN_KEY_LEN])
+}
+
 const LIMITS: Limits = Limits {
     max_actors: 4,
     max_payload_len: 1 << 20,
@@ -30,11 +35,38 @@ fn weights_blob(value: f32) -> Vec<u8> {
     safetensors::serialize([("policy.w", view)], None).unwrap()
 }
 
+/// The join an actor sends when it opens its ports, as the learner reads it.
+fn take_join(learner: &LearnerPorts, actor: &ActorPorts) {
+    let msg = learner
+        .receive(MessageKind::Stats)
+        .unwrap()
+        .expect("the actor's join");
+    let ids = actor.publisher_ids();
+    assert_eq!(
+        msg.origin(),
+        ids[2],
+        "the join came through the stats publisher"
+    );
+    let (header, decoded) = decode(msg.bytes(), &LIMITS).unwrap();
+    let Message::Join(join) = decoded else {
+        panic!("got {:?}", decoded.kind())
+    };
+    assert_eq!(join.publishers, ids);
+    assert!(join.verify(&key(), header.actor_id));
+}
+
 #[test]
 fn stats_reach_the_learner_and_wake_it() {
     let cfg = config("stats");
     let learner = LearnerPorts::open(&cfg).unwrap();
-    let mut actor = ActorPorts::open(&cfg, 2).unwrap();
+    let mut actor = ActorPorts::open(&cfg, 2, key()).unwrap();
+    take_join(&learner, &actor);
+    let ids = actor.publisher_ids();
+    assert_eq!(
+        ids.iter().collect::<std::collections::HashSet<_>>().len(),
+        3,
+        "one publisher per service"
+    );
     let stats = EpisodeStats::new(9, 600, 1).with(StatField::EpisodeReturn, 3.5);
     assert_eq!(actor.publish(&stats, 1, 1).unwrap(), Delivery::Delivered(1));
     assert!(
@@ -45,6 +77,7 @@ fn stats_reach_the_learner_and_wake_it() {
         .receive(MessageKind::Stats)
         .unwrap()
         .expect("a stats message");
+    assert_eq!(msg.origin(), ids[2]);
     let (header, decoded) = decode(msg.bytes(), &LIMITS).unwrap();
     assert_eq!((header.actor_id, header.sequence), (2, 1));
     match decoded {
@@ -60,7 +93,7 @@ fn a_late_actor_gets_the_newest_weights_at_once() {
     let mut learner = LearnerPorts::open(&cfg).unwrap();
     learner.publish_weights(1, 1, &weights_blob(1.0)).unwrap();
     learner.publish_weights(2, 1, &weights_blob(2.0)).unwrap();
-    let actor = ActorPorts::open(&cfg, 0).unwrap();
+    let actor = ActorPorts::open(&cfg, 0, key()).unwrap();
     learner.maintain();
     let msg = actor
         .wait_for_weights(Duration::from_secs(2))
@@ -75,7 +108,8 @@ fn a_late_actor_gets_the_newest_weights_at_once() {
 fn a_slow_learner_makes_actors_drop_and_count_not_grow() {
     let cfg = config("slow");
     let learner = LearnerPorts::open(&cfg).unwrap();
-    let mut actor = ActorPorts::open(&cfg, 1).unwrap();
+    let mut actor = ActorPorts::open(&cfg, 1, key()).unwrap();
+    take_join(&learner, &actor);
     let stats = EpisodeStats::new(0, 1, 0);
     let mut delivered = 0;
     let mut dropped = 0;
@@ -105,7 +139,7 @@ fn a_slow_learner_makes_actors_drop_and_count_not_grow() {
 fn oversized_messages_are_refused_with_a_hint() {
     let cfg = config("big");
     let _learner = LearnerPorts::open(&cfg).unwrap();
-    let mut actor = ActorPorts::open(&cfg, 0).unwrap();
+    let mut actor = ActorPorts::open(&cfg, 0, key()).unwrap();
     let batch = proto::FrameBatch {
         episode_id: 0,
         height: 128,
@@ -118,7 +152,7 @@ fn oversized_messages_are_refused_with_a_hint() {
     let err = actor.publish(&batch, 0, 0).unwrap_err().to_string();
     assert!(err.contains("max_frames_bytes"), "{err}");
     assert!(
-        ActorPorts::open(&cfg, 4).is_err(),
+        ActorPorts::open(&cfg, 4, key()).is_err(),
         "actor ids at or above max_actors are refused"
     );
 }

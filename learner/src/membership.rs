@@ -1,0 +1,147 @@
+//! Which publisher may speak for which actor id.
+//!
+//! A header's `actor_id` is whatever its writer put there; the publisher a
+//! message came through is known to the receiving side. An actor joins with
+//! a proof that it holds the run's key ([`proto::Join`]), which binds its id
+//! to its three publishers; from then on only those publishers speak for it.
+//! A restarted actor joins again from new publishers and replaces the old
+//! binding; without the key nobody can bind an id, so ghosts and spoofers are
+//! refused and counted. The same rule carries over to other hosts: a gateway
+//! that forwards a host's actors joins each of them from its own publishers,
+//! so a host speaks only for the actors that joined through it.
+
+use std::collections::HashMap;
+
+use proto::{Join, JoinKey, MessageKind};
+
+/// What a join changed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Joined {
+    /// The id had no binding.
+    New,
+    /// The id was bound to other publishers (the actor restarted).
+    Again,
+    /// The same binding again (actors repeat their join).
+    Unchanged,
+}
+
+/// The learner's record of joins.
+pub struct Membership {
+    key: JoinKey,
+    members: HashMap<u32, [u128; 3]>,
+}
+
+impl Membership {
+    /// No actor has joined yet; joins must prove `key`.
+    pub fn new(key: JoinKey) -> Self {
+        Self {
+            key,
+            members: HashMap::new(),
+        }
+    }
+
+    /// Handles `join` for `actor_id` that arrived through `origin`; the error
+    /// is the reason it is refused (a metrics label).
+    pub fn join(
+        &mut self,
+        actor_id: u32,
+        join: &Join,
+        origin: u128,
+    ) -> Result<Joined, &'static str> {
+        if !join.verify(&self.key, actor_id) {
+            return Err("bad_join_proof");
+        }
+        if join.publisher(MessageKind::Join) != Some(origin) {
+            return Err("join_from_another_publisher");
+        }
+        Ok(match self.members.insert(actor_id, join.publishers) {
+            None => Joined::New,
+            Some(old) if old == join.publishers => Joined::Unchanged,
+            Some(_) => Joined::Again,
+        })
+    }
+
+    /// Whether a `kind` message that says it is from `actor_id` and came
+    /// through `origin` may be accepted; the error is the reason it is not.
+    pub fn admit(
+        &self,
+        actor_id: u32,
+        kind: MessageKind,
+        origin: u128,
+    ) -> Result<(), &'static str> {
+        let Some(publishers) = self.members.get(&actor_id) else {
+            return Err("not_joined");
+        };
+        let expected = Join::publisher_for(publishers, kind);
+        if expected == Some(origin) {
+            Ok(())
+        } else {
+            Err("not_its_publisher")
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn key(byte: u8) -> JoinKey {
+        JoinKey::from_bytes([byte; proto::JOIN_KEY_LEN])
+    }
+
+    #[test]
+    fn only_the_publishers_that_joined_speak_for_an_id() {
+        let mut members = Membership::new(key(1));
+        assert_eq!(members.admit(0, MessageKind::Stats, 12), Err("not_joined"));
+        let join = Join::new(&key(1), 0, [10, 11, 12]);
+        assert_eq!(members.join(0, &join, 12), Ok(Joined::New));
+        assert_eq!(members.join(0, &join, 12), Ok(Joined::Unchanged));
+        assert_eq!(members.admit(0, MessageKind::Rollout, 10), Ok(()));
+        assert_eq!(members.admit(0, MessageKind::Frames, 11), Ok(()));
+        assert_eq!(members.admit(0, MessageKind::Stats, 12), Ok(()));
+        assert_eq!(
+            members.admit(0, MessageKind::Rollout, 12),
+            Err("not_its_publisher"),
+            "each kind through its own publisher"
+        );
+        assert_eq!(
+            members.admit(0, MessageKind::Stats, 99),
+            Err("not_its_publisher")
+        );
+        assert_eq!(members.admit(7, MessageKind::Stats, 12), Err("not_joined"));
+    }
+
+    #[test]
+    fn joins_without_the_key_or_through_another_publisher_are_refused() {
+        let mut members = Membership::new(key(1));
+        let forged = Join::new(&key(2), 0, [20, 21, 22]);
+        assert_eq!(members.join(0, &forged, 22), Err("bad_join_proof"));
+        let real = Join::new(&key(1), 0, [10, 11, 12]);
+        assert_eq!(
+            members.join(0, &real, 22),
+            Err("join_from_another_publisher"),
+            "a replayed join"
+        );
+        assert_eq!(
+            members.join(3, &real, 12),
+            Err("bad_join_proof"),
+            "made for actor 0"
+        );
+        assert_eq!(members.admit(0, MessageKind::Stats, 22), Err("not_joined"));
+    }
+
+    #[test]
+    fn a_restarted_actor_replaces_its_old_publishers() {
+        let mut members = Membership::new(key(1));
+        members
+            .join(0, &Join::new(&key(1), 0, [10, 11, 12]), 12)
+            .unwrap();
+        let again = Join::new(&key(1), 0, [30, 31, 32]);
+        assert_eq!(members.join(0, &again, 32), Ok(Joined::Again));
+        assert_eq!(members.admit(0, MessageKind::Rollout, 30), Ok(()));
+        assert_eq!(
+            members.admit(0, MessageKind::Rollout, 10),
+            Err("not_its_publisher")
+        );
+    }
+}
