@@ -174,7 +174,7 @@ fn load_weights(
     }
     // The policy is small (about 15 MFLOP a pass at 64 px): on a GPU, burn's
     // pass is bound by its per-operation overhead, so the CPU's own pass
-    // serves every device (docs/performance.md, "The first GPU machine").
+    // serves every device (docs/decisions/0007-policy-pass-on-the-cpu.md).
     let cpu = CpuPolicy::from_network(&net, layout);
     Ok(Policy {
         net,

@@ -93,8 +93,7 @@ pub const DEFAULT_MEMORY_SIZE: usize = 512;
 /// [`RewardWeights::PAPER`]). The default is the tuned (0.25, 2, 0.05): in
 /// these rooms about nine interactions in ten fail at first, and with the
 /// paper's weights, or with only α1 or only α3 lowered, PPO learns to stop
-/// trying them (docs/performance.md, "Reward weights that keep the policy
-/// interacting").
+/// trying them (docs/decisions/0001-reward-weights.md).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct RewardWeights {
@@ -275,8 +274,8 @@ impl TaskSpec {
     }
 
     /// Whether labelled frames get negative labels on the segmentation's
-    /// background: as set, else wherever the method segments (measured in
-    /// docs/performance.md: push's pixel precision 0.13 → 0.60 with it).
+    /// background: as set, else wherever the method segments (push's pixel
+    /// precision 0.13 → 0.60 with it: docs/decisions/0002-background-labels.md).
     pub fn labels_background(&self) -> bool {
         self.background_negative
             .unwrap_or_else(|| self.method.segments())

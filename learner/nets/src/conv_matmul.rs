@@ -6,7 +6,7 @@
 //! backend (wgpu, no autotuning) runs a direct convolution whose weight
 //! gradient gives each thread one weight and a loop over every output of the
 //! batch: 57 % of a PPO update's GPU time, a 1 024-step update at 128 px 56
-//! times PyTorch's (docs/performance.md). A valid convolution with kernel
+//! times PyTorch's (docs/decisions/0006-cpu-kernels.md). A valid convolution with kernel
 //! `k` and stride `s` is the same as cutting the input into `s × s` blocks
 //! (space to depth) and convolving the blocks with a `⌈k/s⌉ × ⌈k/s⌉` kernel
 //! at stride 1: one matrix product of the blocks with every tap, then a sum

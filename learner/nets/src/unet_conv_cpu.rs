@@ -22,7 +22,7 @@
 //! Tensors elsewhere (the GPU) take burn's own `Conv2d` and ReLU. (The
 //! matrix-product form the policy encoders train with on a GPU, padded, with
 //! nine taps per image, made the U-Net's training step slower there: 173
-//! against 151 ms; docs/notes/2026-11-26-gpu-learner.md.)
+//! against 151 ms; docs/notebook/2026-11-26-gpu-learner.md.)
 
 use std::borrow::Cow;
 use std::sync::Arc;
