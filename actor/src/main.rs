@@ -344,7 +344,7 @@ fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
         for (i, &step) in steps.iter().enumerate() {
             let (_, name) = load(&mut model, Some(step))?;
             let report = run(&model, &val, args.val_views_per_scene, &name)?;
-            let candidate = actor::evaluation::Candidate::of(step, &report);
+            let candidate = report.candidate(step);
             eprintln!(
                 "evaluate: validation {}/{}: step {step} scores {:.3}",
                 i + 1,

@@ -20,7 +20,8 @@ use rand::{Rng, SeedableRng};
 use transport::ActorPorts;
 
 use crate::config::LearnerConfig;
-use crate::service::{Shared, Trainers};
+use crate::service::Trainers;
+use crate::shared::Shared;
 use crate::status::LearnerStatus;
 
 /// How the synthetic actors feed the learner.

@@ -10,7 +10,7 @@ use axum::response::{Html, IntoResponse};
 use axum::routing::get;
 use axum::{Json, Router};
 
-use crate::service::Shared;
+use crate::shared::Shared;
 
 /// The router over the shared learner state.
 pub fn router(shared: Arc<Shared>) -> Router {

@@ -17,6 +17,7 @@ pub mod metrics;
 pub mod plot;
 pub mod policy_worker;
 pub mod service;
+pub mod shared;
 pub mod status;
 pub mod summary;
 pub mod tensorboard;

@@ -9,7 +9,8 @@ use std::sync::{Arc, Mutex};
 use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
 use learner::config::LearnerConfig;
-use learner::service::{resume, Shared, Trainers};
+use learner::service::{resume, Trainers};
+use learner::shared::Shared;
 use learner::status::LearnerStatus;
 use tracing_subscriber::EnvFilter;
 

@@ -18,7 +18,7 @@ use proto::{decode, Limits, Message};
 use training::optimizer_state::OptimizerState;
 
 use crate::history::History;
-use crate::service::Shared;
+use crate::shared::Shared;
 use crate::train::PolicyTrainer;
 
 /// One rollout message as it arrived, validated by the receive loop.

@@ -5,8 +5,8 @@
 
 use std::collections::HashSet;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
@@ -20,31 +20,11 @@ use crate::config::LearnerConfig;
 use crate::history::History;
 use crate::membership::{Joined, Membership};
 use crate::policy_worker::{PolicySnapshot, PolicyWorker};
+use crate::shared::Shared;
 use crate::status::LearnerStatus;
 use crate::train::PolicyTrainer;
 use crate::unet_worker::UnetWorker;
 use training::optimizer_state::OptimizerState;
-
-/// State shared between the training loop and the HTTP edge.
-pub struct Shared {
-    /// The live status.
-    pub status: Mutex<LearnerStatus>,
-    /// Set on SIGINT/SIGTERM; the loop checkpoints and returns.
-    pub shutdown: AtomicBool,
-    /// The resolved configuration.
-    pub config: LearnerConfig,
-    /// The run directory (its `history.jsonl` backs `/api/history`).
-    pub run_dir: std::path::PathBuf,
-}
-
-impl Shared {
-    /// Locks the status; a poisoned lock (a panicked thread) still yields the data.
-    pub fn status(&self) -> MutexGuard<'_, LearnerStatus> {
-        self.status
-            .lock()
-            .unwrap_or_else(|poisoned| poisoned.into_inner())
-    }
-}
 
 /// Counters saved in every checkpoint.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]

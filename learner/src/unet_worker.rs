@@ -19,7 +19,7 @@ use training::affordance::LabelledFrame;
 
 use crate::affordance::{AffordanceLearner, UnetTrainingState};
 use crate::history::History;
-use crate::service::Shared;
+use crate::shared::Shared;
 
 /// One episode's frames, keyed uniquely over actors.
 type Episode = (u64, Vec<LabelledFrame>);

@@ -33,6 +33,7 @@ mod row_avx2;
 mod search;
 #[cfg(target_arch = "x86_64")]
 mod search_avx2;
+mod search_points;
 
 pub use frame::FramePixels;
 use frame::{MAY_CARVE, MAY_CARVE_NEAR};

@@ -14,7 +14,7 @@
 //! | A·N·H·W | labels u8 per affordance plane: [`LABEL_NEGATIVE`], [`LABEL_POSITIVE`] or [`LABEL_UNKNOWN`] |
 
 use crate::arrays::{check_floats, put_f32s, read_u32, read_u64, F32Array, Splitter, SplitterMut};
-use crate::message::{check_layout, check_range, checked_total, Payload};
+use crate::payload::{check_layout, check_range, checked_total, Payload};
 use crate::{MessageKind, ProtoError};
 
 const SUB_HEADER_LEN: usize = 24;

@@ -12,7 +12,7 @@
 use hmac::{Hmac, Mac};
 use sha2::Sha256;
 
-use crate::message::Payload;
+use crate::payload::Payload;
 use crate::{MessageKind, ProtoError};
 
 /// Bytes in a [`JoinKey`] and in a join's proof.

@@ -15,6 +15,7 @@ mod frames;
 mod header;
 mod join;
 mod message;
+mod payload;
 mod rollout;
 pub mod service;
 mod stats;
@@ -26,7 +27,8 @@ pub use error::ProtoError;
 pub use frames::{FrameBatch, FrameBatchView, LABEL_NEGATIVE, LABEL_POSITIVE, LABEL_UNKNOWN};
 pub use header::{MessageHeader, MessageKind, HEADER_LEN, LEARNER_ID, MAGIC, SCHEMA_VERSION};
 pub use join::{Join, JoinKey, JoinKeyError, JOIN_KEY_LEN, JOIN_PAYLOAD_LEN};
-pub use message::{decode, encode, encode_into, encoded_len, Limits, Message, Payload};
+pub use message::{decode, encode, encode_into, encoded_len, Limits, Message};
+pub use payload::Payload;
 pub use rollout::{
     byte_to_unit, obs_bytes_from_f32, unit_to_byte, ObsDtype, RolloutChunk, RolloutView,
     MAX_ACTIONS, MAX_STEPS,

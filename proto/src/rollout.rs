@@ -24,7 +24,7 @@
 use crate::arrays::{
     check_floats, put_f32s, put_u32s, read_u32, read_u64, F32Array, Splitter, SplitterMut, U32Array,
 };
-use crate::message::{check_layout, check_range, checked_total, Payload};
+use crate::payload::{check_layout, check_range, checked_total, Payload};
 use crate::{MessageKind, ProtoError};
 
 const SUB_HEADER_LEN: usize = 36;

@@ -5,7 +5,7 @@
 //! f32 per [`StatField`], in order.
 
 use crate::arrays::{read_u32, read_u64};
-use crate::message::{check_layout, Payload};
+use crate::payload::{check_layout, Payload};
 use crate::{MessageKind, ProtoError};
 
 const FIXED_LEN: usize = 24;

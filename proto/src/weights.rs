@@ -7,7 +7,7 @@
 
 use safetensors::{Dtype, SafeTensors};
 
-use crate::message::Payload;
+use crate::payload::Payload;
 use crate::{MessageKind, ProtoError};
 
 /// Name prefix of policy tensors.

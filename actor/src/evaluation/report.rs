@@ -6,7 +6,7 @@ use std::fmt::Write as _;
 
 use serde::{Deserialize, Serialize};
 
-use super::selection::Selection;
+use super::selection::{Candidate, Selection};
 
 /// Median and 10th / 90th percentiles of a per-frame score (linear
 /// interpolation between order statistics), over the frames where it is
@@ -269,6 +269,19 @@ pub struct Report {
 }
 
 impl Report {
+    /// This report as a candidate for checkpoint selection: its median
+    /// pixel F1 (Table 1) and its F1 (Table 2) per affordance.
+    pub fn candidate(&self, step: u64) -> Candidate {
+        Candidate::new(
+            step,
+            self.pixel
+                .iter()
+                .map(|row| row.f1.map(|p| p.median))
+                .collect(),
+            self.object.iter().map(|row| row.f1).collect(),
+        )
+    }
+
     /// Tables 1 and 2 as Markdown, the network's rows beside the
     /// all-positive reference's.
     pub fn to_markdown(&self) -> String {

@@ -7,8 +7,6 @@ use std::fmt::Write as _;
 
 use serde::{Deserialize, Serialize};
 
-use super::report::Report;
-
 /// What the selection maximises, in words (every report that used it says so).
 pub const RULE: &str = "the mean over affordances of Table 1's median pixel F1 and Table 2's \
                         F1 on the validation rooms (an undefined score counts 0); a tie goes to \
@@ -28,14 +26,9 @@ pub struct Candidate {
 }
 
 impl Candidate {
-    /// The candidate of checkpoint `step` from its validation report.
-    pub fn of(step: u64, report: &Report) -> Self {
-        let pixel_f1: Vec<Option<f32>> = report
-            .pixel
-            .iter()
-            .map(|row| row.f1.map(|p| p.median))
-            .collect();
-        let object_f1: Vec<Option<f32>> = report.object.iter().map(|row| row.f1).collect();
+    /// The candidate of checkpoint `step` with these validation scores per
+    /// affordance (see [`crate::evaluation::Report::candidate`]), scored by [`RULE`].
+    pub fn new(step: u64, pixel_f1: Vec<Option<f32>>, object_f1: Vec<Option<f32>>) -> Self {
         let terms: Vec<f32> = pixel_f1
             .iter()
             .chain(&object_f1)

@@ -51,7 +51,7 @@ impl Product {
 }
 
 /// `conv`'s valid convolution (square kernel and stride, no dilation or
-/// groups, as [`crate::policy::ConvEncoder`] builds them) of `x`, laid out
+/// groups, as the policy's encoders build them) of `x`, laid out
 /// as `layout` says; the output is channels-last. Taking the first layer's
 /// input channels first saves a copy of the largest input.
 pub(crate) fn conv(x: Tensor<4>, layout: Layout, conv: &Conv2d, product: Product) -> Tensor<4> {

@@ -7,6 +7,8 @@
 //! - [`policy`]: the exploration policy (conv encoders, MLPs, optional GRU,
 //!   actor and critic heads with masked logits), on burn;
 //! - [`unet`]: the affordance U-Net and its labelled-pixels-only loss;
+//! - `kernels`: the CPU convolution kernels (Winograd, nine taps, GEMM) the
+//!   two CPU paths below share;
 //! - [`unet_cpu`]: the same U-Net's forward pass for CPU inference, without
 //!   burn's copies, with Winograd convolutions (the actor's per-frame pass);
 //! - `unet_conv_cpu`: the U-Net's 3 × 3 convolutions with their ReLU as
@@ -18,6 +20,7 @@
 
 mod conv_matmul;
 pub mod device;
+mod kernels;
 mod masked_categorical;
 pub mod policy;
 pub mod unet;

@@ -7,8 +7,8 @@
 //! convolution whose kernel is the whole output gradient), and a profile of
 //! a U-Net training step (batch 8 at 128 px) put a third of the time in
 //! those copies against 43 % in matrix products. Here, on zero-bordered
-//! channels-first planes (`unet_cpu`'s layout):
-//! - the forward pass is [`unet_cpu`](crate::unet_cpu)'s convolution
+//! channels-first planes (the layout of `kernels`):
+//! - the forward pass is the inference path's convolution (`kernels::Conv3x3`)
 //!   (Winograd, or nine shifted products over odd sides), ReLU included;
 //! - the input gradient is the same convolution with each kernel flipped and
 //!   inputs and outputs swapped, over the output gradient masked by the ReLU;
@@ -39,7 +39,7 @@ use burn_autodiff::ops::{Backward, Ops, OpsKind};
 use burn_flex::FlexTensor;
 use rayon::prelude::*;
 
-use crate::unet_cpu::{
+use crate::kernels::{
     fill, fill_padded, grow, plane_len, transform_input_block, wide_len, winograd_blocks, Conv3x3,
     TileBuffers,
 };

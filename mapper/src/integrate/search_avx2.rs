@@ -1,11 +1,13 @@
-//! The block search of [`super::search`], eight surface points at a time
+//! The block search of `super::search_points`, eight surface points at a time
 //! with AVX2: the same operations in the same order as
 //! `PointsToBlocks::block_and_bits`, so the same blocks (tested in
 //! `super::tests`).
 
 use std::arch::x86_64::*;
 
-use super::search::{push_blocks_one_at_a_time, BlockRuns, PointsToBlocks, NEIGHBOURS_BY_BAND};
+use super::search_points::{
+    push_blocks_one_at_a_time, BlockRuns, PointsToBlocks, NEIGHBOURS_BY_BAND,
+};
 
 /// Pushes the block and neighbour bits of every usable point among
 /// `points[pixels]` into `runs`, in order.

@@ -16,7 +16,7 @@ use burn::nn::gru::Gru;
 use burn::nn::Linear;
 
 use super::{ConvEncoder, Head, PolicyLayout, PolicyNet, VectorEncoder, MASKED_LOGIT};
-use crate::unet_cpu::{bias_values, matmul, values};
+use crate::kernels::{bias_values, matmul, values};
 
 /// The policy's weights, laid out for [`CpuPolicy::forward`].
 #[derive(Debug, Clone)]
