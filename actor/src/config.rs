@@ -1,10 +1,11 @@
-//! The actor's settings: its own flags plus the run's shared transport limits
-//! and task, read from the learner's `config.toml`.
+//! The actor's settings: its own flags plus what it reads from the run's
+//! `config.toml` (written by the learner): the transport limits, the task,
+//! how actors run (`[actors]`) and the run's seed (`[policy] seed`).
 
 use std::path::Path;
 
 use anyhow::Context;
-use proto::TaskSpec;
+use proto::{ActorSettings, TaskSpec};
 use transport::TransportConfig;
 
 /// What an actor takes from the run config.
@@ -14,11 +15,16 @@ pub struct RunConfig {
     pub transport: TransportConfig,
     /// What to run.
     pub task: TaskSpec,
+    /// How actors run: renderer, rooms, robot, device, environments, data.
+    pub actors: ActorSettings,
+    /// The run's seed (`[policy] seed`), which actors start their random
+    /// choices from.
+    pub seed: u64,
 }
 
-/// Reads the `[transport]` and `[task]` tables of a run config (the
-/// learner's `config.toml`); other tables belong to the learner and are
-/// ignored here. Missing tables take their defaults.
+/// Reads the `[transport]`, `[task]` and `[actors]` tables and `[policy]
+/// seed` of a run config (the learner's `config.toml`); the rest belongs to
+/// the learner and is ignored here. Missing tables take their defaults.
 pub fn run_config_from_toml_file(path: &Path) -> anyhow::Result<RunConfig> {
     let text = std::fs::read_to_string(path)
         .with_context(|| format!("reading config {}", path.display()))?;
@@ -44,5 +50,82 @@ pub fn run_config_from_toml_file(path: &Path) -> anyhow::Result<RunConfig> {
     };
     task.validate()
         .with_context(|| format!("[task] in {}", path.display()))?;
-    Ok(RunConfig { transport, task })
+    let actors: ActorSettings = match table.get("actors") {
+        Some(value) => value.clone().try_into().with_context(|| {
+            format!(
+                "parsing [actors] in {} (run `learner print-config` for the keys)",
+                path.display()
+            )
+        })?,
+        None => ActorSettings::default(),
+    };
+    actors
+        .validate()
+        .with_context(|| format!("[actors] in {}", path.display()))?;
+    let seed = match table.get("policy").and_then(|p| p.get("seed")) {
+        None => 0,
+        Some(value) => value
+            .as_integer()
+            .and_then(|s| u64::try_from(s).ok())
+            .with_context(|| {
+                format!(
+                    "[policy] seed in {} must be a non-negative integer",
+                    path.display()
+                )
+            })?,
+    };
+    Ok(RunConfig {
+        transport,
+        task,
+        actors,
+        seed,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn read(text: &str) -> anyhow::Result<RunConfig> {
+        let path = std::env::temp_dir().join(format!(
+            "afx-run-config-{}-{}.toml",
+            std::process::id(),
+            text.len()
+        ));
+        std::fs::write(&path, text).unwrap();
+        let config = run_config_from_toml_file(&path);
+        std::fs::remove_file(&path).ok();
+        config
+    }
+
+    #[test]
+    fn the_actors_table_and_the_runs_seed_are_read_and_checked() {
+        let config = read(
+            "[actors]\nrenderer = \"cpu\"\nscenes = \"generated\"\nenvs = 4\n\
+             data = \"/data\"\n[policy]\nseed = 7\nlearning_rate = 0.1\n",
+        )
+        .unwrap();
+        assert_eq!(config.actors.renderer, "cpu");
+        assert_eq!(config.actors.scenes, "generated");
+        assert_eq!(config.actors.envs, 4);
+        assert_eq!(config.actors.data.as_deref(), Some("/data"));
+        assert_eq!(
+            config.actors.profile, "default",
+            "unset keys keep their defaults"
+        );
+        assert_eq!(config.seed, 7);
+
+        let plain = read("[task]\nimage_size = 64\n").unwrap();
+        assert_eq!(plain.actors, ActorSettings::default());
+        assert_eq!(plain.seed, 0);
+
+        for (text, says) in [
+            ("[actors]\nrenderer = \"vulkan\"\n", "actors.renderer"),
+            ("[actors]\nrender = \"cpu\"\n", "render"),
+            ("[policy]\nseed = -1\n", "seed"),
+        ] {
+            let err = format!("{:#}", read(text).unwrap_err());
+            assert!(err.contains(says), "{text}: {err}");
+        }
+    }
 }

@@ -118,19 +118,54 @@ struct EvaluateArgs {
 }
 
 /// Where the simulator's data comes from, which robot it simulates and how
-/// it renders: the same flags for every subcommand that runs it.
+/// it renders: the same flags for every subcommand that runs it. Each
+/// defaults to the run config's [actors] setting where there is a run
+/// config, else to the value named.
 #[derive(Args)]
 struct SimArgs {
-    /// Shared data directory with ithor-livingrooms/ and ithor-object-types.tsv.
-    #[arg(long, env = "AFX_DATA", default_value = "../shared/data")]
-    data: PathBuf,
+    /// Shared data directory with ithor-livingrooms/ and
+    /// ithor-object-types.tsv. Default: [actors] data, else ../shared/data.
+    #[arg(long, env = "AFX_DATA")]
+    data: Option<PathBuf>,
     /// Robot profile: a shipped name (default, weak-arm) or a TOML file.
-    #[arg(long, default_value = "default")]
-    profile: String,
+    /// Default: [actors] profile, else default.
+    #[arg(long)]
+    profile: Option<String>,
     /// Renderer: auto (gpu when a Vulkan adapter exists, else cpu), gpu
-    /// (wgpu: a GPU or Mesa lavapipe) or cpu (ray casting).
-    #[arg(long, default_value = "auto")]
+    /// (wgpu: a GPU or Mesa lavapipe) or cpu (ray casting). Default:
+    /// [actors] renderer, else auto.
+    #[arg(long)]
+    renderer: Option<RendererChoice>,
+}
+
+/// [`SimArgs`] with every default filled in.
+struct Sim {
+    data: PathBuf,
+    profile: String,
     renderer: RendererChoice,
+}
+
+impl SimArgs {
+    /// The flags given, else the run's `[actors]` settings.
+    fn resolve(&self, actors: &proto::ActorSettings) -> anyhow::Result<Sim> {
+        let renderer = match self.renderer {
+            Some(renderer) => renderer,
+            None => actors
+                .renderer
+                .parse()
+                .map_err(|e| anyhow::anyhow!("[actors] renderer: {e}"))?,
+        };
+        Ok(Sim {
+            data: self.data.clone().unwrap_or_else(|| {
+                PathBuf::from(actors.data.as_deref().unwrap_or("../shared/data"))
+            }),
+            profile: self
+                .profile
+                .clone()
+                .unwrap_or_else(|| actors.profile.clone()),
+            renderer,
+        })
+    }
 }
 
 #[derive(Args)]
@@ -153,8 +188,10 @@ struct RunArgs {
     /// Service-name prefix of the learner to connect to (overrides the config).
     #[arg(long, value_name = "PREFIX")]
     learner: Option<String>,
-    /// Run config (the learner's RUN_DIR/config.toml): its [transport] and
-    /// [task] tables are read, so the actor runs what the learner trains.
+    /// Run config (the learner's RUN_DIR/config.toml): its [transport],
+    /// [task] and [actors] tables and [policy] seed are read, so the actor
+    /// runs what the learner trains, as the run says; the flags below
+    /// override [actors].
     #[arg(long)]
     config: Option<PathBuf>,
     /// The run's join key (the learner writes RUN_DIR/join.key when it
@@ -169,8 +206,9 @@ struct RunArgs {
     /// Base random seed: rooms, their randomisation and sampled actions.
     /// Moved on by the run's environment steps when the actor starts, so a
     /// restarted actor, or a resumed run, does not replay its episodes.
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
+    /// Default: the run's seed ([policy] seed), else 0.
+    #[arg(long)]
+    seed: Option<u64>,
     /// Stop after this many episodes over all environments (default: run
     /// until SIGINT/SIGTERM).
     #[arg(long)]
@@ -180,20 +218,21 @@ struct RunArgs {
     /// all their frames in one batch: batches are how one actor process
     /// keeps it busy. On a CPU this uses more cores, like more actors would;
     /// for methods with a map (their steps' times vary) the environments
-    /// run free, none waiting for the others.
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=256))]
-    envs: u16,
+    /// run free, none waiting for the others. Default: [actors] envs, else 1.
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..=256))]
+    envs: Option<u16>,
     /// Seconds to wait for the learner's first weights before giving up.
     #[arg(long, default_value_t = 30.0)]
     weights_timeout_s: f64,
-    /// Rooms to explore.
-    #[arg(long, value_enum, default_value = "ithor")]
-    scenes: Scenes,
+    /// Rooms to explore. Default: [actors] scenes, else ithor.
+    #[arg(long, value_enum)]
+    scenes: Option<Scenes>,
     #[command(flatten)]
     sim: SimArgs,
-    /// Where the networks infer: cpu, or gpu in a build with `--features nets/gpu`.
-    #[arg(long, default_value = "cpu", value_parser = ["cpu", "gpu"])]
-    device: String,
+    /// Where the networks infer: cpu, or gpu in a build with `--features
+    /// nets/gpu`. Default: [actors] device, else cpu.
+    #[arg(long, value_parser = ["cpu", "gpu"])]
+    device: Option<String>,
     /// Record every episode to an MCAP file in this directory (created):
     /// RGB, depth, instance ids, map ids, labels, camera poses, actions and
     /// rewards, in schemas Foxglove opens.
@@ -226,11 +265,12 @@ fn main() -> anyhow::Result<()> {
 }
 
 fn sim_view(args: SimViewArgs) -> anyhow::Result<()> {
+    let sim = args.sim.resolve(&proto::ActorSettings::default())?;
     let settings = SimViewSettings {
         scene: args.scene,
-        data_dir: args.sim.data,
-        profile: args.sim.profile,
-        renderer: args.sim.renderer,
+        data_dir: sim.data,
+        profile: sim.profile,
+        renderer: sim.renderer,
         out: args.out,
     };
     let summary = actor::sim_view::run(&settings)?;
@@ -248,7 +288,9 @@ fn sim_view(args: SimViewArgs) -> anyhow::Result<()> {
 
 fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
     let config_path = args.run_dir.join("config.toml");
-    let task = actor::config::run_config_from_toml_file(&config_path)?.task;
+    let run_config = actor::config::run_config_from_toml_file(&config_path)?;
+    let task = run_config.task;
+    let sim = args.sim.resolve(&run_config.actors)?;
     anyhow::ensure!(
         task.env == EnvKind::Sim,
         "{} trains on {:?}, which has no affordance network to evaluate",
@@ -266,9 +308,9 @@ fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
     );
     let device = nets::device::open_device(nets::device::DeviceChoice::Cpu)?;
     let mut model = AffordanceModel::new(task.affordances.len(), &device);
-    let mut profile = RobotProfile::load(&args.sim.profile)?;
+    let mut profile = RobotProfile::load(&sim.profile)?;
     profile.image_size = task.image_size;
-    let rooms = args.sim.data.join("ithor-livingrooms");
+    let rooms = sim.data.join("ithor-livingrooms");
     let load_rooms = |set: SceneSet| {
         sim::ithor::load_set(&rooms, set).with_context(|| {
             format!(
@@ -278,7 +320,7 @@ fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
         })
     };
     let scenes = load_rooms(args.scenes)?;
-    let mut renderer = Renderer::open(args.sim.renderer)?;
+    let mut renderer = Renderer::open(sim.renderer)?;
     let mut run = |model: &AffordanceModel, scenes: &[sim::scene::Scene], views, name: &str| {
         let predict = |frame: &sim::raycast::Frame| {
             model.predict(&CameraFrame {
@@ -392,22 +434,24 @@ fn results(args: ResultsArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The simulator environment for `task`.
-fn sim_environment(task: &TaskSpec, cli: &RunArgs) -> anyhow::Result<SimEnvironment> {
-    let mut profile = RobotProfile::load(&cli.sim.profile)?;
+/// The simulator environment for `task`, in `scenes`, as `sim` says.
+fn sim_environment(
+    task: &TaskSpec,
+    sim: &Sim,
+    scenes: Scenes,
+    cli: &RunArgs,
+) -> anyhow::Result<SimEnvironment> {
+    let mut profile = RobotProfile::load(&sim.profile)?;
     profile.image_size = task.image_size;
-    let source = actor::env::training_rooms(
-        &cli.sim.data,
-        matches!(cli.scenes, Scenes::Ithor),
-        &profile,
-    )
-    .with_context(|| {
+    let source = actor::env::training_rooms(&sim.data, matches!(scenes, Scenes::Ithor), &profile)
+        .with_context(|| {
         format!(
-            "opening the training rooms under {} (set --data or AFX_DATA to the shared data directory)",
-            cli.sim.data.display()
+            "opening the training rooms under {} (set --data, AFX_DATA or [actors] data \
+                     to the shared data directory)",
+            sim.data.display()
         )
     })?;
-    let renderer = Renderer::open(cli.sim.renderer)?;
+    let renderer = Renderer::open(sim.renderer)?;
     let config = SimEnvConfig {
         episode_steps: task.episode_steps,
         balanced_frames: task.balanced_frames,
@@ -475,10 +519,21 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
     let RunConfig {
         mut transport,
         task,
+        actors,
+        seed: run_seed,
     } = match &cli.config {
         Some(path) => actor::config::run_config_from_toml_file(path)?,
         None => RunConfig::default(),
     };
+    let sim = cli.sim.resolve(&actors)?;
+    let scenes = match cli.scenes {
+        Some(scenes) => scenes,
+        None => clap::ValueEnum::from_str(&actors.scenes, true)
+            .map_err(|e| anyhow::anyhow!("[actors] scenes: {e}"))?,
+    };
+    let device_name = cli.device.clone().unwrap_or_else(|| actors.device.clone());
+    let envs = cli.envs.unwrap_or(actors.envs);
+    let seed = cli.seed.unwrap_or(run_seed);
     if let Some(prefix) = &cli.learner {
         transport.service_prefix = prefix.clone();
     }
@@ -491,8 +546,7 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
         task.affordances,
         task.image_size
     );
-    let choice: nets::device::DeviceChoice = cli
-        .device
+    let choice: nets::device::DeviceChoice = device_name
         .parse()
         .map_err(|e| anyhow::anyhow!("--device: {e}"))?;
     let device = nets::device::open_device(choice).context("opening the inference device")?;
@@ -500,11 +554,11 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(signal, stop.clone()).context("installing signal handlers")?;
     }
-    let envs = (0..cli.envs)
+    let envs = (0..envs)
         .map(|_| -> anyhow::Result<Box<dyn Environment>> {
             Ok(match task.env {
                 EnvKind::BanditFixture => Box::new(BanditFixture::new()),
-                EnvKind::Sim => Box::new(sim_environment(&task, &cli)?),
+                EnvKind::Sim => Box::new(sim_environment(&task, &sim, scenes, &cli)?),
             })
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
@@ -517,7 +571,7 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
     let settings = LoopSettings {
         actor_id,
         chunk_steps: cli.chunk_steps,
-        seed: cli.seed,
+        seed,
         max_episodes: cli.max_episodes,
         weights_timeout: Duration::from_secs_f64(cli.weights_timeout_s),
     };

@@ -29,6 +29,9 @@ pub struct LearnerConfig {
     pub unet: UnetConfig,
     /// Shared-memory transport limits (must match the actors').
     pub transport: TransportConfig,
+    /// How the run's actors run (renderer, rooms, robot, device,
+    /// environments, data): read by every actor and by `actor evaluate`.
+    pub actors: proto::ActorSettings,
 }
 
 /// PPO settings (the paper's, i.e. IntExp's, values by default).
@@ -116,6 +119,7 @@ impl Default for LearnerConfig {
             policy: PolicyConfig::default(),
             unet: UnetConfig::default(),
             transport: TransportConfig::default(),
+            actors: proto::ActorSettings::default(),
         }
     }
 }
@@ -181,11 +185,38 @@ impl LearnerConfig {
 
     /// Reads a TOML file; unknown keys are errors so typos never pass silently.
     pub fn from_toml_file(path: &std::path::Path) -> anyhow::Result<Self> {
+        Self::from_toml_file_with(Some(path), &[])
+    }
+
+    /// Reads a TOML file (or the defaults, for `None`) with `KEY=VALUE`
+    /// settings on top (`--set policy.batch_steps=1024`, `--set
+    /// actors.renderer=cpu`): a dotted key names a table's entry; a value is
+    /// TOML (`1024`, `true`, `"text"`, `[1, 2]`), and what is not TOML is a
+    /// string. Unknown keys are errors, as in a file.
+    pub fn from_toml_file_with(
+        path: Option<&std::path::Path>,
+        settings: &[String],
+    ) -> anyhow::Result<Self> {
         use anyhow::Context;
-        let text = std::fs::read_to_string(path)
-            .with_context(|| format!("reading learner config {}", path.display()))?;
-        toml::from_str(&text).with_context(|| {
-            format!("parsing learner config {} (run `learner print-config` for every key and its default)", path.display())
+        let mut table: toml::Table = match path {
+            Some(path) => {
+                let text = std::fs::read_to_string(path)
+                    .with_context(|| format!("reading learner config {}", path.display()))?;
+                toml::from_str(&text).with_context(|| {
+                    format!("parsing learner config {} (run `learner print-config` for every key and its default)", path.display())
+                })?
+            }
+            None => toml::Table::new(),
+        };
+        for setting in settings {
+            set_dotted(&mut table, setting)?;
+        }
+        let source = path.map_or("the defaults".to_string(), |p| p.display().to_string());
+        toml::Value::Table(table).try_into().with_context(|| {
+            format!(
+                "the learner config from {source} with {settings:?} (run `learner print-config` \
+                 for every key and its default)"
+            )
         })
     }
 
@@ -197,6 +228,7 @@ impl LearnerConfig {
     /// Checks values that would make the learner misbehave.
     pub fn validate(&self) -> anyhow::Result<()> {
         self.task.validate()?;
+        self.actors.validate()?;
         self.device
             .parse::<nets::device::DeviceChoice>()
             .map_err(|e| anyhow::anyhow!("device: {e}"))?;
@@ -237,9 +269,84 @@ impl LearnerConfig {
     }
 }
 
+/// Applies one `KEY=VALUE` setting to a TOML table (see
+/// [`LearnerConfig::from_toml_file_with`]).
+fn set_dotted(table: &mut toml::Table, setting: &str) -> anyhow::Result<()> {
+    let Some((key, raw)) = setting.split_once('=') else {
+        anyhow::bail!("--set {setting:?}: expected KEY=VALUE, e.g. policy.batch_steps=1024");
+    };
+    let path: Vec<&str> = key.trim().split('.').collect();
+    anyhow::ensure!(
+        path.iter().all(|p| !p.is_empty()),
+        "--set {setting:?}: the key {key:?} has an empty part"
+    );
+    let value = toml::from_str::<toml::Table>(&format!("v = {raw}"))
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(raw.to_string()));
+    let (last, parents) = path.split_last().expect("at least one part");
+    let mut at = table;
+    for part in parents {
+        let entry = at
+            .entry(part.to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        at = entry
+            .as_table_mut()
+            .ok_or_else(|| anyhow::anyhow!("--set {setting:?}: {part} is a value, not a table"))?;
+    }
+    at.insert(last.to_string(), value);
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn settings_on_the_command_line_go_where_their_keys_say() {
+        let set = |s: &[&str]| {
+            LearnerConfig::from_toml_file_with(
+                None,
+                &s.iter().map(|s| s.to_string()).collect::<Vec<_>>(),
+            )
+        };
+        let config = set(&[
+            "policy.batch_steps=1024",
+            "actors.renderer=cpu",
+            "actors.data=/data/x y",
+            "task.affordances=[\"push\"]",
+            "keep_checkpoints = 5",
+        ])
+        .unwrap();
+        assert_eq!(config.policy.batch_steps, 1024);
+        assert_eq!(config.actors.renderer, "cpu");
+        assert_eq!(config.actors.data.as_deref(), Some("/data/x y"));
+        assert_eq!(config.task.affordances, vec![proto::Affordance::Push]);
+        assert_eq!(config.keep_checkpoints, 5);
+        for (bad, says) in [
+            ("policy.batch_step=3", "batch_step"),
+            ("no_equals_sign", "KEY=VALUE"),
+            ("policy..seed=1", "empty part"),
+            ("keep_checkpoints.x=1", "keep_checkpoints"),
+        ] {
+            let err = format!("{:#}", set(&[bad]).unwrap_err());
+            assert!(err.contains(says), "{bad}: {err}");
+        }
+        let err = format!(
+            "{:#}",
+            set(&["policy.seed=1", "policy.seed.x=2"]).unwrap_err()
+        );
+        assert!(err.contains("not a table"), "{err}");
+        let file = std::env::temp_dir().join(format!("afx-set-{}.toml", std::process::id()));
+        std::fs::write(&file, "[policy]\nbatch_steps = 7\nepochs = 2\n").unwrap();
+        let over = LearnerConfig::from_toml_file_with(
+            Some(file.as_path()),
+            &["policy.batch_steps=9".to_string()],
+        )
+        .unwrap();
+        assert_eq!((over.policy.batch_steps, over.policy.epochs), (9, 2));
+        std::fs::remove_file(&file).ok();
+    }
 
     #[test]
     fn defaults_survive_a_toml_round_trip_and_typos_are_refused() {

@@ -114,10 +114,17 @@ struct ServeArgs {
     #[arg(long, conflicts_with = "resume")]
     episode_steps: Option<usize>,
     /// The run's seed: initial weights of both networks, minibatch shuffling
-    /// and the dataset split (overrides [policy] seed). Give the actors the
-    /// same `--seed` for a run that differs from others in every random choice.
+    /// and the dataset split (overrides [policy] seed); the run's actors
+    /// take it from the run's config too.
     #[arg(long, conflicts_with = "resume")]
     seed: Option<u64>,
+    /// Any setting, as `KEY=VALUE` with a dotted key (repeat it):
+    /// `--set policy.batch_steps=1024 --set actors.renderer=cpu`. Applied
+    /// on top of --config (or, resuming, the run's saved config) and before
+    /// the flags above; a value is TOML, and what is not TOML is a string.
+    /// `learner print-config` lists every key.
+    #[arg(long, value_name = "KEY=VALUE")]
+    set: Vec<String>,
 }
 
 #[derive(clap::Args)]
@@ -301,11 +308,12 @@ fn default_run_dir() -> PathBuf {
 
 fn load_config(args: &ServeArgs, run_dir: &Path) -> anyhow::Result<LearnerConfig> {
     let saved = run_dir.join("config.toml");
-    let mut config = match (&args.config, &args.resume) {
-        (Some(path), _) => LearnerConfig::from_toml_file(path)?,
-        (None, Some(_)) if saved.exists() => LearnerConfig::from_toml_file(&saved)?,
-        _ => LearnerConfig::default(),
+    let base = match (&args.config, &args.resume) {
+        (Some(path), _) => Some(path.as_path()),
+        (None, Some(_)) if saved.exists() => Some(saved.as_path()),
+        _ => None,
     };
+    let mut config = LearnerConfig::from_toml_file_with(base, &args.set)?;
     if let Some(addr) = &args.http_addr {
         config.http_addr = addr.clone();
     }

@@ -9,6 +9,7 @@
 //! This crate must stay small: it knows nothing of shared memory, networks,
 //! simulators or neural networks, so that every other crate can depend on it.
 
+mod actors;
 mod arrays;
 mod error;
 mod frames;
@@ -22,6 +23,7 @@ mod stats;
 pub mod task;
 mod weights;
 
+pub use actors::{ActorSettings, ActorSettingsError, ACTOR_DEVICES, RENDERERS, TRAINING_SCENES};
 pub use arrays::{F32Array, U32Array};
 pub use error::ProtoError;
 pub use frames::{FrameBatch, FrameBatchView, LABEL_NEGATIVE, LABEL_POSITIVE, LABEL_UNKNOWN};
