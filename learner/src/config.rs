@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 use transport::TransportConfig;
 
 /// The learner's configuration.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, documented::DocumentedFields)]
 #[serde(default, deny_unknown_fields)]
 pub struct LearnerConfig {
     /// Address of the HTTP endpoint (`/metrics`, `/api/status`, `/healthz`). Port 0 picks a free port.
@@ -35,7 +35,7 @@ pub struct LearnerConfig {
 }
 
 /// PPO settings (the paper's, i.e. IntExp's, values by default).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, documented::DocumentedFields)]
 #[serde(default, deny_unknown_fields)]
 pub struct PolicyConfig {
     /// Adam learning rate.
@@ -79,7 +79,7 @@ pub struct PolicyConfig {
 }
 
 /// Affordance U-Net training on the global dataset of labelled frames.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, documented::DocumentedFields)]
 #[serde(default, deny_unknown_fields)]
 pub struct UnetConfig {
     /// Adam learning rate.

@@ -10,6 +10,7 @@ pub mod bench_capacity;
 pub mod bench_transport;
 pub mod checkpoint;
 pub mod config;
+pub mod config_docs;
 pub mod history;
 pub mod http;
 pub mod membership;

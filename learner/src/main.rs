@@ -25,7 +25,8 @@ struct Cli {
 enum Command {
     /// Run the learner: receive from actors, train, publish weights, serve metrics.
     Serve(ServeArgs),
-    /// Print every setting with its default as TOML (a starting config file).
+    /// Print every setting with its default as TOML, each under its
+    /// explanation (a starting config file).
     PrintConfig,
     /// Remove shared-memory resources left by crashed learner or actor processes.
     Clean,
@@ -243,7 +244,10 @@ fn main() -> anyhow::Result<()> {
     match Cli::parse().command {
         Command::Serve(args) => serve(args),
         Command::PrintConfig => {
-            print!("{}", LearnerConfig::default().to_toml());
+            print!(
+                "{}",
+                learner::config_docs::documented_toml(&LearnerConfig::default())
+            );
             Ok(())
         }
         Command::BenchCapacity(args) => bench_capacity(args),

@@ -14,7 +14,7 @@ pub const TRAINING_SCENES: [&str; 2] = ["ithor", "generated"];
 pub const ACTOR_DEVICES: [&str; 2] = ["cpu", "gpu"];
 
 /// The `[actors]` table of a run's config.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, documented::DocumentedFields)]
 #[serde(default, deny_unknown_fields)]
 pub struct ActorSettings {
     /// Robot profile: a shipped name (default, weak-arm) or a TOML file.

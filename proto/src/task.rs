@@ -94,7 +94,7 @@ pub const DEFAULT_MEMORY_SIZE: usize = 512;
 /// these rooms about nine interactions in ten fail at first, and with the
 /// paper's weights, or with only α1 or only α3 lowered, PPO learns to stop
 /// trying them (docs/decisions/0001-reward-weights.md).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, documented::DocumentedFields)]
 #[serde(default, deny_unknown_fields)]
 pub struct RewardWeights {
     /// α1, navigation novelty.
@@ -125,7 +125,7 @@ impl Default for RewardWeights {
 }
 
 /// The run's task.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, documented::DocumentedFields)]
 #[serde(default, deny_unknown_fields)]
 pub struct TaskSpec {
     /// Environment of the actors.

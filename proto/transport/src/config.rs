@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 /// Limits of the shared-memory services. Learner and actors must use the same
 /// values (the learner prints them at start; `deploy/local.sh` passes one
 /// config to all processes).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, documented::DocumentedFields)]
 #[serde(default, deny_unknown_fields)]
 pub struct TransportConfig {
     /// Prefix of every service name; one per run so runs never mix.
