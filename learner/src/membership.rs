@@ -25,10 +25,16 @@ pub enum Joined {
     Unchanged,
 }
 
+/// Publishers an id held before its newest join that are still told apart
+/// from strangers (a restarted actor's last messages may still be queued).
+const REMEMBERED_BINDINGS: usize = 4;
+
 /// The learner's record of joins.
 pub struct Membership {
     key: JoinKey,
     members: HashMap<u32, [u128; 3]>,
+    /// Per id, the publishers of its earlier joins, newest last.
+    replaced: HashMap<u32, Vec<[u128; 3]>>,
 }
 
 impl Membership {
@@ -37,6 +43,7 @@ impl Membership {
         Self {
             key,
             members: HashMap::new(),
+            replaced: HashMap::new(),
         }
     }
 
@@ -57,7 +64,14 @@ impl Membership {
         Ok(match self.members.insert(actor_id, join.publishers) {
             None => Joined::New,
             Some(old) if old == join.publishers => Joined::Unchanged,
-            Some(_) => Joined::Again,
+            Some(old) => {
+                let earlier = self.replaced.entry(actor_id).or_default();
+                earlier.push(old);
+                if earlier.len() > REMEMBERED_BINDINGS {
+                    earlier.remove(0);
+                }
+                Joined::Again
+            }
         })
     }
 
@@ -72,12 +86,21 @@ impl Membership {
         let Some(publishers) = self.members.get(&actor_id) else {
             return Err("not_joined");
         };
-        let expected = Join::publisher_for(publishers, kind);
-        if expected == Some(origin) {
-            Ok(())
-        } else {
-            Err("not_its_publisher")
+        if Join::publisher_for(publishers, kind) == Some(origin) {
+            return Ok(());
         }
+        let replaced = self.replaced.get(&actor_id).is_some_and(|earlier| {
+            earlier
+                .iter()
+                .any(|p| Join::publisher_for(p, kind) == Some(origin))
+        });
+        // A message of the actor's previous life (it restarted and joined
+        // again) is refused too, but not counted as a stranger's.
+        Err(if replaced {
+            "from_a_replaced_publisher"
+        } else {
+            "not_its_publisher"
+        })
     }
 }
 
@@ -141,7 +164,23 @@ mod tests {
         assert_eq!(members.admit(0, MessageKind::Rollout, 30), Ok(()));
         assert_eq!(
             members.admit(0, MessageKind::Rollout, 10),
+            Err("from_a_replaced_publisher"),
+            "the previous life's queued messages are told apart from a stranger's"
+        );
+        assert_eq!(
+            members.admit(0, MessageKind::Rollout, 99),
             Err("not_its_publisher")
+        );
+        for restart in 0..10u128 {
+            let p = 100 + 3 * restart;
+            members
+                .join(0, &Join::new(&key(1), 0, [p, p + 1, p + 2]), p + 2)
+                .unwrap();
+        }
+        assert_eq!(
+            members.admit(0, MessageKind::Rollout, 10),
+            Err("not_its_publisher"),
+            "only the last few lives are remembered"
         );
     }
 }
