@@ -157,7 +157,8 @@ fn the_page_shows_every_variant_over_seeds_beside_the_floors() {
             "- **Table 1 median pixel F1** — ours 0.50, nomap-seg 0.33, nomap-noseg 0.15, \
              intexp 0.15: the ordering **holds** (ours > nomap-seg (clearly), nomap-seg > \
              nomap-noseg (clearly), nomap-seg > intexp (clearly); nomap-noseg and intexp overlap, \
-             ≈ as in the paper)."
+             ≈ as in the paper). Above the all-positive floor (0.10): ours, nomap-seg, \
+             nomap-noseg, intexp."
         ),
         "{page}"
     );
