@@ -54,6 +54,9 @@ Options:
   --debug           use debug builds (faster to build, slower to run)
   --bin-dir DIR     use the learner and actor binaries in DIR; build nothing
   -h, --help        this help
+--envs-per-actor, --data, --scenes, --renderer and --device are saved in the
+run's config.toml ([actors]), where every actor reads them; on --resume the
+saved ones hold unless given again.
 Everything after `--` is passed to `learner serve`, e.g. `-- --config my.toml`
 for a learner config (reward weights: [task.reward]; see README).
 Stop with Ctrl-C, or with SIGTERM (a script started in the background with `&`
@@ -62,25 +65,29 @@ USAGE
 }
 
 PROGRESS_EVERY=10
-ACTORS="" ENVS=1 RUN_DIR="" RESUME=0 PORT=9464 PROFILE=release BIN="" SEED=0 MAX_STEPS=
-TASK_ARGS=() ACTOR_ARGS=() LEARNER_DEVICE=() METHOD=ours ENV_KIND=sim
+ACTORS="" ENVS="" RUN_DIR="" RESUME=0 PORT=9464 PROFILE=release BIN="" SEED=0 MAX_STEPS=
+# TASK_ARGS: what the run learns (fixed once the run exists); SETTINGS: how
+# its actors run, written into the run's config.toml ([actors]) by the
+# learner and read from there by every actor; RECORD_ARGS: this start's
+# recording, given to the actors directly.
+TASK_ARGS=() SETTINGS=() RECORD_ARGS=() LEARNER_DEVICE=() METHOD=ours ENV_KIND=sim
 EXTRA=()
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --actors) ACTORS="${2:?--actors needs a number}"; shift 2 ;;
-    --envs-per-actor) ENVS="${2:?--envs-per-actor needs a number}"; shift 2 ;;
+    --envs-per-actor) ENVS="${2:?--envs-per-actor needs a number}"; SETTINGS+=(--set "actors.envs=$ENVS"); shift 2 ;;
     --run-dir) RUN_DIR="${2:?--run-dir needs a directory}"; shift 2 ;;
     --resume) RESUME=1; shift ;;
     --method) METHOD="${2:?--method needs a value}"; TASK_ARGS+=(--method "$METHOD"); shift 2 ;;
     --env) ENV_KIND="${2:?--env needs a value}"; TASK_ARGS+=(--env "$ENV_KIND"); shift 2 ;;
     --image-size) TASK_ARGS+=(--image-size "${2:?--image-size needs a number}"); shift 2 ;;
     --episode-steps) TASK_ARGS+=(--episode-steps "${2:?--episode-steps needs a number}"); shift 2 ;;
-    --data) ACTOR_ARGS+=(--data "$(cd "${2:?--data needs a directory}" && pwd)"); shift 2 ;;
-    --scenes) ACTOR_ARGS+=(--scenes "${2:?--scenes needs a value}"); shift 2 ;;
-    --renderer) ACTOR_ARGS+=(--renderer "${2:?--renderer needs a value}"); shift 2 ;;
-    --record) mkdir -p "${2:?--record needs a directory}"; ACTOR_ARGS+=(--record "$(cd "$2" && pwd)"); shift 2 ;;
-    --record-every) ACTOR_ARGS+=(--record-every "${2:?--record-every needs a number}"); shift 2 ;;
-    --device) DEVICE="${2:?--device needs a value}"; ACTOR_ARGS+=(--device "$DEVICE"); LEARNER_DEVICE=(--device "$DEVICE"); shift 2 ;;
+    --data) SETTINGS+=(--set "actors.data=$(cd "${2:?--data needs a directory}" && pwd)"); shift 2 ;;
+    --scenes) SETTINGS+=(--set "actors.scenes=${2:?--scenes needs a value}"); shift 2 ;;
+    --renderer) SETTINGS+=(--set "actors.renderer=${2:?--renderer needs a value}"); shift 2 ;;
+    --record) mkdir -p "${2:?--record needs a directory}"; RECORD_ARGS+=(--record "$(cd "$2" && pwd)"); shift 2 ;;
+    --record-every) RECORD_ARGS+=(--record-every "${2:?--record-every needs a number}"); shift 2 ;;
+    --device) DEVICE="${2:?--device needs a value}"; SETTINGS+=(--set "actors.device=$DEVICE"); LEARNER_DEVICE=(--device "$DEVICE"); shift 2 ;;
     --port) PORT="${2:?--port needs a number}"; shift 2 ;;
     --progress-every) PROGRESS_EVERY="${2:?--progress-every needs a number of seconds}"; shift 2 ;;
     --max-steps) MAX_STEPS="${2:?--max-steps needs a number}"; shift 2 ;;
@@ -93,7 +100,7 @@ while [[ $# -gt 0 ]]; do
   esac
 done
 [[ "$ACTORS" =~ ^[1-9][0-9]*$ ]] || { echo "local.sh: --actors N is required (N >= 1)" >&2; usage >&2; exit 2; }
-[[ "$ENVS" =~ ^[1-9][0-9]*$ && "$ENVS" -le 256 ]] || { echo "local.sh: --envs-per-actor needs an integer in 1..256, got '$ENVS'" >&2; exit 2; }
+[[ -z "$ENVS" || ( "$ENVS" =~ ^[1-9][0-9]*$ && "$ENVS" -le 256 ) ]] || { echo "local.sh: --envs-per-actor needs an integer in 1..256, got '$ENVS'" >&2; exit 2; }
 [[ -z "$MAX_STEPS" || "$MAX_STEPS" =~ ^[1-9][0-9]*$ ]] || { echo "local.sh: --max-steps needs a positive integer, got '$MAX_STEPS'" >&2; exit 2; }
 [[ "$SEED" =~ ^[0-9]+$ ]] || { echo "local.sh: --seed needs a non-negative integer, got '$SEED'" >&2; exit 2; }
 [[ "$PROGRESS_EVERY" =~ ^[0-9]+$ ]] || { echo "local.sh: --progress-every needs a whole number of seconds, got '$PROGRESS_EVERY'" >&2; exit 2; }
@@ -137,29 +144,27 @@ fi
 mkdir -p "$RUN_DIR/logs"
 RUN_DIR=$(cd "$RUN_DIR" && pwd)
 LOGS="$RUN_DIR/logs"
-if [[ $RESUME -eq 1 && -f "$RUN_DIR/config.toml" ]]; then
-  # The actors keep the run's seed (the learner's [policy] seed).
-  SAVED_SEED=$(sed -n 's/^seed = \([0-9][0-9]*\)$/\1/p' "$RUN_DIR/config.toml" | head -n 1)
-  SEED=${SAVED_SEED:-$SEED}
-fi
 PREFIX="afx-$(basename "$RUN_DIR" | tr -cd 'A-Za-z0-9_-')"
 STOP_FILE="$LOGS/.stopping"
 rm -f "$STOP_FILE" "$RUN_DIR/http.addr"
 
-LEARNER_ARGS=(serve --service-prefix "$PREFIX" --max-actors "$ACTORS" --http-addr "127.0.0.1:$PORT" "${LEARNER_DEVICE[@]}")
+LEARNER_ARGS=(serve --service-prefix "$PREFIX" --max-actors "$ACTORS" --http-addr "127.0.0.1:$PORT" "${LEARNER_DEVICE[@]}" "${SETTINGS[@]}")
 if [[ $RESUME -eq 1 ]]; then
   [[ ${#TASK_ARGS[@]} -eq 0 ]] || echo "local.sh: resuming: the run's saved task is used; ignoring ${TASK_ARGS[*]}" >&2
   LEARNER_ARGS+=(--resume "$RUN_DIR")
 else
   LEARNER_ARGS+=(--run-dir "$RUN_DIR" "${TASK_ARGS[@]}")
 fi
+# A log without the stack backtraces that follow an error (RUST_BACKTRACE):
+# what a user needs to see is the error above them.
+without_backtrace() { sed '/^Stack backtrace:$/,/^$/d; /^stack backtrace:$/,/^$/d'; }
 echo "starting the learner (log: $LOGS/learner.log)"
 "$BIN/learner" "${LEARNER_ARGS[@]}" "${EXTRA[@]}" >>"$LOGS/learner.log" 2>&1 &
 LEARNER_PID=$!
 
 for _ in $(seq 1 200); do
   [[ -s "$RUN_DIR/http.addr" ]] && break
-  kill -0 "$LEARNER_PID" 2>/dev/null || { echo "local.sh: the learner exited at start:" >&2; tail -n 20 "$LOGS/learner.log" >&2; exit 1; }
+  kill -0 "$LEARNER_PID" 2>/dev/null || { echo "local.sh: the learner exited at start:" >&2; without_backtrace <"$LOGS/learner.log" | tail -n 20 >&2; exit 1; }
   sleep 0.1
 done
 [[ -s "$RUN_DIR/http.addr" ]] || { echo "local.sh: the learner did not come up; see $LOGS/learner.log" >&2; kill "$LEARNER_PID"; exit 1; }
@@ -174,7 +179,7 @@ supervise_actor() {
   log="$LOGS/actor-$id.log"
   while :; do
     start=$(stat -c %s "$log" 2>/dev/null || echo 0)
-    "$BIN/actor" --actor-id "$id" --learner "$PREFIX" --config "$RUN_DIR/config.toml" --seed "$SEED" --envs "$ENVS" "${ACTOR_ARGS[@]}" \
+    "$BIN/actor" --actor-id "$id" --learner "$PREFIX" --config "$RUN_DIR/config.toml" "${RECORD_ARGS[@]}" \
       >>"$log" 2>&1 &
     echo $! >"$LOGS/actor-$id.pid"
     code=0; wait $! || code=$?
@@ -185,7 +190,7 @@ supervise_actor() {
     if [[ $code -lt 128 ]] && ! tail -c +"$((start + 1))" "$log" | grep -q "got policy version"; then
       {
         echo "local.sh: actor $id exited with status $code before it received its first weights: a setup problem, not a crash, so it is not restarted. The end of $log:"
-        tail -c +"$((start + 1))" "$log" | tail -n 15 | sed 's/^/    /'
+        tail -c +"$((start + 1))" "$log" | without_backtrace | tail -n 15 | sed 's/^/    /'
       } >&2
       touch "$SETUP_FAILED"
       return 1

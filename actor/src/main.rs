@@ -538,13 +538,21 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
         transport.service_prefix = prefix.clone();
     }
     eprintln!(
-        "actor {}: {}; task {:?} {} {:?} at {} px",
+        "actor {}: {}; task {:?} {} {:?} at {} px; {} environment(s) on {}, seed {}, rooms {:?}, \
+         profile {}, renderer {:?}, data {}",
         actor_id,
         transport.describe(),
         task.env,
         task.method.as_str(),
         task.affordances,
-        task.image_size
+        task.image_size,
+        envs,
+        device_name,
+        seed,
+        scenes,
+        sim.profile,
+        sim.renderer,
+        sim.data.display()
     );
     let choice: nets::device::DeviceChoice = device_name
         .parse()

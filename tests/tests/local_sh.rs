@@ -165,12 +165,17 @@ fn assert_stopped_cleanly(mut launch: Launch) {
 fn sigterm_to_the_script_stops_actors_then_the_learner() {
     let dir = scratch_dir("local-sh-term");
     let launch = launch(&dir, "term");
-    // `--seed` reaches the learner (its saved config) and every actor, and
-    // so does `--envs-per-actor`.
+    // `--seed`, `--envs-per-actor` and `--device` go into the run's config,
+    // and every actor runs as it says, without flags of its own.
     let config = std::fs::read_to_string(launch.run_dir.join("config.toml")).expect("config.toml");
     assert!(
         config.lines().any(|l| l == format!("seed = {RUN_SEED}")),
         "the run's config does not hold seed {RUN_SEED}:\n{config}"
+    );
+    let actors_table = config.split("[actors]").nth(1).expect("an [actors] table");
+    assert!(
+        actors_table.contains("envs = 2") && actors_table.contains("device = \"cpu\""),
+        "{config}"
     );
     let processes = survivors(&launch.prefix);
     let actors: Vec<String> = processes
@@ -187,17 +192,25 @@ fn sigterm_to_the_script_stops_actors_then_the_learner() {
         learners.len() == 1 && learners[0].contains("--device cpu"),
         "one learner, with --device cpu: {processes:?}"
     );
-    assert!(
-        actors.iter().all(|c| c.contains("--device cpu")),
-        "actors without --device cpu: {actors:?}"
-    );
     assert_eq!(actors.len(), 2, "two actors: {actors:?}");
     assert!(
         actors
             .iter()
-            .all(|c| c.contains(&format!("--seed {RUN_SEED} --envs 2 "))),
-        "actors without --seed {RUN_SEED} --envs 2: {actors:?}"
+            .all(|c| c.contains("--config") && !c.contains("--seed") && !c.contains("--envs")),
+        "actors take their settings from the run's config: {actors:?}"
     );
+    for id in 0..2 {
+        let log = launch.run_dir.join(format!("logs/actor-{id}.log"));
+        let said = wait_for(Duration::from_secs(10), "the actor's settings line", || {
+            std::fs::read_to_string(&log)
+                .ok()
+                .filter(|l| l.contains("environment(s) on"))
+        });
+        assert!(
+            said.contains(&format!("2 environment(s) on cpu, seed {RUN_SEED}")),
+            "{said}"
+        );
+    }
     // SAFETY: kill(2) on our own child's pid has no memory-safety preconditions.
     unsafe {
         libc::kill(launch.script.id() as i32, libc::SIGTERM);
@@ -342,8 +355,9 @@ fn throughput_sh_measures_each_setting_and_stops_its_runs() {
 #[test]
 fn an_actor_that_fails_before_its_first_weights_stops_the_run_with_its_log() {
     let dir = scratch_dir("local-sh-setup");
-    // Every actor rejects its own arguments: a setup problem restarts cannot fix.
-    let (mut launch, _) = start(&dir, "setup", &["--renderer", "bogus"]);
+    // The learner trains on the CPU, but the run asks its actors for a GPU
+    // this build has not: a setup problem restarts cannot fix.
+    let (mut launch, _) = start(&dir, "setup", &["--", "--set", "actors.device=gpu"]);
     let deadline = Instant::now() + Duration::from_secs(60);
     let status = loop {
         if let Some(status) = launch.script.try_wait().expect("waiting for the script") {
@@ -360,7 +374,7 @@ fn an_actor_that_fails_before_its_first_weights_stops_the_run_with_its_log() {
     assert!(!status.success(), "{status}:\n{log}");
     for words in [
         "before it received its first weights",
-        "unknown renderer `bogus`",
+        "this build has no GPU backend",
         "stopping the run",
     ] {
         assert!(log.contains(words), "{words} in:\n{log}");
@@ -369,4 +383,20 @@ fn an_actor_that_fails_before_its_first_weights_stops_the_run_with_its_log() {
     wait_for(Duration::from_secs(5), "no process of the run left", || {
         survivors(&launch.prefix).is_empty().then_some(())
     });
+}
+
+#[test]
+fn a_setting_actors_cannot_use_is_refused_before_anything_starts() {
+    let dir = scratch_dir("local-sh-bad-setting");
+    let (mut launch, _) = start(&dir, "badset", &["--renderer", "bogus"]);
+    let status = wait_for(Duration::from_secs(30), "the script to give up", || {
+        launch.script.try_wait().expect("waiting for the script")
+    });
+    let log = std::fs::read_to_string(&launch.log).unwrap_or_default();
+    assert!(!status.success(), "{status}:\n{log}");
+    assert!(
+        log.contains("actors.renderer") && log.contains("auto, gpu, cpu"),
+        "the learner names the setting and its values:\n{log}"
+    );
+    assert!(!log.contains("actors:   "), "no actor was started:\n{log}");
 }
