@@ -114,6 +114,21 @@ fn a_tiny_comparison_trains_chooses_on_validation_and_writes_the_page() {
         "a finished run is skipped: {log}"
     );
 
+    // The run's config says where the data is and how to render: `actor
+    // evaluate` needs no flag repeated, from anywhere.
+    let again_json = dir.join("again.json");
+    let evaluated = Command::new(bin("actor"))
+        .args(["evaluate", "--views-per-scene", "1", "--run-dir"])
+        .arg(&run)
+        .arg("--json")
+        .arg(&again_json)
+        .current_dir(&dir)
+        .env_remove("AFX_DATA")
+        .output()
+        .expect("running actor evaluate");
+    assert!(evaluated.status.success(), "{}", text(&evaluated));
+    assert!(again_json.exists());
+
     let other = reproduce(&root, &report, "800", port);
     assert!(!other.status.success());
     assert!(text(&other).contains("other settings"), "{}", text(&other));
