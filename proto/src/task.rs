@@ -103,6 +103,15 @@ pub struct RewardWeights {
     pub interaction: f32,
     /// α3, failed actions (R_fail is −1, so a positive α3 penalises).
     pub failure: f32,
+    /// α2 for successful pick-ups alone, in place of `interaction` (unset:
+    /// `interaction`). Pick-ups succeed less often than pushes, so under one
+    /// α2 policies learn to push (docs/notebook/2026-11-26-reproduction.md).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pick_up_interaction: Option<f32>,
+    /// α2 for successful pushes alone, in place of `interaction` (unset:
+    /// `interaction`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub push_interaction: Option<f32>,
 }
 
 impl RewardWeights {
@@ -111,7 +120,18 @@ impl RewardWeights {
         navigation: 1.0,
         interaction: 1.0,
         failure: 1.0,
+        pick_up_interaction: None,
+        push_interaction: None,
     };
+
+    /// α2 for a success of `affordance`.
+    pub fn interaction_for(&self, affordance: Affordance) -> f32 {
+        let own = match affordance {
+            Affordance::PickUp => self.pick_up_interaction,
+            Affordance::Push => self.push_interaction,
+        };
+        own.unwrap_or(self.interaction)
+    }
 }
 
 impl Default for RewardWeights {
@@ -120,6 +140,8 @@ impl Default for RewardWeights {
             navigation: 0.25,
             interaction: 2.0,
             failure: 0.05,
+            pick_up_interaction: None,
+            push_interaction: None,
         }
     }
 }
@@ -254,7 +276,9 @@ impl TaskSpec {
         }
         let r = self.reward;
         if ![r.navigation, r.interaction, r.failure]
-            .iter()
+            .into_iter()
+            .chain(r.pick_up_interaction)
+            .chain(r.push_interaction)
             .all(|w| w.is_finite())
         {
             return Err(TaskError::RewardWeights);
@@ -380,6 +404,22 @@ impl TaskSpec {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_affordance_can_have_its_own_interaction_weight_and_it_must_be_finite() {
+        let task: TaskSpec =
+            toml::from_str("[reward]\npick_up_interaction = 4.0\n").expect("a task");
+        assert_eq!(task.reward.interaction_for(Affordance::PickUp), 4.0);
+        assert_eq!(task.reward.interaction_for(Affordance::Push), 2.0);
+        task.validate().unwrap();
+        let nan: TaskSpec = toml::from_str("[reward]\npush_interaction = nan\n").expect("a task");
+        assert_eq!(nan.validate(), Err(TaskError::RewardWeights));
+        let text = toml::to_string(&TaskSpec::default()).unwrap();
+        assert!(
+            !text.contains("pick_up_interaction"),
+            "unset stays unwritten: {text}"
+        );
+    }
 
     #[test]
     fn action_counts_follow_the_paper() {

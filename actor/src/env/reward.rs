@@ -66,13 +66,13 @@ impl RewardTracker {
     pub fn reward(&mut self, event: &StepEvent) -> f32 {
         let navigation = self.visit(&event.agent);
         let interaction = match event.interaction {
-            Some(key) if event.success && self.interacted.insert(key) => 1.0,
+            Some(key) if event.success && self.interacted.insert(key) => {
+                self.weights.interaction_for(key.0)
+            }
             _ => 0.0,
         };
         let failure = if event.success { 0.0 } else { -1.0 };
-        self.weights.navigation * navigation
-            + self.weights.interaction * interaction
-            + self.weights.failure * failure
+        self.weights.navigation * navigation + interaction + self.weights.failure * failure
     }
 }
 
@@ -99,6 +99,30 @@ mod tests {
             success,
             interaction,
         }
+    }
+
+    #[test]
+    fn each_affordance_can_have_its_own_interaction_weight() {
+        let weights = RewardWeights {
+            pick_up_interaction: Some(5.0),
+            ..RewardWeights::PAPER
+        };
+        let mut r = RewardTracker::new(weights, at(0.0, 0.0, 0.0));
+        let here = at(0.0, 0.0, 0.0);
+        assert_eq!(
+            r.reward(&step(here, true, Some((Affordance::PickUp, 1)))),
+            5.0
+        );
+        assert_eq!(
+            r.reward(&step(here, true, Some((Affordance::Push, 1)))),
+            1.0,
+            "push keeps α2"
+        );
+        assert_eq!(
+            r.reward(&step(here, false, Some((Affordance::PickUp, 2)))),
+            -1.0,
+            "a failure costs α3 whatever the affordance"
+        );
     }
 
     #[test]
@@ -154,6 +178,7 @@ mod tests {
             navigation: 0.5,
             interaction: 2.0,
             failure: 0.1,
+            ..RewardWeights::PAPER
         };
         let mut r = RewardTracker::new(weights, at(0.0, 0.0, 0.0));
         assert_eq!(r.reward(&step(at(0.25, 0.0, 0.0), true, pick)), 0.5 + 2.0);
