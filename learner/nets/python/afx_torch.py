@@ -34,7 +34,6 @@ import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
-from safetensors import safe_open
 
 UNET_CHANNELS = (24, 48, 92, 164)
 ENCODER_FEATURES = 64
@@ -237,6 +236,7 @@ def policy_layout(tensors, image_size):
 def load(path, image_size):
     """`(unet, policy, metadata)` from a weights file; either network is None
     when the file lacks it. `image_size` is the run's `[task] image_size`."""
+    from safetensors import safe_open
     with safe_open(str(path), "pt") as f:
         tensors = {k: f.get_tensor(k) for k in f.keys()}
         metadata = dict(f.metadata() or {})

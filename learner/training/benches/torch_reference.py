@@ -20,6 +20,7 @@ import argparse
 import statistics
 import sys
 import time
+from pathlib import Path
 
 try:
     import torch
@@ -29,86 +30,18 @@ except ImportError as e:
     sys.exit(f"needs torch (pip install torch): {e}")
 
 
-class ConvEncoder(nn.Module):
-    def __init__(self, channels, size=128):
-        super().__init__()
-        self.conv1 = nn.Conv2d(channels, 16, 8, stride=4)
-        self.conv2 = nn.Conv2d(16, 32, 4, stride=2)
-        self.conv3 = nn.Conv2d(32, 32, 3, stride=2)
-        side = (((size - 8) // 4 + 1 - 4) // 2 + 1 - 3) // 2 + 1
-        self.fc = nn.Linear(32 * side * side, 64)
-
-    def forward(self, x):
-        x = F.relu(self.conv1(x))
-        x = F.relu(self.conv2(x))
-        x = F.relu(self.conv3(x))
-        return F.relu(self.fc(x.flatten(1)))
+# The networks themselves come from the project's PyTorch module, which loads
+# the Rust networks' weights by name (and is checked against them).
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "nets" / "python"))
+from afx_torch import AffordanceUnet as Unet  # noqa: E402
+from afx_torch import PolicyNet  # noqa: E402
 
 
-class VectorEncoder(nn.Module):
-    def __init__(self, dim):
-        super().__init__()
-        self.fc1 = nn.Linear(dim, 64)
-        self.fc2 = nn.Linear(64, 64)
-
-    def forward(self, x):
-        return F.relu(self.fc2(F.relu(self.fc1(x))))
-
-
-class Head(nn.Module):
-    def __init__(self, inp, out):
-        super().__init__()
-        self.fc1 = nn.Linear(inp, 64)
-        self.fc2 = nn.Linear(64, 32)
-        self.out = nn.Linear(32, out)
-
-    def forward(self, x):
-        return self.out(torch.tanh(self.fc2(torch.tanh(self.fc1(x)))))
-
-
-class Policy(nn.Module):
-    def __init__(self, image_channels=(4, 4, 2), vector_dims=(50, 1), n_actions=8, size=128):
-        super().__init__()
-        self.images = nn.ModuleList(ConvEncoder(c, size) for c in image_channels)
-        self.vectors = nn.ModuleList(VectorEncoder(d) for d in vector_dims)
-        fused = 64 * (len(image_channels) + len(vector_dims))
-        self.actor = Head(fused, n_actions)
-        self.critic = Head(fused, 1)
-
-    def forward(self, images, vectors, mask):
-        parts = [e(x) for e, x in zip(self.images, images)] + [e(x) for e, x in zip(self.vectors, vectors)]
-        h = torch.cat(parts, 1)
-        logits = self.actor(h).masked_fill(~mask, -1e9)
-        return F.log_softmax(logits, 1), self.critic(h).squeeze(1)
-
-
-class DoubleConv(nn.Module):
-    def __init__(self, i, o):
-        super().__init__()
-        self.first = nn.Conv2d(i, o, 3, padding=1)
-        self.second = nn.Conv2d(o, o, 3, padding=1)
-
-    def forward(self, x):
-        return F.relu(self.second(F.relu(self.first(x))))
-
-
-class Unet(nn.Module):
-    def __init__(self, inp=4, out=2, c=(24, 48, 92, 164)):
-        super().__init__()
-        self.down = nn.ModuleList([DoubleConv(inp, c[0]), DoubleConv(c[0], c[1]), DoubleConv(c[1], c[2]), DoubleConv(c[2], c[3])])
-        self.ups = nn.ModuleList([nn.ConvTranspose2d(c[3], c[2], 2, 2), nn.ConvTranspose2d(c[2], c[1], 2, 2), nn.ConvTranspose2d(c[1], c[0], 2, 2)])
-        self.up_convs = nn.ModuleList([DoubleConv(2 * c[2], c[2]), DoubleConv(2 * c[1], c[1]), DoubleConv(2 * c[0], c[0])])
-        self.head = nn.Conv2d(c[0], out, 1)
-
-    def forward(self, x):
-        skips = []
-        x = self.down[0](x)
-        for level in self.down[1:]:
-            skips.append(x)
-            x = level(F.max_pool2d(x, 2))
-        for up, conv in zip(self.ups, self.up_convs):
-            x = conv(torch.cat([up(x), skips.pop()], 1))
-        return self.head(x)
+def Policy(image_channels=(4, 4, 2), vector_dims=(50, 1), n_actions=8, size=128):
+    """The policy without memory for these inputs (see `afx_torch.PolicyNet`)."""
+    return PolicyNet({"image_channels": list(image_channels), "image_size": size,
+                      "vector_dims": list(vector_dims), "n_actions": n_actions,
+                      "gru_hidden": None})
 
 
 def masked_bce_dice(logits, labels, known):
@@ -145,7 +78,7 @@ def ppo_update_fn(policy, rows, image_channels, vector_dims, n_actions, size, de
         for _ in range(4):
             order = torch.randperm(rows, device=dev)
             for idx in order.chunk(2):
-                lp, v = policy([t[idx] for t in images], [t[idx] for t in vectors], mask[idx])
+                lp, v, _ = policy([t[idx] for t in images], [t[idx] for t in vectors], mask[idx])
                 new = lp.gather(1, actions[idx, None]).squeeze(1)
                 ratio = (new - old_lp[idx]).exp()
                 adv = adv_all[idx]
