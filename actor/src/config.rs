@@ -22,6 +22,24 @@ pub struct RunConfig {
     pub seed: u64,
 }
 
+/// The table `name` of a run config read as `T`, or `T`'s default when
+/// the config has no such table.
+fn table_or_default<T: serde::de::DeserializeOwned + Default>(
+    table: &toml::Table,
+    name: &str,
+    path: &Path,
+) -> anyhow::Result<T> {
+    match table.get(name) {
+        Some(value) => value.clone().try_into().with_context(|| {
+            format!(
+                "parsing [{name}] in {} (run `learner print-config` for the keys)",
+                path.display()
+            )
+        }),
+        None => Ok(T::default()),
+    }
+}
+
 /// Reads the `[transport]`, `[task]` and `[actors]` tables and `[policy]
 /// seed` of a run config (the learner's `config.toml`); the rest belongs to
 /// the learner and is ignored here. Missing tables take their defaults.
@@ -30,35 +48,11 @@ pub fn run_config_from_toml_file(path: &Path) -> anyhow::Result<RunConfig> {
         .with_context(|| format!("reading config {}", path.display()))?;
     let table: toml::Table =
         toml::from_str(&text).with_context(|| format!("parsing config {}", path.display()))?;
-    let transport = match table.get("transport") {
-        Some(value) => value.clone().try_into().with_context(|| {
-            format!(
-                "parsing [transport] in {} (run `learner print-config` for the keys)",
-                path.display()
-            )
-        })?,
-        None => TransportConfig::default(),
-    };
-    let task: TaskSpec = match table.get("task") {
-        Some(value) => value.clone().try_into().with_context(|| {
-            format!(
-                "parsing [task] in {} (run `learner print-config` for the keys)",
-                path.display()
-            )
-        })?,
-        None => TaskSpec::default(),
-    };
+    let transport: TransportConfig = table_or_default(&table, "transport", path)?;
+    let task: TaskSpec = table_or_default(&table, "task", path)?;
     task.validate()
         .with_context(|| format!("[task] in {}", path.display()))?;
-    let actors: ActorSettings = match table.get("actors") {
-        Some(value) => value.clone().try_into().with_context(|| {
-            format!(
-                "parsing [actors] in {} (run `learner print-config` for the keys)",
-                path.display()
-            )
-        })?,
-        None => ActorSettings::default(),
-    };
+    let actors: ActorSettings = table_or_default(&table, "actors", path)?;
     actors
         .validate()
         .with_context(|| format!("[actors] in {}", path.display()))?;
