@@ -234,8 +234,10 @@ struct RunArgs {
     #[arg(long, value_parser = ["cpu", "gpu"])]
     device: Option<String>,
     /// Record every episode to an MCAP file in this directory (created):
-    /// RGB, depth, instance ids, map ids, labels, camera poses, actions and
-    /// rewards, in schemas Foxglove opens.
+    /// camera images and pose, calibration, instance and map ids, the
+    /// U-Net's predictions, labels, the policy's maps, the map's object
+    /// meshes, actions and rewards, in Foxglove's schemas (open with
+    /// deploy/foxglove-layout.json).
     #[arg(long, value_name = "DIR")]
     record: Option<PathBuf>,
     /// With --record, record only every N-th episode (a recording is tens

@@ -5,6 +5,8 @@ use actor::env::actions::{random_allowed_action, PolicyAction};
 use actor::env::affordance_model::AffordanceModel;
 use actor::env::sim_env::{ActionOutcome, SimEnv, SimEnvConfig, SimObservation};
 use actor::env::Environment;
+use foxglove::messages::{CameraCalibration, FrameTransform, Grid, RawImage, SceneUpdate};
+use foxglove::Decode;
 use mapper::Affordance;
 use proto::{Method, StatField, LABEL_UNKNOWN};
 use rand::rngs::StdRng;
@@ -280,30 +282,90 @@ fn a_recorded_episode_holds_every_frame_label_and_step() {
     }
     let first = dir.join("test_step000001234_episode000008.mcap");
     assert!(dir.join("test_step000001234_episode000008_2.mcap").exists());
+    let plane_names = env.state_config().map_plane_names();
     let bytes = std::fs::read(first).unwrap();
     let mut counts = std::collections::BTreeMap::<String, usize>::new();
+    let mut objects = 0;
     for message in mcap::MessageStream::new(&bytes).unwrap() {
         let message = message.unwrap();
-        let value: serde_json::Value = serde_json::from_slice(&message.data).unwrap();
-        if message.channel.topic == "/camera/depth" {
-            assert_eq!(value["encoding"], "32FC1");
-            assert_eq!(value["width"], 128);
+        let topic = message.channel.topic.as_str();
+        let schema = message.channel.schema.as_ref().unwrap().name.as_str();
+        let data = &message.data[..];
+        match schema {
+            "foxglove.RawImage" => {
+                let image = RawImage::decode(data).unwrap();
+                assert_eq!((image.width, image.height), (128, 128), "{topic}");
+                assert_eq!(image.data.len(), (image.step * image.height) as usize);
+                let encoding = match topic {
+                    "/camera/depth" => "32FC1",
+                    t if t.ends_with("/raw") => "16UC1",
+                    t if t.starts_with("/labels/") || t.starts_with("/unet/") => "mono8",
+                    _ => "rgb8",
+                };
+                assert_eq!(image.encoding, encoding, "{topic}");
+            }
+            "foxglove.FrameTransform" => {
+                let tf = FrameTransform::decode(data).unwrap();
+                assert_eq!(
+                    (tf.parent_frame_id.as_str(), tf.child_frame_id.as_str()),
+                    ("world", "camera")
+                );
+            }
+            "foxglove.CameraCalibration" => {
+                let calibration = CameraCalibration::decode(data).unwrap();
+                assert_eq!(calibration.k[8], 1.0);
+                assert!(calibration.k[0] > 10.0, "fx {}", calibration.k[0]);
+            }
+            "foxglove.Grid" => {
+                let grid = Grid::decode(data).unwrap();
+                let names: Vec<String> = grid.fields.iter().map(|f| f.name.clone()).collect();
+                assert_eq!(names, plane_names, "{topic}");
+                assert_eq!(grid.column_count, 128);
+                assert_eq!(grid.data.len(), (grid.row_stride * 128) as usize);
+            }
+            "foxglove.SceneUpdate" => {
+                let update = SceneUpdate::decode(data).unwrap();
+                objects = update.entities.len();
+                for entity in &update.entities {
+                    let mesh = &entity.triangles[0];
+                    assert!(!mesh.indices.is_empty(), "{} has no triangles", entity.id);
+                    assert!(mesh
+                        .indices
+                        .iter()
+                        .all(|&i| (i as usize) < mesh.points.len()));
+                    assert!(entity.metadata.iter().any(|kv| kv.key == "pick_up"));
+                }
+            }
+            "afx.PolicyStep" => {
+                let value: serde_json::Value = serde_json::from_slice(data).unwrap();
+                assert!(value["reward"].is_number() && value["action_name"].is_string());
+            }
+            other => panic!("{topic}: unexpected schema {other}"),
         }
-        *counts.entry(message.channel.topic.clone()).or_default() += 1;
+        *counts.entry(topic.to_owned()).or_default() += 1;
     }
     let frames = steps + 1;
     for topic in [
+        "/tf",
+        "/camera/calibration",
         "/camera/rgb",
         "/camera/depth",
         "/camera/instance_ids",
+        "/camera/instance_ids/raw",
         "/map/object_ids",
+        "/map/object_ids/raw",
         "/labels/pick_up",
         "/labels/push",
-        "/camera/pose",
+        "/unet/pick_up",
+        "/unet/push",
+        "/map/global",
+        "/map/local",
     ] {
         assert_eq!(counts.get(topic), Some(&frames), "{topic}: {counts:?}");
     }
     assert_eq!(counts.get("/policy/step"), Some(&steps));
+    assert_eq!(counts.get("/map/objects"), Some(&1));
+    assert!(objects > 0, "the map's objects are in the recording");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -461,4 +523,78 @@ fn failed_share(tried: &[&ActionOutcome], why: fn(&Failure) -> bool) -> Option<f
         .filter(|o| o.failure.as_ref().is_some_and(why))
         .count();
     (!tried.is_empty()).then(|| failed as f32 / tried.len() as f32)
+}
+
+/// Runs `actor/tests/read_recording.py` on `file` with the shipped Foxglove
+/// layout; `None` (skipped, said) when Python or its `mcap` packages are
+/// missing, unless `AFX_REQUIRE_PYTHON_CHECKS` is set (CI sets it).
+fn python_reads(file: &std::path::Path) -> Option<serde_json::Value> {
+    let required = std::env::var_os("AFX_REQUIRE_PYTHON_CHECKS").is_some();
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let output = match std::process::Command::new("python3")
+        .arg(root.join("tests/read_recording.py"))
+        .arg(file)
+        .arg(root.join("../deploy/foxglove-layout.json"))
+        .output()
+    {
+        Ok(o) => o,
+        Err(e) if !required => {
+            eprintln!("skipping: python3 not runnable ({e})");
+            return None;
+        }
+        Err(e) => panic!("python3 not runnable: {e}"),
+    };
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    if !output.status.success() {
+        if stderr.contains("ModuleNotFoundError") && !required {
+            eprintln!("skipping: `pip install mcap mcap-protobuf-support lz4` to run this check");
+            return None;
+        }
+        panic!("Python could not decode the recording:\n{stderr}");
+    }
+    Some(serde_json::from_slice(&output.stdout).expect("the reader prints JSON"))
+}
+
+#[test]
+fn python_decodes_every_message_of_a_recording_and_the_layout_finds_its_topics() {
+    let steps = 4;
+    let mut env = environment(steps);
+    let dir = std::env::temp_dir().join(format!("afx-record-py-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    env.record_to(dir.clone(), "py_".into(), 1);
+    run(&mut env, &unet(), 5, steps);
+    env.finish_episode(1).unwrap();
+    let file = std::fs::read_dir(&dir)
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    let Some(seen) = python_reads(&file) else {
+        return;
+    };
+    let _ = std::fs::remove_dir_all(&dir);
+    let topics = &seen["topics"];
+    println!("{}", serde_json::to_string_pretty(&seen).unwrap());
+    assert_eq!(seen["layout_topics_missing"], serde_json::json!([]));
+    assert_eq!(topics["/camera/rgb"]["size"], serde_json::json!([128, 128]));
+    assert_eq!(topics["/camera/rgb"]["messages"], steps + 1);
+    assert_eq!(topics["/camera/depth"]["image_encoding"], "32FC1");
+    assert_eq!(
+        topics["/tf"]["frames"],
+        serde_json::json!(["world", "camera"])
+    );
+    assert_eq!(topics["/camera/calibration"]["K"][8], 1.0);
+    let names = env.state_config().map_plane_names();
+    assert_eq!(topics["/map/global"]["fields"], serde_json::json!(names));
+    assert_eq!(topics["/map/global"]["rows"], 128);
+    assert!(topics["/map/objects"]["entities"].as_u64().unwrap() > 0);
+    assert!(topics["/map/objects"]["triangles"].as_u64().unwrap() > 100);
+    assert_eq!(
+        topics["/map/objects"]["metadata_keys"],
+        serde_json::json!(["class", "pick_up", "push"])
+    );
+    assert_eq!(topics["/policy/step"]["encoding"], "json");
+    assert_eq!(topics["/policy/step"]["messages"], steps);
 }

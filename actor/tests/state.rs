@@ -96,11 +96,20 @@ fn state_shapes_ranges_masks_and_egocentric_maps() {
     // The distance image: some pixels within reach (< 0.5), some beyond.
     let distance = &state.camera[3 * s * s..4 * s * s];
     assert!(distance.iter().any(|&d| d < 0.5) && distance.iter().any(|&d| d > 0.5));
+    // The planes by name (recordings label them so).
+    let names = config.map_plane_names();
+    assert_eq!(names.len(), config.map_channels());
+    let plane_index = |name: &str| names.iter().position(|n| n == name).unwrap();
+    let (visited, occupancy, pick_up_success) = (
+        plane_index("visited"),
+        plane_index("occupancy"),
+        plane_index("pick_up_success"),
+    );
     // Occupancy and the agent's own cell appear on both maps.
-    let occupancy = &state.global_map[m * m..2 * m * m];
+    let occupancy = &state.global_map[occupancy * m * m..(occupancy + 1) * m * m];
     assert!(occupancy.iter().filter(|&&v| v > 0.0).count() > 50);
     let visited_cell = (m / 2) * m + m / 2;
-    assert_eq!(state.global_map[visited_cell], 1.0);
+    assert_eq!(state.global_map[visited * m * m + visited_cell], 1.0);
 
     // The object nearest the image's middle column, told it can be picked up.
     let width = s;
@@ -132,8 +141,10 @@ fn state_shapes_ranges_masks_and_egocentric_maps() {
         "reward 1 is stored as 2/3 of the [-1, 2] range"
     );
 
-    // Global map plane 2 (pick-up success): the object is ahead (upper half, middle).
-    let plane = |state: &State| state.global_map[2 * m * m..3 * m * m].to_vec();
+    // The global pick-up success plane: the object is ahead (upper half, middle).
+    let plane = |state: &State| {
+        state.global_map[pick_up_success * m * m..(pick_up_success + 1) * m * m].to_vec()
+    };
     let (row, col) = centroid(&plane(&state), m);
     println!("facing it: row {row:.1}, col {col:.1}");
     assert!(row < m as f32 / 2.0 - 3.0, "ahead means up: row {row}");

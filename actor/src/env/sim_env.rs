@@ -42,7 +42,9 @@ use crate::labeler::{
 };
 use crate::mapping::{class_image, instance_classes, intrinsics, map_frame};
 use crate::metrics::{annotation_rates, ground_truth_planes, map_id_consistency, score_frame};
-use crate::recording::{write_episode, FrameRecord, StepRecord};
+use crate::recording::{
+    write_episode, EpisodeRecord, FrameRecord, MapLayout, MapPlanesRecord, ObjectRecord, StepRecord,
+};
 
 /// Settings of the environment.
 #[derive(Debug, Clone)]
@@ -176,6 +178,14 @@ impl Recording {
     }
 }
 
+/// One frame's map planes as the policy saw them, kept for a recording.
+struct RecordedMapPlanes {
+    /// x, y (metres), heading (radians).
+    agent: (f32, f32, f32),
+    global: Vec<f32>,
+    local: Vec<f32>,
+}
+
 /// A frame rendered (and integrated into the map) that waits for the
 /// U-Net's probabilities before it becomes an observation.
 struct Captured {
@@ -212,6 +222,9 @@ struct Episode {
     stamps: Vec<u64>,
     /// What every step did, for recordings.
     step_log: Vec<StepRecord>,
+    /// The policy's map planes of every frame, for recordings (methods
+    /// with a map; empty when not recording).
+    map_planes: Vec<RecordedMapPlanes>,
     /// The U-Net's calibrated probabilities of every frame, one byte per
     /// pixel and affordance (planes in order), for annotation by confidence.
     probabilities: Vec<Vec<u8>>,
@@ -405,6 +418,7 @@ impl SimEnv {
             probabilities: Vec::new(),
             stamps: Vec::new(),
             step_log: Vec::new(),
+            map_planes: Vec::new(),
             scores: vec![ScoreSums::default(); self.config.affordances.len()],
             attempts: Default::default(),
             successes: Default::default(),
@@ -724,6 +738,13 @@ impl SimEnv {
                 holding,
             },
         );
+        if self.recording.is_some() && !state.global_map.is_empty() {
+            episode.map_planes.push(RecordedMapPlanes {
+                agent: (agent.x, agent.y, agent.yaw_deg.to_radians()),
+                global: state.global_map.clone(),
+                local: state.local_map.clone(),
+            });
+        }
         let mask = self.space.mask(holding, &episode.targets);
         episode.truth_ids.push(frame.ids);
         episode.stamps.push(
@@ -857,30 +878,84 @@ impl SimEnv {
         k: &mapper::Intrinsics,
         path: &std::path::Path,
     ) -> anyhow::Result<()> {
-        let records: Vec<FrameRecord<'_>> = episode
-            .frames
-            .iter()
-            .zip(labels)
-            .zip(&episode.truth_ids)
-            .zip(&episode.stamps)
-            .map(|(((frame, labels), ids), &stamp_ns)| FrameRecord {
-                stamp_ns,
-                rgb: &frame.rgb,
-                depth_m: &frame.depth_m,
-                instance_ids: ids,
-                map_ids: &frame.map_ids,
-                labels,
-                t_world_camera: &frame.t_world_camera,
+        let records: Vec<FrameRecord<'_>> = (0..episode.frames.len())
+            .map(|i| {
+                let frame = &episode.frames[i];
+                FrameRecord {
+                    stamp_ns: episode.stamps[i],
+                    rgb: &frame.rgb,
+                    depth_m: &frame.depth_m,
+                    instance_ids: &episode.truth_ids[i],
+                    map_ids: &frame.map_ids,
+                    labels: &labels[i],
+                    predictions: &episode.probabilities[i],
+                    t_world_camera: &frame.t_world_camera,
+                    map_planes: episode.map_planes.get(i).map(|p| MapPlanesRecord {
+                        agent: p.agent,
+                        global: &p.global,
+                        local: &p.local,
+                    }),
+                }
             })
             .collect();
+        let with_map = !episode.map_planes.is_empty();
+        let layout = MapLayout {
+            plane_names: self.state_config.map_plane_names(),
+            cells: self.state_config.map_cells,
+            extents_m: [
+                self.state_config.global_extent_m,
+                self.state_config.local_extent_m,
+            ],
+            floor_z: episode.sim.scene().floor_top_m,
+        };
+        let objects = if with_map {
+            self.object_records(&episode.map)?
+        } else {
+            Vec::new()
+        };
         write_episode(
             path,
-            (k.width, k.height),
-            &self.config.affordances,
-            &records,
-            &episode.step_log,
+            &EpisodeRecord {
+                intrinsics: k,
+                affordances: &self.config.affordances,
+                frames: &records,
+                steps: &episode.step_log,
+                map_layout: with_map.then_some(&layout),
+                objects: &objects,
+            },
         )?;
         Ok(())
+    }
+
+    /// The map's objects with their meshes and labels, for a recording.
+    fn object_records(&self, map: &Map) -> anyhow::Result<Vec<ObjectRecord>> {
+        map.objects()
+            .values()
+            .map(|object| {
+                let mesh = map
+                    .object_mesh(object.id)
+                    .context("meshing a map object for the recording")?;
+                let mut metadata = vec![(
+                    "class".to_owned(),
+                    object
+                        .class()
+                        .map_or_else(|| "unknown".to_owned(), |c| c.to_string()),
+                )];
+                for &a in &self.config.affordances {
+                    let label = match object.labels.label(a) {
+                        Some(true) => "positive",
+                        Some(false) => "negative",
+                        None => "unknown",
+                    };
+                    metadata.push((a.as_str().to_owned(), label.to_owned()));
+                }
+                Ok(ObjectRecord {
+                    id: object.id.0,
+                    mesh,
+                    metadata,
+                })
+            })
+            .collect()
     }
 }
 

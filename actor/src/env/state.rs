@@ -90,6 +90,23 @@ impl StateConfig {
         }
     }
 
+    /// Names of the map planes in their order ([`build_state`]'s): where
+    /// the agent has been, occupancy, then per affordance the objects
+    /// tried with success, tried with failure, and not tried. Empty
+    /// without a map.
+    pub fn map_plane_names(&self) -> Vec<String> {
+        if self.map_channels() == 0 {
+            return Vec::new();
+        }
+        let mut names = vec!["visited".to_owned(), "occupancy".to_owned()];
+        for a in &self.affordances {
+            for kind in ["success", "failure", "not_tried"] {
+                names.push(format!("{}_{kind}", a.as_str()));
+            }
+        }
+        names
+    }
+
     /// Length of the history vector (0 for `intexp`).
     pub fn history_len(&self) -> usize {
         if self.method == Method::Intexp {
@@ -266,6 +283,7 @@ fn map_planes(
         cells: config.map_cells,
     };
     let (lo, hi) = config.occupancy_heights_m;
+    // In the order of `StateConfig::map_plane_names`.
     let mut kinds = vec![ProjectionKind::Occupancy {
         min_height_m: input.floor_z + lo,
         max_height_m: input.floor_z + hi,
