@@ -161,6 +161,7 @@ without_backtrace() { sed '/^Stack backtrace:$/,/^$/d; /^stack backtrace:$/,/^$/
 echo "starting the learner (log: $LOGS/learner.log)"
 "$BIN/learner" "${LEARNER_ARGS[@]}" "${EXTRA[@]}" >>"$LOGS/learner.log" 2>&1 &
 LEARNER_PID=$!
+echo "$LEARNER_PID" >"$LOGS/learner.pid"
 
 for _ in $(seq 1 200); do
   [[ -s "$RUN_DIR/http.addr" ]] && break
@@ -232,7 +233,7 @@ shutdown() {
   kill -INT "$LEARNER_PID" 2>/dev/null || true
   local code=0; wait "$LEARNER_PID" || code=$?
   "$BIN/learner" clean >/dev/null 2>&1 || true
-  rm -f "$STOP_FILE" "$LOGS"/actor-*.pid
+  rm -f "$STOP_FILE" "$LOGS"/actor-*.pid "$LOGS/learner.pid"
   echo "stopped (learner exit status $code). Resume with: deploy/local.sh --actors $ACTORS --run-dir $RUN_DIR --resume"
   [[ ! -e "$SETUP_FAILED" ]] || code=1
   exit "$code"

@@ -198,20 +198,29 @@ impl LearnerConfig {
         settings: &[String],
     ) -> anyhow::Result<Self> {
         use anyhow::Context;
-        let mut table: toml::Table = match path {
-            Some(path) => {
-                let text = std::fs::read_to_string(path)
-                    .with_context(|| format!("reading learner config {}", path.display()))?;
-                toml::from_str(&text).with_context(|| {
-                    format!("parsing learner config {} (run `learner print-config` for every key and its default)", path.display())
-                })?
-            }
-            None => toml::Table::new(),
+        let text = match path {
+            Some(path) => std::fs::read_to_string(path)
+                .with_context(|| format!("reading learner config {}", path.display()))?,
+            None => String::new(),
         };
+        let source = path.map_or("the defaults".to_string(), |p| p.display().to_string());
+        Self::from_toml_str_with(&text, &source, settings)
+    }
+
+    /// [`Self::from_toml_file_with`] on the text of a config; `source`
+    /// names where it came from in errors.
+    pub fn from_toml_str_with(
+        text: &str,
+        source: &str,
+        settings: &[String],
+    ) -> anyhow::Result<Self> {
+        use anyhow::Context;
+        let mut table: toml::Table = toml::from_str(text).with_context(|| {
+            format!("parsing learner config {source} (run `learner print-config` for every key and its default)")
+        })?;
         for setting in settings {
             set_dotted(&mut table, setting)?;
         }
-        let source = path.map_or("the defaults".to_string(), |p| p.display().to_string());
         toml::Value::Table(table).try_into().with_context(|| {
             format!(
                 "the learner config from {source} with {settings:?} (run `learner print-config` \

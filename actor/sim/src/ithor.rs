@@ -122,8 +122,14 @@ pub fn load_scene(path: &Path) -> Result<Scene, ImportError> {
         path: path.to_owned(),
         source,
     })?;
+    parse_scene(path, &text)
+}
+
+/// Imports a scene from the text of a scene file at `path` (which names the
+/// scene, after its stem, and the errors).
+pub fn parse_scene(path: &Path, text: &str) -> Result<Scene, ImportError> {
     let raw: BTreeMap<String, RawObject> =
-        serde_json::from_str(&text).map_err(|source| ImportError::Json {
+        serde_json::from_str(text).map_err(|source| ImportError::Json {
             path: path.to_owned(),
             source,
         })?;
