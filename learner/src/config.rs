@@ -3,6 +3,7 @@
 //! the run directory.
 
 use serde::{Deserialize, Serialize};
+use training::ppo::PpoConfig;
 use transport::TransportConfig;
 
 /// The learner's configuration.
@@ -58,6 +59,10 @@ pub struct PolicyConfig {
     pub entropy_coef: f32,
     /// Largest global gradient norm; larger gradients are scaled down.
     pub max_grad_norm: f32,
+    /// Clip the value loss around the old values (as the policy's ratio).
+    pub clip_value_loss: bool,
+    /// Normalise advantages per minibatch.
+    pub normalize_advantages: bool,
     /// Environment steps (from any actors) per update. The paper used 8
     /// actors × 600 steps; the default fits a 2-core machine's memory and
     /// time at 128 × 128 (each step's observation is ~0.4 MB as floats).
@@ -125,22 +130,47 @@ impl Default for LearnerConfig {
 }
 
 impl Default for PolicyConfig {
+    /// PPO's own defaults (`training::ppo::PpoConfig`, written once there)
+    /// and the learner's batching.
     fn default() -> Self {
+        let ppo = PpoConfig::default();
         Self {
-            learning_rate: 2e-4,
-            adam_eps: 1e-5,
-            gamma: 0.99,
-            gae_lambda: 0.95,
-            clip: 0.2,
-            epochs: 4,
-            minibatches: 2,
-            value_coef: 0.5,
-            entropy_coef: 0.01,
-            max_grad_norm: 0.5,
+            learning_rate: ppo.learning_rate,
+            adam_eps: ppo.adam_eps,
+            gamma: ppo.gamma,
+            gae_lambda: ppo.gae_lambda,
+            clip: ppo.clip,
+            epochs: ppo.epochs,
+            minibatches: ppo.minibatches,
+            value_coef: ppo.value_coef,
+            entropy_coef: ppo.entropy_coef,
+            max_grad_norm: ppo.max_grad_norm,
+            clip_value_loss: ppo.clip_value_loss,
+            normalize_advantages: ppo.normalize_advantages,
             batch_steps: 128,
             queue_batches: 2,
             seed: 0,
             device: None,
+        }
+    }
+}
+
+impl PolicyConfig {
+    /// The PPO update's settings.
+    pub fn ppo(&self) -> PpoConfig {
+        PpoConfig {
+            learning_rate: self.learning_rate,
+            adam_eps: self.adam_eps,
+            clip: self.clip,
+            clip_value_loss: self.clip_value_loss,
+            epochs: self.epochs,
+            minibatches: self.minibatches,
+            value_coef: self.value_coef,
+            entropy_coef: self.entropy_coef,
+            max_grad_norm: self.max_grad_norm,
+            gamma: self.gamma,
+            gae_lambda: self.gae_lambda,
+            normalize_advantages: self.normalize_advantages,
         }
     }
 }
@@ -310,6 +340,36 @@ fn set_dotted(table: &mut toml::Table, setting: &str) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn ppo_settings_default_to_ppo_s_own_and_reach_the_update_unchanged() {
+        assert_eq!(PolicyConfig::default().ppo(), PpoConfig::default());
+        // Every field reaches the update: change each from its default.
+        let mut text = String::from("[policy]\n");
+        text.push_str(
+            "learning_rate = 0.5\nadam_eps = 0.25\nclip = 0.125\nclip_value_loss = false\n",
+        );
+        text.push_str("epochs = 7\nminibatches = 3\nvalue_coef = 0.75\nentropy_coef = 0.0625\n");
+        text.push_str(
+            "max_grad_norm = 9.0\ngamma = 0.5\ngae_lambda = 0.25\nnormalize_advantages = false\n",
+        );
+        let config = LearnerConfig::from_toml_str_with(&text, "a test", &[]).unwrap();
+        let expected = PpoConfig {
+            learning_rate: 0.5,
+            adam_eps: 0.25,
+            clip: 0.125,
+            clip_value_loss: false,
+            epochs: 7,
+            minibatches: 3,
+            value_coef: 0.75,
+            entropy_coef: 0.0625,
+            max_grad_norm: 9.0,
+            gamma: 0.5,
+            gae_lambda: 0.25,
+            normalize_advantages: false,
+        };
+        assert_eq!(config.policy.ppo(), expected);
+    }
 
     #[test]
     fn settings_on_the_command_line_go_where_their_keys_say() {

@@ -12,7 +12,7 @@ use rand::rngs::StdRng;
 use rand::SeedableRng;
 use training::gae::gae;
 use training::optimizer_state::{OptimizerState, OptimizerStateError};
-use training::ppo::{Ppo, PpoBatch, PpoConfig, PpoStats, Sequences};
+use training::ppo::{Ppo, PpoBatch, PpoStats, Sequences};
 
 use crate::config::PolicyConfig;
 
@@ -105,20 +105,7 @@ impl PolicyTrainer {
     pub fn new(task: &TaskSpec, settings: &PolicyConfig, device: &Device) -> Self {
         let layout = task.layout();
         let net = PolicyNet::new(&layout, device);
-        let ppo_config = PpoConfig {
-            learning_rate: settings.learning_rate,
-            adam_epsilon: settings.adam_eps,
-            clip: settings.clip,
-            clip_value_loss: true,
-            epochs: settings.epochs,
-            minibatches: settings.minibatches,
-            value_coef: settings.value_coef,
-            entropy_coef: settings.entropy_coef,
-            max_grad_norm: settings.max_grad_norm,
-            gamma: settings.gamma,
-            gae_lambda: settings.gae_lambda,
-            normalize_advantages: true,
-        };
+        let ppo_config = settings.ppo();
         Self {
             layout,
             settings: settings.clone(),

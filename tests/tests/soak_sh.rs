@@ -19,7 +19,16 @@ fn soak_samples_every_process_through_kills_and_gives_a_verdict() {
     let output = Command::new(repo.join("deploy/soak.sh"))
         .arg("--run-dir")
         .arg(&run_dir)
-        .args(["--minutes", "2", "--every", "2", "--warmup", "0", "--window", "1"])
+        .args([
+            "--minutes",
+            "2",
+            "--every",
+            "2",
+            "--warmup",
+            "0",
+            "--window",
+            "1",
+        ])
         .args(["--kill-every", "45", "--"])
         .args(["--actors", "2", "--env", "bandit-fixture", "--seed", "4"])
         .arg("--bin-dir")

@@ -21,7 +21,7 @@ pub struct PpoConfig {
     /// Adam learning rate.
     pub learning_rate: f64,
     /// Adam epsilon.
-    pub adam_epsilon: f32,
+    pub adam_eps: f32,
     /// Ratio clip ε of the policy loss (and of the value loss when clipped).
     pub clip: f32,
     /// Clip the value loss around the old values.
@@ -48,7 +48,7 @@ impl Default for PpoConfig {
     fn default() -> Self {
         Self {
             learning_rate: 2e-4,
-            adam_epsilon: 1e-5,
+            adam_eps: 1e-5,
             clip: 0.2,
             clip_value_loss: true,
             epochs: 4,
@@ -279,7 +279,7 @@ impl LossTerms {
 
 /// A fresh Adam optimiser with the run's settings.
 fn adam(config: &PpoConfig) -> ModuleOptimizer {
-    AdamConfig::new().with_epsilon(config.adam_epsilon).init()
+    AdamConfig::new().with_epsilon(config.adam_eps).init()
 }
 
 /// The learner side of PPO: the network being trained and its optimiser.
