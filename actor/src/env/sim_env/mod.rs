@@ -1,0 +1,386 @@
+//! The simulator environment of the four methods. For `ours` each step goes
+//! simulator → map integration → U-Net inference → state → (policy,
+//! outside) → action. A step comes in two halves around the U-Net
+//! ([`SimEnv::begin_step`], then [`SimEnv::observe`] with its
+//! probabilities), so that an actor running several environments infers
+//! their frames in one batch; at the end of an episode the labeler turns the map's
+//! interaction records into labelled frames for the learner. A picked-up
+//! object is held in the map (kept, unseen) and released where the
+//! simulator put it down.
+//!
+//! The methods without a map skip the map: objects are the simulator's
+//! segmentation, each interaction leaves a 3-D point on its object, and the
+//! labels come from those points (the whole segment under the point for
+//! `nomap-seg`, a 0.2 m sphere for `nomap-noseg` and `intexp`).
+//!
+//! This file holds the settings, the episode's working state and resets;
+//! `step` the first half of a step, `observation` the second (capture and
+//! observe), `episode_end` the labels and metrics of a finished episode,
+//! `episode_recording` its recording.
+
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use mapper::{Affordance, Map, MapConfig, ObjectId, Outcome as MapOutcome, Pose};
+use nalgebra::Point2;
+use proto::{FrameBatch, Method, StatField};
+use rand::rngs::StdRng;
+use rand::SeedableRng;
+use sim::agent::{Failure, Simulator};
+use sim::profile::RobotProfile;
+use sim::randomise::randomise;
+use sim::raycast::Frame;
+use sim::renderer::Renderer;
+use sim::scene::OrientedBox;
+use sim::scenes::SceneSource;
+
+use crate::env::actions::{
+    cell_targets, centred_target, ActionSpace, CellTargets, PolicyAction, Selection, SelectionRule,
+    Target,
+};
+use crate::env::affordance_model::{AffordanceModel, CameraFrame};
+use crate::env::reward::{RewardTracker, RewardWeights, StepEvent};
+use crate::env::state::{build_state, ActionHistory, State, StateConfig, StateInputs};
+use crate::labeler::{
+    apply_confidence_labels, confidence_labels, frame_batch, label_background_negative, map_labels,
+    segment_labels, sphere_labels, ConfidenceRule, EpisodeFrame, InteractionPoint, SphereRule,
+};
+use crate::mapping::{class_image, instance_classes, intrinsics, map_frame};
+use crate::metrics::{annotation_rates, ground_truth_planes, map_id_consistency, score_frame};
+use crate::recording::{
+    write_episode, EpisodeRecord, FrameRecord, MapLayout, MapPlanesRecord, ObjectRecord, StepRecord,
+};
+
+mod episode_end;
+mod episode_recording;
+mod observation;
+mod step;
+
+use episode_recording::{RecordedMapPlanes, Recording};
+
+/// Settings of the environment.
+#[derive(Debug, Clone)]
+pub struct SimEnvConfig {
+    /// What the state holds and how labels are made.
+    pub method: Method,
+    /// Affordances tried and labelled, in plane order.
+    pub affordances: Vec<Affordance>,
+    /// Steps per episode (600 in the paper).
+    pub episode_steps: usize,
+    /// Reward weights.
+    pub reward: RewardWeights,
+    /// Object selection.
+    pub selection: SelectionRule,
+    /// The map.
+    pub map: MapConfig,
+    /// Send only frames with both label classes.
+    pub balanced_frames: bool,
+    /// Label the segmentation's background negative ([`proto::TaskSpec::background_negative`]).
+    pub background_negative: bool,
+    /// Annotate by confidence once the run has taken this many steps (all
+    /// actors); `None`: never.
+    pub confidence_after_steps: Option<u64>,
+    /// The thresholds of annotation by confidence.
+    pub confidence: ConfidenceRule,
+    /// The point labels of the methods without a map.
+    pub sphere: SphereRule,
+}
+
+impl SimEnvConfig {
+    /// The paper's settings of `method` for `affordances`.
+    pub fn paper(method: Method, affordances: &[Affordance]) -> Self {
+        Self {
+            method,
+            affordances: affordances.to_vec(),
+            episode_steps: 600,
+            reward: RewardWeights::default(),
+            selection: SelectionRule::default(),
+            map: MapConfig::default(),
+            balanced_frames: true,
+            background_negative: false,
+            confidence_after_steps: Some(400_000),
+            confidence: ConfidenceRule::default(),
+            sphere: SphereRule::default(),
+        }
+    }
+
+    /// Whether the method keeps the object-level map.
+    fn uses_map(&self) -> bool {
+        self.method == Method::Ours
+    }
+}
+
+/// What the policy gets after a reset or a step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimObservation {
+    /// The state.
+    pub state: State,
+    /// One byte per action, 1 = allowed.
+    pub mask: Vec<u8>,
+}
+
+/// What an action did, known before the next observation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ActionOutcome {
+    /// The reward.
+    pub reward: f32,
+    /// Whether the action succeeded.
+    pub success: bool,
+    /// Why not.
+    pub failure: Option<Failure>,
+    /// True when the episode's step budget is used up.
+    pub done: bool,
+}
+
+/// Where a step's time went.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StepTimings {
+    /// Simulator action.
+    pub sim: Duration,
+    /// Rendering.
+    pub render: Duration,
+    /// Map integration.
+    pub map: Duration,
+    /// The map's own split of `map` (zero without a map).
+    pub map_stages: mapper::IntegrateTimings,
+    /// U-Net inference.
+    pub unet: Duration,
+    /// State building, targets and mask.
+    pub state: Duration,
+}
+
+/// The environment.
+pub struct SimEnv {
+    config: SimEnvConfig,
+    source: SceneSource,
+    profile: RobotProfile,
+    renderer: Renderer,
+    space: ActionSpace,
+    state_config: StateConfig,
+    episode: Option<Episode>,
+    timings: StepTimings,
+    global_steps: u64,
+    /// Where episodes are recorded, if they are.
+    recording: Option<Recording>,
+}
+
+/// A frame rendered (and integrated into the map) that waits for the
+/// U-Net's probabilities before it becomes an observation.
+struct Captured {
+    frame: Frame,
+    map_ids: Vec<u32>,
+}
+
+/// One episode's working state.
+struct Episode {
+    /// The frame of the reset or step begun, until [`SimEnv::observe`].
+    pending: Option<Captured>,
+    sim: Simulator,
+    map: Map,
+    reward: RewardTracker,
+    history: ActionHistory,
+    visited: Vec<Point2<f32>>,
+    frames: Vec<EpisodeFrame>,
+    targets: CellTargets,
+    /// Methods without a map: every interaction as a point on its object.
+    points: Vec<InteractionPoint>,
+    /// Methods without a map: every scene object's pose in every frame.
+    object_poses: Vec<Vec<Pose>>,
+    steps: usize,
+    scene_index: u64,
+    /// The object in the hand: its map id and its box when it was picked up.
+    in_hand: Option<(ObjectId, OrientedBox)>,
+    /// Ground truth per scene object and affordance (plane order).
+    truth: Vec<Vec<bool>>,
+    /// The simulator's instance ids of every frame (object index + 1).
+    truth_ids: Vec<Vec<u32>>,
+    /// The class of every instance id ([`instance_classes`]), for the map.
+    classes: Vec<u16>,
+    /// Wall-clock time of every frame, nanoseconds since the Unix epoch.
+    stamps: Vec<u64>,
+    /// What every step did, for recordings.
+    step_log: Vec<StepRecord>,
+    /// The policy's map planes of every frame, for recordings (methods
+    /// with a map; empty when not recording).
+    map_planes: Vec<RecordedMapPlanes>,
+    /// The U-Net's calibrated probabilities of every frame, one byte per
+    /// pixel and affordance (planes in order), for annotation by confidence.
+    probabilities: Vec<Vec<u8>>,
+    /// Per affordance: sums and counts of the U-Net's frame IoU and object accuracy.
+    scores: Vec<ScoreSums>,
+    /// Interactions tried and those that succeeded, per affordance
+    /// (indexed by `Affordance as usize`).
+    attempts: [u32; Affordance::ALL.len()],
+    successes: [u32; Affordance::ALL.len()],
+    /// Interactions that failed because the object was beyond reach, and
+    /// because it does not afford the action
+    /// ([`Failure::object_does_not_afford`]), per
+    /// affordance like `attempts`.
+    out_of_reach: [u32; Affordance::ALL.len()],
+    unafforded: [u32; Affordance::ALL.len()],
+    /// Interactable scene objects an interaction succeeded on.
+    interacted: std::collections::BTreeSet<usize>,
+    episode_return: f32,
+}
+
+/// Running sums of per-frame scores.
+#[derive(Debug, Clone, Copy, Default)]
+struct ScoreSums {
+    iou: f64,
+    iou_frames: u32,
+    accuracy: f64,
+    accuracy_frames: u32,
+}
+
+/// What an episode leaves behind: labelled frames for the learner and the
+/// paper's per-episode metrics against the simulator's ground truth.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EpisodeSummary {
+    /// The labelled frames (balanced ones only, if so configured).
+    pub frames: FrameBatch,
+    /// Metrics, means over the configured affordances where per affordance.
+    pub stats: Vec<(StatField, f32)>,
+}
+
+impl SimEnv {
+    /// An environment drawing rooms from `source`.
+    pub fn new(
+        config: SimEnvConfig,
+        source: SceneSource,
+        profile: RobotProfile,
+        renderer: Renderer,
+    ) -> Self {
+        let space = ActionSpace::new(&config.affordances, Selection::of(config.method));
+        let state_config = StateConfig {
+            image_size: profile.image_size,
+            map_cells: profile.image_size,
+            ..StateConfig::paper(config.method, &config.affordances, space.len())
+        };
+        Self {
+            config,
+            source,
+            profile,
+            renderer,
+            space,
+            state_config,
+            episode: None,
+            timings: StepTimings::default(),
+            global_steps: 0,
+            recording: None,
+        }
+    }
+
+    /// The run's steps over all actors (from the learner): annotation by
+    /// confidence starts when they reach the configured number.
+    pub fn set_global_steps(&mut self, steps: u64) {
+        self.global_steps = steps;
+    }
+
+    /// Whether episodes now end with annotation by confidence (`ours` only).
+    pub fn annotates_by_confidence(&self) -> bool {
+        self.config.uses_map()
+            && self
+                .config
+                .confidence_after_steps
+                .is_some_and(|after| self.global_steps >= after)
+    }
+
+    /// The action space.
+    pub fn action_space(&self) -> &ActionSpace {
+        &self.space
+    }
+
+    /// The state's layout.
+    pub fn state_config(&self) -> &StateConfig {
+        &self.state_config
+    }
+
+    /// Time spent in the last step (or reset), by stage.
+    pub fn last_timings(&self) -> StepTimings {
+        self.timings
+    }
+
+    /// Index of the current room in the scene source.
+    pub fn scene_index(&self) -> u64 {
+        self.episode.as_ref().map_or(0, |e| e.scene_index)
+    }
+
+    /// The simulator of the running episode.
+    pub fn simulator(&self) -> Option<&Simulator> {
+        self.episode.as_ref().map(|e| &e.sim)
+    }
+
+    /// Starts an episode (a room picked and randomised by `seed`) and
+    /// observes its first frame with `model`.
+    pub fn reset(&mut self, seed: u64, model: &AffordanceModel) -> anyhow::Result<SimObservation> {
+        self.begin_reset(seed)?;
+        self.observe_with(model)
+    }
+
+    /// Applies action `index` of the action space and observes the next
+    /// frame with `model`.
+    pub fn step(
+        &mut self,
+        index: usize,
+        model: &AffordanceModel,
+    ) -> anyhow::Result<(ActionOutcome, SimObservation)> {
+        let outcome = self.begin_step(index)?;
+        Ok((outcome, self.observe_with(model)?))
+    }
+
+    /// [`SimEnv::observe`] with `model`'s probabilities for the pending frame.
+    fn observe_with(&mut self, model: &AffordanceModel) -> anyhow::Result<SimObservation> {
+        let started = Instant::now();
+        let probabilities = self
+            .camera_frame()
+            .map(|frame| model.predict(&frame))
+            .context("observe before reset or step")?;
+        let unet = started.elapsed();
+        let observation = self.observe(probabilities)?;
+        self.timings.unet = unet;
+        Ok(observation)
+    }
+
+    /// Starts an episode: a room picked and randomised by `seed`; its first
+    /// frame is rendered and mapped, and waits for [`SimEnv::observe`].
+    pub fn begin_reset(&mut self, seed: u64) -> anyhow::Result<()> {
+        let (scene_index, scene) = self.source.pick(seed);
+        let mut rng = StdRng::seed_from_u64(seed);
+        let (sim, _) = randomise(&scene, &self.profile, &mut rng)
+            .with_context(|| format!("setting up an episode in {}", scene.name))?;
+        let start = sim.agent();
+        let truth = ground_truth_planes(sim.scene(), &self.profile, &self.config.affordances);
+        let classes = instance_classes(sim.scene().objects.iter().map(|o| o.object_type.as_str()));
+        self.episode = Some(Episode {
+            pending: None,
+            truth,
+            classes,
+            truth_ids: Vec::new(),
+            probabilities: Vec::new(),
+            stamps: Vec::new(),
+            step_log: Vec::new(),
+            map_planes: Vec::new(),
+            scores: vec![ScoreSums::default(); self.config.affordances.len()],
+            attempts: Default::default(),
+            successes: Default::default(),
+            out_of_reach: [0; Affordance::ALL.len()],
+            unafforded: [0; Affordance::ALL.len()],
+            interacted: Default::default(),
+            episode_return: 0.0,
+            reward: RewardTracker::new(self.config.reward, start),
+            visited: vec![Point2::new(start.x, start.y)],
+            sim,
+            map: Map::new(self.config.map),
+            history: ActionHistory::default(),
+            frames: Vec::new(),
+            targets: CellTargets::default(),
+            points: Vec::new(),
+            object_poses: Vec::new(),
+            steps: 0,
+            scene_index,
+            in_hand: None,
+        });
+        self.timings = StepTimings::default();
+        self.capture()
+    }
+}

@@ -1,0 +1,173 @@
+//! A frame becomes an observation: rendered and integrated into the map
+//! ([`SimEnv::capture`]), handed to the U-Net ([`SimEnv::camera_frame`]),
+//! then scored against the ground truth, turned into targets and the
+//! policy's state ([`SimEnv::observe`]).
+
+use super::*;
+
+impl SimEnv {
+    /// Renders the agent's view and integrates it into the map; the frame
+    /// then waits for the U-Net ([`SimEnv::camera_frame`], [`SimEnv::observe`]).
+    pub(super) fn capture(&mut self) -> anyhow::Result<()> {
+        let episode = self.episode.as_mut().context("capture before reset")?;
+        let t0 = Instant::now();
+        let frame: Frame = episode.sim.render(&mut self.renderer)?;
+        let camera = episode.sim.camera();
+        let t1 = Instant::now();
+        // The frame's objects: map ids, or the segmentation without a map.
+        let map_ids = if self.config.uses_map() {
+            episode
+                .map
+                .integrate(&map_frame(
+                    &camera,
+                    &frame,
+                    &class_image(&frame.ids, &episode.classes),
+                ))
+                .context("integrating the frame into the map")?
+        } else {
+            episode.object_poses.push(
+                episode
+                    .sim
+                    .scene()
+                    .objects
+                    .iter()
+                    .map(|o| Pose::from_parts(o.bounds.center.coords.into(), o.bounds.rotation))
+                    .collect(),
+            );
+            frame.ids.clone()
+        };
+        let t2 = Instant::now();
+        let map_stages = if self.config.uses_map() {
+            episode.map.last_timings()
+        } else {
+            mapper::IntegrateTimings::default()
+        };
+        episode.pending = Some(Captured { frame, map_ids });
+        self.timings = StepTimings {
+            sim: Duration::ZERO,
+            render: t1 - t0,
+            map: t2 - t1,
+            map_stages,
+            unet: Duration::ZERO,
+            state: Duration::ZERO,
+        };
+        Ok(())
+    }
+
+    /// The frame of the reset or step begun, for the U-Net; `None` before a
+    /// reset or once observed.
+    pub fn camera_frame(&self) -> Option<CameraFrame<'_>> {
+        let frame = &self.episode.as_ref()?.pending.as_ref()?.frame;
+        Some(CameraFrame {
+            rgb: &frame.rgb,
+            depth_m: &frame.depth_m,
+            height: frame.height,
+            width: frame.width,
+        })
+    }
+
+    /// Completes the reset or step begun: scores the U-Net's `probabilities`
+    /// (per affordance, a plane for [`SimEnv::camera_frame`]) against the
+    /// ground truth, chooses the interaction targets and builds the state.
+    pub fn observe(&mut self, probabilities: Vec<Vec<f32>>) -> anyhow::Result<SimObservation> {
+        let episode = self.episode.as_mut().context("observe before reset")?;
+        let Captured { frame, map_ids } = episode
+            .pending
+            .take()
+            .context("observe twice, or before a reset or step")?;
+        anyhow::ensure!(
+            probabilities.len() == self.config.affordances.len()
+                && probabilities
+                    .iter()
+                    .all(|p| p.len() == frame.height * frame.width),
+            "the U-Net gave {} planes for {} affordances at {} × {} px",
+            probabilities.len(),
+            self.config.affordances.len(),
+            frame.height,
+            frame.width
+        );
+        let t3 = Instant::now();
+        for (plane, (probabilities, sums)) in
+            probabilities.iter().zip(&mut episode.scores).enumerate()
+        {
+            let truth = &episode.truth;
+            let affords = |id: u32| truth.get(id as usize - 1).is_some_and(|t| t[plane]);
+            let scores = score_frame(probabilities, &frame.ids, &affords);
+            if let Some(iou) = scores.iou {
+                sums.iou += f64::from(iou);
+                sums.iou_frames += 1;
+            }
+            if let Some(accuracy) = scores.object_accuracy {
+                sums.accuracy += f64::from(accuracy);
+                sums.accuracy_frames += 1;
+            }
+        }
+        // The agent has not moved since the frame was captured.
+        let camera = episode.sim.camera();
+        let k = intrinsics(&camera);
+        let agent = episode.sim.agent();
+        let holding = episode.sim.held().is_some();
+        episode.targets = match Selection::of(self.config.method) {
+            Selection::Grid => cell_targets(
+                &map_ids,
+                frame.width,
+                &self.config.affordances,
+                Some(&probabilities),
+                &self.config.selection,
+            ),
+            Selection::Centred => centred_target(
+                &map_ids,
+                frame.width,
+                &self.config.affordances,
+                &self.config.selection,
+            ),
+        };
+        let state = build_state(
+            &self.state_config,
+            &StateInputs {
+                rgb: &frame.rgb,
+                depth_m: &frame.depth_m,
+                map_ids: &map_ids,
+                t_world_camera: &camera.t_world_camera,
+                intrinsics: &k,
+                agent: (agent.x, agent.y, agent.yaw_deg.to_radians()),
+                floor_z: episode.sim.scene().floor_top_m,
+                reach_m: self.profile.reach_m,
+                visited: &episode.visited,
+                probabilities: &probabilities,
+                map: self.config.uses_map().then_some(&episode.map),
+                history: &episode.history,
+                holding,
+            },
+        );
+        if self.recording.is_some() && !state.global_map.is_empty() {
+            episode.map_planes.push(RecordedMapPlanes {
+                agent: (agent.x, agent.y, agent.yaw_deg.to_radians()),
+                global: state.global_map.clone(),
+                local: state.local_map.clone(),
+            });
+        }
+        let mask = self.space.mask(holding, &episode.targets);
+        episode.truth_ids.push(frame.ids);
+        episode.stamps.push(
+            std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_nanos() as u64),
+        );
+        episode.probabilities.push(
+            probabilities
+                .iter()
+                .flatten()
+                .map(|&p| proto::unit_to_byte(p))
+                .collect(),
+        );
+        episode.frames.push(EpisodeFrame {
+            rgb: frame.rgb,
+            depth_m: frame.depth_m,
+            map_ids,
+            t_world_camera: camera.t_world_camera,
+        });
+        self.timings.state = t3.elapsed();
+        Ok(SimObservation { state, mask })
+    }
+}
