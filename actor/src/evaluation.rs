@@ -30,7 +30,7 @@ use sim::raycast::Frame;
 use sim::renderer::Renderer;
 use sim::scene::Scene;
 
-use crate::metrics::{ground_truth_planes, pixel_scores, score_frame, PixelScores};
+use crate::frame_scores::{ground_truth_planes, pixel_scores, score_frame, PixelScores};
 
 /// What to evaluate and how much.
 #[derive(Debug, Clone)]

@@ -6,7 +6,7 @@
 //! objects, and the all-positive reference recalls everything.
 
 use actor::evaluation::{evaluate, EvaluationSettings, Predictor, Report, ScoredBy};
-use actor::metrics::ground_truth_planes;
+use actor::frame_scores::ground_truth_planes;
 use proto::Affordance;
 use sim::ithor::load_scene;
 use sim::profile::RobotProfile;

@@ -50,7 +50,7 @@ async fn metrics(
             status.timings.clone(),
         )
     };
-    let text = crate::metrics::render(&snapshot, &timings);
+    let text = crate::prometheus::render(&snapshot, &timings);
     let openmetrics = headers
         .get_all(header::ACCEPT)
         .iter()
@@ -70,7 +70,7 @@ async fn metrics(
                 header::CONTENT_TYPE,
                 "text/plain; version=0.0.4; charset=utf-8",
             )],
-            crate::metrics::to_classic(&text),
+            crate::prometheus::to_classic(&text),
         )
     }
 }

@@ -5,7 +5,7 @@
 //! It never runs a simulator or a map; it only sees what actors send through
 //! the `transport` crate, in the layouts of `proto`.
 
-pub mod affordance;
+pub mod affordance_learner;
 pub mod bench_capacity;
 pub mod bench_transport;
 pub mod checkpoint;
@@ -14,9 +14,9 @@ pub mod config_docs;
 pub mod history;
 pub mod http;
 pub mod membership;
-pub mod metrics;
 pub mod plot;
 pub mod policy_worker;
+pub mod prometheus;
 pub mod service;
 pub mod shared;
 pub mod status;

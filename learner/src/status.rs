@@ -11,7 +11,7 @@ use serde::Serialize;
 
 use training::ppo::PpoStats;
 
-use crate::affordance::UnetRound;
+use crate::affordance_learner::UnetRound;
 
 /// Per-actor book-keeping.
 #[derive(Debug, Clone)]

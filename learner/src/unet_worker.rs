@@ -17,7 +17,7 @@ use std::thread::JoinHandle;
 use anyhow::Context;
 use training::affordance::LabelledFrame;
 
-use crate::affordance::{AffordanceLearner, UnetTrainingState};
+use crate::affordance_learner::{AffordanceLearner, UnetTrainingState};
 use crate::history::History;
 use crate::shared::Shared;
 

@@ -13,6 +13,7 @@
 
 pub mod association;
 pub mod camera;
+pub mod icp;
 pub mod integrate;
 pub mod labels;
 pub mod layer;
@@ -21,16 +22,15 @@ pub mod mesh;
 pub mod projection;
 pub mod render;
 pub mod segmentation;
-pub mod tracking;
 
 pub use camera::{scaled_px, Frame, Intrinsics, REFERENCE_PIXELS};
+pub use icp::{TrackingFailure, TrackingOutcome, TrackingReport, TrackingTrigger};
 pub use labels::{Affordance, ObjectLabels, Outcome};
 pub use layer::{BlockIndex, Layer, Voxel, VoxelIndex};
 pub use map::{IntegrateTimings, Map, MapConfig, MapError, MapObject, ObjectId, Whereabouts};
 pub use mesh::Mesh;
 pub use projection::{GridSpec, ProjectionKind};
 pub use segmentation::{GeometricParams, Segmentation};
-pub use tracking::{TrackingFailure, TrackingOutcome, TrackingReport, TrackingTrigger};
 
 /// Poses are rigid transforms in metres.
 pub type Pose = nalgebra::Isometry3<f32>;

@@ -13,6 +13,7 @@ use rayon::prelude::*;
 
 use crate::association::{associate, extract_segments, Association, AssociationParams, Segment};
 use crate::camera::{Frame, Intrinsics};
+use crate::icp::{TrackingParams, TrackingReport};
 use crate::integrate::{
     integrate, pixels_by_label, DepthView, FramePixels, IntegrationParams, Owned,
 };
@@ -21,7 +22,6 @@ use crate::layer::Layer;
 use crate::mesh::{mesh_layer, Mesh};
 use crate::render::{raycast_layer, render_layers, Pixels, PlacedLayer, RenderTarget};
 use crate::segmentation::{segment_geometric, Segmentation};
-use crate::tracking::{TrackingParams, TrackingReport};
 use crate::Pose;
 
 /// A map object's id; stable across frames. 0 is never used (it means "none").

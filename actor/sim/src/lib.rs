@@ -1,6 +1,10 @@
-//! The project's simulator (AI2-THOR cannot run here): iTHOR living rooms
-//! imported from AI2-THOR's object metadata, the room closed by walls, and,
-//! in later parts, procedural rooms, physics, robot profiles and rendering.
+//! The project's simulator (AI2-THOR cannot run here): the iTHOR living
+//! rooms imported from AI2-THOR's object metadata (`ithor`) and closed by
+//! walls, procedural rooms (`procgen`), rapier physics for what is pushed,
+//! dropped or carried (`physics`), robot profiles (`profile`) and the
+//! agent's navigation and interactions under them (`agent`), ground-truth
+//! affordances (`affordances`), and rendering of RGB, depth and instance
+//! ids by wgpu or by CPU ray casting (`renderer`, `gpu`, `raycast`).
 
 pub mod affordances;
 pub mod agent;

@@ -18,7 +18,7 @@ use proto::{decode, Join, JoinKey, Limits, Message, MessageKind};
 use serde::{Deserialize, Serialize};
 use transport::{Delivery, LearnerPorts};
 
-use crate::affordance::{checked_frames, AffordanceLearner, UnetTrainingState};
+use crate::affordance_learner::{checked_frames, AffordanceLearner, UnetTrainingState};
 use crate::checkpoint;
 use crate::config::LearnerConfig;
 use crate::history::History;

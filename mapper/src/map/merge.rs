@@ -15,11 +15,11 @@
 use std::collections::BTreeSet;
 
 use super::{Map, ObjectId};
+use crate::icp::TrackingOutcome;
 use crate::labels::ObjectLabels;
 use crate::layer::CachedReader;
 use crate::render::sdf_at;
 use crate::segmentation::Segmentation;
-use crate::tracking::TrackingOutcome;
 
 impl Map {
     /// Merges into each segment's match the other objects that passed

@@ -24,9 +24,9 @@ use super::track::{acceptance_failure, centroid, mask_and_normals};
 use super::{Map, MapObject, ObjectId, Whereabouts};
 use crate::association::Segment;
 use crate::camera::Frame;
+use crate::icp::{align, evaluate, refine_against_sdf, Fit, MotionModel, SegmentView};
 use crate::layer::CachedReader;
 use crate::render::sdf_at;
-use crate::tracking::{align, evaluate, refine_against_sdf, Fit, MotionModel, SegmentView};
 use crate::Pose;
 
 /// Headings (turns about the world's up direction) each alignment starts

@@ -8,11 +8,11 @@ use nalgebra::{Point3, Translation3, Unit, Vector3};
 use super::{Map, ObjectId, Whereabouts};
 use crate::association::Segment;
 use crate::camera::{Frame, Intrinsics};
-use crate::render::{raycast_layer, Pixels, RenderTarget};
-use crate::tracking::{
+use crate::icp::{
     align, evaluate, measured_normals, motion_size, refine_against_sdf, Fit, MotionModel,
     SegmentView, TrackingFailure, TrackingOutcome, TrackingParams, TrackingReport, TrackingTrigger,
 };
+use crate::render::{raycast_layer, Pixels, RenderTarget};
 use crate::Pose;
 
 /// Camera-frame centroid of the pixels `pixels` at their depths.

@@ -41,12 +41,12 @@ use crate::env::actions::{
 use crate::env::affordance_model::{AffordanceModel, CameraFrame};
 use crate::env::reward::{RewardTracker, RewardWeights, StepEvent};
 use crate::env::state::{build_state, ActionHistory, State, StateConfig, StateInputs};
+use crate::frame_scores::{annotation_rates, ground_truth_planes, map_id_consistency, score_frame};
 use crate::labeler::{
     apply_confidence_labels, confidence_labels, frame_batch, label_background_negative, map_labels,
     segment_labels, sphere_labels, ConfidenceRule, EpisodeFrame, InteractionPoint, SphereRule,
 };
 use crate::mapping::{class_image, instance_classes, intrinsics, map_frame};
-use crate::metrics::{annotation_rates, ground_truth_planes, map_id_consistency, score_frame};
 use crate::recording::{
     write_episode, EpisodeRecord, FrameRecord, MapLayout, MapPlanesRecord, ObjectRecord, StepRecord,
 };

@@ -394,7 +394,7 @@ mod tests {
         let _ = status.accept(0, proto::MessageKind::Rollout, 1, 0);
         status.reject(proto::MessageKind::Rollout, "bad_magic");
         status.last_update = Some(Default::default());
-        status.last_unet = Some(crate::affordance::UnetRound {
+        status.last_unet = Some(crate::affordance_learner::UnetRound {
             train_loss: 0.5,
             candidate_loss: 0.5,
             candidate_iou: 0.5,
