@@ -1,7 +1,10 @@
 //! `deploy/soak.sh`, short: two minutes of a `deploy/local.sh` run (bandit
-//! fixture, two actors) with an actor SIGKILLed every 45 s. Every process is
-//! sampled through the run, killed actors come back and count again, the run
-//! stops cleanly, and the summary's verdict matches the exit status.
+//! fixture, two actors) with an actor SIGKILLed every 45 s and the learner
+//! once, at 60 s, after which the script resumes the run. Every process is
+//! sampled through the run, killed processes come back and count again, the
+//! run resumes from a checkpoint and stops cleanly, every kept checkpoint
+//! verifies, nothing is left in shared memory, and the verdict matches the
+//! exit status.
 
 use std::process::Command;
 
@@ -16,6 +19,13 @@ fn soak_samples_every_process_through_kills_and_gives_a_verdict() {
         .expect("a free port")
         .port();
     let repo = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    // Checkpoints every few updates, so that the learner's kill has one to resume from.
+    let config = dir.join("often.toml");
+    std::fs::write(
+        &config,
+        "checkpoint_every_updates = 5\nkeep_checkpoints = 3\n",
+    )
+    .unwrap();
     let output = Command::new(repo.join("deploy/soak.sh"))
         .arg("--run-dir")
         .arg(&run_dir)
@@ -29,11 +39,12 @@ fn soak_samples_every_process_through_kills_and_gives_a_verdict() {
             "--window",
             "1",
         ])
-        .args(["--kill-every", "45", "--"])
+        .args(["--kill-every", "45", "--kill-learner-every", "60", "--"])
         .args(["--actors", "2", "--env", "bandit-fixture", "--seed", "4"])
         .arg("--bin-dir")
         .arg(bin("learner").parent().expect("binary dir"))
-        .args(["--port", &port.to_string()])
+        .args(["--port", &port.to_string(), "--", "--config"])
+        .arg(&config)
         .output()
         .expect("running deploy/soak.sh");
     let said = format!(
@@ -43,6 +54,10 @@ fn soak_samples_every_process_through_kills_and_gives_a_verdict() {
     );
     let code = output.status.code();
     assert!(matches!(code, Some(0 | 2)), "{code:?}:\n{said}");
+    assert!(
+        said.contains("soak: resumed (resumed from checkpoint"),
+        "{said}"
+    );
 
     let csv = std::fs::read_to_string(run_dir.join("soak.csv")).expect("soak.csv");
     let samples: Vec<(u64, String, String)> = csv
@@ -66,16 +81,35 @@ fn soak_samples_every_process_through_kills_and_gives_a_verdict() {
             "{role} sampled through the run: {times:?}"
         );
     }
-    // Two kills (at 45 and 90 s): four actor processes in all.
+    // Two actor kills (at 45 and 90 s) and the learner's (at 60 s, which
+    // stops both actors before the resume): six actor processes in all,
+    // two learners.
     let actor_pids: std::collections::BTreeSet<&str> = samples
         .iter()
         .filter(|s| s.1.starts_with("actor-"))
         .map(|s| s.2.as_str())
         .collect();
-    assert_eq!(actor_pids.len(), 4, "{actor_pids:?}\n{said}");
+    assert_eq!(actor_pids.len(), 6, "{actor_pids:?}\n{said}");
+    let learner_pids: std::collections::BTreeSet<&str> = samples
+        .iter()
+        .filter(|s| s.1 == "learner")
+        .map(|s| s.2.as_str())
+        .collect();
+    assert_eq!(learner_pids.len(), 2, "{learner_pids:?}\n{said}");
 
     let summary = std::fs::read_to_string(run_dir.join("soak.md")).expect("soak.md");
-    assert!(summary.contains("2 actors SIGKILLed"), "{summary}");
+    assert!(
+        summary.contains("2 actors and 1 learners SIGKILLed"),
+        "{summary}"
+    );
+    assert!(
+        summary.contains("all verify against their manifests"),
+        "{summary}"
+    );
+    assert!(
+        summary.contains("Shared memory left in /dev/shm: none."),
+        "{summary}"
+    );
     for role in ["learner", "actor-0", "actor-1"] {
         let row = summary
             .lines()
