@@ -22,7 +22,8 @@ whether the run left anything in /dev/shm. Exit status 2 when a ratio is outside
 shared memory was left, 0 otherwise.
 
 Options:
-  --run-dir DIR     the run directory (passed to local.sh; required)
+  --run-dir DIR     the run directory (passed to local.sh; required); one that
+                    already holds checkpoints is continued with --resume
   --minutes M       how long the run goes (default 60)
   --every S         seconds between samples (default 30)
   --warmup M        minutes left out before the baseline (default 10: networks,
