@@ -172,7 +172,7 @@ pub fn object_entity(
     id: u32,
     mesh: &Mesh,
     rgb: [u8; 3],
-    metadata: Vec<(String, String)>,
+    metadata: &[(String, String)],
 ) -> SceneEntity {
     let channel = |c: u8| f64::from(c) / 255.0;
     SceneEntity {
@@ -180,8 +180,11 @@ pub fn object_entity(
         frame_id: WORLD_FRAME.into(),
         id: format!("object {id}"),
         metadata: metadata
-            .into_iter()
-            .map(|(key, value)| KeyValuePair { key, value })
+            .iter()
+            .map(|(key, value)| KeyValuePair {
+                key: key.clone(),
+                value: value.clone(),
+            })
             .collect(),
         triangles: vec![TriangleListPrimitive {
             pose: Some(FoxglovePose {

@@ -73,10 +73,11 @@ pub struct StepRecord {
 pub struct MapPlanesRecord<'a> {
     /// The agent the planes are centred on: x, y (metres), heading (radians).
     pub agent: (f32, f32, f32),
-    /// The planes at the global extent, `[planes, cells, cells]`.
-    pub global: &'a [f32],
-    /// The planes at the local extent.
-    pub local: &'a [f32],
+    /// The planes at the global extent, `[planes, cells, cells]`, as bytes
+    /// (`proto::unit_to_byte`).
+    pub global: &'a [u8],
+    /// The planes at the local extent, as bytes.
+    pub local: &'a [u8],
 }
 
 /// One frame of the episode.
@@ -349,7 +350,8 @@ pub fn write_episode(
                     extent_m,
                     cells: layout.cells,
                 };
-                let grid = messages::agent_grid(ns, &placement, &layout.plane_names, values);
+                let values: Vec<f32> = values.iter().map(|&b| proto::byte_to_unit(b)).collect();
+                let grid = messages::agent_grid(ns, &placement, &layout.plane_names, &values);
                 out.log(topic, ns, &grid)?;
             }
         }
@@ -383,9 +385,7 @@ pub fn write_episode(
             entities: episode
                 .objects
                 .iter()
-                .map(|o| {
-                    messages::object_entity(ns, o.id, &o.mesh, id_colour(o.id), o.metadata.clone())
-                })
+                .map(|o| messages::object_entity(ns, o.id, &o.mesh, id_colour(o.id), &o.metadata))
                 .collect(),
         };
         out.log("/map/objects", ns, &update)?;

@@ -34,8 +34,10 @@ impl Recording {
 pub(super) struct RecordedMapPlanes {
     /// x, y (metres), heading (radians).
     pub(super) agent: (f32, f32, f32),
-    pub(super) global: Vec<f32>,
-    pub(super) local: Vec<f32>,
+    /// The planes as bytes (`proto::unit_to_byte`, as the wire carries
+    /// them): a quarter of the floats' memory for every frame of the episode.
+    pub(super) global: Vec<u8>,
+    pub(super) local: Vec<u8>,
 }
 
 impl SimEnv {

@@ -143,8 +143,16 @@ impl SimEnv {
         if self.recording.is_some() && !state.global_map.is_empty() {
             episode.map_planes.push(RecordedMapPlanes {
                 agent: (agent.x, agent.y, agent.yaw_deg.to_radians()),
-                global: state.global_map.clone(),
-                local: state.local_map.clone(),
+                global: state
+                    .global_map
+                    .iter()
+                    .map(|&v| proto::unit_to_byte(v))
+                    .collect(),
+                local: state
+                    .local_map
+                    .iter()
+                    .map(|&v| proto::unit_to_byte(v))
+                    .collect(),
             });
         }
         let mask = self.space.mask(holding, &episode.targets);
