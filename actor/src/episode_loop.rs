@@ -12,8 +12,8 @@ use nets::policy::{CpuPolicy, PolicyInput, PolicyLayout, PolicyNet};
 use nets::sample;
 use nets::weights::{load_safetensors, unbundle};
 use proto::{
-    EpisodeStats, FrameBatch, Limits, Message, ObsDtype, RolloutChunk, StatField,
-    WEIGHTS_META_ENV_STEPS, WEIGHTS_META_TEMPERATURE, WEIGHTS_POLICY_PREFIX, WEIGHTS_UNET_PREFIX,
+    EpisodeStats, FrameBatch, ObsDtype, RolloutChunk, StatField, WEIGHTS_META_ENV_STEPS,
+    WEIGHTS_META_TEMPERATURE, WEIGHTS_POLICY_PREFIX, WEIGHTS_UNET_PREFIX,
 };
 use rand::rngs::SmallRng;
 use rand::{Rng, SeedableRng};
@@ -124,28 +124,20 @@ impl Backoff {
     }
 }
 
-/// Loads a weights message: the policy always, the U-Net (into `model`)
-/// when the message carries one of another version than `current`'s.
+/// Loads a weights message once `ports` has checked it (layout, size, the
+/// run key's signature): the policy always, the U-Net (into `model`) when
+/// the message carries one of another version than `current`'s.
 fn load_weights(
+    ports: &ActorPorts,
     message: &ReceivedMessage,
-    transport: &TransportConfig,
     layout: &PolicyLayout,
     model: Option<&mut AffordanceModel>,
     device: &Device,
     current: Option<&Policy>,
 ) -> anyhow::Result<Policy> {
-    let limits = Limits {
-        max_actors: transport.max_actors,
-        max_payload_len: transport.max_weights_bytes as u64,
-    };
-    let (header, message) =
-        proto::decode(message.bytes(), &limits).context("the learner sent invalid weights")?;
-    let Message::Weights(weights) = message else {
-        bail!(
-            "expected weights on the weights service, got {:?}",
-            message.kind()
-        );
-    };
+    let (header, weights) = ports
+        .check_weights(message)
+        .context("invalid weights on the weights service")?;
     let mut net = PolicyNet::new(layout, device);
     let policy_bytes = unbundle(weights.bytes(), WEIGHTS_POLICY_PREFIX)
         .context("the learner's weights hold no policy")?;
@@ -497,8 +489,8 @@ impl<'a> Actor<'a> {
         let layout = self.policy.layout.clone();
         let mut model = self.model.write().unwrap_or_else(PoisonError::into_inner);
         match load_weights(
+            self.ports,
             &message,
-            self.transport,
             &layout,
             model.as_mut(),
             self.device,
@@ -799,7 +791,7 @@ pub fn run(
                 settings.weights_timeout.as_secs_f64()
             );
         };
-        match load_weights(&first, transport, &layout, model.as_mut(), device, None) {
+        match load_weights(ports, &first, &layout, model.as_mut(), device, None) {
             Ok(policy) => break policy,
             Err(error) => {
                 rejected_weights.reject(settings.actor_id, &error, None);

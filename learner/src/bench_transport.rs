@@ -73,7 +73,8 @@ fn limits(max: usize) -> Limits {
 }
 
 /// The benchmark's actors talk to raw ports, not to a learner that checks
-/// joins: any key will do.
+/// joins: any key will do, as long as both sides use it (weights are signed
+/// with it).
 fn bench_key() -> proto::JoinKey {
     proto::JoinKey::from_bytes([0; proto::JOIN_KEY_LEN])
 }
@@ -114,7 +115,7 @@ fn iceoryx_upstream(size: usize, count: usize) -> anyhow::Result<(f64, f64)> {
     let (ack_tx, ack_rx) = mpsc::channel::<Instant>();
     let receiver_cfg = cfg.clone();
     let receiver = std::thread::spawn(move || -> anyhow::Result<()> {
-        let learner = LearnerPorts::open(&receiver_cfg)?;
+        let learner = LearnerPorts::open(&receiver_cfg, bench_key())?;
         ready_tx.send(())?;
         let mut received = 0;
         while received < 2 * count {
@@ -231,11 +232,15 @@ fn tcp_upstream(size: usize, count: usize) -> anyhow::Result<(f64, f64)> {
 /// waits until all subscribers decoded it. Throughput counts every copy received.
 fn iceoryx_broadcast(size: usize, subscribers: u32, count: usize) -> anyhow::Result<(f64, f64)> {
     let blob = weights_of(size);
-    let len = encoded_len(&WeightsBlob(&blob));
+    let len = encoded_len(&WeightsBlob::signed(
+        &bench_key(),
+        &MessageHeader::default(),
+        &blob,
+    ));
     let cfg = config(&format!("bc{size}"), len);
     let (ready_tx, ready_rx) = mpsc::channel();
     let (ack_tx, ack_rx) = mpsc::channel::<()>();
-    let mut learner = LearnerPorts::open(&cfg)?;
+    let mut learner = LearnerPorts::open(&cfg, bench_key())?;
     let mut threads = Vec::new();
     for id in 0..subscribers {
         let (cfg, ready_tx, ack_tx) = (cfg.clone(), ready_tx.clone(), ack_tx.clone());
@@ -245,10 +250,7 @@ fn iceoryx_broadcast(size: usize, subscribers: u32, count: usize) -> anyhow::Res
             let mut seen = 0;
             while seen < count {
                 if let Some(m) = actor.wait_for_weights(Duration::from_secs(10))? {
-                    let (_, msg) = decode(m.bytes(), &limits(len))?;
-                    if !matches!(msg, Message::Weights(_)) {
-                        bail!("unexpected kind");
-                    }
+                    actor.check_weights(&m)?;
                     seen += 1;
                     ack_tx.send(())?;
                 }
@@ -290,13 +292,11 @@ fn iceoryx_broadcast(size: usize, subscribers: u32, count: usize) -> anyhow::Res
 /// Learner → `subscribers` actors over loopback TCP (one connection each), lock-step.
 fn tcp_broadcast(size: usize, subscribers: u32, count: usize) -> anyhow::Result<(f64, f64)> {
     let blob = weights_of(size);
-    let message = encode(
-        &WeightsBlob(&blob),
-        MessageHeader {
-            actor_id: proto::LEARNER_ID,
-            ..Default::default()
-        },
-    );
+    let header = MessageHeader {
+        actor_id: proto::LEARNER_ID,
+        ..Default::default()
+    };
+    let message = encode(&WeightsBlob::signed(&bench_key(), &header, &blob), header);
     let len = message.len();
     let listener = TcpListener::bind("127.0.0.1:0")?;
     let addr = listener.local_addr()?;
@@ -309,7 +309,7 @@ fn tcp_broadcast(size: usize, subscribers: u32, count: usize) -> anyhow::Result<
             let mut buf = Vec::new();
             for _ in 0..count {
                 read_message(&mut stream, &mut buf)?;
-                decode(&buf, &limits(len))?;
+                proto::decode_weights(&buf, &limits(len), &bench_key())?;
                 ack_tx.send(())?;
             }
             Ok(())

@@ -104,6 +104,10 @@ pub enum ProtoError {
     /// The weights payload is not a valid safetensors file.
     #[error("weights blob is not valid safetensors: {0}")]
     BadWeights(String),
+    /// The weights' signature was not made with the run's key for this
+    /// header: a publisher other than the run's learner sent them.
+    #[error("the weights are not signed with the run's key (sent by something other than this run's learner)")]
+    BadSignature,
 }
 
 impl ProtoError {
@@ -123,6 +127,7 @@ impl ProtoError {
             ProtoError::BadFloat { .. } => "bad_float",
             ProtoError::MaskedAction { .. } => "masked_action",
             ProtoError::BadWeights(_) => "bad_weights",
+            ProtoError::BadSignature => "bad_signature",
         }
     }
 }

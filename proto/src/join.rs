@@ -22,7 +22,8 @@ pub const JOIN_PAYLOAD_LEN: usize = 3 * 16 + JOIN_KEY_LEN;
 /// Domain separation: a proof for this schema means nothing elsewhere.
 const PROOF_CONTEXT: &[u8] = b"affordance-explorer join v1";
 
-/// The run's shared secret: whoever holds it may join as any actor id.
+/// The run's shared secret: whoever holds it may join as any actor id, and
+/// the learner signs its weights with it (see [`crate::WeightsBlob`]).
 #[derive(Clone, PartialEq, Eq)]
 pub struct JoinKey([u8; JOIN_KEY_LEN]);
 
@@ -55,10 +56,17 @@ impl JoinKey {
         Ok(Self(bytes))
     }
 
-    fn mac(&self, actor_id: u32, publishers: &[u128; 3]) -> Hmac<Sha256> {
+    /// An HMAC-SHA256 keyed with this key, started with `context` (domain
+    /// separation: a tag made for one purpose proves nothing for another).
+    pub(crate) fn hmac(&self, context: &[u8]) -> Hmac<Sha256> {
         let mut mac =
             Hmac::<Sha256>::new_from_slice(&self.0).expect("HMAC takes a key of any length");
-        mac.update(PROOF_CONTEXT);
+        mac.update(context);
+        mac
+    }
+
+    fn mac(&self, actor_id: u32, publishers: &[u128; 3]) -> Hmac<Sha256> {
+        let mut mac = self.hmac(PROOF_CONTEXT);
         mac.update(&actor_id.to_le_bytes());
         for id in publishers {
             mac.update(&id.to_le_bytes());

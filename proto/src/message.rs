@@ -2,7 +2,7 @@
 
 use crate::frames::FrameBatchView;
 use crate::header::{MessageHeader, MessageKind, HEADER_LEN, LEARNER_ID, MAGIC, SCHEMA_VERSION};
-use crate::join::Join;
+use crate::join::{Join, JoinKey};
 use crate::payload::Payload;
 use crate::rollout::RolloutView;
 use crate::stats::EpisodeStats;
@@ -131,6 +131,26 @@ pub fn decode<'a>(
         MessageKind::Join => Message::Join(Join::parse(payload)?),
     };
     Ok((header, message))
+}
+
+/// Validates a weights message like [`decode`] and then its signature: the
+/// only way an actor should read weights.
+pub fn decode_weights<'a>(
+    bytes: &'a [u8],
+    limits: &Limits,
+    key: &JoinKey,
+) -> Result<(MessageHeader, WeightsView<'a>), ProtoError> {
+    let (header, message) = decode(bytes, limits)?;
+    let Message::Weights(weights) = message else {
+        return Err(ProtoError::WrongKind {
+            expected: MessageKind::Weights,
+            got: message.kind(),
+        });
+    };
+    if !weights.is_signed_by(key, &header) {
+        return Err(ProtoError::BadSignature);
+    }
+    Ok((header, weights))
 }
 
 fn check_sender(kind: MessageKind, actor_id: u32, limits: &Limits) -> Result<(), ProtoError> {

@@ -3,8 +3,9 @@
 
 use proptest::prelude::*;
 use proto::{
-    decode, encode, EpisodeStats, FrameBatch, Limits, Message, MessageHeader, MessageKind,
-    ObsDtype, ProtoError, RolloutChunk, StatField, WeightsBlob, HEADER_LEN, LEARNER_ID,
+    decode, decode_weights, encode, EpisodeStats, FrameBatch, JoinKey, Limits, Message,
+    MessageHeader, MessageKind, ObsDtype, ProtoError, RolloutChunk, StatField, WeightsBlob,
+    HEADER_LEN, JOIN_KEY_LEN, LEARNER_ID, WEIGHTS_TAG_LEN,
 };
 
 const LIMITS: Limits = Limits {
@@ -132,6 +133,16 @@ fn weights_bytes(values: &[f32]) -> Vec<u8> {
     safetensors::serialize([("policy.actor.0.weight", view)], None).unwrap()
 }
 
+fn run_key() -> JoinKey {
+    JoinKey::from_bytes([9; JOIN_KEY_LEN])
+}
+
+/// A weights message holding `values`, signed with [`run_key`].
+fn signed_weights(values: &[f32], header: MessageHeader) -> Vec<u8> {
+    let blob = weights_bytes(values);
+    encode(&WeightsBlob::signed(&run_key(), &header, &blob), header)
+}
+
 /// One valid encoded message of any kind.
 fn any_message() -> impl Strategy<Value = Vec<u8>> {
     prop_oneof![
@@ -139,7 +150,7 @@ fn any_message() -> impl Strategy<Value = Vec<u8>> {
         frames_strategy().prop_map(|f| encode(&f, header(2, 2))),
         stats_strategy().prop_map(|s| encode(&s, header(3, 3))),
         prop::collection::vec(-1.0f32..1.0, 1..16)
-            .prop_map(|v| encode(&WeightsBlob(&weights_bytes(&v)), header(LEARNER_ID, 4))),
+            .prop_map(|v| signed_weights(&v, header(LEARNER_ID, 4))),
     ]
 }
 
@@ -178,11 +189,10 @@ proptest! {
     #[test]
     fn weights_round_trip(values in prop::collection::vec(-1.0f32..1.0, 1..64)) {
         let blob = weights_bytes(&values);
-        let bytes = encode(&WeightsBlob(&blob), header(LEARNER_ID, 9));
-        match decode(&bytes, &LIMITS).unwrap().1 {
-            Message::Weights(view) => prop_assert_eq!(view.bytes(), &blob[..]),
-            other => prop_assert!(false, "wrong kind {:?}", other.kind()),
-        }
+        let bytes = signed_weights(&values, header(LEARNER_ID, 9));
+        let (h, view) = decode_weights(&bytes, &LIMITS, &run_key()).unwrap();
+        prop_assert_eq!(view.bytes(), &blob[..]);
+        prop_assert_eq!((h.policy_version, h.unet_version, h.sequence), (3, 5, 9));
     }
 
     #[test]
@@ -328,8 +338,7 @@ fn ids_out_of_range_are_rejected() {
             ..
         })
     ));
-    let blob = weights_bytes(&[1.0]);
-    let bytes = encode(&WeightsBlob(&blob), header(0, 0));
+    let bytes = signed_weights(&[1.0], header(0, 0));
     assert!(matches!(
         decode(&bytes, &LIMITS),
         Err(ProtoError::OutOfRange {
@@ -416,4 +425,100 @@ fn kinds_have_distinct_services() {
         .map(|&k| proto::service::for_kind(k))
         .collect();
     assert_eq!(names.len(), 4);
+}
+
+/// The signature as the wire format documents it, computed here with the
+/// `hmac` crate directly: HMAC-SHA256 with the run key over the context,
+/// the header's policy version, U-Net version and sequence (u64 LE) and the
+/// safetensors bytes.
+fn reference_tag(key: &[u8], header: &MessageHeader, safetensors: &[u8]) -> Vec<u8> {
+    use hmac::{Hmac, Mac};
+    let mut mac = Hmac::<sha2::Sha256>::new_from_slice(key).unwrap();
+    mac.update(b"affordance-explorer weights v1");
+    mac.update(&header.policy_version.to_le_bytes());
+    mac.update(&header.unet_version.to_le_bytes());
+    mac.update(&header.sequence.to_le_bytes());
+    mac.update(safetensors);
+    mac.finalize().into_bytes().to_vec()
+}
+
+#[test]
+fn weights_carry_the_documented_signature_before_the_safetensors() {
+    let h = header(LEARNER_ID, 11);
+    let bytes = signed_weights(&[0.5, -0.25], h);
+    let blob = weights_bytes(&[0.5, -0.25]);
+    let payload = &bytes[HEADER_LEN..];
+    assert_eq!(payload.len(), WEIGHTS_TAG_LEN + blob.len());
+    assert_eq!(
+        &payload[..WEIGHTS_TAG_LEN],
+        &reference_tag(&[9; JOIN_KEY_LEN], &h, &blob)[..]
+    );
+    assert_eq!(&payload[WEIGHTS_TAG_LEN..], &blob[..]);
+}
+
+#[test]
+fn weights_signed_with_another_key_are_refused() {
+    let h = header(LEARNER_ID, 1);
+    let blob = weights_bytes(&[1.0, 2.0]);
+    let foreign = JoinKey::from_bytes([1; JOIN_KEY_LEN]);
+    let bytes = encode(&WeightsBlob::signed(&foreign, &h, &blob), h);
+    // Structurally fine: the plain decoder accepts it ...
+    assert!(matches!(
+        decode(&bytes, &LIMITS),
+        Ok((_, Message::Weights(_)))
+    ));
+    // ... the weights decoder does not.
+    assert_eq!(
+        decode_weights(&bytes, &LIMITS, &run_key()).unwrap_err(),
+        ProtoError::BadSignature
+    );
+    assert_eq!(ProtoError::BadSignature.reason(), "bad_signature");
+}
+
+#[test]
+fn weights_edited_after_signing_are_refused_even_with_a_fixed_checksum() {
+    let good = signed_weights(&[1.0, 2.0, 3.0], header(LEARNER_ID, 5));
+    assert!(decode_weights(&good, &LIMITS, &run_key()).is_ok());
+    // A different policy version in the header (the payload, and so the
+    // checksum, unchanged).
+    let mut relabelled = good.clone();
+    relabelled[16..24].copy_from_slice(&99u64.to_le_bytes());
+    // One tensor value changed, checksum recomputed.
+    let last = good.len() - 1;
+    let edited = reencode_with_fixed_checksum(good.clone(), |p| {
+        p[last - HEADER_LEN] ^= 0x01;
+    });
+    // The tag itself replaced by zeros, checksum recomputed.
+    let zeroed = reencode_with_fixed_checksum(good, |p| p[..WEIGHTS_TAG_LEN].fill(0));
+    for bytes in [relabelled, edited, zeroed] {
+        assert_eq!(
+            decode_weights(&bytes, &LIMITS, &run_key()).unwrap_err(),
+            ProtoError::BadSignature
+        );
+    }
+}
+
+#[test]
+fn weights_shorter_than_their_signature_and_other_kinds_are_refused() {
+    let full = signed_weights(&[1.0], header(LEARNER_ID, 1));
+    let cut = {
+        let mut b = full[..HEADER_LEN + 7].to_vec();
+        b[40..48].copy_from_slice(&7u64.to_le_bytes());
+        reencode_with_fixed_checksum(b, |_| {})
+    };
+    assert!(matches!(
+        decode_weights(&cut, &LIMITS, &run_key()),
+        Err(ProtoError::Truncated {
+            what: "weights signature",
+            ..
+        })
+    ));
+    let rollout = encode(&small_chunk(), header(0, 0));
+    assert!(matches!(
+        decode_weights(&rollout, &LIMITS, &run_key()),
+        Err(ProtoError::WrongKind {
+            expected: MessageKind::Weights,
+            got: MessageKind::Rollout
+        })
+    ));
 }

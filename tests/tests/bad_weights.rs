@@ -91,3 +91,90 @@ fn garbage_on_the_weights_service_is_skipped_and_the_actor_carries_on() {
         .unwrap_or_else(|| panic!("the summary counts refused weights: {log}"));
     assert!((1..=sent).contains(&refused), "{refused} of {sent}: {log}");
 }
+
+/// The policy version actor 0's rollouts carry, from the learner's view.
+fn policy_version_of_actor_0(learner: &Learner) -> u64 {
+    learner.status()["actors"]
+        .as_array()
+        .and_then(|actors| actors.iter().find(|a| a["id"] == 0))
+        .and_then(|a| a["policy_version"].as_u64())
+        .unwrap_or(0)
+}
+
+#[test]
+fn the_learners_own_weights_relabelled_by_an_outsider_are_refused() {
+    let dir = scratch_dir("forged-weights");
+    let prefix = format!("it-forgew-{}", std::process::id());
+    let (learner, config) = Learner::start_bandit(&dir, &prefix);
+    let mut actor = start_actor(0, &prefix, &dir, &["--config", &config]);
+    wait_for(
+        Duration::from_secs(30),
+        "the actor's first rollouts",
+        || (rollouts_of_actor_0(&learner) > 0).then_some(()),
+    );
+
+    // An outsider takes the learner's newest weights message from the
+    // service's history: well formed, checksum right, real tensors.
+    let (_node, service) = system_tests::open_as_outsider(&prefix, proto::service::WEIGHTS);
+    let subscriber = service
+        .subscriber_builder()
+        .create()
+        .expect("a spare subscriber slot");
+    let genuine = wait_for(
+        Duration::from_secs(10),
+        "the learner's weights from history",
+        || {
+            subscriber
+                .receive()
+                .expect("receiving")
+                .map(|s| s.payload().to_vec())
+        },
+    );
+    // It claims a far newer policy version (the header is outside the
+    // payload checksum) and republishes: before weights were signed, every
+    // actor loaded it and reported version 1 000 000.
+    const FORGED_VERSION: u64 = 1_000_000;
+    let mut forged = genuine;
+    forged[16..24].copy_from_slice(&FORGED_VERSION.to_le_bytes());
+    let publisher = service
+        .publisher_builder()
+        .initial_max_slice_len(forged.len())
+        .create()
+        .expect("a spare publisher slot");
+    wait_for(
+        Duration::from_secs(20),
+        "the actor to refuse the forged weights",
+        || {
+            let mut sample = publisher
+                .loan_slice(forged.len())
+                .expect("loaning a sample");
+            sample.payload_mut().copy_from_slice(&forged);
+            sample.send().expect("sending the forged weights");
+            std::thread::sleep(Duration::from_millis(50));
+            std::fs::read_to_string(&actor.log)
+                .ok()
+                .filter(|log| log.contains("not signed with the run's key"))
+        },
+    );
+    let before = rollouts_of_actor_0(&learner);
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while rollouts_of_actor_0(&learner) <= before + 2 {
+        assert!(
+            actor.child.try_wait().expect("polling the actor").is_none(),
+            "the actor exited on forged weights:\n{}",
+            actor.log_text()
+        );
+        assert!(Instant::now() < deadline, "the actor stopped stepping");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let version = policy_version_of_actor_0(&learner);
+    assert!(
+        (1..FORGED_VERSION).contains(&version),
+        "the actor acts on the learner's weights, not the forged ones (version {version}):\n{}",
+        actor.log_text()
+    );
+    actor.signal(libc::SIGINT);
+    assert!(actor
+        .wait_exit(Duration::from_secs(20))
+        .is_some_and(|s| s.success()));
+}

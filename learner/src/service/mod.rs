@@ -352,13 +352,14 @@ pub fn spawn(
 ) -> anyhow::Result<std::thread::JoinHandle<anyhow::Result<()>>> {
     let key_file = shared.run_dir.join(transport::JOIN_KEY_FILE);
     let join_key = transport::load_or_create_join_key(&key_file).context(
-        "preparing the run's join key (actors prove with it that they belong to the run)",
+        "preparing the run's join key (actors prove with it that they belong to the run; the \
+         learner signs its weights with it)",
     )?;
     let (opened_tx, opened_rx) = std::sync::mpsc::channel();
     let thread = std::thread::Builder::new()
         .name("learner".into())
         .spawn(move || {
-            let ports = match LearnerPorts::open(&shared.config.transport) {
+            let ports = match LearnerPorts::open(&shared.config.transport, join_key.clone()) {
                 Ok(ports) => ports,
                 Err(e) => {
                     let _ = opened_tx.send(Err(e));

@@ -31,11 +31,17 @@ fuzz_target!(|data: &[u8]| {
         max_actors: 64,
         max_payload_len: 1 << 24,
     };
-    if let Ok((_, message)) = proto::decode(&bytes, &limits) {
+    if let Ok((header, message)) = proto::decode(&bytes, &limits) {
         assert_eq!(message.kind(), kind);
-        if let proto::Message::Join(join) = message {
-            let key = proto::JoinKey::from_bytes([7; proto::JOIN_KEY_LEN]);
-            let _ = join.verify(&key, actor_id);
+        let key = proto::JoinKey::from_bytes([7; proto::JOIN_KEY_LEN]);
+        match message {
+            proto::Message::Join(join) => {
+                let _ = join.verify(&key, actor_id);
+            }
+            proto::Message::Weights(weights) => {
+                let _ = weights.is_signed_by(&key, &header);
+            }
+            _ => {}
         }
     }
 });

@@ -7,7 +7,7 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
-use proto::{Join, JoinKey, MessageHeader, MessageKind, Payload};
+use proto::{Join, JoinKey, Limits, MessageHeader, MessageKind, Payload, ProtoError, WeightsView};
 
 use crate::config::TransportConfig;
 use crate::learner_side::ReceivedMessage;
@@ -36,6 +36,8 @@ pub struct ActorPorts {
     /// When the next join is due (see [`JOIN_REFRESH`], [`JOIN_RETRY`]).
     join_due: Instant,
     joins_sent: u64,
+    /// What a weights message may be (its size, its sender).
+    weights_limits: Limits,
     weights: Subscriber<Ipc, [u8], ()>,
     wakeup: Notifier<Ipc>,
     weights_ready: Listener<Ipc>,
@@ -129,6 +131,10 @@ impl ActorPorts {
             join_key,
             join_due: Instant::now(),
             joins_sent: 0,
+            weights_limits: Limits {
+                max_actors: config.max_actors,
+                max_payload_len: config.max_weights_bytes as u64,
+            },
             weights,
             wakeup,
             weights_ready,
@@ -267,6 +273,18 @@ impl ActorPorts {
                 }
             }
         }
+    }
+
+    /// Validates a weights message that [`Self::take_latest_weights`] or
+    /// [`Self::wait_for_weights`] returned: its structure and size, and
+    /// that the run's learner signed it with the run's key. Anything may
+    /// publish on the weights service; only weights that pass this may be
+    /// loaded.
+    pub fn check_weights<'m>(
+        &self,
+        message: &'m ReceivedMessage,
+    ) -> Result<(MessageHeader, WeightsView<'m>), ProtoError> {
+        proto::decode_weights(message.bytes(), &self.weights_limits, &self.join_key)
     }
 
     /// Waits up to `timeout` for weights; `None` if none came.

@@ -10,7 +10,7 @@ use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 use iceoryx2::sample::Sample;
 use iceoryx2::service::port_factory::publish_subscribe;
-use proto::{MessageHeader, MessageKind, WeightsBlob, LEARNER_ID};
+use proto::{JoinKey, MessageHeader, MessageKind, WeightsBlob, LEARNER_ID};
 
 use crate::config::TransportConfig;
 use crate::services::{open_event, open_pubsub, wakeup_service, weights_ready_service};
@@ -55,12 +55,15 @@ pub struct LearnerPorts {
     weights_ready: Notifier<Ipc>,
     weights_sequence: u64,
     max_weights_bytes: usize,
+    /// The run's key, which signs every weights message.
+    run_key: JoinKey,
 }
 
 impl LearnerPorts {
     /// Cleans up after crashed processes, then opens (or creates) every service
-    /// of the run described by `config`.
-    pub fn open(config: &TransportConfig) -> Result<Self, TransportError> {
+    /// of the run described by `config`. Weights go out signed with
+    /// `run_key` (the run's join key), which actors check.
+    pub fn open(config: &TransportConfig, run_key: JoinKey) -> Result<Self, TransportError> {
         crate::remove_dead_nodes()?;
         let node = open_node("learner")?;
         let upstream = [
@@ -117,6 +120,7 @@ impl LearnerPorts {
             weights_ready,
             weights_sequence: 0,
             max_weights_bytes: config.max_weights_bytes,
+            run_key,
         })
     }
 
@@ -144,15 +148,22 @@ impl LearnerPorts {
             .map_err(|e| TransportError::new("receive from", proto::service::for_kind(kind), e))
     }
 
-    /// Publishes a safetensors weights blob with its versions and wakes actors
-    /// that wait for weights.
+    /// Publishes a safetensors weights blob with its versions, signed with
+    /// the run's key, and wakes actors that wait for weights.
     pub fn publish_weights(
         &mut self,
         policy_version: u64,
         unet_version: u64,
         safetensors: &[u8],
     ) -> Result<Delivery, TransportError> {
-        let blob = WeightsBlob(safetensors);
+        let header = MessageHeader {
+            actor_id: LEARNER_ID,
+            policy_version,
+            unet_version,
+            sequence: self.weights_sequence + 1,
+            ..MessageHeader::default()
+        };
+        let blob = WeightsBlob::signed(&self.run_key, &header, safetensors);
         let len = proto::encoded_len(&blob);
         if len > self.max_weights_bytes {
             return Err(TransportError::new(
@@ -164,14 +175,7 @@ impl LearnerPorts {
         let Some(mut sample) = crate::loan_zeroed(&self.weights, len) else {
             return Ok(Delivery::Dropped);
         };
-        self.weights_sequence += 1;
-        let header = MessageHeader {
-            actor_id: LEARNER_ID,
-            policy_version,
-            unet_version,
-            sequence: self.weights_sequence,
-            ..MessageHeader::default()
-        };
+        self.weights_sequence = header.sequence;
         proto::encode_into(&blob, header, sample.payload_mut());
         let delivered = sample
             .send()

@@ -58,7 +58,7 @@ fn take_join(learner: &LearnerPorts, actor: &ActorPorts) {
 #[test]
 fn stats_reach_the_learner_and_wake_it() {
     let cfg = config("stats");
-    let learner = LearnerPorts::open(&cfg).unwrap();
+    let learner = LearnerPorts::open(&cfg, key()).unwrap();
     let mut actor = ActorPorts::open(&cfg, 2, key()).unwrap();
     take_join(&learner, &actor);
     let ids = actor.publisher_ids();
@@ -90,7 +90,7 @@ fn stats_reach_the_learner_and_wake_it() {
 #[test]
 fn a_late_actor_gets_the_newest_weights_at_once() {
     let cfg = config("late");
-    let mut learner = LearnerPorts::open(&cfg).unwrap();
+    let mut learner = LearnerPorts::open(&cfg, key()).unwrap();
     learner.publish_weights(1, 1, &weights_blob(1.0)).unwrap();
     learner.publish_weights(2, 1, &weights_blob(2.0)).unwrap();
     let actor = ActorPorts::open(&cfg, 0, key()).unwrap();
@@ -99,15 +99,35 @@ fn a_late_actor_gets_the_newest_weights_at_once() {
         .wait_for_weights(Duration::from_secs(2))
         .unwrap()
         .expect("weights from history");
-    let (header, decoded) = decode(msg.bytes(), &LIMITS).unwrap();
+    let (header, weights) = actor.check_weights(&msg).unwrap();
     assert_eq!(header.policy_version, 2);
-    assert!(matches!(decoded, Message::Weights(_)));
+    assert_eq!(weights.bytes(), &weights_blob(2.0)[..]);
+}
+
+#[test]
+fn weights_from_a_learner_with_another_key_are_refused() {
+    let cfg = config("foreign");
+    let mut foreign = LearnerPorts::open(
+        &cfg,
+        proto::JoinKey::from_bytes([0xee; proto::JOIN_KEY_LEN]),
+    )
+    .unwrap();
+    let actor = ActorPorts::open(&cfg, 0, key()).unwrap();
+    foreign.publish_weights(1, 1, &weights_blob(1.0)).unwrap();
+    let msg = actor
+        .wait_for_weights(Duration::from_secs(2))
+        .unwrap()
+        .expect("the foreign weights arrive");
+    assert!(matches!(
+        actor.check_weights(&msg),
+        Err(proto::ProtoError::BadSignature)
+    ));
 }
 
 #[test]
 fn a_slow_learner_makes_actors_drop_and_count_not_grow() {
     let cfg = config("slow");
-    let learner = LearnerPorts::open(&cfg).unwrap();
+    let learner = LearnerPorts::open(&cfg, key()).unwrap();
     let mut actor = ActorPorts::open(&cfg, 1, key()).unwrap();
     take_join(&learner, &actor);
     let stats = EpisodeStats::new(0, 1, 0);
@@ -138,7 +158,7 @@ fn a_slow_learner_makes_actors_drop_and_count_not_grow() {
 #[test]
 fn oversized_messages_are_refused_with_a_hint() {
     let cfg = config("big");
-    let _learner = LearnerPorts::open(&cfg).unwrap();
+    let _learner = LearnerPorts::open(&cfg, key()).unwrap();
     let mut actor = ActorPorts::open(&cfg, 0, key()).unwrap();
     let batch = proto::FrameBatch {
         episode_id: 0,
