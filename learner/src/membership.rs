@@ -9,6 +9,14 @@
 //! refused and counted. The same rule carries over to other hosts: a gateway
 //! that forwards a host's actors joins each of them from its own publishers,
 //! so a host speaks only for the actors that joined through it.
+//!
+//! Publishers that have not joined are screened before a byte of what they
+//! sent is read ([`Membership::screen`]): the length a subscriber sees comes
+//! from the publisher's side of shared memory, and iceoryx2 0.10 does not
+//! check it against the segment the publisher mapped, so a foreign publisher
+//! with a small segment and a lying length would make the learner read past
+//! it (a crash, not just a refusal). Only a join's exact length is read from
+//! a stranger, on the stats service.
 
 use std::collections::HashMap;
 
@@ -24,6 +32,19 @@ pub enum Joined {
     /// The same binding again (actors repeat their join).
     Unchanged,
 }
+
+/// Who sent a message that [`Membership::screen`] let through.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sender {
+    /// A publisher that joined (or one an actor held before it restarted).
+    Member,
+    /// A publisher that has not joined; its message can only be a join.
+    Stranger,
+}
+
+/// Bytes of a join message: the only message a publisher that has not
+/// joined may send.
+const JOIN_MESSAGE_LEN: usize = proto::HEADER_LEN + proto::JOIN_PAYLOAD_LEN;
 
 /// Publishers an id held before its newest join that are still told apart
 /// from strangers (a restarted actor's last messages may still be queued).
@@ -73,6 +94,31 @@ impl Membership {
                 Joined::Again
             }
         })
+    }
+
+    /// Whether a `len`-byte message on the service of `kind` that came
+    /// through `origin` may be read at all: from a publisher that joined (or
+    /// one an actor held before it restarted), anything the service allows;
+    /// from any other, only a join, on the stats service, of a join's exact
+    /// length. The error is the reason it is refused unread.
+    pub fn screen(
+        &self,
+        kind: MessageKind,
+        origin: u128,
+        len: usize,
+    ) -> Result<Sender, &'static str> {
+        let joined = self
+            .members
+            .values()
+            .chain(self.replaced.values().flatten())
+            .any(|publishers| Join::publisher_for(publishers, kind) == Some(origin));
+        if joined {
+            Ok(Sender::Member)
+        } else if kind == MessageKind::Stats && len == JOIN_MESSAGE_LEN {
+            Ok(Sender::Stranger)
+        } else {
+            Err("unknown_publisher")
+        }
     }
 
     /// Whether a `kind` message that says it is from `actor_id` and came
@@ -132,6 +178,62 @@ mod tests {
             Err("not_its_publisher")
         );
         assert_eq!(members.admit(7, MessageKind::Stats, 12), Err("not_joined"));
+    }
+
+    #[test]
+    fn strangers_are_read_only_for_a_join_of_the_join_length() {
+        let mut members = Membership::new(key(1));
+        let join = Join::new(&key(1), 0, [10, 11, 12]);
+        let join_len = proto::encode(&join, proto::MessageHeader::default()).len();
+        assert_eq!(
+            members.screen(MessageKind::Stats, 12, join_len),
+            Ok(Sender::Stranger)
+        );
+        for len in [0, join_len - 1, join_len + 1, 4096] {
+            assert_eq!(
+                members.screen(MessageKind::Stats, 12, len),
+                Err("unknown_publisher")
+            );
+        }
+        assert_eq!(
+            members.screen(MessageKind::Rollout, 10, join_len),
+            Err("unknown_publisher"),
+            "no join comes on the rollouts service"
+        );
+        members.join(0, &join, 12).unwrap();
+        assert_eq!(
+            members.screen(MessageKind::Rollout, 10, 1 << 20),
+            Ok(Sender::Member)
+        );
+        assert_eq!(
+            members.screen(MessageKind::Frames, 11, 1 << 20),
+            Ok(Sender::Member)
+        );
+        assert_eq!(
+            members.screen(MessageKind::Stats, 12, join_len),
+            Ok(Sender::Member)
+        );
+        assert_eq!(
+            members.screen(MessageKind::Stats, 12, 300),
+            Ok(Sender::Member)
+        );
+        assert_eq!(
+            members.screen(MessageKind::Rollout, 11, 1 << 20),
+            Err("unknown_publisher"),
+            "a member's frames publisher does not speak on the rollouts service"
+        );
+        assert_eq!(
+            members.screen(MessageKind::Rollout, 99, 1 << 20),
+            Err("unknown_publisher")
+        );
+        members
+            .join(0, &Join::new(&key(1), 0, [30, 31, 32]), 32)
+            .unwrap();
+        assert_eq!(
+            members.screen(MessageKind::Rollout, 10, 1 << 20),
+            Ok(Sender::Member),
+            "a restarted actor's queued messages are still read (and refused by admit)"
+        );
     }
 
     #[test]

@@ -1,6 +1,7 @@
 //! Malformed messages on every actor→learner service are counted in /metrics
 //! and do not stop the learner; so are valid ones with a forged sequence
-//! number, and oversized ones, which are refused before they are copied.
+//! number, and oversized ones, which are refused before they are copied, and
+//! lengths that lie beyond a stranger's segment, refused before they are read.
 
 use std::time::Duration;
 
@@ -199,6 +200,85 @@ fn oversized_messages_are_refused_before_the_learner_copies_them() {
     assert_eq!(
         metric_value(&metrics, reason),
         Some(sends as f64),
+        "{metrics}"
+    );
+    assert_eq!(
+        system_tests::http_get(&learner.addr, "/healthz").map(|r| r.0),
+        Some(200)
+    );
+}
+
+/// The attack iceoryx2 itself does not stop: a foreign publisher with a
+/// small segment rewrites its sample's element count (in its own shared
+/// memory, after loaning) to a length within the service's maximum but far
+/// beyond the segment. A subscriber that reads the payload reads past the
+/// mapping: before publishers were screened this made the learner segfault.
+#[test]
+fn a_length_beyond_a_strangers_segment_is_refused_unread() {
+    use iceoryx2::service::header::publish_subscribe::Header;
+
+    let dir = scratch_dir("lying-length");
+    let prefix = format!("it-lie-{}", std::process::id());
+    let run_dir = dir.join("run");
+    let mut learner = Learner::start(
+        &run_dir,
+        &[
+            "--run-dir".into(),
+            run_dir.display().to_string(),
+            "--service-prefix".into(),
+            prefix.clone(),
+        ],
+        dir.join("learner.log"),
+    );
+    let (_node, service) = system_tests::open_as_outsider(&prefix, proto::service::ROLLOUTS);
+    let publisher = service
+        .publisher_builder()
+        .initial_max_slice_len(64)
+        .max_loaned_samples(1)
+        .create()
+        .expect("a publisher slot");
+    let lie = (TransportConfig::default().max_rollout_bytes / 2) as u64;
+    let sends = 3;
+    for _ in 0..sends {
+        let mut sample = publisher.loan_slice(64).expect("loaning 64 bytes");
+        sample.payload_mut()[..4].copy_from_slice(b"AFX1");
+        // The element count sits in iceoryx2's sample header after the
+        // publisher id; find the u64 that holds the loaned 64 and write the
+        // lie there, as any process that maps its own segment can.
+        let header = sample.header() as *const Header;
+        let words = std::mem::size_of::<Header>() / 8;
+        let count = (1..words)
+            .map(|i| header.cast::<u64>().wrapping_add(i))
+            .find(|&word| {
+                // SAFETY: `word` lies inside the header iceoryx2 just wrote.
+                let value = unsafe { std::ptr::read_volatile(word) };
+                value == 64
+            })
+            .expect("the element count in the sample header");
+        // SAFETY: the header is in this process's writable shared-memory
+        // segment and no reference to it is alive; an attacker writes it.
+        unsafe { std::ptr::write_volatile(count.cast_mut(), lie) };
+        assert_eq!(sample.payload().len() as u64, lie, "the lie took");
+        sample.send().expect("sending");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let reason = "afx_messages_rejected_total{service=\"rollouts\",reason=\"unknown_publisher\"}";
+    let metrics = wait_for(Duration::from_secs(20), "the lies refused", || {
+        assert!(
+            learner
+                .process
+                .child
+                .try_wait()
+                .expect("polling the learner")
+                .is_none(),
+            "the learner died reading past a foreign segment"
+        );
+        let m = learner.metrics();
+        (metric_value(&m, reason) == Some(sends as f64)).then_some(m)
+    });
+    assert_eq!(
+        metric_value(&metrics, "afx_env_steps_total"),
+        Some(0.0),
         "{metrics}"
     );
     assert_eq!(

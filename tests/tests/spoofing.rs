@@ -121,12 +121,14 @@ fn only_the_publishers_that_joined_speak_for_an_actor() {
     far_ahead[32..40].copy_from_slice(&(sequence + 10_000_000).to_le_bytes());
     send(&rollouts_out, &far_ahead);
 
+    // The joins are read and refused for what they say; the outsider's
+    // stats and rollouts, from a publisher that never joined, are refused
+    // before the learner reads a byte of them.
     for (service, reason, count) in [
         ("stats", "join_from_another_publisher", 1.0),
         ("stats", "bad_join_proof", 1.0),
-        ("stats", "not_its_publisher", 1.0),
-        ("stats", "not_joined", 1.0),
-        ("rollouts", "not_its_publisher", 2.0),
+        ("stats", "unknown_publisher", 2.0),
+        ("rollouts", "unknown_publisher", 2.0),
     ] {
         wait_for(
             Duration::from_secs(10),
@@ -163,7 +165,10 @@ fn only_the_publishers_that_joined_speak_for_an_actor() {
         || (actor_0(&learner)["received"]["rollout"].as_u64() > Some(before + 2)).then_some(()),
     );
     assert!(actor.child.try_wait().expect("polling").is_none());
-    assert_eq!(rejected(&learner, "rollouts", "not_joined"), 0.0);
+    for reason in ["not_joined", "not_its_publisher"] {
+        assert_eq!(rejected(&learner, "rollouts", reason), 0.0);
+        assert_eq!(rejected(&learner, "stats", reason), 0.0);
+    }
     let log = std::fs::read_to_string(dir.join("learner.log")).expect("learner log");
     assert!(log.contains("actor joined"), "{log}");
 }

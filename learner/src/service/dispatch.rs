@@ -34,15 +34,7 @@ impl Learner {
             return Ok(());
         }
         if let Err(reason) = self.membership.admit(header.actor_id, kind, origin) {
-            self.shared.status().reject(kind, reason);
-            if self.warned.insert((kind, reason)) {
-                tracing::warn!(
-                    service = proto::service::for_kind(kind),
-                    actor = header.actor_id,
-                    "refused a message ({reason}): only the publishers that joined as an actor id \
-                     speak for it (further ones are only counted)"
-                );
-            }
+            self.refuse(kind, Some(header.actor_id), reason);
             return Ok(());
         }
         let accepted = self.shared.status().accept(

@@ -22,7 +22,7 @@ use crate::affordance_learner::{checked_frames, AffordanceLearner, UnetTrainingS
 use crate::checkpoint;
 use crate::config::LearnerConfig;
 use crate::history::History;
-use crate::membership::{Joined, Membership};
+use crate::membership::{Joined, Membership, Sender};
 use crate::policy_worker::{PolicySnapshot, PolicyWorker};
 use crate::shared::Shared;
 use crate::status::LearnerStatus;
@@ -249,8 +249,10 @@ impl Learner {
                         break;
                     };
                     // The length comes from shared memory any process may
-                    // write: check it before copying a byte (a lying length
-                    // would otherwise allocate whatever it claims).
+                    // write: screen the publisher and check the length before
+                    // reading or copying a byte (a lying length would
+                    // otherwise read past a stranger's segment, or allocate
+                    // whatever it claims).
                     let len = message.bytes().len();
                     if len > max_bytes {
                         self.reject(
@@ -262,7 +264,18 @@ impl Learner {
                         );
                         continue;
                     }
-                    taken.push((message.origin(), message.bytes().to_vec()));
+                    match self.membership.screen(kind, message.origin(), len) {
+                        Err(reason) => self.refuse(kind, None, reason),
+                        Ok(Sender::Member) => {
+                            taken.push((message.origin(), message.bytes().to_vec()))
+                        }
+                        // A join (a few bytes) is handled at once, so that
+                        // the joiner's next messages in this pass are screened
+                        // as a member's.
+                        Ok(Sender::Stranger) => {
+                            self.handle(kind, message.origin(), message.bytes().to_vec())?
+                        }
+                    }
                 }
                 for (origin, bytes) in taken {
                     self.handle(kind, origin, bytes)?;
@@ -333,6 +346,20 @@ impl Learner {
     }
 
     /// Counts a malformed message of `kind`, warning once per reason.
+    /// Counts a message refused for who sent it (`reason`, a metrics
+    /// label); warns the first time per service and reason.
+    fn refuse(&mut self, kind: MessageKind, actor: Option<u32>, reason: &'static str) {
+        self.shared.status().reject(kind, reason);
+        if self.warned.insert((kind, reason)) {
+            tracing::warn!(
+                service = proto::service::for_kind(kind),
+                actor,
+                "refused a message ({reason}): only the publishers that joined as an actor id \
+                 speak for it (further ones are only counted)"
+            );
+        }
+    }
+
     fn reject(&mut self, kind: MessageKind, error: proto::ProtoError) {
         self.shared.status().reject(kind, error.reason());
         if self.warned.insert((kind, error.reason())) {
