@@ -500,6 +500,19 @@ mod tests {
         assert_eq!((w.navigation, w.interaction, w.failure), (1.0, 1.0, 1.0));
         let small = preset("small-cpu.toml");
         assert_eq!((small.task.image_size, small.task.episode_steps), (64, 100));
+        let scale = preset("paper-scale.toml");
+        assert_eq!(
+            (scale.task.image_size, scale.task.episode_steps),
+            (128, 600)
+        );
+        assert_eq!(scale.task.affordances.len(), 2);
+        assert!(scale.task.labels_background());
+        let w = scale.task.reward;
+        let default = proto::RewardWeights::default();
+        assert_eq!(
+            (w.navigation, w.interaction, w.failure),
+            (0.1, default.interaction, default.failure)
+        );
     }
 
     /// Why `validate` refuses the config `text` parses to.
