@@ -1,0 +1,98 @@
+//! Building what an actor sends: rollout chunks in the policy's layout, and
+//! an episode's labelled frames split into messages that fit the transport.
+
+use nets::policy::PolicyLayout;
+use proto::{FrameBatch, ObsDtype, RolloutChunk};
+
+/// An empty chunk in `layout`, starting from recurrent state `start_hidden`.
+pub(super) fn new_chunk(
+    episode_id: u64,
+    first_step: u32,
+    layout: &PolicyLayout,
+    start_hidden: Vec<f32>,
+) -> RolloutChunk {
+    RolloutChunk {
+        episode_id,
+        first_step,
+        n_actions: layout.n_actions as u32,
+        obs_dtype: layout.obs_dtype,
+        obs_elems: layout.obs_len() as u32,
+        obs: Vec::new(),
+        actions: Vec::new(),
+        masks: Vec::new(),
+        log_probs: Vec::new(),
+        values: Vec::new(),
+        rewards: Vec::new(),
+        dones: Vec::new(),
+        bootstrap_value: 0.0,
+        start_hidden,
+    }
+}
+
+/// Appends an observation in the chunk's element type.
+pub(super) fn push_obs(chunk: &mut RolloutChunk, features: &[f32]) {
+    match chunk.obs_dtype {
+        ObsDtype::U8 => chunk
+            .obs
+            .extend(features.iter().map(|&v| proto::unit_to_byte(v))),
+        ObsDtype::F32 => chunk
+            .obs
+            .extend(features.iter().flat_map(|v| v.to_le_bytes())),
+    }
+}
+
+/// Splits an episode's frames into messages of at most `max_bytes` payload.
+pub(super) fn split_frames(batch: FrameBatch, max_bytes: usize) -> Vec<FrameBatch> {
+    let pixels = (batch.height * batch.width) as usize;
+    let planes = batch.n_affordances as usize;
+    let per_frame = pixels * (4 + 3 + planes);
+    let per_message = (max_bytes.saturating_sub(64) / per_frame.max(1)).max(1);
+    let n = batch.n_frames();
+    (0..n)
+        .step_by(per_message)
+        .map(|start| {
+            let end = (start + per_message).min(n);
+            FrameBatch {
+                episode_id: batch.episode_id,
+                height: batch.height,
+                width: batch.width,
+                n_affordances: batch.n_affordances,
+                depth_m: batch.depth_m[start * pixels..end * pixels].to_vec(),
+                rgb: batch.rgb[3 * start * pixels..3 * end * pixels].to_vec(),
+                labels: batch.labels[planes * start * pixels..planes * end * pixels].to_vec(),
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frames_split_into_messages_that_fit_and_lose_nothing() {
+        let (h, w, a, n) = (4u32, 5u32, 2u32, 7usize);
+        let pixels = (h * w) as usize;
+        let batch = FrameBatch {
+            episode_id: 3,
+            height: h,
+            width: w,
+            n_affordances: a,
+            depth_m: (0..n * pixels).map(|i| i as f32).collect(),
+            rgb: (0..3 * n * pixels).map(|i| i as u8).collect(),
+            labels: (0..2 * n * pixels).map(|i| (i % 2) as u8).collect(),
+        };
+        let per_frame = pixels * 9;
+        let parts = split_frames(batch.clone(), 64 + 3 * per_frame);
+        assert_eq!(parts.len(), 3);
+        assert_eq!(
+            parts.iter().map(|p| p.n_frames()).collect::<Vec<_>>(),
+            [3, 3, 1]
+        );
+        let joined: Vec<f32> = parts.iter().flat_map(|p| p.depth_m.clone()).collect();
+        assert_eq!(joined, batch.depth_m);
+        let labels: Vec<u8> = parts.iter().flat_map(|p| p.labels.clone()).collect();
+        assert_eq!(labels, batch.labels);
+        assert!(parts.iter().all(|p| p.episode_id == 3));
+    }
+}
