@@ -470,8 +470,7 @@ fn differences(out: &mut String, comparison: &Comparison) {
          match.\n\
          - **Scale**: `{}`, {} steps per run; the paper trained at 128 px with 600-step \
          episodes for about 1 M steps (8 parallel environments).\n\
-         - **Reward** weights α = (0.25, 2, 0.05) for every method, not the paper's (1, 1, 1) \
-         (README: with the paper's the policy stopped interacting here).\n\
+         - **Reward**: {}\n\
          - **Both affordances in one run** (one U-Net plane and one set of selection actions \
          each); the paper trained one affordance per run.\n\
          - **Background labels**: `ours` and `nomap-seg` also label what the segmentation calls \
@@ -491,8 +490,40 @@ fn differences(out: &mut String, comparison: &Comparison) {
          object from the nearest position that reaches it, and judges objects no position \
          reaches by the simulator's rules (the paper placed the robot in front of each of its \
          236 objects).\n",
-        m.local_options, m.steps
+        m.local_options,
+        m.steps,
+        reward_line(comparison.first_config.as_deref())
     );
+}
+
+/// The reward weights the runs trained with, as the first run's
+/// `config.toml` says (every run of a comparison shares its task).
+fn reward_line(config: Option<&str>) -> String {
+    let weights = config
+        .and_then(|text| text.parse::<toml::Table>().ok())
+        .and_then(|table| table.get("task")?.get("reward").cloned())
+        .and_then(|reward| reward.try_into::<proto::RewardWeights>().ok());
+    let Some(w) = weights else {
+        return "the runs' weights are unknown (the first run has no readable config.toml)"
+            .to_string();
+    };
+    let mut line = format!(
+        "weights α = ({}, {}, {}) for every method",
+        w.navigation, w.interaction, w.failure
+    );
+    if let Some(a) = w.pick_up_interaction {
+        line += &format!(", α2 = {a} for pick-ups");
+    }
+    if let Some(a) = w.push_interaction {
+        line += &format!(", α2 = {a} for pushes");
+    }
+    if w == proto::RewardWeights::PAPER {
+        line += " (the paper's)";
+    } else {
+        line += ", not the paper's (1, 1, 1) (docs/decisions/0001-reward-weights.md: with the \
+                 paper's the policy stopped interacting here)";
+    }
+    line + "."
 }
 
 #[cfg(test)]
@@ -511,5 +542,23 @@ mod tests {
         );
         assert_eq!(cell(&[Some(0.25)]), "0.25");
         assert_eq!(cell(&[None, None]), "– (undefined in 2)");
+    }
+
+    #[test]
+    fn the_reward_line_says_what_the_runs_trained_with() {
+        let config = "seed = 1\n[task]\nmethod = \"ours\"\n[task.reward]\nnavigation = 0.1\n\
+                      interaction = 2.0\nfailure = 0.05\n";
+        let line = reward_line(Some(config));
+        assert!(
+            line.starts_with("weights α = (0.1, 2, 0.05) for every method, not the paper's"),
+            "{line}"
+        );
+        let paper = "[task.reward]\nnavigation = 1.0\ninteraction = 1.0\nfailure = 1.0\n";
+        assert!(reward_line(Some(paper)).ends_with("(the paper's)."));
+        let split = "[task.reward]\nnavigation = 0.25\ninteraction = 2.0\nfailure = 0.05\n\
+                     pick_up_interaction = 6.0\n";
+        assert!(reward_line(Some(split)).contains(", α2 = 6 for pick-ups"));
+        assert!(reward_line(None).contains("unknown"));
+        assert!(reward_line(Some("not toml [")).contains("unknown"));
     }
 }
