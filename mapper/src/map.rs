@@ -2,9 +2,13 @@
 //! and the per-frame pipeline (segments → render → associate → track →
 //! re-identify lost objects or add new ones → integrate → book-keeping).
 
+mod interactions;
 mod merge;
+mod object;
 mod reidentify;
 mod track;
+
+pub use object::{MapObject, ObjectId, Whereabouts};
 
 use std::collections::{BTreeMap, BTreeSet};
 
@@ -17,16 +21,12 @@ use crate::icp::{TrackingParams, TrackingReport};
 use crate::integrate::{
     integrate, pixels_by_label, DepthView, FramePixels, IntegrationParams, Owned,
 };
-use crate::labels::{Affordance, ObjectLabels, Outcome};
+use crate::labels::ObjectLabels;
 use crate::layer::Layer;
 use crate::mesh::{mesh_layer, Mesh};
 use crate::render::{raycast_layer, render_layers, Pixels, PlacedLayer, RenderTarget};
 use crate::segmentation::{segment_geometric, Segmentation};
 use crate::Pose;
-
-/// A map object's id; stable across frames. 0 is never used (it means "none").
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct ObjectId(pub u32);
 
 /// Why a frame or a request was refused.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -118,64 +118,6 @@ enum Placement {
     Existing(ObjectId),
     /// Nothing this frame.
     Wait,
-}
-
-/// One object of the map.
-#[derive(Debug, Clone)]
-pub struct MapObject {
-    /// Its id.
-    pub id: ObjectId,
-    /// Pose of its volume's frame in the world.
-    pub t_world_object: Pose,
-    /// TSDF volume in the object's frame.
-    pub volume: Layer,
-    /// Semantic class votes (class id → pixels seen).
-    pub class_histogram: BTreeMap<u16, u64>,
-    /// Frames it was matched in.
-    pub observations: u32,
-    /// Consecutive frames it should have been seen but was not.
-    pub misses: u32,
-    /// Interaction outcomes and confidence labels.
-    pub labels: ObjectLabels,
-    /// Where the map believes the object is.
-    pub whereabouts: Whereabouts,
-    /// While lost: the first id issued after it was lost. Objects from this
-    /// id on appeared while it was away, so one of them may be it, seen
-    /// again too little to be recognised (see `Map::reidentify`).
-    lost_before: ObjectId,
-    /// The largest segment it was compared with lost objects on
-    /// (`Map::reidentify`); a later segment is compared again only when
-    /// clearly larger, a better view.
-    reidentify_tried_px: usize,
-}
-
-/// Where the map believes an object is. Only a [`Whereabouts::Placed`]
-/// object is rendered, associated, integrated, projected or counted as
-/// missed; the others keep their volume and labels unchanged.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Whereabouts {
-    /// At its pose in the world.
-    Placed,
-    /// In the robot's hand ([`Map::hold`]) until released.
-    Held,
-    /// The robot moved it and tracking did not find it: somewhere unknown
-    /// until a new segment turns out to be it (see `Map::reidentify`).
-    Lost,
-}
-
-impl MapObject {
-    /// Whether the map knows where the object is ([`Whereabouts::Placed`]).
-    pub fn is_placed(&self) -> bool {
-        self.whereabouts == Whereabouts::Placed
-    }
-
-    /// The most voted class, if any.
-    pub fn class(&self) -> Option<u16> {
-        self.class_histogram
-            .iter()
-            .max_by_key(|(c, n)| (**n, std::cmp::Reverse(**c)))
-            .map(|(c, _)| *c)
-    }
 }
 
 /// Where the time of the last [`Map::integrate`] went, in seconds.
@@ -272,50 +214,6 @@ impl Map {
     /// What tracking did in the most recent [`Map::integrate`], by object id.
     pub fn last_tracking(&self) -> &[TrackingReport] {
         &self.last_tracking
-    }
-
-    /// Says that an object may have moved (the robot pushed or picked it
-    /// up): the next frame tracks it, starting from `motion * t_world_object`
-    /// when a world-frame motion guess is given. If tracking fails, the
-    /// object is left untouched for that frame and the failure is reported in
-    /// [`Map::last_tracking`].
-    pub fn notify_moved(&mut self, id: ObjectId, motion: Option<Pose>) -> Result<(), MapError> {
-        if !self.objects.contains_key(&id) {
-            return Err(MapError::UnknownObject(id));
-        }
-        self.notified.insert(
-            id,
-            track::Notice {
-                motion,
-                ..Default::default()
-            },
-        );
-        Ok(())
-    }
-
-    /// Says that the robot pushed an object along `direction` (world frame;
-    /// its horizontal part counts): the next frame tracks it, looking for it
-    /// up to [`TrackingParams::max_push_m`] ahead along the push, where a
-    /// push can slide it, but no further sideways or back than any other
-    /// motion ([`TrackingParams::max_motion_m`]). A direction of about zero
-    /// length, or not finite, is no direction: then this is
-    /// [`Map::notify_moved`] without a motion guess.
-    pub fn notify_pushed(&mut self, id: ObjectId, direction: Vector3<f32>) -> Result<(), MapError> {
-        if !self.objects.contains_key(&id) {
-            return Err(MapError::UnknownObject(id));
-        }
-        let up = self.config.tracking.unit_up();
-        let level = up.map_or(direction, |up| direction - up * up.dot(&direction));
-        self.notified.insert(
-            id,
-            track::Notice {
-                motion: None,
-                // `try_new` also refuses a NaN norm.
-                push: nalgebra::Unit::try_new(level, 1e-6),
-                ..Default::default()
-            },
-        );
-        Ok(())
     }
 
     /// The background (world-frame) volume.
@@ -717,88 +615,6 @@ impl Map {
             }
         }
         target
-    }
-
-    /// Records an interaction outcome on an object.
-    pub fn record_interaction(
-        &mut self,
-        id: ObjectId,
-        affordance: Affordance,
-        outcome: Outcome,
-    ) -> Result<(), MapError> {
-        self.objects
-            .get_mut(&id)
-            .ok_or(MapError::UnknownObject(id))?
-            .labels
-            .record(affordance, outcome);
-        Ok(())
-    }
-
-    /// Sets an object's label from annotation by confidence.
-    pub fn set_confidence_label(
-        &mut self,
-        id: ObjectId,
-        affordance: Affordance,
-        label: Option<bool>,
-    ) -> Result<(), MapError> {
-        self.objects
-            .get_mut(&id)
-            .ok_or(MapError::UnknownObject(id))?
-            .labels
-            .set_confidence_label(affordance, label);
-        Ok(())
-    }
-
-    /// Objects whose label for `affordance` is `label` (ascending ids).
-    pub fn objects_labelled(&self, affordance: Affordance, label: Option<bool>) -> Vec<ObjectId> {
-        self.objects
-            .values()
-            .filter(|o| o.labels.label(affordance) == label)
-            .map(|o| o.id)
-            .collect()
-    }
-
-    /// The robot picked the object up: the map stops expecting to see it
-    /// where it was (it is neither rendered nor missed) and keeps its
-    /// volume and labels until [`Map::release`].
-    pub fn hold(&mut self, id: ObjectId) -> Result<(), MapError> {
-        self.objects
-            .get_mut(&id)
-            .ok_or(MapError::UnknownObject(id))?
-            .whereabouts = Whereabouts::Held;
-        Ok(())
-    }
-
-    /// The robot let go of a held object, which moved rigidly by `motion`
-    /// (world frame) between pick-up and release. The next frame tracks it
-    /// from there, as after [`Map::notify_moved`]: a model seen from one
-    /// side may not match its new view well enough for association alone.
-    /// Where tracking finds nothing there (put down out of view or behind
-    /// something), it stays where the motion put it; where a segment there
-    /// fits it poorly, it is lost, as a pushed object would be.
-    pub fn release(&mut self, id: ObjectId, motion: Pose) -> Result<(), MapError> {
-        let object = self
-            .objects
-            .get_mut(&id)
-            .ok_or(MapError::UnknownObject(id))?;
-        object.whereabouts = Whereabouts::Placed;
-        object.t_world_object = motion * object.t_world_object;
-        object.misses = 0;
-        let notice = track::Notice {
-            released: true,
-            ..Default::default()
-        };
-        self.notified.insert(id, notice);
-        Ok(())
-    }
-
-    /// Moves an object (e.g. after the robot pushed it): a pose update, no resampling.
-    pub fn set_object_pose(&mut self, id: ObjectId, t_world_object: Pose) -> Result<(), MapError> {
-        self.objects
-            .get_mut(&id)
-            .ok_or(MapError::UnknownObject(id))?
-            .t_world_object = t_world_object;
-        Ok(())
     }
 
     /// An object's surface as a world-frame triangle mesh (see [`crate::mesh`]).
