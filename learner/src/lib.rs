@@ -5,22 +5,22 @@
 //! It never runs a simulator or a map; it only sees what actors send through
 //! the `transport` crate, in the layouts of `proto`.
 
-pub mod affordance_learner;
+pub(crate) mod affordance_learner;
 pub mod bench_capacity;
 pub mod bench_transport;
-pub mod checkpoint;
+pub(crate) mod checkpoint;
 pub mod config;
 pub mod config_docs;
-pub mod history;
+pub(crate) mod history;
 pub mod http;
-pub mod membership;
+pub(crate) mod membership;
 pub mod plot;
-pub mod policy_worker;
-pub mod prometheus;
+pub(crate) mod policy_worker;
+pub(crate) mod prometheus;
 pub mod service;
 pub mod shared;
 pub mod status;
 pub mod summary;
-pub mod tensorboard;
-pub mod train;
-pub mod unet_worker;
+pub(crate) mod tensorboard;
+pub(crate) mod train;
+pub(crate) mod unet_worker;

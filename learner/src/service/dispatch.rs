@@ -170,11 +170,9 @@ impl Learner {
     }
 
     pub(super) fn publish_weights(&mut self) -> anyhow::Result<()> {
-        let (policy_version, unet_version) = {
-            let status = self.shared.status();
-            (status.policy_version, status.unet_version)
-        };
-        let blob = self.weights_blob(&self.policy_weights)?;
+        let policy_version = self.policy.version;
+        let unet_version = self.shared.status().unet_version;
+        let blob = self.weights_blob(&self.policy.weights)?;
         match self
             .ports
             .publish_weights(policy_version, unet_version, &blob)?

@@ -23,7 +23,7 @@ use crate::checkpoint;
 use crate::config::LearnerConfig;
 use crate::history::History;
 use crate::membership::{Joined, Membership, Sender};
-use crate::policy_worker::{PolicySnapshot, PolicyWorker};
+use crate::policy_worker::{PolicySnapshot, PolicyWorker, PublishedPolicy};
 use crate::shared::Shared;
 use crate::status::LearnerStatus;
 use crate::train::PolicyTrainer;
@@ -102,8 +102,10 @@ pub struct Learner {
     history: Arc<Mutex<History>>,
     /// The PPO thread, started by `run`.
     policy_worker: Option<PolicyWorker>,
-    /// The newest policy's weights (safetensors), broadcast and checkpointed.
-    policy_weights: Vec<u8>,
+    /// The newest policy (safetensors and the version they are), broadcast
+    /// under that version: the status's version may already be a newer
+    /// update's, whose weights are still on their way.
+    policy: PublishedPolicy,
     /// A checkpoint waits for the PPO thread's snapshot.
     checkpoint_requested: bool,
     /// The U-Net thread (tasks with a U-Net), started by `run`.
@@ -142,7 +144,10 @@ impl Learner {
             checkpoint_dir,
             history: Arc::new(Mutex::new(history)),
             policy_worker: None,
-            policy_weights: Vec::new(),
+            policy: PublishedPolicy {
+                version: 0,
+                weights: Vec::new(),
+            },
             checkpoint_requested: false,
             unet_worker: None,
             unet_weights: None,
@@ -164,7 +169,10 @@ impl Learner {
             .policy_trainer
             .take()
             .context("the learner runs only once")?;
-        self.policy_weights = trainer.weights().context("serialising the policy")?;
+        self.policy = PublishedPolicy {
+            version: trainer.version(),
+            weights: trainer.weights().context("serialising the policy")?,
+        };
         let policy = &self.shared.config.policy;
         self.policy_worker = Some(PolicyWorker::start(
             trainer,
@@ -286,7 +294,7 @@ impl Learner {
                 .as_ref()
                 .and_then(PolicyWorker::take_published);
             if let Some(policy) = published {
-                self.policy_weights = policy.weights;
+                self.policy = policy;
                 self.publish_weights()?;
             }
             if let Some(weights) = self
