@@ -12,6 +12,6 @@ pub mod evaluation;
 pub mod frame_scores;
 pub mod labeler;
 pub mod mapping;
-pub mod recording;
+pub(crate) mod recording;
 pub mod results;
 pub mod sim_view;

@@ -36,7 +36,6 @@ use proto::{LABEL_NEGATIVE, LABEL_POSITIVE};
 use serde::Serialize;
 
 pub use id_colours::{colour_ids, id_colour};
-pub use messages::{CAMERA_FRAME, WORLD_FRAME};
 
 /// Why a recording could not be written.
 #[derive(Debug, thiserror::Error)]
