@@ -30,11 +30,14 @@ impl Map {
 
     /// Says that the robot pushed an object along `direction` (world frame;
     /// its horizontal part counts): the next frame tracks it, looking for it
-    /// up to [`TrackingParams::max_push_m`] ahead along the push, where a
-    /// push can slide it, but no further sideways or back than any other
-    /// motion ([`TrackingParams::max_motion_m`]). A direction of about zero
-    /// length, or not finite, is no direction: then this is
-    /// [`Map::notify_moved`] without a motion guess.
+    /// up to [`max_push_m`] ahead along the push, where a push can slide it,
+    /// but no further sideways or back than any other motion
+    /// ([`max_motion_m`]). A direction of about zero length, or not finite,
+    /// is no direction: then this is [`Map::notify_moved`] without a motion
+    /// guess.
+    ///
+    /// [`max_push_m`]: crate::icp::TrackingParams::max_push_m
+    /// [`max_motion_m`]: crate::icp::TrackingParams::max_motion_m
     pub fn notify_pushed(&mut self, id: ObjectId, direction: Vector3<f32>) -> Result<(), MapError> {
         if !self.objects.contains_key(&id) {
             return Err(MapError::UnknownObject(id));

@@ -47,7 +47,7 @@ pub struct MapObject {
 pub enum Whereabouts {
     /// At its pose in the world.
     Placed,
-    /// In the robot's hand ([`Map::hold`]) until released.
+    /// In the robot's hand ([`Map::hold`](super::Map::hold)) until released.
     Held,
     /// The robot moved it and tracking did not find it: somewhere unknown
     /// until a new segment turns out to be it (see `Map::reidentify`).
