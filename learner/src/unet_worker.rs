@@ -31,7 +31,7 @@ pub struct UnetWorker {
     queued: Arc<AtomicUsize>,
     /// Most frames that may wait.
     capacity: usize,
-    deployed: Receiver<(Vec<u8>, f32)>,
+    deployed: Receiver<DeployedUnet>,
     training: Arc<Mutex<Option<UnetTrainingState>>>,
     thread: Option<JoinHandle<anyhow::Result<()>>>,
 }
@@ -39,9 +39,22 @@ pub struct UnetWorker {
 /// What a stopped U-Net thread leaves.
 pub struct StoppedUnet {
     /// A network that passed the gate after the last [`UnetWorker::take_deployed`].
-    pub deployed: Option<(Vec<u8>, f32)>,
+    pub deployed: Option<DeployedUnet>,
     /// The training state after the last round.
     pub training: Option<UnetTrainingState>,
+}
+
+/// A U-Net that passed the gate: what actors are sent, with the version it
+/// is (the status's version may already be a newer network's, still on its
+/// way).
+#[derive(Debug, Clone)]
+pub struct DeployedUnet {
+    /// Its version.
+    pub version: u64,
+    /// Its weights (safetensors).
+    pub weights: Vec<u8>,
+    /// The temperature that calibrates its logits.
+    pub temperature: f32,
 }
 
 /// Stores `learner`'s training state in `slot`; on failure (logged) the
@@ -105,7 +118,12 @@ impl UnetWorker {
                         let weights = learner
                             .deployed_weights()
                             .context("serialising the U-Net")?;
-                        if outbox.send((weights, learner.temperature())).is_err() {
+                        let deployed = DeployedUnet {
+                            version: unet_version,
+                            weights,
+                            temperature: learner.temperature(),
+                        };
+                        if outbox.send(deployed).is_err() {
                             break;
                         }
                     }
@@ -144,7 +162,7 @@ impl UnetWorker {
 
     /// The newest network that passed the gate since the last call, if any,
     /// with its calibration temperature.
-    pub fn take_deployed(&self) -> Option<(Vec<u8>, f32)> {
+    pub fn take_deployed(&self) -> Option<DeployedUnet> {
         self.deployed.try_iter().last()
     }
 

@@ -171,7 +171,7 @@ impl Learner {
 
     pub(super) fn publish_weights(&mut self) -> anyhow::Result<()> {
         let policy_version = self.policy.version;
-        let unet_version = self.shared.status().unet_version;
+        let unet_version = self.unet.as_ref().map_or(0, |unet| unet.version);
         let blob = self.weights_blob(&self.policy.weights)?;
         match self
             .ports
@@ -194,11 +194,11 @@ impl Learner {
             proto::WEIGHTS_META_ENV_STEPS.to_string(),
             self.shared.status().env_steps.to_string(),
         )]);
-        if let Some((unet, temperature)) = &self.unet_weights {
-            parts.push((proto::WEIGHTS_UNET_PREFIX, unet));
+        if let Some(unet) = &self.unet {
+            parts.push((proto::WEIGHTS_UNET_PREFIX, &unet.weights));
             metadata.insert(
                 proto::WEIGHTS_META_TEMPERATURE.to_string(),
-                temperature.to_string(),
+                unet.temperature.to_string(),
             );
         }
         nets::weights::bundle(&parts, metadata).context("bundling the weights")

@@ -27,7 +27,7 @@ use crate::policy_worker::{PolicySnapshot, PolicyWorker, PublishedPolicy};
 use crate::shared::Shared;
 use crate::status::LearnerStatus;
 use crate::train::PolicyTrainer;
-use crate::unet_worker::UnetWorker;
+use crate::unet_worker::{DeployedUnet, UnetWorker};
 use training::optimizer_state::OptimizerState;
 
 mod dispatch;
@@ -110,8 +110,9 @@ pub struct Learner {
     checkpoint_requested: bool,
     /// The U-Net thread (tasks with a U-Net), started by `run`.
     unet_worker: Option<UnetWorker>,
-    /// The deployed U-Net's weights and temperature, broadcast and checkpointed.
-    unet_weights: Option<(Vec<u8>, f32)>,
+    /// The deployed U-Net (weights, temperature, version), broadcast and
+    /// checkpointed.
+    unet: Option<DeployedUnet>,
     affordances: usize,
     /// Which publishers speak for which actor id.
     membership: Membership,
@@ -150,7 +151,7 @@ impl Learner {
             },
             checkpoint_requested: false,
             unet_worker: None,
-            unet_weights: None,
+            unet: None,
             affordances,
             membership: Membership::new(join_key),
             warned: HashSet::new(),
@@ -181,12 +182,13 @@ impl Learner {
             policy.queue_batches.max(1) * policy.batch_steps.max(1),
         )?);
         if let Some(affordance) = self.affordance.take() {
-            self.unet_weights = Some((
-                affordance
+            self.unet = Some(DeployedUnet {
+                version: self.shared.status().unet_version,
+                weights: affordance
                     .deployed_weights()
                     .context("serialising the U-Net")?,
-                affordance.temperature(),
-            ));
+                temperature: affordance.temperature(),
+            });
             self.unet_worker = Some(UnetWorker::start(
                 affordance,
                 self.shared.clone(),
@@ -209,8 +211,8 @@ impl Learner {
         if let Some(worker) = self.unet_worker.take() {
             tracing::info!("stopping the U-Net thread after its current round");
             let (stopped, outcome) = worker.stop();
-            if let Some(weights) = stopped.deployed {
-                self.unet_weights = Some(weights);
+            if let Some(unet) = stopped.deployed {
+                self.unet = Some(unet);
             }
             unet_training = stopped.training;
             unet_failure = outcome.err();
@@ -297,12 +299,12 @@ impl Learner {
                 self.policy = policy;
                 self.publish_weights()?;
             }
-            if let Some(weights) = self
+            if let Some(unet) = self
                 .unet_worker
                 .as_ref()
                 .and_then(UnetWorker::take_deployed)
             {
-                self.unet_weights = Some(weights);
+                self.unet = Some(unet);
                 self.publish_weights()?;
             }
             if last_maintenance.elapsed() > Duration::from_millis(250) {

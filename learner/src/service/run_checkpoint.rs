@@ -35,7 +35,8 @@ impl Learner {
                 updates: policy.updates,
                 episodes: status.episodes,
                 policy_version: policy.version,
-                unet_version: status.unet_version,
+                // The version of the U-Net the weights file holds.
+                unet_version: self.unet.as_ref().map_or(0, |unet| unet.version),
             }
         };
         // The snapshot's weights: the broadcast may already be newer.
