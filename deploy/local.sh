@@ -165,7 +165,14 @@ echo "$LEARNER_PID" >"$LOGS/learner.pid"
 
 for _ in $(seq 1 200); do
   [[ -s "$RUN_DIR/http.addr" ]] && break
-  kill -0 "$LEARNER_PID" 2>/dev/null || { echo "local.sh: the learner exited at start:" >&2; without_backtrace <"$LOGS/learner.log" | tail -n 20 >&2; exit 1; }
+  if ! kill -0 "$LEARNER_PID" 2>/dev/null; then
+    echo "local.sh: the learner exited at start:" >&2
+    without_backtrace <"$LOGS/learner.log" | tail -n 20 >&2
+    if without_backtrace <"$LOGS/learner.log" | tail -n 20 | grep -q "Address already in use"; then
+      echo "local.sh: port $PORT is taken (another run's learner?): pick a free one with --port" >&2
+    fi
+    exit 1
+  fi
   sleep 0.1
 done
 [[ -s "$RUN_DIR/http.addr" ]] || { echo "local.sh: the learner did not come up; see $LOGS/learner.log" >&2; kill "$LEARNER_PID"; exit 1; }

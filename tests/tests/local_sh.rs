@@ -400,3 +400,22 @@ fn a_setting_actors_cannot_use_is_refused_before_anything_starts() {
     );
     assert!(!log.contains("actors:   "), "no actor was started:\n{log}");
 }
+
+#[test]
+fn a_taken_port_is_named_with_the_option_that_changes_it() {
+    let dir = scratch_dir("local-sh-port");
+    // Another run's learner, as far as the port is concerned.
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").expect("a port to hold");
+    let port = taken.local_addr().expect("its address").port().to_string();
+    let (mut launch, _) = start(&dir, "port", &["--port", &port]);
+    let status = wait_for(Duration::from_secs(30), "the script to give up", || {
+        launch.script.try_wait().expect("waiting for the script")
+    });
+    let log = std::fs::read_to_string(&launch.log).unwrap_or_default();
+    assert!(!status.success(), "{status}:\n{log}");
+    assert!(
+        log.contains(&format!("port {port} is taken")) && log.contains("with --port"),
+        "the script names the port and its option:\n{log}"
+    );
+    drop(taken);
+}
