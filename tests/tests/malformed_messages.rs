@@ -3,16 +3,18 @@
 //! number, and oversized ones, which are refused before they are copied, and
 //! lengths that lie beyond a stranger's segment, refused before they are read.
 
+use std::path::PathBuf;
 use std::time::Duration;
 
 use proto::{encode, EpisodeStats, MessageHeader, MessageKind, StatField};
 use system_tests::{metric_value, scratch_dir, wait_for, Learner};
 use transport::{ActorPorts, TransportConfig};
 
-#[test]
-fn malformed_messages_are_counted_and_the_learner_carries_on() {
-    let dir = scratch_dir("malformed");
-    let prefix = format!("it-bad-{}", std::process::id());
+/// A learner on a service prefix of its own, in a scratch directory named
+/// after `case`; returns the prefix, its run directory and the learner.
+fn start_learner(case: &str, prefix: &str) -> (String, PathBuf, Learner) {
+    let dir = scratch_dir(case);
+    let prefix = format!("{prefix}-{}", std::process::id());
     let run_dir = dir.join("run");
     let learner = Learner::start(
         &run_dir,
@@ -24,6 +26,12 @@ fn malformed_messages_are_counted_and_the_learner_carries_on() {
         ],
         dir.join("learner.log"),
     );
+    (prefix, run_dir, learner)
+}
+
+#[test]
+fn malformed_messages_are_counted_and_the_learner_carries_on() {
+    let (prefix, run_dir, learner) = start_learner("malformed", "it-bad");
     let config = TransportConfig {
         service_prefix: prefix,
         ..TransportConfig::default()
@@ -132,19 +140,7 @@ fn peak_rss(pid: u32) -> u64 {
 
 #[test]
 fn oversized_messages_are_refused_before_the_learner_copies_them() {
-    let dir = scratch_dir("oversized");
-    let prefix = format!("it-big-{}", std::process::id());
-    let run_dir = dir.join("run");
-    let learner = Learner::start(
-        &run_dir,
-        &[
-            "--run-dir".into(),
-            run_dir.display().to_string(),
-            "--service-prefix".into(),
-            prefix.clone(),
-        ],
-        dir.join("learner.log"),
-    );
+    let (prefix, _, learner) = start_learner("oversized", "it-big");
     let pid = learner.process.child.id();
     // An outsider with its own node and a publisher on the rollouts service
     // that sends four times the service's largest message (16 MiB), four times.
@@ -217,19 +213,7 @@ fn oversized_messages_are_refused_before_the_learner_copies_them() {
 fn a_length_beyond_a_strangers_segment_is_refused_unread() {
     use iceoryx2::service::header::publish_subscribe::Header;
 
-    let dir = scratch_dir("lying-length");
-    let prefix = format!("it-lie-{}", std::process::id());
-    let run_dir = dir.join("run");
-    let mut learner = Learner::start(
-        &run_dir,
-        &[
-            "--run-dir".into(),
-            run_dir.display().to_string(),
-            "--service-prefix".into(),
-            prefix.clone(),
-        ],
-        dir.join("learner.log"),
-    );
+    let (prefix, _, mut learner) = start_learner("lying-length", "it-lie");
     let (_node, service) = system_tests::open_as_outsider(&prefix, proto::service::ROLLOUTS);
     let publisher = service
         .publisher_builder()

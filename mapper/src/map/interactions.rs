@@ -4,7 +4,7 @@
 
 use nalgebra::Vector3;
 
-use super::{track, Map, MapError, ObjectId, Whereabouts};
+use super::{track, Map, MapError, MapObject, ObjectId, Whereabouts};
 use crate::labels::{Affordance, Outcome};
 use crate::Pose;
 
@@ -63,11 +63,7 @@ impl Map {
         affordance: Affordance,
         outcome: Outcome,
     ) -> Result<(), MapError> {
-        self.objects
-            .get_mut(&id)
-            .ok_or(MapError::UnknownObject(id))?
-            .labels
-            .record(affordance, outcome);
+        self.object_mut(id)?.labels.record(affordance, outcome);
         Ok(())
     }
 
@@ -78,9 +74,7 @@ impl Map {
         affordance: Affordance,
         label: Option<bool>,
     ) -> Result<(), MapError> {
-        self.objects
-            .get_mut(&id)
-            .ok_or(MapError::UnknownObject(id))?
+        self.object_mut(id)?
             .labels
             .set_confidence_label(affordance, label);
         Ok(())
@@ -99,10 +93,7 @@ impl Map {
     /// where it was (it is neither rendered nor missed) and keeps its
     /// volume and labels until [`Map::release`].
     pub fn hold(&mut self, id: ObjectId) -> Result<(), MapError> {
-        self.objects
-            .get_mut(&id)
-            .ok_or(MapError::UnknownObject(id))?
-            .whereabouts = Whereabouts::Held;
+        self.object_mut(id)?.whereabouts = Whereabouts::Held;
         Ok(())
     }
 
@@ -114,10 +105,7 @@ impl Map {
     /// something), it stays where the motion put it; where a segment there
     /// fits it poorly, it is lost, as a pushed object would be.
     pub fn release(&mut self, id: ObjectId, motion: Pose) -> Result<(), MapError> {
-        let object = self
-            .objects
-            .get_mut(&id)
-            .ok_or(MapError::UnknownObject(id))?;
+        let object = self.object_mut(id)?;
         object.whereabouts = Whereabouts::Placed;
         object.t_world_object = motion * object.t_world_object;
         object.misses = 0;
@@ -131,10 +119,12 @@ impl Map {
 
     /// Moves an object (e.g. after the robot pushed it): a pose update, no resampling.
     pub fn set_object_pose(&mut self, id: ObjectId, t_world_object: Pose) -> Result<(), MapError> {
-        self.objects
-            .get_mut(&id)
-            .ok_or(MapError::UnknownObject(id))?
-            .t_world_object = t_world_object;
+        self.object_mut(id)?.t_world_object = t_world_object;
         Ok(())
+    }
+
+    /// The object `id`, to change; an error if the map has none.
+    fn object_mut(&mut self, id: ObjectId) -> Result<&mut MapObject, MapError> {
+        self.objects.get_mut(&id).ok_or(MapError::UnknownObject(id))
     }
 }
