@@ -311,10 +311,12 @@ fn synthetic_actor(
         left -= n;
     }
     // Two messages in transit per feed keep the receive loop busy; the PPO
-    // queue keeps room for all of them.
+    // queue keeps room for all of them and for the one the receive loop may
+    // have accepted (counted in `received`) but not yet queued.
     let window = 2u64.min(config.transport.learner_buffer.max(1) as u64);
     let queue = config.policy.queue_batches.max(1) * config.policy.batch_steps.max(1);
-    let room = queue.saturating_sub(window as usize * steps * feed.actors as usize) as u64;
+    let in_flight = (window as usize * feed.actors as usize + 1) * steps;
+    let room = queue.saturating_sub(in_flight) as u64;
     let (mut sent, mut episode, mut step) = (0u64, 0u64, 0usize);
     let version = || shared.status().policy_version;
     while !stop.load(Ordering::Relaxed) {

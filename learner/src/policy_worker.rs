@@ -57,8 +57,10 @@ impl Inbox {
     }
 
     /// Queues a chunk, discarding the oldest ones beyond the capacity (never
-    /// the newest); returns the steps discarded.
-    fn push(&self, chunk: QueuedChunk) -> usize {
+    /// the newest); returns the steps discarded. The status's
+    /// discarded and queued counts are written while the queue is still
+    /// locked, so a report of the PPO thread's cannot overwrite a newer one.
+    fn push(&self, chunk: QueuedChunk, shared: &Shared) -> usize {
         let mut state = self.lock();
         state.steps += chunk.steps;
         state.chunks.push_back(chunk);
@@ -68,6 +70,11 @@ impl Inbox {
                 state.steps -= old.steps;
                 discarded += old.steps;
             }
+        }
+        {
+            let mut status = shared.status();
+            status.rollout_steps_discarded += discarded as u64;
+            status.rollout_steps_queued = state.steps as u64;
         }
         drop(state);
         self.changed.notify_one();
@@ -105,6 +112,8 @@ pub struct PolicySnapshot {
 /// The running PPO thread.
 pub struct PolicyWorker {
     inbox: Arc<Inbox>,
+    /// Where [`PolicyWorker::offer`] counts queued and discarded steps.
+    shared: Arc<Shared>,
     published: Receiver<PublishedPolicy>,
     snapshots: Receiver<PolicySnapshot>,
     thread: Option<JoinHandle<anyhow::Result<PolicySnapshot>>>,
@@ -134,22 +143,24 @@ impl PolicyWorker {
         let (publish, published) = mpsc::channel();
         let (snapshot_out, snapshots) = mpsc::channel();
         let thread_inbox = inbox.clone();
+        let thread_shared = shared.clone();
         let thread = std::thread::Builder::new()
             .name("ppo-training".into())
             .spawn(move || {
                 run(
                     &mut trainer,
                     &thread_inbox,
-                    &shared,
+                    &thread_shared,
                     &history,
                     &publish,
                     &snapshot_out,
                 )?;
-                snapshot(&trainer, &shared)
+                snapshot(&trainer, &thread_shared)
             })
             .context("starting the PPO training thread")?;
         Ok(Self {
             inbox,
+            shared,
             published,
             snapshots,
             thread: Some(thread),
@@ -158,13 +169,10 @@ impl PolicyWorker {
 
     /// Queues a validated rollout message of `steps` steps; never blocks.
     /// Returns the steps discarded to make room (the oldest chunks').
+    /// Counts them in the status's `rollout_steps_discarded` and
+    /// `rollout_steps_queued`.
     pub fn offer(&self, bytes: Vec<u8>, steps: usize) -> usize {
-        self.inbox.push(QueuedChunk { bytes, steps })
-    }
-
-    /// Steps waiting for the PPO thread.
-    pub fn queued_steps(&self) -> usize {
-        self.inbox.lock().steps
+        self.inbox.push(QueuedChunk { bytes, steps }, &self.shared)
     }
 
     /// The newest policy published since the last call, if any.
@@ -205,8 +213,10 @@ impl PolicyWorker {
     }
 }
 
-/// Waits for work, then takes queued chunks up to `need` steps (at least one).
-fn take(inbox: &Inbox, need: usize) -> Taken {
+/// Waits for work, then takes queued chunks up to `need` steps (at least
+/// one), and records the steps left in the status before the queue is
+/// unlocked.
+fn take(inbox: &Inbox, need: usize, shared: &Shared) -> Taken {
     let mut state = inbox.lock();
     while state.chunks.is_empty() && !state.snapshot_requested && !state.stop {
         state = inbox.changed.wait(state).unwrap_or_else(|p| p.into_inner());
@@ -223,6 +233,7 @@ fn take(inbox: &Inbox, need: usize) -> Taken {
             chunks.push(chunk);
         }
     }
+    shared.status().rollout_steps_queued = state.steps as u64;
     Taken {
         chunks,
         snapshot: std::mem::take(&mut state.snapshot_requested),
@@ -247,9 +258,11 @@ fn run(
     let batch_steps = shared.config.policy.batch_steps;
     let mut warned = HashSet::new();
     loop {
-        let taken = take(inbox, batch_steps.saturating_sub(trainer.pending_steps()));
-        let queued = inbox.lock().steps as u64;
-        shared.status().rollout_steps_queued = queued;
+        let taken = take(
+            inbox,
+            batch_steps.saturating_sub(trainer.pending_steps()),
+            shared,
+        );
         if taken.snapshot {
             // The receiver is gone only while the learner shuts down.
             let _ = snapshots.send(snapshot(trainer, shared)?);
@@ -322,22 +335,50 @@ mod tests {
         }
     }
 
+    /// A learner's shared state for tests, its run directory in `dir`.
+    fn shared_state(config: &LearnerConfig, dir: &std::path::Path) -> Arc<Shared> {
+        Arc::new(Shared {
+            status: Mutex::new(LearnerStatus::new("test".into())),
+            shutdown: AtomicBool::new(false),
+            config: config.clone(),
+            run_dir: dir.into(),
+        })
+    }
+
     #[test]
     fn a_full_queue_discards_its_oldest_chunks_but_never_the_newest() {
+        let dir = tempfile::tempdir().unwrap();
+        let shared = shared_state(&LearnerConfig::default(), dir.path());
+        let counts = || {
+            let status = shared.status();
+            (status.rollout_steps_queued, status.rollout_steps_discarded)
+        };
         let inbox = Inbox::new(10);
-        assert_eq!(inbox.push(chunk(1, 4)), 0);
-        assert_eq!(inbox.push(chunk(2, 4)), 0);
-        assert_eq!(inbox.push(chunk(3, 4)), 4, "12 > 10: the oldest goes");
+        assert_eq!(inbox.push(chunk(1, 4), &shared), 0);
+        assert_eq!(inbox.push(chunk(2, 4), &shared), 0);
+        assert_eq!(counts(), (8, 0));
+        assert_eq!(
+            inbox.push(chunk(3, 4), &shared),
+            4,
+            "12 > 10: the oldest goes"
+        );
         assert_eq!(inbox.lock().steps, 8);
-        assert_eq!(inbox.push(chunk(4, 30)), 8, "everything older goes");
+        assert_eq!(counts(), (8, 4));
+        assert_eq!(
+            inbox.push(chunk(4, 30), &shared),
+            8,
+            "everything older goes"
+        );
+        assert_eq!(counts(), (30, 12));
         let state = inbox.lock();
         assert_eq!(state.steps, 30);
         assert_eq!(state.chunks.len(), 1);
         assert_eq!(state.chunks[0].bytes, vec![4]);
         drop(state);
-        let taken = take(&inbox, 5);
+        let taken = take(&inbox, 5, &shared);
         assert_eq!(taken.chunks.len(), 1);
         assert_eq!(inbox.lock().steps, 0);
+        assert_eq!(counts(), (0, 12));
     }
 
     /// A bandit-fixture rollout message of `steps` steps from actor 0.
@@ -377,12 +418,7 @@ mod tests {
         let device = burn::prelude::Device::flex();
         let mut trainer = PolicyTrainer::new(&config.task, &config.policy, &device);
         trainer.set_version(1);
-        let shared = Arc::new(Shared {
-            status: Mutex::new(LearnerStatus::new("test".into())),
-            shutdown: AtomicBool::new(false),
-            config: config.clone(),
-            run_dir: dir.path().into(),
-        });
+        let shared = shared_state(&config, dir.path());
         let history = Arc::new(Mutex::new(History::open(dir.path()).unwrap()));
         let worker = PolicyWorker::start(trainer, shared.clone(), history, 64).unwrap();
         for sequence in 1..=4 {

@@ -133,10 +133,6 @@ impl Learner {
         // decodes its own (moved, not copied) bytes.
         if let (Some(steps), Some(worker)) = (rollout_steps, &self.policy_worker) {
             let discarded = worker.offer(bytes, steps);
-            let queued = worker.queued_steps();
-            let mut status = self.shared.status();
-            status.rollout_steps_discarded += discarded as u64;
-            status.rollout_steps_queued = queued as u64;
             if discarded > 0 && self.warned.insert((kind, "ppo behind")) {
                 tracing::warn!("PPO is behind the actors: discarding the oldest queued rollout steps (further ones are only counted in rollout_steps_discarded)");
             }
