@@ -13,7 +13,6 @@ pub mod config;
 pub mod config_docs;
 pub(crate) mod history;
 pub mod http;
-pub(crate) mod membership;
 pub mod plot;
 pub(crate) mod policy_worker;
 pub(crate) mod prometheus;

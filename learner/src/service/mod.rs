@@ -22,7 +22,7 @@ use crate::affordance_learner::{checked_frames, AffordanceLearner, UnetTrainingS
 use crate::checkpoint;
 use crate::config::LearnerConfig;
 use crate::history::History;
-use crate::membership::{Joined, Membership, Sender};
+use transport::membership::{Joined, Membership, Sender};
 use crate::policy_worker::{PolicySnapshot, PolicyWorker, PublishedPolicy};
 use crate::shared::Shared;
 use crate::status::LearnerStatus;

@@ -2,16 +2,15 @@
 
 use std::time::{Duration, Instant};
 
-use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
-use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
-use proto::{Join, JoinKey, Limits, MessageHeader, MessageKind, Payload, ProtoError, WeightsView};
+use proto::{Join, JoinKey, MessageHeader, MessageKind, Payload, ProtoError, WeightsView};
 
 use crate::config::TransportConfig;
 use crate::learner_side::ReceivedMessage;
-use crate::services::{open_event, open_pubsub, wakeup_service, weights_ready_service};
+use crate::services::{open_event, open_pubsub, wakeup_service};
+use crate::weights_side::WeightsSubscriber;
 use crate::{open_node, Delivery, Ipc, TransportError};
 
 /// How often an actor repeats a join that reached the learner: a learner
@@ -36,11 +35,8 @@ pub struct ActorPorts {
     /// When the next join is due (see [`JOIN_REFRESH`], [`JOIN_RETRY`]).
     join_due: Instant,
     joins_sent: u64,
-    /// What a weights message may be (its size, its sender).
-    weights_limits: Limits,
-    weights: Subscriber<Ipc, [u8], ()>,
+    weights: WeightsSubscriber,
     wakeup: Notifier<Ipc>,
-    weights_ready: Listener<Ipc>,
     _node: Node<Ipc>,
 }
 
@@ -108,22 +104,12 @@ impl ActorPorts {
             upstream(MessageKind::Frames)?,
             upstream(MessageKind::Stats)?,
         ];
-        let weights = open_pubsub(&node, config, MessageKind::Weights)?
-            .subscriber_builder()
-            .buffer_size(1)
-            .create()
-            .map_err(|e| TransportError::new("create subscriber", proto::service::WEIGHTS, e))?;
+        let weights = WeightsSubscriber::open(&node, config)?;
         let wakeup = open_event(&node, config, &wakeup_service(config)?)?
             .notifier_builder()
             .create()
             .map_err(|e| {
                 TransportError::new("create notifier", proto::service::LEARNER_WAKEUP, e)
-            })?;
-        let weights_ready = open_event(&node, config, &weights_ready_service(config)?)?
-            .listener_builder()
-            .create()
-            .map_err(|e| {
-                TransportError::new("create listener", proto::service::WEIGHTS_READY, e)
             })?;
         let mut ports = Self {
             actor_id,
@@ -131,13 +117,8 @@ impl ActorPorts {
             join_key,
             join_due: Instant::now(),
             joins_sent: 0,
-            weights_limits: Limits {
-                max_actors: config.max_actors,
-                max_payload_len: config.max_weights_bytes as u64,
-            },
             weights,
             wakeup,
-            weights_ready,
             _node: node,
         };
         ports.join()?;
@@ -208,6 +189,18 @@ impl ActorPorts {
         self.send(P::KIND, sample)
     }
 
+    /// Sends another process's message on as it is (header included: its
+    /// actor id and sequence number), joining first when a join is due: what
+    /// a gateway does with the messages of an actor on another host, which
+    /// joined through it as this port's actor id. The caller checks that
+    /// the header names this id; the learner refuses messages that do not.
+    pub fn forward(&mut self, kind: MessageKind, bytes: &[u8]) -> Result<Delivery, TransportError> {
+        if Instant::now() >= self.join_due {
+            self.join()?;
+        }
+        self.publish_raw(kind, bytes)
+    }
+
     /// Sends bytes as they are, unvalidated: for tools and tests that exercise
     /// the learner's validation.
     pub fn publish_raw(
@@ -259,20 +252,7 @@ impl ActorPorts {
     /// The newest weights message that arrived since the last call, if any
     /// (older ones are skipped).
     pub fn take_latest_weights(&self) -> Result<Option<ReceivedMessage>, TransportError> {
-        let mut latest = None;
-        loop {
-            match self.weights.receive() {
-                Ok(Some(sample)) => latest = Some(ReceivedMessage::new(sample)),
-                Ok(None) => return Ok(latest),
-                Err(e) => {
-                    return Err(TransportError::new(
-                        "receive from",
-                        proto::service::WEIGHTS,
-                        e,
-                    ))
-                }
-            }
-        }
+        self.weights.take_latest()
     }
 
     /// Validates a weights message that [`Self::take_latest_weights`] or
@@ -284,7 +264,7 @@ impl ActorPorts {
         &self,
         message: &'m ReceivedMessage,
     ) -> Result<(MessageHeader, WeightsView<'m>), ProtoError> {
-        proto::decode_weights(message.bytes(), &self.weights_limits, &self.join_key)
+        self.weights.check(message.bytes(), &self.join_key)
     }
 
     /// Waits up to `timeout` for weights; `None` if none came.
@@ -292,20 +272,6 @@ impl ActorPorts {
         &self,
         timeout: Duration,
     ) -> Result<Option<ReceivedMessage>, TransportError> {
-        let deadline = Instant::now() + timeout;
-        loop {
-            if let Some(weights) = self.take_latest_weights()? {
-                return Ok(Some(weights));
-            }
-            let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                return Ok(None);
-            }
-            // Wake on the learner's notification, or re-poll at least every 50 ms
-            // (history delivery to a late joiner sends no event).
-            self.weights_ready
-                .timed_wait(|_| {}, left.min(Duration::from_millis(50)))
-                .map_err(|e| TransportError::new("wait on", proto::service::WEIGHTS_READY, e))?;
-        }
+        self.weights.wait(timeout)
     }
 }

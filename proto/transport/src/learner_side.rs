@@ -185,6 +185,25 @@ impl LearnerPorts {
         Ok(Delivery::Delivered(delivered))
     }
 
+    /// Publishes a weights message another learner signed, as it is (the
+    /// gateway on an actor's host hands the learner's weights to its local
+    /// actors so), and wakes actors that wait for weights. Actors check the
+    /// signature themselves.
+    pub fn forward_weights(&mut self, bytes: &[u8]) -> Result<Delivery, TransportError> {
+        if bytes.is_empty() || bytes.len() > self.max_weights_bytes {
+            return Ok(Delivery::Dropped);
+        }
+        let Some(mut sample) = crate::loan_zeroed(&self.weights, bytes.len()) else {
+            return Ok(Delivery::Dropped);
+        };
+        sample.payload_mut().copy_from_slice(bytes);
+        let delivered = sample
+            .send()
+            .map_err(|e| TransportError::new("send on", proto::service::WEIGHTS, e))?;
+        let _ = self.weights_ready.notify();
+        Ok(Delivery::Delivered(delivered))
+    }
+
     /// How many publishers each actor→learner service has now (actors and
     /// anything else holding a slot): the slots left are
     /// `max_actors + spare_ports` minus these.

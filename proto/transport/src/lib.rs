@@ -19,7 +19,9 @@ mod config;
 mod error;
 mod join_key;
 mod learner_side;
+pub mod membership;
 mod services;
+mod weights_side;
 
 pub use actor_side::ActorPorts;
 pub use cleanup::remove_dead_nodes;
@@ -27,6 +29,7 @@ pub use config::TransportConfig;
 pub use error::TransportError;
 pub use join_key::{load_or_create_join_key, read_join_key, JoinKeyFileError, JOIN_KEY_FILE};
 pub use learner_side::{LearnerPorts, ReceivedMessage};
+pub use weights_side::{WeightsSubscriber, WeightsTap};
 
 /// What happened to a message handed to a publisher.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -15,7 +15,8 @@
 //! from the publisher's side of shared memory, and iceoryx2 0.10 does not
 //! check it against the segment the publisher mapped, so a foreign publisher
 //! with a small segment and a lying length would make the learner read past
-//! it (a crash, not just a refusal). Only a join's exact length is read from
+//! it (a crash, not just a refusal): the learner and the gateway on an actor
+//! host both screen so. Only a join's exact length is read from
 //! a stranger, on the stats service.
 
 use std::collections::HashMap;

@@ -1,0 +1,161 @@
+//! The gateway on the learner's host: listens for actor hosts, answers
+//! their requests for the run's config and newest weights, publishes every
+//! new weights message to them at a higher priority than their data, and
+//! puts their actors' messages into the learner's shared memory through
+//! ports of its own ([`RemoteActors`]).
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use transport::{ActorPorts, WeightsTap};
+use zenoh::handlers::FifoChannel;
+use zenoh::qos::{CongestionControl, Priority};
+use zenoh::Wait;
+
+use crate::keys::RunKeys;
+use crate::link::{self, Role};
+use crate::remote::RemoteActors;
+use crate::{run_transport_config, zenoh_error, STATUS_EVERY};
+
+/// Messages from actor hosts waiting to be put into shared memory: when
+/// they are this many, Zenoh stops reading the links, and the actor hosts'
+/// sends block (back-pressure, not growth).
+const UPSTREAM_QUEUE: usize = 64;
+
+/// The file, in the run directory, with the remote hosts' counts (the
+/// learner's `/api/status` shows it as `remote_hosts`).
+pub const HOSTS_FILE: &str = "remote-hosts.json";
+
+/// What the learner host's gateway needs.
+#[derive(Debug, Clone)]
+pub struct LearnerHost {
+    /// The learner's run directory (its config.toml and join.key).
+    pub run_dir: PathBuf,
+    /// The run's name in key expressions.
+    pub run: String,
+    /// Where to listen, e.g. `tls/0.0.0.0:7447`.
+    pub listen: String,
+    /// A Zenoh config file (TLS certificates, access control).
+    pub zenoh_config: Option<PathBuf>,
+}
+
+/// Runs until `stop` is set.
+pub fn run(options: &LearnerHost, stop: &AtomicBool) -> anyhow::Result<()> {
+    let keys = RunKeys::new(&options.run)?;
+    let config_path = options.run_dir.join("config.toml");
+    let config_text = std::fs::read_to_string(&config_path).with_context(|| {
+        format!(
+            "reading the run's config {}: start the learner first (it writes config.toml and join.key)",
+            config_path.display()
+        )
+    })?;
+    let transport = run_transport_config(&config_text, &config_path)?;
+    let key = transport::read_join_key(&options.run_dir.join(transport::JOIN_KEY_FILE))?;
+    let session = link::open(link::config(
+        Role::Listen,
+        &options.listen,
+        options.zenoh_config.as_deref(),
+    )?)?;
+    let config_bytes = config_text.into_bytes();
+    let config_key = keys.config();
+    let _config = session
+        .declare_queryable(keys.config())
+        .callback(move |query| {
+            let _ = query.reply(&config_key, config_bytes.clone()).wait();
+        })
+        .wait()
+        .map_err(zenoh_error)
+        .context("declaring the config queryable")?;
+    let newest: Arc<Mutex<Option<Vec<u8>>>> = Arc::default();
+    let answer = newest.clone();
+    let weights_key = keys.weights();
+    let _weights_queryable = session
+        .declare_queryable(keys.weights())
+        .callback(move |query| {
+            let weights = answer.lock().unwrap_or_else(|p| p.into_inner()).clone();
+            if let Some(weights) = weights {
+                let _ = query.reply(&weights_key, weights).wait();
+            }
+        })
+        .wait()
+        .map_err(zenoh_error)
+        .context("declaring the weights queryable")?;
+    let weights_out = session
+        .declare_publisher(keys.weights())
+        .congestion_control(CongestionControl::Block)
+        .priority(Priority::DataHigh)
+        .wait()
+        .map_err(zenoh_error)
+        .context("declaring the weights publisher")?;
+    let upstream = session
+        .declare_subscriber(keys.all_upstream())
+        .with(FifoChannel::new(UPSTREAM_QUEUE))
+        .wait()
+        .map_err(zenoh_error)
+        .context("subscribing to the actor hosts")?;
+    let tap = WeightsTap::open(&transport, "gateway-weights")?;
+    let ports_config = transport.clone();
+    let ports_key = key.clone();
+    let mut remote = RemoteActors::new(key.clone(), transport.clone(), move |id| {
+        ActorPorts::open(&ports_config, id, ports_key.clone())
+    });
+    tracing::info!(
+        listen = options.listen,
+        run = options.run,
+        "learner host's gateway ready"
+    );
+    let mut status_due = Instant::now() + STATUS_EVERY;
+    while !stop.load(Ordering::Relaxed) {
+        // Weights first: they never wait behind the actors' data.
+        if let Some(message) = tap.take_latest()? {
+            match tap.check(message.bytes(), &key) {
+                Ok(_) => {
+                    let bytes = message.bytes().to_vec();
+                    weights_out
+                        .put(bytes.clone())
+                        .wait()
+                        .map_err(zenoh_error)
+                        .context("publishing weights to the actor hosts")?;
+                    *newest.lock().unwrap_or_else(|p| p.into_inner()) = Some(bytes);
+                }
+                Err(error) => {
+                    tracing::warn!("not forwarding weights the run's learner did not sign: {error}")
+                }
+            }
+        }
+        let first = upstream
+            .recv_timeout(Duration::from_millis(20))
+            .map_err(zenoh_error)
+            .context("receiving from the actor hosts")?;
+        let more = std::iter::from_fn(|| upstream.try_recv().ok().flatten());
+        for sample in first.into_iter().chain(more.take(UPSTREAM_QUEUE)) {
+            let key_expr = sample.key_expr().as_str();
+            let Some((host, kind)) = keys.parse_upstream(key_expr) else {
+                continue;
+            };
+            remote.handle(host, kind, &sample.payload().to_bytes());
+        }
+        if Instant::now() >= status_due {
+            status_due = Instant::now() + STATUS_EVERY;
+            write_hosts(&options.run_dir, &remote)?;
+        }
+    }
+    write_hosts(&options.run_dir, &remote)?;
+    Ok(())
+}
+
+/// Writes the remote hosts' counts to [`HOSTS_FILE`] (whole, by rename).
+fn write_hosts(run_dir: &Path, remote: &RemoteActors<ActorPorts>) -> anyhow::Result<()> {
+    let hosts = remote.hosts();
+    for (host, counts) in &hosts {
+        tracing::debug!(host, ?counts, "remote host");
+    }
+    let path = run_dir.join(HOSTS_FILE);
+    let temp = run_dir.join(format!(".{HOSTS_FILE}.tmp"));
+    std::fs::write(&temp, serde_json::to_vec_pretty(&hosts)?)
+        .and_then(|()| std::fs::rename(&temp, &path))
+        .with_context(|| format!("writing {}", path.display()))
+}
