@@ -16,7 +16,8 @@ actors, then the learner (which writes a final checkpoint), and removes
 shared-memory resources.
 
 Options:
-  --actors N        number of actor processes (required)
+  --actors N        number of actor processes on this host (required; 0 only
+                    with --listen, when every actor runs on other hosts)
   --envs-per-actor K
                     environments each actor steps side by side (default 1): a
                     thread each, the U-Net and policy batched over them; use it
@@ -51,6 +52,17 @@ Options:
                     interaction success of the last 100 episodes, the U-Net's
                     validation IoU, PPO's KL and entropy, actors alive,
                     messages dropped, time to --max-steps
+  --listen ENDPOINT also start a gateway for actors on other hosts, listening
+                    on ENDPOINT: tls/ADDR:PORT (certificates in --zenoh-config)
+                    or tcp/ADDR:PORT (plain: only on a network you trust); ADDR
+                    is an address of this host. Other hosts then run
+                    deploy/actors.sh (the script prints the command)
+  --remote-actors M actor ids kept for other hosts (default 0; with --listen):
+                    ids N .. N+M-1, given out with deploy/actors.sh's
+                    --first-actor-id
+  --zenoh-config FILE
+                    the gateway's Zenoh config (JSON5): TLS certificates,
+                    mutual TLS, access control; see deploy/zenoh-tls-*.json5
   --debug           use debug builds (faster to build, slower to run)
   --bin-dir DIR     use the learner and actor binaries in DIR; build nothing
   -h, --help        this help
@@ -71,6 +83,7 @@ ACTORS="" ENVS="" RUN_DIR="" RESUME=0 PORT=9464 PROFILE=release BIN="" SEED=0 MA
 # learner and read from there by every actor; RECORD_ARGS: this start's
 # recording, given to the actors directly.
 TASK_ARGS=() SETTINGS=() RECORD_ARGS=() LEARNER_DEVICE=() METHOD=ours ENV_KIND=sim
+LISTEN="" REMOTE=0 ZENOH_CONFIG=()
 EXTRA=()
 while [[ $# -gt 0 ]]; do
   case "$1" in
@@ -92,6 +105,9 @@ while [[ $# -gt 0 ]]; do
     --progress-every) PROGRESS_EVERY="${2:?--progress-every needs a number of seconds}"; shift 2 ;;
     --max-steps) MAX_STEPS="${2:?--max-steps needs a number}"; shift 2 ;;
     --seed) SEED="${2:?--seed needs a number}"; TASK_ARGS+=(--seed "$SEED"); shift 2 ;;
+    --listen) LISTEN="${2:?--listen needs an endpoint, e.g. tls/10.0.0.5:7447}"; shift 2 ;;
+    --remote-actors) REMOTE="${2:?--remote-actors needs a number}"; shift 2 ;;
+    --zenoh-config) ZENOH_CONFIG=(--zenoh-config "$(cd "$(dirname "${2:?--zenoh-config needs a file}")" && pwd)/$(basename "$2")"); shift 2 ;;
     --debug) PROFILE=debug; shift ;;
     --bin-dir) BIN="$(cd "${2:?--bin-dir needs a directory}" && pwd)"; shift 2 ;;
     -h|--help) usage; exit 0 ;;
@@ -99,7 +115,16 @@ while [[ $# -gt 0 ]]; do
     *) echo "local.sh: unknown argument '$1'" >&2; usage >&2; exit 2 ;;
   esac
 done
-[[ "$ACTORS" =~ ^[1-9][0-9]*$ ]] || { echo "local.sh: --actors N is required (N >= 1)" >&2; usage >&2; exit 2; }
+[[ "$REMOTE" =~ ^[0-9]+$ ]] || { echo "local.sh: --remote-actors needs a non-negative integer, got '$REMOTE'" >&2; exit 2; }
+if [[ -n "$LISTEN" ]]; then
+  [[ "$LISTEN" =~ ^(tcp|tls)/.+:[0-9]+$ ]] || { echo "local.sh: --listen needs tls/ADDR:PORT or tcp/ADDR:PORT, got '$LISTEN'" >&2; exit 2; }
+  [[ "$REMOTE" -gt 0 ]] || { echo "local.sh: --listen needs --remote-actors M (M >= 1): the actor ids other hosts may use" >&2; exit 2; }
+  [[ "$ACTORS" =~ ^[0-9]+$ ]] || { echo "local.sh: --actors N is required (N >= 0 with --listen)" >&2; usage >&2; exit 2; }
+else
+  [[ "$REMOTE" -eq 0 && ${#ZENOH_CONFIG[@]} -eq 0 ]] || { echo "local.sh: --remote-actors and --zenoh-config need --listen ENDPOINT" >&2; exit 2; }
+  [[ "$ACTORS" =~ ^[1-9][0-9]*$ ]] || { echo "local.sh: --actors N is required (N >= 1)" >&2; usage >&2; exit 2; }
+fi
+ALL_ACTORS=$((ACTORS + REMOTE))
 [[ -z "$ENVS" || ( "$ENVS" =~ ^[1-9][0-9]*$ && "$ENVS" -le 256 ) ]] || { echo "local.sh: --envs-per-actor needs an integer in 1..256, got '$ENVS'" >&2; exit 2; }
 [[ -z "$MAX_STEPS" || "$MAX_STEPS" =~ ^[1-9][0-9]*$ ]] || { echo "local.sh: --max-steps needs a positive integer, got '$MAX_STEPS'" >&2; exit 2; }
 [[ "$SEED" =~ ^[0-9]+$ ]] || { echo "local.sh: --seed needs a non-negative integer, got '$SEED'" >&2; exit 2; }
@@ -125,16 +150,16 @@ if [[ ${#missing[@]} -gt 0 ]]; then
   fi
 fi
 if [[ -n "$BIN" ]]; then
-  for b in learner actor; do
+  for b in learner actor ${LISTEN:+gateway}; do
     [[ -x "$BIN/$b" ]] || { echo "local.sh: --bin-dir $BIN has no executable $b" >&2; exit 2; }
   done
 else
   command -v cargo >/dev/null || { echo "local.sh: cargo not found: install Rust from https://rustup.rs" >&2; exit 1; }
   echo "building $PROFILE binaries..."
   if [[ $PROFILE == release ]]; then
-    cargo build --release -p learner -p actor
+    cargo build --release -p learner -p actor ${LISTEN:+-p gateway}
   else
-    cargo build -p learner -p actor
+    cargo build -p learner -p actor ${LISTEN:+-p gateway}
   fi
   TARGET_DIR=$(cargo metadata --format-version 1 --no-deps | python3 -c 'import json,sys; print(json.load(sys.stdin)["target_directory"])' 2>/dev/null || echo "$REPO/target")
   BIN="$TARGET_DIR/$PROFILE"
@@ -148,7 +173,7 @@ PREFIX="afx-$(basename "$RUN_DIR" | tr -cd 'A-Za-z0-9_-')"
 STOP_FILE="$LOGS/.stopping"
 rm -f "$STOP_FILE" "$RUN_DIR/http.addr"
 
-LEARNER_ARGS=(serve --service-prefix "$PREFIX" --max-actors "$ACTORS" --http-addr "127.0.0.1:$PORT" "${LEARNER_DEVICE[@]}" "${SETTINGS[@]}")
+LEARNER_ARGS=(serve --service-prefix "$PREFIX" --max-actors "$ALL_ACTORS" --http-addr "127.0.0.1:$PORT" "${LEARNER_DEVICE[@]}" "${SETTINGS[@]}")
 if [[ $RESUME -eq 1 ]]; then
   [[ ${#TASK_ARGS[@]} -eq 0 ]] || echo "local.sh: resuming: the run's saved task is used; ignoring ${TASK_ARGS[*]}" >&2
   LEARNER_ARGS+=(--resume "$RUN_DIR")
@@ -210,23 +235,59 @@ supervise_actor() {
   done
 }
 
+# The gateway for other hosts' actors, restarted like an actor; one that
+# exits before it is ready (a taken port, a bad certificate) stops the run.
+supervise_gateway() {
+  local restarts=0 backoff=1 code log="$LOGS/gateway.log" start
+  while :; do
+    start=$(stat -c %s "$log" 2>/dev/null || echo 0)
+    "$BIN/gateway" learner-host --run-dir "$RUN_DIR" --listen "$LISTEN" "${ZENOH_CONFIG[@]}" >>"$log" 2>&1 &
+    echo $! >"$LOGS/gateway.pid"
+    code=0; wait $! || code=$?
+    [[ -e "$STOP_FILE" ]] && return 0
+    if [[ $code -lt 128 ]] && ! tail -c +"$((start + 1))" "$log" | grep -q "gateway ready"; then
+      {
+        echo "local.sh: the gateway exited with status $code before it was ready, so it is not restarted. The end of $log:"
+        tail -c +"$((start + 1))" "$log" | without_backtrace | tail -n 15 | sed 's/^/    /'
+      } >&2
+      touch "$SETUP_FAILED"
+      return 1
+    fi
+    restarts=$((restarts + 1))
+    echo "the gateway exited with status $code; restart #$restarts in ${backoff}s (log: $log)"
+    sleep "$backoff"
+    backoff=$((backoff * 2 > 30 ? 30 : backoff * 2))
+  done
+}
+
 SUPERVISORS=()
 for ((i = 0; i < ACTORS; i++)); do
   supervise_actor "$i" &
   SUPERVISORS+=($!)
 done
+GATEWAY_SUPERVISOR=()
+if [[ -n "$LISTEN" ]]; then
+  supervise_gateway &
+  GATEWAY_SUPERVISOR=($!)
+fi
 
 # Waits until the given processes are gone (at most 60 s). Polling instead of
 # `wait`: bash's `wait` on a child that was killed while a trap ran (e.g.
 # `pkill -f deploy/local.sh`, which also hits the supervisor subshells) never returns.
 wait_gone() {
-  local pid
+  local pid=""
   for _ in $(seq 1 600); do
     for pid in "$@"; do kill -0 "$pid" 2>/dev/null && break; pid=""; done
     [[ -z "$pid" ]] && return 0
     sleep 0.1
   done
   echo "local.sh: processes $* still running after 60 s; going on" >&2
+}
+
+stop_gateway() {
+  [[ ${#GATEWAY_SUPERVISOR[@]} -gt 0 ]] || return 0
+  [[ -s "$LOGS/gateway.pid" ]] && kill -INT "$(cat "$LOGS/gateway.pid")" 2>/dev/null || true
+  wait_gone "${GATEWAY_SUPERVISOR[@]}"
 }
 
 shutdown() {
@@ -237,11 +298,12 @@ shutdown() {
     [[ -s "$LOGS/actor-$i.pid" ]] && kill -INT "$(cat "$LOGS/actor-$i.pid")" 2>/dev/null || true
   done
   wait_gone "${SUPERVISORS[@]}"
+  stop_gateway
   kill -INT "$LEARNER_PID" 2>/dev/null || true
   local code=0; wait "$LEARNER_PID" || code=$?
   "$BIN/learner" clean >/dev/null 2>&1 || true
-  rm -f "$STOP_FILE" "$LOGS"/actor-*.pid "$LOGS/learner.pid"
-  echo "stopped (learner exit status $code). Resume with: deploy/local.sh --actors $ACTORS --run-dir $RUN_DIR --resume"
+  rm -f "$STOP_FILE" "$LOGS"/actor-*.pid "$LOGS/learner.pid" "$LOGS/gateway.pid"
+  echo "stopped (learner exit status $code). Resume with: deploy/local.sh --actors $ACTORS --run-dir $RUN_DIR --resume${LISTEN:+ --listen $LISTEN --remote-actors $REMOTE}"
   [[ ! -e "$SETUP_FAILED" ]] || code=1
   exit "$code"
 }
@@ -253,6 +315,11 @@ echo "metrics:  http://$ADDR/metrics"
 echo "status:   http://$ADDR/api/status   (curl -s http://$ADDR/api/status)"
 echo "actors:   $ACTORS x $ENV_KIND ($METHOD), logs in $LOGS; Ctrl-C to stop"
 echo "curves:   $BIN/learner plot --run-dir $RUN_DIR"
+if [[ -n "$LISTEN" ]]; then
+  echo "gateway:  $LISTEN for actor ids $ACTORS..$((ALL_ACTORS - 1)) on other hosts (log: $LOGS/gateway.log). On each,"
+  echo "          with a copy of $RUN_DIR/join.key (the run's secret) in DIR and the learner's address in place of ${LISTEN#*/}:"
+  echo "          deploy/actors.sh --learner-at $LISTEN --run $(basename "$RUN_DIR") --run-dir DIR --first-actor-id $ACTORS --actors K"
+fi
 
 # Environment steps of the whole run, from the learner's status (empty if it
 # does not answer).
@@ -297,7 +364,7 @@ print_progress() {
   status=$(curl -fsS --max-time 5 "http://$ADDR/api/status" 2>/dev/null) || return 0
   history=$(curl -fsS --max-time 5 "http://$ADDR/api/history?kind=episode&last=100" 2>/dev/null) || history='{}'
   out=$({ printf '%s\n' "$status"; printf '%s\n' "$history"; } \
-    | python3 -c "$PROGRESS_PY" "$ACTORS" "${MAX_STEPS:-0}" "$SECONDS" "$LAST_STEPS" "$LAST_STEPS_S" 2>/dev/null) || return 0
+    | python3 -c "$PROGRESS_PY" "$ALL_ACTORS" "${MAX_STEPS:-0}" "$SECONDS" "$LAST_STEPS" "$LAST_STEPS_S" 2>/dev/null) || return 0
   echo "${out%$'\n'*}"
   read -r LAST_STEPS LAST_STEPS_S <<<"${out##*$'\n'}"
 }
@@ -330,6 +397,7 @@ if [[ ! -e "$STOP_FILE" ]]; then
     [[ -s "$LOGS/actor-$i.pid" ]] && kill -INT "$(cat "$LOGS/actor-$i.pid")" 2>/dev/null || true
   done
   wait_gone "${SUPERVISORS[@]}"
+  stop_gateway
   "$BIN/learner" clean >/dev/null 2>&1 || true
   exit 1
 fi

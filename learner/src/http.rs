@@ -11,6 +11,7 @@ use axum::routing::get;
 use axum::{Json, Router};
 
 use crate::shared::Shared;
+use crate::status::StatusSnapshot;
 
 /// The router over the shared learner state.
 pub fn router(shared: Arc<Shared>) -> Router {
@@ -75,8 +76,49 @@ async fn metrics(
     }
 }
 
+/// `/api/status`: the learner's status, and the actor hosts that a gateway
+/// on this host serves (`remote_hosts`, from its counts file), each with the
+/// messages its actors lost on the way (`gaps`, from their sequence numbers).
 async fn status(State(shared): State<Arc<Shared>>) -> impl IntoResponse {
-    Json(shared.status().snapshot(shared.config.actor_timeout_s))
+    let snapshot = shared.status().snapshot(shared.config.actor_timeout_s);
+    let remote_hosts = remote_hosts(&shared.run_dir, &snapshot);
+    Json(StatusView {
+        snapshot,
+        remote_hosts,
+    })
+}
+
+/// The status with the remote hosts beside it.
+#[derive(serde::Serialize)]
+struct StatusView {
+    #[serde(flatten)]
+    snapshot: StatusSnapshot,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    remote_hosts: Option<serde_json::Map<String, serde_json::Value>>,
+}
+
+/// The gateway's per-host counts, if it runs, with each host's gaps: the
+/// losses the learner counted for the actors the host speaks for.
+fn remote_hosts(
+    run_dir: &std::path::Path,
+    snapshot: &StatusSnapshot,
+) -> Option<serde_json::Map<String, serde_json::Value>> {
+    let text = std::fs::read_to_string(run_dir.join(transport::REMOTE_HOSTS_FILE)).ok()?;
+    let mut hosts: serde_json::Map<String, serde_json::Value> = serde_json::from_str(&text).ok()?;
+    for host in hosts.values_mut() {
+        let gaps: u64 = host["actors"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .filter_map(serde_json::Value::as_u64)
+            .filter_map(|id| snapshot.actors.iter().find(|a| u64::from(a.id) == id))
+            .map(|a| a.dropped)
+            .sum();
+        if let Some(host) = host.as_object_mut() {
+            host.insert("gaps".into(), gaps.into());
+        }
+    }
+    Some(hosts)
 }
 
 /// `/api/history?kind=episode&last=500`.

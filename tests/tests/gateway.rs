@@ -117,12 +117,17 @@ fn remote_actors_train_through_the_gateways_and_survive_a_gateway_restart() {
         });
         both.then_some(())
     });
-    let hosts = wait_for(Duration::from_secs(20), "remote-hosts.json", || {
-        let text = std::fs::read_to_string(run_dir.join("remote-hosts.json")).ok()?;
-        let hosts: serde_json::Value = serde_json::from_str(&text).ok()?;
-        (hosts["box-b"]["actors"] == serde_json::json!([0, 1])).then_some(hosts)
-    });
+    // The learner's status shows the actor host, from the gateway's counts.
+    let hosts = wait_for(
+        Duration::from_secs(20),
+        "remote hosts in the status",
+        || {
+            let hosts = learner.status()["remote_hosts"].clone();
+            (hosts["box-b"]["actors"] == serde_json::json!([0, 1])).then_some(hosts)
+        },
+    );
     assert!(hosts["box-b"]["forwarded"].as_u64().unwrap() > 0, "{hosts}");
+    assert!(hosts["box-b"]["gaps"].is_u64(), "{hosts}");
 
     // The actor host's gateway dies; the actors keep running, and a new
     // gateway brings their rollouts back.
@@ -149,4 +154,118 @@ fn remote_actors_train_through_the_gateways_and_survive_a_gateway_restart() {
         assert!(a.child.try_wait().unwrap().is_none(), "{}", a.log_text());
     }
     drop(learner_gateway);
+}
+
+/// A script run as its own process group, killed with it on drop.
+struct Script(std::process::Child);
+
+impl Drop for Script {
+    fn drop(&mut self) {
+        // SAFETY: kill(2) on the process group we created has no memory-safety preconditions.
+        unsafe {
+            libc::kill(-(self.0.id() as i32), libc::SIGKILL);
+        }
+        let _ = self.0.wait();
+    }
+}
+
+fn script(name: &str, args: &[String], log: &Path) -> Script {
+    use std::os::unix::process::CommandExt;
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let out = std::fs::File::create(log).expect("log file");
+    let child = std::process::Command::new(repo.join("deploy").join(name))
+        .args(args)
+        .stdout(out.try_clone().expect("log handle"))
+        .stderr(out)
+        .process_group(0)
+        .spawn()
+        .unwrap_or_else(|e| panic!("starting deploy/{name}: {e}"));
+    Script(child)
+}
+
+fn wait_exit(script: &mut Script, timeout: Duration) -> std::process::ExitStatus {
+    wait_for(timeout, "the script to end", || {
+        script.0.try_wait().ok().flatten()
+    })
+}
+
+#[test]
+fn local_sh_listens_and_actors_sh_on_another_host_trains_the_run_to_its_max_steps() {
+    let dir = scratch_dir("gateway-scripts");
+    let bin_dir = bin("gateway").parent().unwrap().display().to_string();
+    let run_dir = dir.join(format!("gws-{}", std::process::id()));
+    let port = free_port();
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let learner_log = dir.join("local.log");
+    let mut learner = script(
+        "local.sh",
+        &[
+            "--actors",
+            "0",
+            "--remote-actors",
+            "2",
+            "--listen",
+            &endpoint,
+            "--env",
+            "bandit-fixture",
+            "--bin-dir",
+            &bin_dir,
+            "--run-dir",
+            &run_dir.display().to_string(),
+            "--port",
+            &port.to_string(),
+            "--max-steps",
+            "2000",
+            "--progress-every",
+            "0",
+        ]
+        .map(String::from),
+        &learner_log,
+    );
+    let host_dir = dir.join("box-c");
+    let key = run_dir.join("join.key");
+    wait_for(Duration::from_secs(30), "the run's join key", || {
+        std::fs::metadata(&key).ok().filter(|m| m.len() > 0)
+    });
+    std::fs::create_dir_all(&host_dir).unwrap();
+    std::fs::copy(&key, host_dir.join("join.key")).unwrap();
+    let actors_log = dir.join("actors.log");
+    let mut actors = script(
+        "actors.sh",
+        &[
+            "--learner-at",
+            &endpoint,
+            "--run",
+            &run_dir.file_name().unwrap().to_string_lossy(),
+            "--run-dir",
+            &host_dir.display().to_string(),
+            "--first-actor-id",
+            "0",
+            "--actors",
+            "2",
+            "--host",
+            "box-c",
+            "--service-prefix",
+            &format!("afx_gws_{}", std::process::id()),
+            "--bin-dir",
+            &bin_dir,
+        ]
+        .map(String::from),
+        &actors_log,
+    );
+    // The learner's run ends at --max-steps on the remote actors' steps alone.
+    let status = wait_exit(&mut learner, Duration::from_secs(120));
+    let text = std::fs::read_to_string(&learner_log).unwrap_or_default();
+    assert!(status.success(), "local.sh: {status}\n{text}");
+    assert!(text.contains("(--max-steps 2000)"), "{text}");
+    assert!(text.contains("deploy/actors.sh --learner-at"), "{text}");
+    // The actor host stops cleanly on SIGTERM.
+    // SAFETY: kill(2) on our own child's pid has no memory-safety preconditions.
+    unsafe {
+        libc::kill(actors.0.id() as i32, libc::SIGTERM);
+    }
+    let status = wait_exit(&mut actors, Duration::from_secs(60));
+    let text = std::fs::read_to_string(&actors_log).unwrap_or_default();
+    assert!(status.success(), "actors.sh: {status}\n{text}");
+    assert!(text.contains("actors 0..1 started"), "{text}");
 }

@@ -22,13 +22,13 @@ use crate::affordance_learner::{checked_frames, AffordanceLearner, UnetTrainingS
 use crate::checkpoint;
 use crate::config::LearnerConfig;
 use crate::history::History;
-use transport::membership::{Joined, Membership, Sender};
 use crate::policy_worker::{PolicySnapshot, PolicyWorker, PublishedPolicy};
 use crate::shared::Shared;
 use crate::status::LearnerStatus;
 use crate::train::PolicyTrainer;
 use crate::unet_worker::{DeployedUnet, UnetWorker};
 use training::optimizer_state::OptimizerState;
+use transport::membership::{Joined, Membership, Sender};
 
 mod dispatch;
 mod run_checkpoint;

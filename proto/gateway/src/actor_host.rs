@@ -28,6 +28,10 @@ use crate::{run_transport_config, zenoh_error, STATUS_EVERY};
 /// kind cannot starve the others or the weights.
 const PER_PASS: usize = 16;
 
+/// How often actors that started since the last weights get them from the
+/// local service's history (as the learner does it).
+const MAINTENANCE_EVERY: Duration = Duration::from_millis(250);
+
 /// How often a request for the newest weights is repeated until some arrive.
 const WEIGHTS_RETRY: Duration = Duration::from_secs(2);
 
@@ -130,6 +134,7 @@ pub fn run(options: &ActorHost, stop: &AtomicBool) -> anyhow::Result<()> {
     };
     let mut asked: Option<(Instant, FifoChannelHandler<Reply>)> = None;
     let mut status_due = Instant::now() + STATUS_EVERY;
+    let mut last_maintenance = Instant::now();
     while !stop.load(Ordering::Relaxed) {
         // Weights first, live or asked for, so actors never wait behind data.
         while let Ok(Some(sample)) = weights_in.try_recv() {
@@ -156,6 +161,12 @@ pub fn run(options: &ActorHost, stop: &AtomicBool) -> anyhow::Result<()> {
             }
         }
         ports.wait(Duration::from_millis(10))?;
+        if last_maintenance.elapsed() >= MAINTENANCE_EVERY {
+            // Hands the newest weights (the service's history) to actors
+            // that started since they were published.
+            ports.maintain();
+            last_maintenance = Instant::now();
+        }
         for (kind, publisher) in UPSTREAM.iter().zip(&publishers) {
             forwarding.upstream(&ports, *kind, publisher)?;
         }

@@ -18,16 +18,15 @@ use zenoh::Wait;
 use crate::keys::RunKeys;
 use crate::link::{self, Role};
 use crate::remote::RemoteActors;
-use crate::{run_transport_config, zenoh_error, STATUS_EVERY};
+use crate::{run_transport_config, zenoh_error};
 
 /// Messages from actor hosts waiting to be put into shared memory: when
 /// they are this many, Zenoh stops reading the links, and the actor hosts'
 /// sends block (back-pressure, not growth).
 const UPSTREAM_QUEUE: usize = 64;
 
-/// The file, in the run directory, with the remote hosts' counts (the
-/// learner's `/api/status` shows it as `remote_hosts`).
-pub const HOSTS_FILE: &str = "remote-hosts.json";
+/// How often the remote hosts' counts are written for the learner's status.
+const HOSTS_EVERY: Duration = Duration::from_secs(2);
 
 /// What the learner host's gateway needs.
 #[derive(Debug, Clone)]
@@ -107,7 +106,7 @@ pub fn run(options: &LearnerHost, stop: &AtomicBool) -> anyhow::Result<()> {
         run = options.run,
         "learner host's gateway ready"
     );
-    let mut status_due = Instant::now() + STATUS_EVERY;
+    let mut status_due = Instant::now() + HOSTS_EVERY;
     while !stop.load(Ordering::Relaxed) {
         // Weights first: they never wait behind the actors' data.
         if let Some(message) = tap.take_latest()? {
@@ -139,22 +138,23 @@ pub fn run(options: &LearnerHost, stop: &AtomicBool) -> anyhow::Result<()> {
             remote.handle(host, kind, &sample.payload().to_bytes());
         }
         if Instant::now() >= status_due {
-            status_due = Instant::now() + STATUS_EVERY;
+            status_due = Instant::now() + HOSTS_EVERY;
             write_hosts(&options.run_dir, &remote)?;
         }
     }
-    write_hosts(&options.run_dir, &remote)?;
+    // Counts of a gateway that stopped would read as current.
+    let _ = std::fs::remove_file(options.run_dir.join(transport::REMOTE_HOSTS_FILE));
     Ok(())
 }
 
-/// Writes the remote hosts' counts to [`HOSTS_FILE`] (whole, by rename).
+/// Writes the remote hosts' counts to [`transport::REMOTE_HOSTS_FILE`] (whole, by rename).
 fn write_hosts(run_dir: &Path, remote: &RemoteActors<ActorPorts>) -> anyhow::Result<()> {
     let hosts = remote.hosts();
     for (host, counts) in &hosts {
         tracing::debug!(host, ?counts, "remote host");
     }
-    let path = run_dir.join(HOSTS_FILE);
-    let temp = run_dir.join(format!(".{HOSTS_FILE}.tmp"));
+    let path = run_dir.join(transport::REMOTE_HOSTS_FILE);
+    let temp = run_dir.join(format!(".{}.tmp", transport::REMOTE_HOSTS_FILE));
     std::fs::write(&temp, serde_json::to_vec_pretty(&hosts)?)
         .and_then(|()| std::fs::rename(&temp, &path))
         .with_context(|| format!("writing {}", path.display()))

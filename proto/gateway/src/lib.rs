@@ -5,7 +5,7 @@
 //! the gateway on the learner's host stands in for the remote actors; the
 //! messages cross unchanged (the same bytes, validated by `proto` on both
 //! sides) under the key expressions of [`keys`]. Why Zenoh, and the
-//! settings that matter: docs/decisions/0011-zenoh-gateway.md.
+//! settings that matter: docs/decisions/0009-zenoh-gateway.md.
 
 pub mod actor_host;
 pub mod keys;

@@ -2,7 +2,7 @@
 
 use std::time::Duration;
 
-use iceoryx2::port::listener::Listener;
+use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
@@ -124,14 +124,19 @@ impl LearnerPorts {
         })
     }
 
-    /// Blocks until an actor signals new data or `timeout` passes.
-    /// Returns true if woken by an actor.
+    /// Blocks until an actor signals new data or `timeout` passes (or a
+    /// signal arrives, which the caller's handler records). Returns true if
+    /// woken by an actor.
     pub fn wait(&self, timeout: Duration) -> Result<bool, TransportError> {
         let mut woken = false;
-        self.wakeup
-            .timed_wait(|_| woken = true, timeout)
-            .map_err(|e| TransportError::new("wait on", proto::service::LEARNER_WAKEUP, e))?;
-        Ok(woken)
+        match self.wakeup.timed_wait(|_| woken = true, timeout) {
+            Ok(_) | Err(ListenerWaitError::InterruptSignal) => Ok(woken),
+            Err(e) => Err(TransportError::new(
+                "wait on",
+                proto::service::LEARNER_WAKEUP,
+                e,
+            )),
+        }
     }
 
     /// Takes the oldest pending message of `kind` (not `Weights`), if any.

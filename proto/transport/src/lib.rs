@@ -31,6 +31,11 @@ pub use join_key::{load_or_create_join_key, read_join_key, JoinKeyFileError, JOI
 pub use learner_side::{LearnerPorts, ReceivedMessage};
 pub use weights_side::{WeightsSubscriber, WeightsTap};
 
+/// The file in a learner's run directory where the gateway on the learner's
+/// host keeps its counts per actor host (JSON, an object keyed by host
+/// name); the learner's `/api/status` shows it as `remote_hosts`.
+pub const REMOTE_HOSTS_FILE: &str = "remote-hosts.json";
+
 /// What happened to a message handed to a publisher.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Delivery {

@@ -3,7 +3,7 @@
 
 use std::time::{Duration, Instant};
 
-use iceoryx2::port::listener::Listener;
+use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use proto::{JoinKey, Limits, MessageHeader, MessageKind, ProtoError, WeightsView};
@@ -88,10 +88,21 @@ impl WeightsSubscriber {
                 return Ok(None);
             }
             // Wake on the learner's notification, or re-poll at least every 50 ms
-            // (history delivery to a late joiner sends no event).
-            self.ready
+            // (history delivery to a late joiner sends no event). A signal
+            // only cuts a wait short: the caller's handler records it.
+            match self
+                .ready
                 .timed_wait(|_| {}, left.min(Duration::from_millis(50)))
-                .map_err(|e| TransportError::new("wait on", proto::service::WEIGHTS_READY, e))?;
+            {
+                Ok(_) | Err(ListenerWaitError::InterruptSignal) => {}
+                Err(e) => {
+                    return Err(TransportError::new(
+                        "wait on",
+                        proto::service::WEIGHTS_READY,
+                        e,
+                    ))
+                }
+            }
         }
     }
 }
