@@ -30,26 +30,158 @@ fn free_port() -> u16 {
         .expect("a free loopback port")
 }
 
-fn start_actor_host(dir: &Path, host_dir: &Path, endpoint: &str, prefix: &str, n: u32) -> Process {
-    let args = [
+/// Starts an actor host's gateway for run `run` as host `host`, with
+/// `extra` arguments; its log is `dir/gateway-<host>-<n>.log`.
+fn start_host_gateway(
+    dir: &Path,
+    host_dir: &Path,
+    endpoint: &str,
+    prefix: &str,
+    (run, host, n): (&str, &str, u32),
+    extra: &[&str],
+) -> Process {
+    let mut args = [
         "actor-host",
         "--learner-at",
         endpoint,
         "--run-dir",
         &host_dir.display().to_string(),
         "--run",
-        "gateway-test",
+        run,
         "--host",
-        "box-b",
+        host,
         "--service-prefix",
         prefix,
     ]
-    .map(String::from);
+    .map(String::from)
+    .to_vec();
+    args.extend(extra.iter().map(|s| s.to_string()));
     Process::start(
         &bin("gateway"),
         &args,
-        dir.join(format!("gateway-box-b-{n}.log")),
+        dir.join(format!("gateway-{host}-{n}.log")),
     )
+}
+
+fn start_actor_host(dir: &Path, host_dir: &Path, endpoint: &str, prefix: &str, n: u32) -> Process {
+    start_host_gateway(
+        dir,
+        host_dir,
+        endpoint,
+        prefix,
+        ("gateway-test", "box-b", n),
+        &[],
+    )
+}
+
+/// A directory for an actor host's run, with a copy of the run's key.
+fn host_dir(dir: &Path, run_dir: &Path, name: &str) -> std::path::PathBuf {
+    let host_dir = dir.join(name);
+    std::fs::create_dir_all(&host_dir).unwrap();
+    std::fs::copy(run_dir.join("join.key"), host_dir.join("join.key")).unwrap();
+    host_dir
+}
+
+#[test]
+fn over_mutual_tls_a_host_publishes_only_under_its_own_name() {
+    let dir = scratch_dir("gateway-tls");
+    let pid = std::process::id();
+    let certs = dir.join("certs");
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let made = std::process::Command::new(repo.join("deploy/make-certs.sh"))
+        .args(["--dir", &certs.display().to_string()])
+        .args(["--run", "gateway-tls", "--learner", "127.0.0.1"])
+        .args(["--hosts", "box-b,box-c"])
+        .output()
+        .expect("running deploy/make-certs.sh");
+    assert!(
+        made.status.success(),
+        "make-certs.sh: {}",
+        String::from_utf8_lossy(&made.stderr)
+    );
+    let (learner, _) = Learner::start_bandit(&dir, &format!("afx_gtl_{pid}"));
+    let run_dir = dir.join("run");
+    let endpoint = format!("tls/127.0.0.1:{}", free_port());
+    let _learner_gateway = Process::start(
+        &bin("gateway"),
+        &[
+            "learner-host",
+            "--run-dir",
+            &run_dir.display().to_string(),
+            "--listen",
+            &endpoint,
+            "--run",
+            "gateway-tls",
+            "--zenoh-config",
+            &certs.join("learner.json5").display().to_string(),
+        ]
+        .map(String::from),
+        dir.join("gateway-learner.log"),
+    );
+    let config_of = |name: &str| certs.join(format!("{name}.json5")).display().to_string();
+    // box-b, with its own certificate, trains the learner with actor 0.
+    let b_dir = host_dir(&dir, &run_dir, "box-b");
+    let b_prefix = format!("afx_gtb_{pid}");
+    let _b = start_host_gateway(
+        &dir,
+        &b_dir,
+        &endpoint,
+        &b_prefix,
+        ("gateway-tls", "box-b", 1),
+        &["--zenoh-config", &config_of("box-b")],
+    );
+    // box-c holds a valid certificate but claims to be box-b, with actor 1.
+    let c_dir = host_dir(&dir, &run_dir, "box-c");
+    let c_prefix = format!("afx_gtc_{pid}");
+    let impostor = start_host_gateway(
+        &dir,
+        &c_dir,
+        &endpoint,
+        &c_prefix,
+        ("gateway-tls", "box-b", 2),
+        &["--zenoh-config", &config_of("box-c")],
+    );
+    // A host without a certificate from the run's CA gets nothing.
+    let x_dir = host_dir(&dir, &run_dir, "box-x");
+    let _outsider = start_host_gateway(
+        &dir,
+        &x_dir,
+        &endpoint,
+        &format!("afx_gtx_{pid}"),
+        ("gateway-tls", "box-x", 3),
+        &[],
+    );
+    let mut actors = Vec::new();
+    for (host_dir, prefix, id) in [(&b_dir, &b_prefix, 0), (&c_dir, &c_prefix, 1)] {
+        let config = host_dir.join("config.toml");
+        wait_for(Duration::from_secs(30), "the run's config over TLS", || {
+            config.exists().then_some(())
+        });
+        let config = config.display().to_string();
+        actors.push(start_actor(id, prefix, &dir, &["--config", &config]));
+    }
+    wait_for(Duration::from_secs(60), "box-b's actor trained", || {
+        let (version, rollouts) = actor(&learner.status(), 0);
+        (version >= 2 && rollouts > 0).then_some(())
+    });
+    // The impostor's gateway got the config and sends, but the learner's
+    // side refuses everything it publishes under box-b's name.
+    std::thread::sleep(Duration::from_secs(3));
+    let status = learner.status();
+    assert_eq!(actor(&status, 1), (0, 0), "{status}");
+    assert_eq!(
+        status["remote_hosts"]["box-b"]["actors"],
+        serde_json::json!([0])
+    );
+    assert!(
+        impostor.log_text().contains("config arrived"),
+        "{}",
+        impostor.log_text()
+    );
+    assert!(
+        !x_dir.join("config.toml").exists(),
+        "a host without a certificate got the run's config"
+    );
 }
 
 #[test]
