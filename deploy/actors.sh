@@ -27,8 +27,8 @@ Required:
 
 Options:
   --host NAME            this host's name in the run (default: the system's host name)
-  --zenoh-config FILE    the gateway's Zenoh config (JSON5): TLS certificates; see
-                         deploy/zenoh-tls-actor-host.json5
+  --zenoh-config FILE    the gateway's Zenoh config (JSON5): TLS certificates;
+                         deploy/make-certs.sh writes one per host
   --data DIR             shared data on this host (default: the run's [actors] data)
   --envs-per-actor K     environments each actor steps (default: the run's)
   --device D             cpu or gpu (default: the run's)

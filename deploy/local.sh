@@ -62,7 +62,7 @@ Options:
                     --first-actor-id
   --zenoh-config FILE
                     the gateway's Zenoh config (JSON5): TLS certificates,
-                    mutual TLS, access control; see deploy/zenoh-tls-*.json5
+                    mutual TLS, access control; deploy/make-certs.sh writes one
   --debug           use debug builds (faster to build, slower to run)
   --bin-dir DIR     use the learner and actor binaries in DIR; build nothing
   -h, --help        this help

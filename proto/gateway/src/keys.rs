@@ -36,11 +36,13 @@ pub fn check_name(what: &'static str, name: &str) -> Result<(), NameError> {
 }
 
 /// The kinds that travel from actor hosts to the learner's host, each under
-/// its own key (joins ride with the stats).
+/// its own key (joins ride with the stats), in the order a gateway reads
+/// them: stats first, so that a new actor's join is seen before the
+/// rollouts it sent after it (as the learner reads them).
 pub const UPSTREAM: [MessageKind; 3] = [
+    MessageKind::Stats,
     MessageKind::Rollout,
     MessageKind::Frames,
-    MessageKind::Stats,
 ];
 
 /// The key expressions of one run.

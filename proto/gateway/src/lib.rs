@@ -8,6 +8,7 @@
 //! settings that matter: docs/decisions/0009-zenoh-gateway.md.
 
 pub mod actor_host;
+pub mod bench;
 pub mod keys;
 pub mod learner_host;
 pub mod link;

@@ -14,7 +14,7 @@ use gateway::learner_host::{self, LearnerHost};
 /// learner and `actor-host` on every other host, before or after its actors.
 ///
 /// Endpoints are `tls/HOST:PORT` (certificates in a Zenoh config file given
-/// with --zenoh-config; see deploy/zenoh-tls-learner.json5) or `tcp/HOST:PORT`
+/// with --zenoh-config, as deploy/make-certs.sh writes them) or `tcp/HOST:PORT`
 /// (plain, unauthenticated, unencrypted: only on a network you trust). The
 /// run's join key is the credential of every host: an actor host needs a
 /// copy of the learner's RUN_DIR/join.key.
@@ -78,6 +78,18 @@ enum Command {
         #[arg(long, value_name = "FILE")]
         zenoh_config: Option<PathBuf>,
     },
+    /// Measures the gateway pair against local iceoryx2 and one loopback TCP
+    /// stream, side by side: throughput and lock-step latency of valid
+    /// rollout messages, and the time new weights take to reach a remote
+    /// actor. Prints a Markdown table.
+    Bench {
+        /// Message sizes in MiB.
+        #[arg(long, value_delimiter = ',', default_value = "0.1,1,4,16")]
+        sizes_mib: Vec<f64>,
+        /// Messages per size and path (as many again for latency).
+        #[arg(long, default_value_t = 50)]
+        count: usize,
+    },
 }
 
 fn main() -> anyhow::Result<()> {
@@ -96,6 +108,23 @@ fn main() -> anyhow::Result<()> {
         signal_hook::flag::register(signal, stop.clone()).context("installing signal handlers")?;
     }
     match cli.command {
+        Command::Bench { sizes_mib, count } => {
+            anyhow::ensure!(
+                count > 0 && sizes_mib.iter().all(|&s| s > 0.0 && s <= 64.0),
+                "--count must be positive and --sizes-mib in (0, 64]"
+            );
+            let sizes: Vec<usize> = sizes_mib
+                .iter()
+                .map(|s| (s * f64::from(1u32 << 20)) as usize)
+                .collect();
+            let scratch =
+                std::env::temp_dir().join(format!("afx-gateway-bench-{}", std::process::id()));
+            let result = gateway::bench::run(&sizes, count, &scratch);
+            let _ = std::fs::remove_dir_all(&scratch);
+            let (figures, weights) = result?;
+            print!("{}", gateway::bench::table(&figures, &weights));
+            Ok(())
+        }
         Command::LearnerHost {
             run_dir,
             listen,
