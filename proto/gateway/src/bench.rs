@@ -74,8 +74,9 @@ fn chunk_of(bytes: usize) -> RolloutChunk {
 /// A safetensors file of one `size`-byte tensor: what a weights message
 /// must carry to be forwarded.
 fn safetensors_of(size: usize) -> Vec<u8> {
-    let header =
-        format!(r#"{{"policy.bench":{{"dtype":"U8","shape":[{size}],"data_offsets":[0,{size}]}}}}"#);
+    let header = format!(
+        r#"{{"policy.bench":{{"dtype":"U8","shape":[{size}],"data_offsets":[0,{size}]}}}}"#
+    );
     let mut out = (header.len() as u64).to_le_bytes().to_vec();
     out.extend_from_slice(header.as_bytes());
     out.extend((0..size).map(|i| i as u8));
