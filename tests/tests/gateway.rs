@@ -285,6 +285,32 @@ fn remote_actors_train_through_the_gateways_and_survive_a_gateway_restart() {
     for a in &mut actors {
         assert!(a.child.try_wait().unwrap().is_none(), "{}", a.log_text());
     }
+    // An actor that starts late on the actor host gets the newest weights
+    // at once (the local service's history), not the first ones.
+    let newest = learner.status()["policy_version"].as_u64().unwrap();
+    let mut late = start_actor(2, &actor_prefix, &dir, &["--config", &config]);
+    let first = wait_for(
+        Duration::from_secs(10),
+        "the late actor's first weights",
+        || {
+            if let Ok(Some(status)) = late.child.try_wait() {
+                panic!("the late actor exited ({status}):\n{}", late.log_text());
+            }
+            late.log_text()
+                .lines()
+                .filter_map(|l| l.split("got policy version ").nth(1))
+                .find_map(|v| {
+                    v.split(|c: char| !c.is_ascii_digit())
+                        .next()?
+                        .parse::<u64>()
+                        .ok()
+                })
+        },
+    );
+    assert!(
+        first + 5 >= newest && first > 1,
+        "the late actor started from policy version {first}; the learner was at {newest}"
+    );
     drop(learner_gateway);
 }
 

@@ -160,7 +160,9 @@ pub fn run(options: &ActorHost, stop: &AtomicBool) -> anyhow::Result<()> {
                 }
             }
         }
-        ports.wait(Duration::from_millis(10))?;
+        // Short: weights arriving from the learner's host are looked for
+        // between waits.
+        ports.wait(Duration::from_millis(2))?;
         if last_maintenance.elapsed() >= MAINTENANCE_EVERY {
             // Hands the newest weights (the service's history) to actors
             // that started since they were published.

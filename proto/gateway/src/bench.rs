@@ -14,8 +14,8 @@
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::path::Path;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
@@ -83,6 +83,42 @@ fn safetensors_of(size: usize) -> Vec<u8> {
     out
 }
 
+/// Messages received so far, which a sender can sleep on (a spinning
+/// sender would take a core from the paths it measures).
+#[derive(Default)]
+struct Received {
+    count: Mutex<usize>,
+    changed: Condvar,
+}
+
+impl Received {
+    fn add(&self) {
+        *self.count.lock().unwrap_or_else(|p| p.into_inner()) += 1;
+        self.changed.notify_all();
+    }
+
+    fn now(&self) -> usize {
+        *self.count.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Waits until at least `n` arrived or `until` passes; returns the count.
+    fn wait_for(&self, n: usize, until: Instant) -> usize {
+        let mut count = self.count.lock().unwrap_or_else(|p| p.into_inner());
+        while *count < n {
+            let left = until.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                break;
+            }
+            count = self
+                .changed
+                .wait_timeout(count, left)
+                .unwrap_or_else(|p| p.into_inner())
+                .0;
+        }
+        *count
+    }
+}
+
 fn percentile(sorted: &[f64], q: f64) -> f64 {
     if sorted.is_empty() {
         return f64::NAN;
@@ -96,37 +132,29 @@ fn measure(
     path: &'static str,
     bytes: usize,
     count: usize,
-    received: &AtomicUsize,
+    received: &Received,
     send: &mut dyn FnMut() -> anyhow::Result<()>,
 ) -> anyhow::Result<Figures> {
     let deadline = Instant::now() + CASE_TIMEOUT;
     let wait_until = |n: usize| -> anyhow::Result<()> {
-        while received.load(Ordering::Acquire) < n {
-            if Instant::now() > deadline {
-                bail!(
-                    "{path}: only {} of {n} messages arrived",
-                    received.load(Ordering::Acquire)
-                );
-            }
-            std::thread::yield_now();
+        let got = received.wait_for(n, deadline);
+        if got < n {
+            bail!("{path}: only {got} of {n} messages arrived");
         }
         Ok(())
     };
     // One message first, sent again until it arrives: a new actor's first
     // messages may overtake its join and be refused on the way.
-    let mut base = received.load(Ordering::Acquire);
-    while received.load(Ordering::Acquire) == base {
+    let mut base = received.now();
+    while received.now() == base {
         if Instant::now() > deadline {
             bail!("{path}: no message arrived");
         }
         send()?;
-        let resend = Instant::now() + Duration::from_millis(200);
-        while received.load(Ordering::Acquire) == base && Instant::now() < resend {
-            std::thread::yield_now();
-        }
+        received.wait_for(base + 1, Instant::now() + Duration::from_millis(200));
     }
     std::thread::sleep(Duration::from_millis(300));
-    base = received.load(Ordering::Acquire);
+    base = received.now();
     let start = Instant::now();
     for sent in 0..count {
         wait_until((base + sent).saturating_sub(WINDOW - 1))?;
@@ -156,7 +184,7 @@ fn measure(
 fn learner_thread(
     config: TransportConfig,
     key: JoinKey,
-    received: Arc<AtomicUsize>,
+    received: Arc<Received>,
     stop: Arc<AtomicBool>,
 ) -> std::thread::JoinHandle<anyhow::Result<()>> {
     std::thread::spawn(move || {
@@ -169,7 +197,7 @@ fn learner_thread(
             ports.wait(Duration::from_millis(1))?;
             while let Some(message) = ports.receive(MessageKind::Rollout)? {
                 proto::decode(message.bytes(), &limits)?;
-                received.fetch_add(1, Ordering::Release);
+                received.add();
             }
         }
         Ok(())
@@ -179,7 +207,7 @@ fn learner_thread(
 /// Publishes `chunk` until a subscriber takes it.
 fn publish(actor: &mut ActorPorts, chunk: &RolloutChunk) -> anyhow::Result<()> {
     while actor.publish(chunk, 1, 0)? == Delivery::Dropped {
-        std::thread::yield_now();
+        std::thread::sleep(Duration::from_micros(100));
     }
     Ok(())
 }
@@ -199,7 +227,7 @@ fn transport_config(prefix: &str, max: usize) -> TransportConfig {
 fn local(sizes: &[usize], count: usize, key: &JoinKey, tag: &str) -> anyhow::Result<Vec<Figures>> {
     let max = sizes.iter().max().copied().unwrap_or(0) + 4096;
     let config = transport_config(&format!("afx-gwbench-local-{tag}"), max);
-    let received = Arc::new(AtomicUsize::new(0));
+    let received = Arc::new(Received::default());
     let stop = Arc::new(AtomicBool::new(false));
     let learner = learner_thread(config.clone(), key.clone(), received.clone(), stop.clone());
     std::thread::sleep(Duration::from_millis(200));
@@ -226,7 +254,7 @@ fn local(sizes: &[usize], count: usize, key: &JoinKey, tag: &str) -> anyhow::Res
 fn tcp(sizes: &[usize], count: usize) -> anyhow::Result<Vec<Figures>> {
     let listener = TcpListener::bind("127.0.0.1:0")?;
     let addr = listener.local_addr()?;
-    let received = Arc::new(AtomicUsize::new(0));
+    let received = Arc::new(Received::default());
     let counter = received.clone();
     let max = sizes.iter().max().copied().unwrap_or(0) + 4096;
     let reader = std::thread::spawn(move || -> anyhow::Result<()> {
@@ -246,7 +274,7 @@ fn tcp(sizes: &[usize], count: usize) -> anyhow::Result<Vec<Figures>> {
             buf.resize(HEADER_LEN + payload_len.min(max), 0);
             stream.read_exact(&mut buf[HEADER_LEN..])?;
             proto::decode(&buf, &limits)?;
-            counter.fetch_add(1, Ordering::Release);
+            counter.add();
         }
     });
     let mut stream = TcpStream::connect(addr)?;
@@ -306,7 +334,7 @@ fn gateways(
     let port = TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
     let endpoint = format!("tcp/127.0.0.1:{port}");
     let stop = Arc::new(AtomicBool::new(false));
-    let received = Arc::new(AtomicUsize::new(0));
+    let received = Arc::new(Received::default());
     let learner = learner_thread(
         learner_config.clone(),
         key.clone(),

@@ -42,7 +42,7 @@ pub struct LearnerHost {
 }
 
 /// Runs until `stop` is set.
-pub fn run(options: &LearnerHost, stop: &AtomicBool) -> anyhow::Result<()> {
+pub fn run(options: &LearnerHost, stop: &Arc<AtomicBool>) -> anyhow::Result<()> {
     let keys = RunKeys::new(&options.run)?;
     let config_path = options.run_dir.join("config.toml");
     let config_text = std::fs::read_to_string(&config_path).with_context(|| {
@@ -89,13 +89,21 @@ pub fn run(options: &LearnerHost, stop: &AtomicBool) -> anyhow::Result<()> {
         .wait()
         .map_err(zenoh_error)
         .context("declaring the weights publisher")?;
+    // Weights on a thread of their own, woken by the learner's publish: they
+    // never wait behind the actors' data.
+    let weights = {
+        let (transport, key, stop) = (transport.clone(), key.clone(), stop.clone());
+        std::thread::Builder::new()
+            .name("gateway-weights".into())
+            .spawn(move || send_weights(&transport, &key, &weights_out, &newest, &stop))
+            .context("starting the weights thread")?
+    };
     let upstream = session
         .declare_subscriber(keys.all_upstream())
         .with(FifoChannel::new(UPSTREAM_QUEUE))
         .wait()
         .map_err(zenoh_error)
         .context("subscribing to the actor hosts")?;
-    let tap = WeightsTap::open(&transport, "gateway-weights")?;
     let ports_config = transport.clone();
     let ports_key = key.clone();
     let mut remote = RemoteActors::new(key.clone(), transport.clone(), move |id| {
@@ -107,24 +115,7 @@ pub fn run(options: &LearnerHost, stop: &AtomicBool) -> anyhow::Result<()> {
         "learner host's gateway ready"
     );
     let mut status_due = Instant::now() + HOSTS_EVERY;
-    while !stop.load(Ordering::Relaxed) {
-        // Weights first: they never wait behind the actors' data.
-        if let Some(message) = tap.take_latest()? {
-            match tap.check(message.bytes(), &key) {
-                Ok(_) => {
-                    let bytes = message.bytes().to_vec();
-                    weights_out
-                        .put(bytes.clone())
-                        .wait()
-                        .map_err(zenoh_error)
-                        .context("publishing weights to the actor hosts")?;
-                    *newest.lock().unwrap_or_else(|p| p.into_inner()) = Some(bytes);
-                }
-                Err(error) => {
-                    tracing::warn!("not forwarding weights the run's learner did not sign: {error}")
-                }
-            }
-        }
+    while !stop.load(Ordering::Relaxed) && !weights.is_finished() {
         let first = upstream
             .recv_timeout(Duration::from_millis(20))
             .map_err(zenoh_error)
@@ -144,6 +135,39 @@ pub fn run(options: &LearnerHost, stop: &AtomicBool) -> anyhow::Result<()> {
     }
     // Counts of a gateway that stopped would read as current.
     let _ = std::fs::remove_file(options.run_dir.join(transport::REMOTE_HOSTS_FILE));
+    weights
+        .join()
+        .map_err(|_| anyhow::anyhow!("the weights thread panicked"))?
+}
+
+/// Sends every weights message the run's learner signed to the actor hosts
+/// and keeps the newest for hosts that ask, until `stop`.
+fn send_weights(
+    transport: &transport::TransportConfig,
+    key: &proto::JoinKey,
+    out: &zenoh::pubsub::Publisher<'static>,
+    newest: &Mutex<Option<Vec<u8>>>,
+    stop: &AtomicBool,
+) -> anyhow::Result<()> {
+    let tap = WeightsTap::open(transport, "gateway-weights")?;
+    while !stop.load(Ordering::Relaxed) {
+        let Some(message) = tap.wait(Duration::from_millis(200))? else {
+            continue;
+        };
+        match tap.check(message.bytes(), key) {
+            Ok(_) => {
+                let bytes = message.bytes().to_vec();
+                out.put(bytes.clone())
+                    .wait()
+                    .map_err(zenoh_error)
+                    .context("publishing weights to the actor hosts")?;
+                *newest.lock().unwrap_or_else(|p| p.into_inner()) = Some(bytes);
+            }
+            Err(error) => {
+                tracing::warn!("not forwarding weights the run's learner did not sign: {error}")
+            }
+        }
+    }
     Ok(())
 }
 

@@ -14,6 +14,12 @@ const BLOCK_BEFORE_CLOSE_US: u64 = 60_000_000;
 /// the buffer to drain piece by piece (Zenoh's default is 64 KiB).
 const RX_BUFFER_BYTES: u64 = 16 << 20;
 
+/// Batches of 64 KiB each data priority's transmission queue holds (Zenoh's
+/// default is 2, its maximum 16): a multi-MiB message is cut into 64 KiB
+/// fragments, and with 2 the sending thread and the link's own hand over
+/// every 128 KiB, which on a small machine costs more than the copying.
+const DATA_QUEUE_BATCHES: u64 = 16;
+
 /// Which end of the link this gateway is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Role {
@@ -78,6 +84,18 @@ pub fn config(role: Role, endpoint: &str, file: Option<&Path>) -> anyhow::Result
         (
             "transport/link/rx/buffer_size",
             &RX_BUFFER_BYTES.to_string(),
+        ),
+        (
+            "transport/link/tx/queue/size/data_high",
+            &DATA_QUEUE_BATCHES.to_string(),
+        ),
+        (
+            "transport/link/tx/queue/size/data",
+            &DATA_QUEUE_BATCHES.to_string(),
+        ),
+        (
+            "transport/link/tx/queue/size/data_low",
+            &DATA_QUEUE_BATCHES.to_string(),
         ),
     ];
     for (key, value) in settings {

@@ -212,10 +212,9 @@ impl ActorPorts {
         if bytes.len() > up.max_bytes || bytes.is_empty() {
             return Ok(Delivery::Dropped);
         }
-        let Some(mut sample) = crate::loan_zeroed(&up.publisher, bytes.len()) else {
+        let Some(sample) = crate::loan_copy(&up.publisher, bytes) else {
             return Ok(Delivery::Dropped);
         };
-        sample.payload_mut().copy_from_slice(bytes);
         self.send(kind, sample)
     }
 

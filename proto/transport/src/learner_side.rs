@@ -198,10 +198,9 @@ impl LearnerPorts {
         if bytes.is_empty() || bytes.len() > self.max_weights_bytes {
             return Ok(Delivery::Dropped);
         }
-        let Some(mut sample) = crate::loan_zeroed(&self.weights, bytes.len()) else {
+        let Some(sample) = crate::loan_copy(&self.weights, bytes) else {
             return Ok(Delivery::Dropped);
         };
-        sample.payload_mut().copy_from_slice(bytes);
         let delivered = sample
             .send()
             .map_err(|e| TransportError::new("send on", proto::service::WEIGHTS, e))?;

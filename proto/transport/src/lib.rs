@@ -93,6 +93,23 @@ pub(crate) fn loan_zeroed(
     }
 }
 
+/// Loans a sample of `bytes.len()` bytes filled with `bytes` in one pass
+/// (no zero-fill first): what forwarding a whole message costs.
+pub(crate) fn loan_copy(
+    publisher: &iceoryx2::port::publisher::Publisher<Ipc, [u8], ()>,
+    bytes: &[u8],
+) -> Option<iceoryx2::sample_mut::SampleMut<Ipc, [u8], ()>> {
+    let mut sample = publisher.loan_slice_uninit(bytes.len()).ok()?;
+    let buf = sample.payload_mut();
+    // SAFETY: `buf` is an exclusively borrowed region of `bytes.len()`
+    // elements that cannot overlap `bytes` (a fresh loan); copying all of
+    // them initialises every element, which is what `assume_init` requires.
+    unsafe {
+        std::ptr::copy_nonoverlapping(bytes.as_ptr(), buf.as_mut_ptr().cast::<u8>(), bytes.len());
+        Some(sample.assume_init())
+    }
+}
+
 /// Quietens iceoryx2's own logger to warnings unless `IOX2_LOG_LEVEL` says otherwise.
 pub fn init_iceoryx_logging() {
     iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Warn);
