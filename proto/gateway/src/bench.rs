@@ -48,6 +48,25 @@ pub struct Figures {
     pub p99_ms: f64,
 }
 
+/// Time for new weights to reach a remote actor.
+#[derive(Debug, Clone)]
+pub struct WeightsFigure {
+    /// Safetensors bytes.
+    pub bytes: usize,
+    /// From the learner's publish to the remote actor's signature check,
+    /// median ms.
+    pub median_ms: f64,
+}
+
+/// Everything one benchmark run measured.
+#[derive(Debug, Clone)]
+pub struct Report {
+    /// Per path and message size.
+    pub paths: Vec<Figures>,
+    /// Per weights size, through the gateway pair.
+    pub weights: Vec<WeightsFigure>,
+}
+
 /// A rollout message of about `bytes` bytes.
 fn chunk_of(bytes: usize) -> RolloutChunk {
     let t = 16usize;
@@ -263,9 +282,9 @@ fn tcp(sizes: &[usize], count: usize) -> anyhow::Result<Vec<Figures>> {
             max_actors: 4,
             max_payload_len: max as u64,
         };
-        let mut buf = Vec::new();
+        let mut buf = vec![0u8; HEADER_LEN];
         loop {
-            buf.resize(HEADER_LEN, 0);
+            buf.truncate(HEADER_LEN);
             if stream.read_exact(&mut buf).is_err() {
                 return Ok(());
             }
@@ -323,7 +342,7 @@ fn gateways(
     key: &JoinKey,
     tag: &str,
     scratch: &Path,
-) -> anyhow::Result<(Vec<Figures>, Vec<(usize, f64)>)> {
+) -> anyhow::Result<Report> {
     let max = sizes.iter().max().copied().unwrap_or(0) + 4096;
     let learner_config = transport_config(&format!("afx-gwbench-learner-{tag}"), max);
     let learner_dir = scratch.join("learner");
@@ -406,7 +425,10 @@ fn gateways(
             times.push(t.elapsed().as_secs_f64() * 1e3);
         }
         times.sort_by(f64::total_cmp);
-        weights.push((size, percentile(&times, 0.5)));
+        weights.push(WeightsFigure {
+            bytes: size,
+            median_ms: percentile(&times, 0.5),
+        });
     }
     stop.store(true, Ordering::Relaxed);
     for (name, thread) in [
@@ -421,28 +443,31 @@ fn gateways(
     learner
         .join()
         .map_err(|_| anyhow::anyhow!("receiver panicked"))??;
-    Ok((figures, weights))
+    Ok(Report {
+        paths: figures,
+        weights,
+    })
 }
 
 /// Runs every case for message sizes `sizes` (bytes), `count` messages
 /// each; scratch files go to `scratch`. Returns the figures and, per size,
 /// the median time (ms) new weights took to reach the remote actor.
-pub fn run(
-    sizes: &[usize],
-    count: usize,
-    scratch: &Path,
-) -> anyhow::Result<(Vec<Figures>, Vec<(usize, f64)>)> {
+pub fn run(sizes: &[usize], count: usize, scratch: &Path) -> anyhow::Result<Report> {
     let key = JoinKey::from_bytes([9; proto::JOIN_KEY_LEN]);
     let tag = std::process::id().to_string();
     let mut figures = local(sizes, count, &key, &tag)?;
     figures.extend(tcp(sizes, count)?);
-    let (through, weights) = gateways(sizes, count, &key, &tag, scratch)?;
-    figures.extend(through);
-    Ok((figures, weights))
+    let through = gateways(sizes, count, &key, &tag, scratch)?;
+    figures.extend(through.paths);
+    Ok(Report {
+        paths: figures,
+        weights: through.weights,
+    })
 }
 
 /// The figures as a Markdown table, one row per size, a column group per path.
-pub fn table(figures: &[Figures], weights: &[(usize, f64)]) -> String {
+pub fn table(report: &Report) -> String {
+    let figures = &report.paths;
     let mut out = String::from(
         "| message | path | MiB/s | p50 ms | p99 ms | gateway ÷ TCP (MiB/s) |\n|---|---|---|---|---|---|\n",
     );
@@ -465,7 +490,11 @@ pub fn table(figures: &[Figures], weights: &[(usize, f64)]) -> String {
         ));
     }
     out.push_str("\n| weights | publish → checked by the remote actor, median ms |\n|---|---|\n");
-    for (size, ms) in weights {
+    for WeightsFigure {
+        bytes: size,
+        median_ms: ms,
+    } in &report.weights
+    {
         out.push_str(&format!(
             "| {:.2} MiB | {ms:.1} |\n",
             *size as f64 / f64::from(1u32 << 20)
@@ -481,8 +510,8 @@ mod tests {
     #[test]
     fn every_path_carries_small_messages_and_weights_reach_the_remote_actor() {
         let dir = tempfile::tempdir().unwrap();
-        let (figures, weights) = run(&[64 << 10], 3, dir.path()).unwrap();
-        let paths: Vec<_> = figures.iter().map(|f| f.path).collect();
+        let report = run(&[64 << 10], 3, dir.path()).unwrap();
+        let paths: Vec<_> = report.paths.iter().map(|f| f.path).collect();
         assert_eq!(
             paths,
             [
@@ -491,15 +520,15 @@ mod tests {
                 "gateway pair (Zenoh, loopback TCP)"
             ]
         );
-        for f in &figures {
+        for f in &report.paths {
             assert!(
                 f.mib_per_s > 0.0 && f.p50_ms > 0.0 && f.p99_ms >= f.p50_ms,
                 "{f:?}"
             );
         }
-        assert_eq!(weights.len(), 1);
-        assert!(weights[0].1 > 0.0);
-        let table = table(&figures, &weights);
+        assert_eq!(report.weights.len(), 1);
+        assert!(report.weights[0].median_ms > 0.0);
+        let table = table(&report);
         assert!(table.contains("gateway ÷ TCP"), "{table}");
     }
 }

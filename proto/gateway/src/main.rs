@@ -121,8 +121,7 @@ fn main() -> anyhow::Result<()> {
                 std::env::temp_dir().join(format!("afx-gateway-bench-{}", std::process::id()));
             let result = gateway::bench::run(&sizes, count, &scratch);
             let _ = std::fs::remove_dir_all(&scratch);
-            let (figures, weights) = result?;
-            print!("{}", gateway::bench::table(&figures, &weights));
+            print!("{}", gateway::bench::table(&result?));
             Ok(())
         }
         Command::LearnerHost {
