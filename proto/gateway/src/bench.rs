@@ -4,7 +4,7 @@
 //!
 //! Every case sends valid rollout messages of a given size from an actor's
 //! ports and validates them where the learner would read them; a sender
-//! keeps at most [`WINDOW`] messages unreceived, so no buffer on the way
+//! keeps at most four messages unreceived, so no buffer on the way
 //! overflows and nothing is lost. Streaming throughput is message bytes
 //! over the time to receive `count` of them; latency is lock-step, one
 //! message at a time. Both gateways run in this process on their own
