@@ -193,20 +193,23 @@ fn remote_actors_train_through_the_gateways_and_survive_a_gateway_restart() {
     let (learner, _) = Learner::start_bandit(&dir, &learner_prefix);
     let run_dir = dir.join("run");
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-    let learner_gateway = Process::start(
-        &bin("gateway"),
-        &[
-            "learner-host",
-            "--run-dir",
-            &run_dir.display().to_string(),
-            "--listen",
-            &endpoint,
-            "--run",
-            "gateway-test",
-        ]
-        .map(String::from),
-        dir.join("gateway-learner.log"),
-    );
+    let start_learner_gateway = |n: u32| {
+        Process::start(
+            &bin("gateway"),
+            &[
+                "learner-host",
+                "--run-dir",
+                &run_dir.display().to_string(),
+                "--listen",
+                &endpoint,
+                "--run",
+                "gateway-test",
+            ]
+            .map(String::from),
+            dir.join(format!("gateway-learner-{n}.log")),
+        )
+    };
+    let mut learner_gateway = start_learner_gateway(1);
     // The actor host has its own directory, with a copy of the run's key.
     let host_dir = dir.join("box-b");
     std::fs::create_dir_all(&host_dir).unwrap();
@@ -311,7 +314,26 @@ fn remote_actors_train_through_the_gateways_and_survive_a_gateway_restart() {
         first + 5 >= newest && first > 1,
         "the late actor started from policy version {first}; the learner was at {newest}"
     );
-    drop(learner_gateway);
+    // The learner host's gateway dies and comes back: the actor host's
+    // reconnects, the remote actors join again through it, rollouts resume.
+    learner_gateway.signal(libc::SIGKILL);
+    learner_gateway.wait_exit(Duration::from_secs(5));
+    let before: u64 = (0..2).map(|id| actor(&learner.status(), id).1).sum();
+    std::thread::sleep(Duration::from_secs(1));
+    let _learner_gateway = start_learner_gateway(2);
+    wait_for(
+        Duration::from_secs(60),
+        "rollouts after the learner host's gateway restarted",
+        || {
+            let now: u64 = (0..2).map(|id| actor(&learner.status(), id).1).sum();
+            (now > before + 4).then_some(())
+        },
+    );
+    assert!(
+        actor_gateway.child.try_wait().unwrap().is_none(),
+        "{}",
+        actor_gateway.log_text()
+    );
 }
 
 /// A script run as its own process group, killed with it on drop.
