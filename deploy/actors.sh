@@ -74,6 +74,8 @@ LOGS="$RUN_DIR/logs"
 [[ -s "$RUN_DIR/join.key" ]] || { echo "actors.sh: $RUN_DIR/join.key is missing: copy the learner's RUN_DIR/join.key there (the run's secret; keep it private)" >&2; exit 2; }
 
 cd "$(dirname "$0")/.."
+# without_backtrace, supervise, wait_gone
+source deploy/supervise.sh
 if [[ -n "$BIN" ]]; then
   for b in gateway actor; do
     [[ -x "$BIN/$b" ]] || { echo "actors.sh: --bin-dir $BIN has no executable $b" >&2; exit 2; }
@@ -88,47 +90,9 @@ fi
 
 STOP_FILE="$LOGS/.stopping" SETUP_FAILED="$LOGS/.setup-failed"
 rm -f "$STOP_FILE" "$SETUP_FAILED" "$RUN_DIR/config.toml"
-without_backtrace() { sed '/^Stack backtrace:$/,/^$/d; /^stack backtrace:$/,/^$/d'; }
-
-# Restarts `$1` (a name) running `${@:2}` until the stop file appears; an
-# exit before its log shows "$READY" is a setup problem and stops the host.
-supervise() {
-  local name=$1 ready=$2 restarts=0 backoff=1 code log start; shift 2
-  log="$LOGS/$name.log"
-  while :; do
-    start=$(stat -c %s "$log" 2>/dev/null || echo 0)
-    "$@" >>"$log" 2>&1 &
-    echo $! >"$LOGS/$name.pid"
-    code=0; wait $! || code=$?
-    [[ -e "$STOP_FILE" ]] && return 0
-    if [[ $code -eq 0 ]]; then echo "$name finished"; return 0; fi
-    if [[ $code -lt 128 ]] && ! tail -c +"$((start + 1))" "$log" | grep -q "$ready"; then
-      {
-        echo "actors.sh: $name exited with status $code before it was ready: a setup problem, so it is not restarted. The end of $log:"
-        tail -c +"$((start + 1))" "$log" | without_backtrace | tail -n 15 | sed 's/^/    /'
-      } >&2
-      touch "$SETUP_FAILED"
-      return 1
-    fi
-    restarts=$((restarts + 1))
-    echo "$name exited with status $code; restart #$restarts in ${backoff}s (log: $log)"
-    sleep "$backoff"
-    backoff=$((backoff * 2 > 30 ? 30 : backoff * 2))
-  done
-}
-
-wait_gone() {
-  local pid=""
-  for _ in $(seq 1 600); do
-    for pid in "$@"; do kill -0 "$pid" 2>/dev/null && break; pid=""; done
-    [[ -z "$pid" ]] && return 0
-    sleep 0.1
-  done
-  echo "actors.sh: processes $* still running after 60 s; going on" >&2
-}
 
 echo "starting the gateway to $LEARNER_AT (log: $LOGS/gateway.log)"
-supervise gateway "the run's config arrived" "$BIN/gateway" actor-host --learner-at "$LEARNER_AT" --run "$RUN" \
+supervise gateway "the gateway" "the run's config arrived" "before it was ready" "$BIN/gateway" actor-host --learner-at "$LEARNER_AT" --run "$RUN" \
   --run-dir "$RUN_DIR" "${HOST_ARGS[@]}" "${PREFIX_ARGS[@]}" "${ZENOH_CONFIG[@]}" &
 GATEWAY_SUPERVISOR=$!
 ACTOR_SUPERVISORS=()
@@ -157,7 +121,7 @@ until [[ -s "$RUN_DIR/config.toml" ]]; do
   sleep 0.5 & wait $! || true
 done
 for ((id = FIRST; id < FIRST + ACTORS; id++)); do
-  supervise "actor-$id" "got policy version" "$BIN/actor" --actor-id "$id" --config "$RUN_DIR/config.toml" "${ACTOR_ARGS[@]}" &
+  supervise "actor-$id" "actor $id" "got policy version" "before it received its first weights" "$BIN/actor" --actor-id "$id" --config "$RUN_DIR/config.toml" "${ACTOR_ARGS[@]}" &
   ACTOR_SUPERVISORS+=($!)
 done
 echo "actors $FIRST..$((FIRST + ACTORS - 1)) started (logs in $LOGS); the learner's status lists this host under remote_hosts; Ctrl-C to stop"

@@ -134,6 +134,8 @@ if [[ $RESUME -eq 1 && -z "$RUN_DIR" ]]; then
 fi
 
 cd "$(dirname "$0")/.."
+# without_backtrace, supervise, wait_gone
+source deploy/supervise.sh
 REPO=$(pwd)
 
 # System packages this script needs.
@@ -180,9 +182,6 @@ if [[ $RESUME -eq 1 ]]; then
 else
   LEARNER_ARGS+=(--run-dir "$RUN_DIR" "${TASK_ARGS[@]}")
 fi
-# A log without the stack backtraces that follow an error (RUST_BACKTRACE):
-# what a user needs to see is the error above them.
-without_backtrace() { sed '/^Stack backtrace:$/,/^$/d; /^stack backtrace:$/,/^$/d'; }
 echo "starting the learner (log: $LOGS/learner.log)"
 "$BIN/learner" "${LEARNER_ARGS[@]}" "${EXTRA[@]}" >>"$LOGS/learner.log" 2>&1 &
 LEARNER_PID=$!
@@ -207,82 +206,20 @@ curl -fsS --retry 20 --retry-delay 0 --retry-connrefused "http://$ADDR/healthz" 
 
 SETUP_FAILED="$LOGS/.setup-failed"
 rm -f "$SETUP_FAILED"
-supervise_actor() {
-  local id=$1 restarts=0 backoff=1 code log start
-  log="$LOGS/actor-$id.log"
-  while :; do
-    start=$(stat -c %s "$log" 2>/dev/null || echo 0)
-    "$BIN/actor" --actor-id "$id" --learner "$PREFIX" --config "$RUN_DIR/config.toml" "${RECORD_ARGS[@]}" \
-      >>"$log" 2>&1 &
-    echo $! >"$LOGS/actor-$id.pid"
-    code=0; wait $! || code=$?
-    [[ -e "$STOP_FILE" ]] && return 0
-    if [[ $code -eq 0 ]]; then echo "actor $id finished"; return 0; fi
-    # An error exit before the first weights is a setup problem (data, Vulkan,
-    # config), not a crash: restarting would only repeat it.
-    if [[ $code -lt 128 ]] && ! tail -c +"$((start + 1))" "$log" | grep -q "got policy version"; then
-      {
-        echo "local.sh: actor $id exited with status $code before it received its first weights: a setup problem, not a crash, so it is not restarted. The end of $log:"
-        tail -c +"$((start + 1))" "$log" | without_backtrace | tail -n 15 | sed 's/^/    /'
-      } >&2
-      touch "$SETUP_FAILED"
-      return 1
-    fi
-    restarts=$((restarts + 1))
-    echo "actor $id exited with status $code; restart #$restarts in ${backoff}s (log: $LOGS/actor-$id.log)"
-    sleep "$backoff"
-    backoff=$((backoff * 2 > 30 ? 30 : backoff * 2))
-  done
-}
-
-# The gateway for other hosts' actors, restarted like an actor; one that
-# exits before it is ready (a taken port, a bad certificate) stops the run.
-supervise_gateway() {
-  local restarts=0 backoff=1 code log="$LOGS/gateway.log" start
-  while :; do
-    start=$(stat -c %s "$log" 2>/dev/null || echo 0)
-    "$BIN/gateway" learner-host --run-dir "$RUN_DIR" --listen "$LISTEN" "${ZENOH_CONFIG[@]}" >>"$log" 2>&1 &
-    echo $! >"$LOGS/gateway.pid"
-    code=0; wait $! || code=$?
-    [[ -e "$STOP_FILE" ]] && return 0
-    if [[ $code -lt 128 ]] && ! tail -c +"$((start + 1))" "$log" | grep -q "gateway ready"; then
-      {
-        echo "local.sh: the gateway exited with status $code before it was ready, so it is not restarted. The end of $log:"
-        tail -c +"$((start + 1))" "$log" | without_backtrace | tail -n 15 | sed 's/^/    /'
-      } >&2
-      touch "$SETUP_FAILED"
-      return 1
-    fi
-    restarts=$((restarts + 1))
-    echo "the gateway exited with status $code; restart #$restarts in ${backoff}s (log: $log)"
-    sleep "$backoff"
-    backoff=$((backoff * 2 > 30 ? 30 : backoff * 2))
-  done
-}
-
 SUPERVISORS=()
 for ((i = 0; i < ACTORS; i++)); do
-  supervise_actor "$i" &
+  supervise "actor-$i" "actor $i" "got policy version" "before it received its first weights" \
+    "$BIN/actor" --actor-id "$i" --learner "$PREFIX" --config "$RUN_DIR/config.toml" "${RECORD_ARGS[@]}" &
   SUPERVISORS+=($!)
 done
+# The gateway for other hosts' actors, restarted like an actor; one that
+# exits before it is ready (a taken port, a bad certificate) stops the run.
 GATEWAY_SUPERVISOR=()
 if [[ -n "$LISTEN" ]]; then
-  supervise_gateway &
+  supervise gateway "the gateway" "gateway ready" "before it was ready" \
+    "$BIN/gateway" learner-host --run-dir "$RUN_DIR" --listen "$LISTEN" "${ZENOH_CONFIG[@]}" &
   GATEWAY_SUPERVISOR=($!)
 fi
-
-# Waits until the given processes are gone (at most 60 s). Polling instead of
-# `wait`: bash's `wait` on a child that was killed while a trap ran (e.g.
-# `pkill -f deploy/local.sh`, which also hits the supervisor subshells) never returns.
-wait_gone() {
-  local pid=""
-  for _ in $(seq 1 600); do
-    for pid in "$@"; do kill -0 "$pid" 2>/dev/null && break; pid=""; done
-    [[ -z "$pid" ]] && return 0
-    sleep 0.1
-  done
-  echo "local.sh: processes $* still running after 60 s; going on" >&2
-}
 
 stop_gateway() {
   [[ ${#GATEWAY_SUPERVISOR[@]} -gt 0 ]] || return 0

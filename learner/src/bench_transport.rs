@@ -9,8 +9,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
 use proto::{
-    decode, encode, encoded_len, Limits, Message, MessageHeader, ObsDtype, RolloutChunk,
-    WeightsBlob, HEADER_LEN,
+    decode, encode, encoded_len, Limits, Message, MessageHeader, RolloutChunk, WeightsBlob,
+    HEADER_LEN,
 };
 use transport::{ActorPorts, Delivery, LearnerPorts, TransportConfig};
 
@@ -25,28 +25,6 @@ pub struct Measurement {
     pub gib_per_s: f64,
     /// Median one-message latency (lock-step), milliseconds.
     pub median_ms: f64,
-}
-
-fn chunk_of(bytes: usize) -> RolloutChunk {
-    let t = 64usize;
-    let fixed = 32 + 16 * t + 2 * t; // sub-header, four arrays, 1-byte masks (1 action), dones
-    let obs_elems = (bytes - HEADER_LEN - fixed) / t;
-    RolloutChunk {
-        episode_id: 1,
-        first_step: 0,
-        n_actions: 1,
-        obs_dtype: ObsDtype::U8,
-        obs_elems: obs_elems as u32,
-        obs: (0..t * obs_elems).map(|i| i as u8).collect(),
-        actions: vec![0; t],
-        masks: vec![1; t],
-        log_probs: vec![-0.5; t],
-        values: vec![0.0; t],
-        rewards: vec![0.0; t],
-        dones: vec![0; t],
-        bootstrap_value: 0.0,
-        start_hidden: Vec::new(),
-    }
 }
 
 fn weights_of(bytes: usize) -> Vec<u8> {
@@ -108,7 +86,7 @@ fn summarise(
 
 /// Actor → learner over iceoryx2.
 fn iceoryx_upstream(size: usize, count: usize) -> anyhow::Result<(f64, f64)> {
-    let chunk = chunk_of(size);
+    let chunk = RolloutChunk::filler(size, 64);
     let len = encoded_len(&chunk);
     let cfg = config(&format!("up{size}"), len);
     let (ready_tx, ready_rx) = mpsc::channel();
@@ -174,7 +152,7 @@ fn read_message(stream: &mut TcpStream, buf: &mut Vec<u8>) -> anyhow::Result<()>
 
 /// Actor → learner over loopback TCP, same encode and decode.
 fn tcp_upstream(size: usize, count: usize) -> anyhow::Result<(f64, f64)> {
-    let chunk = chunk_of(size);
+    let chunk = RolloutChunk::filler(size, 64);
     let len = encoded_len(&chunk);
     let listener = TcpListener::bind("127.0.0.1:0")?;
     let addr = listener.local_addr()?;

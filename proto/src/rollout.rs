@@ -108,6 +108,31 @@ impl RolloutChunk {
     pub fn n_steps(&self) -> usize {
         self.actions.len()
     }
+
+    /// A valid chunk of `steps` steps (one action, byte observations)
+    /// whose whole message is about `message_len` bytes: what transport
+    /// benchmarks send.
+    pub fn filler(message_len: usize, steps: usize) -> Self {
+        let t = steps.max(1);
+        let fixed = 32 + 16 * t + 2 * t; // sub-header, four arrays, masks, dones
+        let obs_elems = message_len.saturating_sub(crate::HEADER_LEN + fixed).max(t) / t;
+        RolloutChunk {
+            episode_id: 1,
+            first_step: 0,
+            n_actions: 1,
+            obs_dtype: ObsDtype::U8,
+            obs_elems: obs_elems as u32,
+            obs: (0..t * obs_elems).map(|i| i as u8).collect(),
+            actions: vec![0; t],
+            masks: vec![1; t],
+            log_probs: vec![-0.5; t],
+            values: vec![0.0; t],
+            rewards: vec![0.0; t],
+            dones: vec![0; t],
+            bootstrap_value: 0.0,
+            start_hidden: Vec::new(),
+        }
+    }
 }
 
 /// A value in 0..1 as a byte observation carries it: clamped, then the

@@ -294,3 +294,79 @@ pub fn open_as_outsider(
         .unwrap_or_else(|e| panic!("opening the {service} service: {e:?}"));
     (node, factory)
 }
+
+/// A loopback TCP port nobody listens on now.
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .expect("a free loopback port")
+}
+
+/// Starts `gateway learner-host` for the learner in `run_dir`, listening
+/// on `endpoint` as run `run`, with `extra` arguments; logs to `log`.
+pub fn start_learner_gateway(
+    run_dir: &Path,
+    endpoint: &str,
+    run: &str,
+    extra: &[&str],
+    log: PathBuf,
+) -> Process {
+    let mut args = [
+        "learner-host",
+        "--run-dir",
+        &run_dir.display().to_string(),
+        "--listen",
+        endpoint,
+        "--run",
+        run,
+    ]
+    .map(String::from)
+    .to_vec();
+    args.extend(extra.iter().map(|s| s.to_string()));
+    Process::start(&bin("gateway"), &args, log)
+}
+
+/// Starts `gateway actor-host` for run `run` as host `host` on service
+/// prefix `prefix`, its run directory `host_dir`, with `extra` arguments;
+/// its log is `dir/gateway-<host>-<n>.log`.
+pub fn start_host_gateway(
+    dir: &Path,
+    host_dir: &Path,
+    endpoint: &str,
+    prefix: &str,
+    (run, host, n): (&str, &str, u32),
+    extra: &[&str],
+) -> Process {
+    let mut args = [
+        "actor-host",
+        "--learner-at",
+        endpoint,
+        "--run-dir",
+        &host_dir.display().to_string(),
+        "--run",
+        run,
+        "--host",
+        host,
+        "--service-prefix",
+        prefix,
+    ]
+    .map(String::from)
+    .to_vec();
+    args.extend(extra.iter().map(|s| s.to_string()));
+    Process::start(
+        &bin("gateway"),
+        &args,
+        dir.join(format!("gateway-{host}-{n}.log")),
+    )
+}
+
+/// `dir/name`, an actor host's run directory, with a copy of the run's key
+/// from `run_dir`.
+pub fn host_dir(dir: &Path, run_dir: &Path, name: &str) -> PathBuf {
+    let host_dir = dir.join(name);
+    std::fs::create_dir_all(&host_dir).expect("creating the host's directory");
+    std::fs::copy(run_dir.join("join.key"), host_dir.join("join.key"))
+        .expect("copying the run's key");
+    host_dir
+}

@@ -5,11 +5,13 @@
 //! learner, and a SIGKILLed actor-host gateway, restarted, reconnects while
 //! the actors keep running.
 
-use std::net::TcpListener;
 use std::path::Path;
 use std::time::Duration;
 
-use system_tests::{bin, scratch_dir, start_actor, wait_for, Learner, Process};
+use system_tests::{
+    bin, free_port, host_dir, scratch_dir, start_actor, start_host_gateway, start_learner_gateway,
+    wait_for, Learner, Process,
+};
 
 /// Policy version and rollouts received of actor `id` in the learner's status.
 fn actor(status: &serde_json::Value, id: u64) -> (u64, u64) {
@@ -23,46 +25,6 @@ fn actor(status: &serde_json::Value, id: u64) -> (u64, u64) {
     )
 }
 
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("a free loopback port")
-}
-
-/// Starts an actor host's gateway for run `run` as host `host`, with
-/// `extra` arguments; its log is `dir/gateway-<host>-<n>.log`.
-fn start_host_gateway(
-    dir: &Path,
-    host_dir: &Path,
-    endpoint: &str,
-    prefix: &str,
-    (run, host, n): (&str, &str, u32),
-    extra: &[&str],
-) -> Process {
-    let mut args = [
-        "actor-host",
-        "--learner-at",
-        endpoint,
-        "--run-dir",
-        &host_dir.display().to_string(),
-        "--run",
-        run,
-        "--host",
-        host,
-        "--service-prefix",
-        prefix,
-    ]
-    .map(String::from)
-    .to_vec();
-    args.extend(extra.iter().map(|s| s.to_string()));
-    Process::start(
-        &bin("gateway"),
-        &args,
-        dir.join(format!("gateway-{host}-{n}.log")),
-    )
-}
-
 fn start_actor_host(dir: &Path, host_dir: &Path, endpoint: &str, prefix: &str, n: u32) -> Process {
     start_host_gateway(
         dir,
@@ -72,14 +34,6 @@ fn start_actor_host(dir: &Path, host_dir: &Path, endpoint: &str, prefix: &str, n
         ("gateway-test", "box-b", n),
         &[],
     )
-}
-
-/// A directory for an actor host's run, with a copy of the run's key.
-fn host_dir(dir: &Path, run_dir: &Path, name: &str) -> std::path::PathBuf {
-    let host_dir = dir.join(name);
-    std::fs::create_dir_all(&host_dir).unwrap();
-    std::fs::copy(run_dir.join("join.key"), host_dir.join("join.key")).unwrap();
-    host_dir
 }
 
 #[test]
@@ -102,20 +56,14 @@ fn over_mutual_tls_a_host_publishes_only_under_its_own_name() {
     let (learner, _) = Learner::start_bandit(&dir, &format!("afx_gtl_{pid}"));
     let run_dir = dir.join("run");
     let endpoint = format!("tls/127.0.0.1:{}", free_port());
-    let _learner_gateway = Process::start(
-        &bin("gateway"),
+    let _learner_gateway = start_learner_gateway(
+        &run_dir,
+        &endpoint,
+        "gateway-tls",
         &[
-            "learner-host",
-            "--run-dir",
-            &run_dir.display().to_string(),
-            "--listen",
-            &endpoint,
-            "--run",
-            "gateway-tls",
             "--zenoh-config",
             &certs.join("learner.json5").display().to_string(),
-        ]
-        .map(String::from),
+        ],
         dir.join("gateway-learner.log"),
     );
     let config_of = |name: &str| certs.join(format!("{name}.json5")).display().to_string();
@@ -193,27 +141,18 @@ fn remote_actors_train_through_the_gateways_and_survive_a_gateway_restart() {
     let (learner, _) = Learner::start_bandit(&dir, &learner_prefix);
     let run_dir = dir.join("run");
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-    let start_learner_gateway = |n: u32| {
-        Process::start(
-            &bin("gateway"),
-            &[
-                "learner-host",
-                "--run-dir",
-                &run_dir.display().to_string(),
-                "--listen",
-                &endpoint,
-                "--run",
-                "gateway-test",
-            ]
-            .map(String::from),
+    let learner_gateway = |n: u32| {
+        start_learner_gateway(
+            &run_dir,
+            &endpoint,
+            "gateway-test",
+            &[],
             dir.join(format!("gateway-learner-{n}.log")),
         )
     };
-    let mut learner_gateway = start_learner_gateway(1);
+    let mut learner_gateway_1 = learner_gateway(1);
     // The actor host has its own directory, with a copy of the run's key.
-    let host_dir = dir.join("box-b");
-    std::fs::create_dir_all(&host_dir).unwrap();
-    std::fs::copy(run_dir.join("join.key"), host_dir.join("join.key")).unwrap();
+    let host_dir = host_dir(&dir, &run_dir, "box-b");
     let mut actor_gateway = start_actor_host(&dir, &host_dir, &endpoint, &actor_prefix, 1);
     let host_config = host_dir.join("config.toml");
     wait_for(
@@ -316,11 +255,11 @@ fn remote_actors_train_through_the_gateways_and_survive_a_gateway_restart() {
     );
     // The learner host's gateway dies and comes back: the actor host's
     // reconnects, the remote actors join again through it, rollouts resume.
-    learner_gateway.signal(libc::SIGKILL);
-    learner_gateway.wait_exit(Duration::from_secs(5));
+    learner_gateway_1.signal(libc::SIGKILL);
+    learner_gateway_1.wait_exit(Duration::from_secs(5));
     let before: u64 = (0..2).map(|id| actor(&learner.status(), id).1).sum();
     std::thread::sleep(Duration::from_secs(1));
-    let _learner_gateway = start_learner_gateway(2);
+    let _learner_gateway_2 = learner_gateway(2);
     wait_for(
         Duration::from_secs(60),
         "rollouts after the learner host's gateway restarted",

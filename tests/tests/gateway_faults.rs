@@ -6,18 +6,13 @@
 //! loop with a simulator actor on the other host: its labelled frames train
 //! the U-Net, whose weights reach it.
 
-use std::net::TcpListener;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use system_tests::{bin, scratch_dir, start_actor, wait_for, Learner, Process};
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("a free loopback port")
-}
+use system_tests::{
+    free_port, host_dir, scratch_dir, start_actor, start_host_gateway, start_learner_gateway,
+    wait_for, Learner, Process,
+};
 
 /// Resident memory of a process, KiB.
 fn rss_kib(pid: u32) -> u64 {
@@ -51,40 +46,21 @@ struct Pair {
 
 fn start_pair(dir: &Path, run_dir: &Path, prefix: &str) -> Pair {
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-    let learner_side = Process::start(
-        &bin("gateway"),
-        &[
-            "learner-host",
-            "--run-dir",
-            &run_dir.display().to_string(),
-            "--listen",
-            &endpoint,
-            "--run",
-            "faults",
-        ]
-        .map(String::from),
+    let learner_side = start_learner_gateway(
+        run_dir,
+        &endpoint,
+        "faults",
+        &[],
         dir.join("gateway-learner.log"),
     );
-    let host_dir = dir.join("box-f");
-    std::fs::create_dir_all(&host_dir).unwrap();
-    std::fs::copy(run_dir.join("join.key"), host_dir.join("join.key")).unwrap();
-    let mut host_side = Process::start(
-        &bin("gateway"),
-        &[
-            "actor-host",
-            "--learner-at",
-            &endpoint,
-            "--run-dir",
-            &host_dir.display().to_string(),
-            "--run",
-            "faults",
-            "--host",
-            "box-f",
-            "--service-prefix",
-            prefix,
-        ]
-        .map(String::from),
-        dir.join("gateway-box-f.log"),
+    let host_dir = host_dir(dir, run_dir, "box-f");
+    let mut host_side = start_host_gateway(
+        dir,
+        &host_dir,
+        &endpoint,
+        prefix,
+        ("faults", "box-f", 1),
+        &[],
     );
     let host_config = host_dir.join("config.toml");
     wait_for(

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use system_tests::{bin, http_get, scratch_dir, wait_for};
+use system_tests::{bin, free_port, http_get, scratch_dir, wait_for};
 
 /// A running `deploy/local.sh`, killed with its process group on drop.
 struct Launch {
@@ -29,13 +29,6 @@ impl Drop for Launch {
         }
         let _ = self.script.wait();
     }
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .expect("a free port")
-        .port()
 }
 
 /// The `--seed` every launch gives.

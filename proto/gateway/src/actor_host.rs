@@ -6,7 +6,7 @@
 //! start later.
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
@@ -22,7 +22,7 @@ use zenoh::Wait;
 
 use crate::keys::{check_name, RunKeys, UPSTREAM};
 use crate::link::{self, Role};
-use crate::{run_transport_config, zenoh_error, STATUS_EVERY};
+use crate::{run_transport_config, write_whole, zenoh_error, STATUS_EVERY};
 
 /// Messages of one kind taken from shared memory per pass, so one busy
 /// kind cannot starve the others or the weights.
@@ -365,14 +365,6 @@ fn fetch_config(
         std::thread::sleep(Duration::from_millis(500));
     }
     Ok(None)
-}
-
-/// Writes a file whole: to a temporary name, then renamed over `path`.
-fn write_whole(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    let temp = path.with_extension("tmp");
-    std::fs::write(&temp, bytes)
-        .and_then(|()| std::fs::rename(&temp, path))
-        .with_context(|| format!("writing {}", path.display()))
 }
 
 #[cfg(test)]

@@ -19,9 +19,7 @@ use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
-use proto::{
-    encoded_len, JoinKey, Limits, MessageHeader, MessageKind, ObsDtype, RolloutChunk, HEADER_LEN,
-};
+use proto::{encoded_len, JoinKey, Limits, MessageHeader, MessageKind, RolloutChunk, HEADER_LEN};
 use transport::{ActorPorts, Delivery, LearnerPorts, TransportConfig};
 
 use crate::actor_host::{self, ActorHost};
@@ -65,29 +63,6 @@ pub struct Report {
     pub paths: Vec<Figures>,
     /// Per weights size, through the gateway pair.
     pub weights: Vec<WeightsFigure>,
-}
-
-/// A rollout message of about `bytes` bytes.
-fn chunk_of(bytes: usize) -> RolloutChunk {
-    let t = 16usize;
-    let fixed = 32 + 16 * t + 2 * t;
-    let obs_elems = bytes.saturating_sub(HEADER_LEN + fixed).max(t) / t;
-    RolloutChunk {
-        episode_id: 1,
-        first_step: 0,
-        n_actions: 1,
-        obs_dtype: ObsDtype::U8,
-        obs_elems: obs_elems as u32,
-        obs: (0..t * obs_elems).map(|i| i as u8).collect(),
-        actions: vec![0; t],
-        masks: vec![1; t],
-        log_probs: vec![-0.5; t],
-        values: vec![0.0; t],
-        rewards: vec![0.0; t],
-        dones: vec![0; t],
-        bootstrap_value: 0.0,
-        start_hidden: Vec::new(),
-    }
 }
 
 /// A safetensors file of one `size`-byte tensor: what a weights message
@@ -253,7 +228,7 @@ fn local(sizes: &[usize], count: usize, key: &JoinKey, tag: &str) -> anyhow::Res
     let mut actor = ActorPorts::open(&config, 0, key.clone())?;
     let mut figures = Vec::new();
     for &size in sizes {
-        let chunk = chunk_of(size);
+        let chunk = RolloutChunk::filler(size, 16);
         figures.push(measure(
             "iceoryx2, one host",
             encoded_len(&chunk),
@@ -300,7 +275,7 @@ fn tcp(sizes: &[usize], count: usize) -> anyhow::Result<Vec<Figures>> {
     stream.set_nodelay(true)?;
     let mut figures = Vec::new();
     for &size in sizes {
-        let chunk = chunk_of(size);
+        let chunk = RolloutChunk::filler(size, 16);
         let mut out = vec![0u8; encoded_len(&chunk)];
         figures.push(measure(
             "loopback TCP",
@@ -393,7 +368,7 @@ fn gateways(
     let mut actor = ActorPorts::open(&host_config, 0, key.clone())?;
     let mut figures = Vec::new();
     for &size in sizes {
-        let chunk = chunk_of(size);
+        let chunk = RolloutChunk::filler(size, 16);
         figures.push(measure(
             "gateway pair (Zenoh, loopback TCP)",
             encoded_len(&chunk),

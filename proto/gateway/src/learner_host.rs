@@ -18,7 +18,7 @@ use zenoh::Wait;
 use crate::keys::RunKeys;
 use crate::link::{self, Role};
 use crate::remote::RemoteActors;
-use crate::{run_transport_config, zenoh_error};
+use crate::{run_transport_config, write_whole, zenoh_error};
 
 /// Messages from actor hosts waiting to be put into shared memory: when
 /// they are this many, Zenoh stops reading the links, and the actor hosts'
@@ -177,9 +177,8 @@ fn write_hosts(run_dir: &Path, remote: &RemoteActors<ActorPorts>) -> anyhow::Res
     for (host, counts) in &hosts {
         tracing::debug!(host, ?counts, "remote host");
     }
-    let path = run_dir.join(transport::REMOTE_HOSTS_FILE);
-    let temp = run_dir.join(format!(".{}.tmp", transport::REMOTE_HOSTS_FILE));
-    std::fs::write(&temp, serde_json::to_vec_pretty(&hosts)?)
-        .and_then(|()| std::fs::rename(&temp, &path))
-        .with_context(|| format!("writing {}", path.display()))
+    write_whole(
+        &run_dir.join(transport::REMOTE_HOSTS_FILE),
+        &serde_json::to_vec_pretty(&hosts)?,
+    )
 }

@@ -41,3 +41,12 @@ fn run_transport_config(text: &str, path: &Path) -> anyhow::Result<TransportConf
         None => Ok(TransportConfig::default()),
     }
 }
+
+/// Writes a file whole: to a temporary name beside it, then renamed over
+/// `path`, so a reader never sees half of it.
+fn write_whole(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    let temp = path.with_extension("tmp");
+    std::fs::write(&temp, bytes)
+        .and_then(|()| std::fs::rename(&temp, path))
+        .with_context(|| format!("writing {}", path.display()))
+}

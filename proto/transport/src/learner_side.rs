@@ -182,6 +182,14 @@ impl LearnerPorts {
         };
         self.weights_sequence = header.sequence;
         proto::encode_into(&blob, header, sample.payload_mut());
+        self.send_weights(sample)
+    }
+
+    /// Sends a weights sample and wakes actors that wait for weights.
+    fn send_weights(
+        &self,
+        sample: iceoryx2::sample_mut::SampleMut<Ipc, [u8], ()>,
+    ) -> Result<Delivery, TransportError> {
         let delivered = sample
             .send()
             .map_err(|e| TransportError::new("send on", proto::service::WEIGHTS, e))?;
@@ -201,11 +209,7 @@ impl LearnerPorts {
         let Some(sample) = crate::loan_copy(&self.weights, bytes) else {
             return Ok(Delivery::Dropped);
         };
-        let delivered = sample
-            .send()
-            .map_err(|e| TransportError::new("send on", proto::service::WEIGHTS, e))?;
-        let _ = self.weights_ready.notify();
-        Ok(Delivery::Delivered(delivered))
+        self.send_weights(sample)
     }
 
     /// How many publishers each actor→learner service has now (actors and
