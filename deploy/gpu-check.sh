@@ -16,16 +16,24 @@ Runs, one after the other, each under a time limit (about 7 minutes in all):
   3. the learner's capacity with synthetic actors (`learner bench-capacity`)
      at 64 px (100-step episodes; PPO batches of 128 and 1024 steps) and
      128 px (600-step episodes, 1024-step batches);
-  4. deploy/throughput.sh: the whole system, `ours`, 1x16 and 2x8 at 64 px with
+  4. one actor process's environments at 128 px with the GPU renderer
+     (DIR/env_steps, its several-environments table for 1 and 16
+     environments), when DIR has env_steps;
+  5. deploy/throughput.sh: the whole system, `ours`, 1x16 and 2x8 at 64 px with
      the CPU renderer and 1x16 at 128 px with the GPU renderer.
 and writes every result into one Markdown report.
 
-DIR holds the binaries built here with the GPU backend:
-  cargo build --release -p learner -p actor --features nets/gpu
-  cargo build --release -p training --bench learning --features nets/gpu
-  cargo build --release -p nets --test gpu_matches_cpu --features nets/gpu
-(copy target/release/{learner,actor} and the deps/learning-*, deps/gpu_matches_cpu-*
-executables into DIR as learning and gpu_matches_cpu).
+DIR holds the binaries built here with a GPU backend, FEATURE being nets/gpu
+(burn's wgpu backend) or nets/gpu-torch (libtorch on CUDA; needs LIBTORCH at
+build time, see docs/decisions/0010-libtorch-on-a-gpu.md):
+  cargo build --release -p learner -p actor --features FEATURE
+  cargo build --release -p training --bench learning --features FEATURE
+  cargo build --release -p nets --test gpu_matches_cpu --features FEATURE
+  cargo build --release -p actor --bench env_steps --features FEATURE
+(copy target/release/{learner,actor} and the deps/learning-*, deps/gpu_matches_cpu-*,
+deps/env_steps-* executables into DIR as learning, gpu_matches_cpu, env_steps). Binaries linked to
+libtorch find it through LD_LIBRARY_PATH, which this script points at the
+libtorch of python3's torch when the loader cannot find it otherwise.
 
 Options:
   --bin-dir DIR   the binaries (required)
@@ -33,7 +41,7 @@ Options:
   --out FILE      the report (default gpu-check.md)
   --logs DIR      full logs of every step (default gpu-check-logs)
   --skip LIST     comma-separated steps to leave out: agreement, training,
-                  capacity, throughput
+                  capacity, actor, throughput
   --quick         shorter windows (a smoke test of the script itself)
   -h, --help      this help
 USAGE
@@ -60,14 +68,24 @@ mkdir -p "$LOGS"
 LOGS="$(cd "$LOGS" && pwd)"
 skipped() { [[ ",$SKIP," == *",$1,"* ]]; }
 
+# A libtorch build needs libtorch's libraries at run time: those of the
+# machine's PyTorch, unless the loader already finds them.
+if ldd "$BIN/learner" 2>/dev/null | grep -q 'libtorch.*not found'; then
+  torch_lib="$(python3 -c 'import os, torch; print(os.path.join(os.path.dirname(torch.__file__), "lib"))' 2>/dev/null)" \
+    || { echo "gpu-check.sh: $BIN/learner needs libtorch and python3 has no torch to take it from" >&2; exit 2; }
+  export LD_LIBRARY_PATH="$torch_lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
+  echo "gpu-check.sh: libtorch from $torch_lib" >&2
+fi
+
 if [[ $QUICK -eq 1 ]]; then
   CAP_WARMUP=5 CAP_SECONDS=10 TP_WARMUP=15 TP_SECONDS=15 BENCH_QUICK=1
 else
   CAP_WARMUP=10 CAP_SECONDS=20 TP_WARMUP=30 TP_SECONDS=30 BENCH_QUICK=1
 fi
 
-REPORT=()
-add() { REPORT+=("$@"); }
+# The report grows line by line, so a run stopped early keeps what it measured.
+: >"$OUT_FILE"
+add() { printf '%s\n' "$@" >>"$OUT_FILE"; }
 section() { printf '\n=== %s (%(%H:%M:%S)T)\n' "$1" -1 >&2; add "" "## $1" ""; }
 # Runs a step under a time limit, its output into LOG; says how it ended.
 limited() { # seconds log command...
@@ -85,10 +103,13 @@ add "# GPU check" "" \
 
 if ! skipped agreement; then
   section "CPU/GPU agreement (gpu_matches_cpu)"
-  if limited 120 "$LOGS/agreement.log" "$BIN/gpu_matches_cpu" --test-threads 1; then
-    add "passed: $(grep -E '^test result' "$LOGS/agreement.log" | tail -1)"
-  else
+  if ! limited 120 "$LOGS/agreement.log" "$BIN/gpu_matches_cpu" --test-threads 1 --nocapture; then
     add "FAILED:" '```' "$(tail -n 15 "$LOGS/agreement.log")" '```'
+  elif grep -q '^skipping' "$LOGS/agreement.log"; then
+    add "NOT RUN (no usable GPU): $(grep -m1 '^skipping' "$LOGS/agreement.log")"
+  else
+    add "passed: $(grep -E '^test result' "$LOGS/agreement.log" | tail -1)" "" \
+      "$(grep -E '^max|^after one step' "$LOGS/agreement.log")"
   fi
 fi
 
@@ -120,6 +141,13 @@ if ! skipped capacity; then
   done
 fi
 
+if ! skipped actor && [[ -x "$BIN/env_steps" ]]; then
+  section "One actor process at 128 px, GPU renderer (env_steps)"
+  AFX_DEVICE=gpu AFX_DATA="$DATA" AFX_CASES=none AFX_ENVS=1,16 AFX_ENVS_PX=128 AFX_ENVS_RENDERER=gpu \
+    limited 180 "$LOGS/actor.log" "$BIN/env_steps"
+  add "$(grep -E '^\||^Several' "$LOGS/actor.log" || echo "FAILED: $(tail -n 5 "$LOGS/actor.log" | tr '\n' ' ')")"
+fi
+
 if ! skipped throughput; then
   section "Whole system, ours (deploy/throughput.sh)"
   for setting in "1x16,2x8 64 100 cpu" "1x16 128 600 gpu"; do
@@ -139,6 +167,5 @@ if ! skipped throughput; then
   done
 fi
 
-printf '%s\n' "${REPORT[@]}" >"$OUT_FILE"
 cat "$OUT_FILE"
 echo "report: $OUT_FILE; logs: $LOGS" >&2

@@ -28,6 +28,9 @@
 //! its comma-separated parts (`none` skips the table); `AFX_STEPS` sets the
 //! episode length of both tables (default 120; the paper's is 600: the map,
 //! and with it the map's and the state's time, grows over an episode).
+//! The second table runs at 64 px with the CPU renderer unless `AFX_ENVS_PX`
+//! (image side) and `AFX_ENVS_RENDERER` (`cpu` or `gpu`) say otherwise: the
+//! paper's 128 px on a GPU machine is `AFX_ENVS_PX=128 AFX_ENVS_RENDERER=gpu`.
 
 use std::sync::RwLock;
 use std::time::{Duration, Instant};
@@ -64,6 +67,25 @@ fn episode_steps() -> usize {
             .filter(|&n: &usize| n >= 2)
             .expect("AFX_STEPS: an episode length of at least 2 steps")
     })
+}
+
+/// The second table's image side (`AFX_ENVS_PX`, default 64) and renderer
+/// (`AFX_ENVS_RENDERER`, default the CPU's).
+fn several_envs_setting() -> (usize, RendererChoice) {
+    let side = std::env::var("AFX_ENVS_PX").map_or(64, |s| {
+        s.trim()
+            .parse()
+            .ok()
+            .filter(|&n: &usize| n >= 8 && n % 8 == 0)
+            .expect("AFX_ENVS_PX: an image side, a multiple of 8")
+    });
+    let renderer =
+        std::env::var("AFX_ENVS_RENDERER").map_or(RendererChoice::Cpu, |s| match s.trim() {
+            "cpu" => RendererChoice::Cpu,
+            "gpu" => RendererChoice::Gpu,
+            other => panic!("AFX_ENVS_RENDERER takes cpu or gpu, not {other:?}"),
+        });
+    (side, renderer)
 }
 
 /// True if the first table's row `name` is selected by `AFX_CASES`.
@@ -219,7 +241,8 @@ fn sim_env(
     SimEnv::new(config, source, profile, renderer)
 }
 
-/// Several environments per process (CPU renderer, 64 px), one whole
+/// Several environments per process (CPU renderer and 64 px unless
+/// [`several_envs_setting`] says otherwise), one whole
 /// episode with the policy's forward pass every step, in lock-step and (on
 /// the CPU) free-running: steps/s of the process and of each environment,
 /// the episode's end, and steps/s of the process with the end included.
@@ -236,10 +259,11 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
                 .expect("AFX_ENVS: environment counts, e.g. 1,2,4")
         })
         .collect();
+    let (side, renderer_choice) = several_envs_setting();
     let model = RwLock::new(Some(AffordanceModel::new(AFFORDANCES.len(), device)));
     let inference = Inference::for_device(device);
     println!();
-    println!("Several environments per process, U-Net inference {inference:?}:");
+    println!("Several environments per process, {renderer_choice:?} renderer, U-Net inference {inference:?}:");
     println!("| method | px | environments | stepped | steps/s per process | steps/s per environment | episode end | steps/s per process, end included |");
     println!("|---|---|---|---|---|---|---|---|");
     for method in [Method::Ours, Method::NomapSeg] {
@@ -247,15 +271,15 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
             let task = TaskSpec {
                 method,
                 affordances: AFFORDANCES.to_vec(),
-                image_size: 64,
+                image_size: side,
                 episode_steps: episode_steps(),
                 ..TaskSpec::default()
             };
             let new_envs = || -> Vec<SimEnvironment> {
                 (0..n)
                     .map(|_| {
-                        let renderer = Renderer::open(RendererChoice::Cpu).expect("CPU renderer");
-                        SimEnvironment::new(sim_env(data, method, 64, renderer), &task)
+                        let renderer = Renderer::open(renderer_choice).expect("the renderer");
+                        SimEnvironment::new(sim_env(data, method, side, renderer), &task)
                             .expect("the environment fits its task")
                     })
                     .collect()
@@ -279,7 +303,7 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
                 let steps = episode_steps();
                 let per_process = (n * steps) as f64 / stepping.as_secs_f64();
                 println!(
-                    "| {} | 64 | {n} | {stepped} | {per_process:.1} | {:.1} | {:.0} ms | {:.1} |",
+                    "| {} | {side} | {n} | {stepped} | {per_process:.1} | {:.1} | {:.0} ms | {:.1} |",
                     method.as_str(),
                     per_process / n as f64,
                     end.as_secs_f64() * 1e3,

@@ -9,7 +9,9 @@ use burn::prelude::*;
 pub enum DeviceChoice {
     /// burn's pure-Rust `flex` backend: builds offline, runs anywhere.
     Cpu,
-    /// burn's wgpu backend (Vulkan on Linux); needs the `gpu` feature and a GPU.
+    /// The GPU backend this binary was built with: libtorch on CUDA
+    /// (`gpu-torch` feature) or else burn's wgpu backend (Vulkan on Linux,
+    /// `gpu` feature); needs a GPU.
     Gpu,
 }
 
@@ -32,7 +34,7 @@ pub enum DeviceError {
     #[error("unknown device {0:?}: use `cpu` or `gpu`")]
     Unknown(String),
     /// This binary was built without the GPU backend.
-    #[error("this build has no GPU backend: rebuild with `--features nets/gpu` (needs a Vulkan driver at run time), or use `--device cpu`")]
+    #[error("this build has no GPU backend: rebuild with `--features nets/gpu` (needs a Vulkan driver at run time) or `--features nets/gpu-torch` (needs libtorch with CUDA), or use `--device cpu`")]
     NotBuilt,
     /// The GPU backend found no usable adapter.
     #[error("no usable GPU: {0}; use `--device cpu`")]
@@ -48,8 +50,12 @@ pub fn open_device(choice: DeviceChoice) -> Result<Device, DeviceError> {
 }
 
 /// The GPU backend's build options in this binary, for benchmark reports:
-/// `cpu only`, or `wgpu` followed by the `gpu-*` features it was built with.
+/// `cpu only`, `libtorch (CUDA)`, or `wgpu` followed by the `gpu-*`
+/// features it was built with.
 pub fn backend_features() -> String {
+    if cfg!(feature = "gpu-torch") {
+        return "libtorch (CUDA)".into();
+    }
     let mut features = Vec::new();
     if cfg!(feature = "gpu") {
         features.push("wgpu");
@@ -77,26 +83,51 @@ pub fn is_cpu(device: &Device) -> bool {
     *device == Device::flex()
 }
 
-#[cfg(feature = "gpu")]
+/// True where burn's own convolutions are the fast ones: libtorch's
+/// (cuDNN). The CPU and wgpu backends train the policy's convolutions as
+/// matrix products instead (`conv_matmul`).
+pub fn has_native_convolutions(device: &Device) -> bool {
+    cfg!(feature = "gpu-torch") && !is_cpu(device)
+}
+
+/// libtorch on the first CUDA device. libtorch is linked, not loaded, so a
+/// missing library stops the program before this runs (the loader names
+/// it); a libtorch without CUDA or a machine without a GPU fails the probe.
+#[cfg(feature = "gpu-torch")]
 fn open_gpu() -> Result<Device, DeviceError> {
-    // wgpu panics when there is no adapter; turn that into an error.
-    std::panic::catch_unwind(|| {
-        let device = Device::wgpu(Default::default());
+    #[allow(deprecated)] // burn-tch: measured as the alternative to wgpu (decision 0010)
+    let device = Device::libtorch_cuda(0);
+    probe(device, "libtorch could not use CUDA")
+}
+
+#[cfg(all(feature = "gpu", not(feature = "gpu-torch")))]
+fn open_gpu() -> Result<Device, DeviceError> {
+    probe(
+        Device::wgpu(Default::default()),
+        "the wgpu backend failed to start",
+    )
+}
+
+/// Runs one small computation on `device`; a backend that panics (wgpu
+/// without an adapter, libtorch without CUDA) becomes an error.
+#[cfg(any(feature = "gpu", feature = "gpu-torch"))]
+fn probe(device: Device, failure: &str) -> Result<Device, DeviceError> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
         let probe: f32 = Tensor::<1>::ones([4], &device).sum().into_scalar::<f32>();
         (probe == 4.0).then_some(device)
-    })
+    }))
     .map_err(|panic| {
         let message = panic
             .downcast_ref::<String>()
             .cloned()
             .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
-            .unwrap_or_else(|| "the wgpu backend failed to start".into());
+            .unwrap_or_else(|| failure.into());
         DeviceError::Unavailable(message)
     })?
     .ok_or_else(|| DeviceError::Unavailable("a test computation gave a wrong result".into()))
 }
 
-#[cfg(not(feature = "gpu"))]
+#[cfg(not(any(feature = "gpu", feature = "gpu-torch")))]
 fn open_gpu() -> Result<Device, DeviceError> {
     Err(DeviceError::NotBuilt)
 }
@@ -112,7 +143,7 @@ mod tests {
         let err = "tpu".parse::<DeviceChoice>().unwrap_err();
         assert!(err.to_string().contains("use `cpu` or `gpu`"));
         assert!(open_device(DeviceChoice::Cpu).is_ok_and(|d| is_cpu(&d)));
-        #[cfg(not(feature = "gpu"))]
+        #[cfg(not(any(feature = "gpu", feature = "gpu-torch")))]
         assert!(matches!(
             open_device(DeviceChoice::Gpu),
             Err(DeviceError::NotBuilt)

@@ -120,11 +120,14 @@ impl ConvEncoder {
     /// `[batch, channels, size, size]` → `[batch, 64]`.
     ///
     /// The convolutions run as matrix products, channels-last after the
-    /// first (`conv_matmul`), unless [`ConvPath::Burn`] says burn's own.
-    /// Either way the features are flattened channels first, as burn's
-    /// convolutions give them, so the weights are the same.
+    /// first (`conv_matmul`), unless [`ConvPath::Burn`] says burn's own or
+    /// the backend's own are the fast ones (libtorch's cuDNN). Either way
+    /// the features are flattened channels first, as burn's convolutions
+    /// give them, so the weights are the same.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<2> {
-        self.forward_with(x, conv_path() == ConvPath::Auto)
+        let products =
+            conv_path() == ConvPath::Auto && !crate::device::has_native_convolutions(&x.device());
+        self.forward_with(x, products)
     }
 
     fn forward_with(&self, x: Tensor<4>, matrix_products: bool) -> Tensor<2> {
@@ -150,7 +153,8 @@ impl ConvEncoder {
 pub enum ConvPath {
     /// As matrix products (`conv_matmul`): one over the batch on the CPU,
     /// one per image on a GPU, where it took half the time of burn's (a
-    /// 1 024-step PPO update at 128 px: 1.65 against 3.39 s on an H200).
+    /// 1 024-step PPO update at 128 px: 1.65 against 3.39 s on an H200);
+    /// burn's `Conv2d` on libtorch (cuDNN).
     Auto,
     /// burn's `Conv2d` (a direct convolution on the GPU backend).
     Burn,

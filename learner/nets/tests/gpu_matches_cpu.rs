@@ -1,8 +1,10 @@
-//! The same weights give the same outputs on the CPU and the GPU backend
-//! (within float tolerance). Built only with `--features gpu`; skipped with a
-//! message where no GPU is usable.
-#![cfg(feature = "gpu")]
+//! The same weights give the same outputs, and one training step the same
+//! new weights, on the CPU and the GPU backend (within float tolerance).
+//! Built only with `--features gpu` or `--features gpu-torch`; skipped with
+//! a message where no GPU is usable.
+#![cfg(any(feature = "gpu", feature = "gpu-torch"))]
 
+use burn::optim::{GradientsParams, ModuleOptimizer, SgdConfig};
 use burn::prelude::*;
 use nets::device::{open_device, DeviceChoice};
 use nets::policy::{ObsDtype, PolicyInput, PolicyLayout, PolicyNet};
@@ -16,14 +18,54 @@ fn max_abs_diff(a: Vec<f32>, b: Vec<f32>) -> f32 {
         .fold(0.0, f32::max)
 }
 
+/// The GPU, or `None` (said on stderr) where this machine has none.
+fn gpu_or_skip() -> Option<Device> {
+    open_device(DeviceChoice::Gpu)
+        .inspect_err(|e| eprintln!("skipping: {e}"))
+        .ok()
+}
+
+/// Every tensor of a safetensors blob, by name, as f32 values.
+fn tensors(bytes: &[u8]) -> Vec<(String, Vec<f32>)> {
+    let file = safetensors::SafeTensors::deserialize(bytes).expect("a safetensors blob");
+    let mut all: Vec<(String, Vec<f32>)> = file
+        .tensors()
+        .into_iter()
+        .map(|(name, view)| {
+            let values = view
+                .data()
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect();
+            (name, values)
+        })
+        .collect();
+    all.sort_by(|a, b| a.0.cmp(&b.0));
+    all
+}
+
+/// The largest difference between two networks' parameters after the same
+/// step, relative to the largest change the step made on the CPU.
+fn relative_step_difference(before: &[u8], cpu_after: &[u8], gpu_after: &[u8]) -> f32 {
+    let (before, cpu_after, gpu_after) = (tensors(before), tensors(cpu_after), tensors(gpu_after));
+    assert_eq!(cpu_after.len(), gpu_after.len(), "same parameters");
+    let mut largest_change = 0f32;
+    let mut largest_difference = 0f32;
+    for ((b, c), g) in before.iter().zip(&cpu_after).zip(&gpu_after) {
+        assert_eq!((&b.0, &c.0), (&g.0, &g.0), "parameters in the same order");
+        for ((b, c), g) in b.1.iter().zip(&c.1).zip(&g.1) {
+            largest_change = largest_change.max((c - b).abs());
+            largest_difference = largest_difference.max((c - g).abs());
+        }
+    }
+    assert!(largest_change > 0.0, "the step changed the weights");
+    largest_difference / largest_change
+}
+
 #[test]
 fn cpu_and_gpu_agree_on_the_same_weights() {
-    let gpu = match open_device(DeviceChoice::Gpu) {
-        Ok(d) => d,
-        Err(e) => {
-            eprintln!("skipping: {e}");
-            return;
-        }
+    let Some(gpu) = gpu_or_skip() else {
+        return;
     };
     let cpu = Device::flex();
 
@@ -69,4 +111,79 @@ fn cpu_and_gpu_agree_on_the_same_weights() {
     let policy_diff = max_abs_diff(a, b);
     eprintln!("max |cpu - gpu|: U-Net logits {unet_diff:e}, policy log-probs {policy_diff:e}");
     assert!(unet_diff < 1e-3 && policy_diff < 1e-4);
+}
+
+/// One plain gradient step (SGD, lr 0.01) of a network on `device` for a
+/// fixed loss, from the same weights; the new weights.
+fn one_step<M: Module + burn::store::ModuleSnapshot>(
+    mut net: M,
+    weights: &[u8],
+    loss: impl FnOnce(&M) -> Tensor<1>,
+) -> Vec<u8> {
+    load_safetensors(&mut net, weights.to_vec()).unwrap();
+    let grads = GradientsParams::from_grads(loss(&net).backward(), &net);
+    let mut optimizer: ModuleOptimizer = SgdConfig::new().init();
+    let net = optimizer.step(0.01, net, grads);
+    to_safetensors(&net).unwrap()
+}
+
+#[test]
+fn cpu_and_gpu_agree_after_one_training_step() {
+    let Some(gpu) = gpu_or_skip() else {
+        return;
+    };
+    let cpu = Device::flex();
+    let side = 64;
+    let pixels = 2 * 4 * side * side;
+    let x: Vec<f32> = (0..pixels)
+        .map(|i| ((i * 7919) % 1000) as f32 / 1000.0)
+        .collect();
+    let signs: Vec<f32> = (0..pixels)
+        .map(|i| if i % 3 == 0 { 1.0 } else { -0.5 })
+        .collect();
+    let images = |d: &Device| Tensor::<1>::from_floats(x.as_slice(), d).reshape([2, 4, side, side]);
+
+    // The U-Net: a weighted sum of its logits.
+    let unet_weights = to_safetensors(&AffordanceUnet::new(4, 2, &cpu)).unwrap();
+    let unet_step = |device: &Device| {
+        let d = device.clone().autodiff();
+        one_step(AffordanceUnet::new(4, 2, &d), &unet_weights, |net| {
+            let weights = Tensor::<1>::from_floats(&signs[..2 * 2 * side * side], &d)
+                .reshape([2, 2, side, side]);
+            (net.forward(images(&d)) * weights).sum()
+        })
+    };
+    let unet_difference =
+        relative_step_difference(&unet_weights, &unet_step(&cpu), &unet_step(&gpu));
+
+    // The policy (its encoders take each backend's convolution path): a
+    // weighted sum of log-probabilities and values.
+    let layout = PolicyLayout {
+        image_channels: vec![4],
+        image_size: side,
+        vector_dims: vec![15],
+        n_actions: 8,
+        obs_dtype: ObsDtype::F32,
+        gru_hidden: None,
+    };
+    let policy_weights = to_safetensors(&PolicyNet::new(&layout, &cpu)).unwrap();
+    let policy_step = |device: &Device| {
+        let d = device.clone().autodiff();
+        one_step(PolicyNet::new(&layout, &d), &policy_weights, |net| {
+            let input = PolicyInput {
+                images: vec![images(&d)],
+                vectors: vec![Tensor::<1>::from_floats(&x[..30], &d).reshape([2, 15])],
+                mask: Tensor::<2, Bool>::full([2, 8], true, &d),
+            };
+            let out = net.forward(&input, None);
+            let weights = Tensor::<1>::from_floats(&signs[..16], &d).reshape([2, 8]);
+            (out.log_probs * weights).sum() + out.values.sum()
+        })
+    };
+    let policy_difference =
+        relative_step_difference(&policy_weights, &policy_step(&cpu), &policy_step(&gpu));
+    eprintln!(
+        "after one step, max |cpu - gpu| / max step: U-Net {unet_difference:e}, policy {policy_difference:e}"
+    );
+    assert!(unet_difference < 1e-2 && policy_difference < 1e-2);
 }
