@@ -9,7 +9,7 @@ usage() {
 Usage: deploy/gpu-check.sh --bin-dir DIR [options]
 
 Runs, one after the other, each under a time limit (about 7 minutes in all):
-  1. the CPU/GPU agreement test (DIR/gpu_matches_cpu);
+  1. the CPU/GPU agreement test (DIR/gpu_matches_cpu, TF32 off);
   2. the training benchmark beside PyTorch on the same GPU (DIR/learning with
      AFX_BENCH_ONLY=gpu-check: PPO update of 1024 steps at 64 and 128 px, U-Net
      training step; needs python3 with torch for the PyTorch column);
@@ -103,7 +103,9 @@ add "# GPU check" "" \
 
 if ! skipped agreement; then
   section "CPU/GPU agreement (gpu_matches_cpu)"
-  if ! limited 120 "$LOGS/agreement.log" "$BIN/gpu_matches_cpu" --test-threads 1 --nocapture; then
+  # Without TF32 (cuDNN's default on libtorch): the test compares arithmetic,
+  # not precision modes (learner/nets/tests/gpu_matches_cpu.rs).
+  if ! NVIDIA_TF32_OVERRIDE=0 limited 120 "$LOGS/agreement.log" "$BIN/gpu_matches_cpu" --test-threads 1 --nocapture; then
     add "FAILED:" '```' "$(tail -n 15 "$LOGS/agreement.log")" '```'
   elif grep -q '^skipping' "$LOGS/agreement.log"; then
     add "NOT RUN (no usable GPU): $(grep -m1 '^skipping' "$LOGS/agreement.log")"

@@ -38,7 +38,7 @@ use std::time::{Duration, Instant};
 use actor::env::actions::random_allowed_action;
 use actor::env::actions::ActionSpace;
 use actor::env::affordance_model::AffordanceModel;
-use actor::env::lockstep::{reset_all, step_all, Inference};
+use actor::env::lockstep::{self, reset_all, step_all, Inference};
 use actor::env::sim_env::{SimEnv, SimEnvConfig, StepTimings};
 use actor::env::threads::{Done, EnvThreads, Task};
 use actor::env::{Environment, Observation, SimEnvironment};
@@ -264,8 +264,8 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
     let inference = Inference::for_device(device);
     println!();
     println!("Several environments per process, {renderer_choice:?} renderer, U-Net inference {inference:?}:");
-    println!("| method | px | environments | stepped | steps/s per process | steps/s per environment | episode end | steps/s per process, end included |");
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("| method | px | environments | stepped | steps/s per process | steps/s per environment | episode end | steps/s per process, end included | per round: policy / first halves / U-Net / second halves |");
+    println!("|---|---|---|---|---|---|---|---|---|");
     for method in [Method::Ours, Method::NomapSeg] {
         for &n in &counts {
             let task = TaskSpec {
@@ -299,20 +299,33 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
                 device,
                 inference,
             };
-            let row = |stepped: &str, (stepping, end): (Duration, Duration)| {
+            let row = |stepped: &str, (stepping, end): (Duration, Duration), phases: String| {
                 let steps = episode_steps();
                 let per_process = (n * steps) as f64 / stepping.as_secs_f64();
                 println!(
-                    "| {} | {side} | {n} | {stepped} | {per_process:.1} | {:.1} | {:.0} ms | {:.1} |",
+                    "| {} | {side} | {n} | {stepped} | {per_process:.1} | {:.1} | {:.0} ms | {:.1} | {phases} |",
                     method.as_str(),
                     per_process / n as f64,
                     end.as_secs_f64() * 1e3,
                     (n * steps) as f64 / (stepping + end).as_secs_f64(),
                 );
             };
-            row("lock-step", bench.lockstep(envs));
+            let (times, policy, phases) = bench.lockstep(envs);
+            let ms = |d: Duration| d.as_secs_f64() * 1e3 / phases.rounds.max(1) as f64;
+            let phases = if phases.rounds == 0 {
+                "—".to_string() // per environment: no halves to time apart
+            } else {
+                format!(
+                    "{:.1} / {:.1} / {:.1} / {:.1} ms",
+                    policy.as_secs_f64() * 1e3 / episode_steps() as f64,
+                    ms(phases.first_halves),
+                    ms(phases.unet),
+                    ms(phases.second_halves)
+                )
+            };
+            row("lock-step", times, phases);
             if inference == Inference::PerEnvironment && n > 1 {
-                row("free-running", bench.free_running(new_envs()));
+                row("free-running", bench.free_running(new_envs()), "—".into());
             }
         }
     }
@@ -330,7 +343,12 @@ struct SeveralEnvs<'a> {
 
 impl SeveralEnvs<'_> {
     /// One episode of `envs` in lock-step: the time of its steps, and of its end.
-    fn lockstep(&self, mut envs: Vec<SimEnvironment>) -> (Duration, Duration) {
+    /// The stepping and the episode's end; the policy's passes in all; the
+    /// steps' phases (resets not included).
+    fn lockstep(
+        &self,
+        mut envs: Vec<SimEnvironment>,
+    ) -> ((Duration, Duration), Duration, lockstep::PhaseTimes) {
         let model = self.model.read().unwrap();
         let mut refs: Vec<&mut SimEnvironment> = envs.iter_mut().collect();
         let seeds: Vec<u64> = (1..=refs.len() as u64).collect();
@@ -338,7 +356,10 @@ impl SeveralEnvs<'_> {
             reset_all(&mut refs, &seeds, model.as_ref(), self.inference).expect("reset");
         let mut rng = StdRng::seed_from_u64(1);
         let start = Instant::now();
+        let before = lockstep::phase_times();
+        let mut policy = Duration::ZERO;
         for _ in 0..episode_steps() {
+            let passed = Instant::now();
             policy_pass(
                 self.policy,
                 self.layout,
@@ -346,6 +367,7 @@ impl SeveralEnvs<'_> {
                 self.device,
                 self.inference,
             );
+            policy += passed.elapsed();
             let actions: Vec<u32> = observations
                 .iter()
                 .map(|o| random_allowed_action(self.space, &o.action_mask, 0.5, &mut rng) as u32)
@@ -357,13 +379,14 @@ impl SeveralEnvs<'_> {
                 .collect();
         }
         let stepping = start.elapsed();
+        let phases = lockstep::phase_times().since(&before);
         let end_started = Instant::now();
         refs.par_iter_mut()
             .enumerate()
             .map(|(i, env)| env.finish_episode(i as u64))
             .collect::<anyhow::Result<Vec<_>>>()
             .expect("the episode's end");
-        (stepping, end_started.elapsed())
+        ((stepping, end_started.elapsed()), policy, phases)
     }
 
     /// One episode of each of `envs`, free-running as the actor runs them

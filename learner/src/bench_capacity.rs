@@ -60,6 +60,10 @@ pub struct Capacity {
     pub messages_dropped: u64,
     /// Mean policy lag (updates) of the last update's rows.
     pub mean_policy_lag: f32,
+    /// Mean seconds per update the PPO thread spent building its batch.
+    pub batch_seconds: f64,
+    /// Mean seconds per update in the update itself.
+    pub update_seconds: f64,
 }
 
 /// Counters read at the start and end of the window.
@@ -74,6 +78,8 @@ struct Reading {
     skipped: u64,
     discarded: u64,
     dropped: u64,
+    batch_seconds: f64,
+    update_seconds: f64,
 }
 
 fn read(shared: &Shared) -> Reading {
@@ -88,6 +94,8 @@ fn read(shared: &Shared) -> Reading {
         skipped: status.frames_skipped,
         discarded: status.rollout_steps_discarded,
         dropped: status.actors.values().map(|a| a.dropped).sum(),
+        batch_seconds: status.ppo_batch_seconds,
+        update_seconds: status.ppo_update_seconds,
     }
 }
 
@@ -200,6 +208,8 @@ fn measure(shared: &Shared, feed: &FeedSettings) -> anyhow::Result<Capacity> {
                 let end = read(shared);
                 let seconds = (end.at - start.at).as_secs_f64().max(1e-9);
                 let rate = |a: u64, b: u64| b.saturating_sub(a) as f64 / seconds;
+                let updates = end.updates.saturating_sub(start.updates).max(1) as f64;
+                let per_update = |a: f64, b: f64| (b - a) / updates;
                 let lag = shared
                     .status()
                     .last_update
@@ -214,6 +224,8 @@ fn measure(shared: &Shared, feed: &FeedSettings) -> anyhow::Result<Capacity> {
                     steps_discarded: end.discarded - start.discarded,
                     messages_dropped: end.dropped - start.dropped,
                     mean_policy_lag: lag,
+                    batch_seconds: per_update(start.batch_seconds, end.batch_seconds),
+                    update_seconds: per_update(start.update_seconds, end.update_seconds),
                 });
             }
         }
@@ -354,14 +366,16 @@ fn synthetic_actor(
 /// The report's Markdown table: one row per setting.
 pub fn table(rows: &[(String, Capacity)]) -> String {
     let mut out = String::from(
-        "| setting | steps/s taken | steps/s trained | PPO updates/s | U-Net frames/s | U-Net rounds/s | frames skipped | steps discarded | messages dropped | policy lag |\n|---|---|---|---|---|---|---|---|---|---|\n",
+        "| setting | steps/s taken | steps/s trained | PPO updates/s | PPO batch / update (ms each) | U-Net frames/s | U-Net rounds/s | frames skipped | steps discarded | messages dropped | policy lag |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for (name, c) in rows {
         out.push_str(&format!(
-            "| {name} | {:.0} | {:.0} | {:.2} | {:.1} | {:.2} | {} | {} | {} | {:.2} |\n",
+            "| {name} | {:.0} | {:.0} | {:.2} | {:.0} / {:.0} | {:.1} | {:.2} | {} | {} | {} | {:.2} |\n",
             c.steps_per_s,
             c.trained_steps_per_s,
             c.updates_per_s,
+            c.batch_seconds * 1e3,
+            c.update_seconds * 1e3,
             c.frames_per_s,
             c.unet_rounds_per_s,
             c.frames_skipped,

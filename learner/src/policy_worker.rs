@@ -278,14 +278,17 @@ fn run(
             // The chunk that fills the batch runs the update.
             let started = std::time::Instant::now();
             match trainer.add_chunk(&view, header.policy_version) {
-                Ok(Some(stats)) => {
+                Ok(Some(batch)) => {
+                    let built = started.elapsed().as_secs_f64();
+                    let stats = trainer.update(&batch);
+                    drop(batch);
+                    let updated = started.elapsed().as_secs_f64() - built;
                     let version = trainer.version();
                     let env_steps = {
                         let mut status = shared.status();
-                        status
-                            .timings
-                            .ppo_update
-                            .observe(started.elapsed().as_secs_f64());
+                        status.timings.ppo_update.observe(updated);
+                        status.ppo_batch_seconds += built;
+                        status.ppo_update_seconds += updated;
                         status.updates += 1;
                         status.last_update = Some(stats);
                         status.policy_version = version;

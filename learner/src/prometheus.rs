@@ -14,7 +14,7 @@ use prometheus_client::encoding::EncodeLabelSet;
 use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::family::Family;
 use prometheus_client::metrics::gauge::Gauge;
-use prometheus_client::registry::Registry;
+use prometheus_client::registry::{Registry, Unit};
 
 use crate::status::{StatusSnapshot, Timings, EPISODE_WINDOW};
 
@@ -49,6 +49,12 @@ fn counter(registry: &mut Registry, name: &str, help: &str, value: u64) {
     let c: Counter = Counter::default();
     c.inc_by(value);
     registry.register(name, help, c);
+}
+
+fn seconds_counter(registry: &mut Registry, name: &str, help: &str, value: f64) {
+    let c: Counter<f64, AtomicU64> = Counter::default();
+    c.inc_by(value);
+    registry.register_with_unit(name, help, Unit::Seconds, c);
 }
 
 fn gauge(registry: &mut Registry, name: &str, help: &str, value: f64) {
@@ -108,6 +114,18 @@ pub fn render(s: &StatusSnapshot, timings: &Timings) -> String {
         "trained_steps",
         "Environment steps that went into policy updates",
         s.trained_steps,
+    );
+    seconds_counter(
+        &mut r,
+        "ppo_thread_batch",
+        "Time the PPO thread spent building batches (decoding observations, handing them to the device)",
+        s.ppo_batch_seconds,
+    );
+    seconds_counter(
+        &mut r,
+        "ppo_thread_update",
+        "Time the PPO thread spent in updates",
+        s.ppo_update_seconds,
     );
     counter(
         &mut r,

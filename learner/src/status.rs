@@ -60,6 +60,11 @@ pub struct LearnerStatus {
     pub untrainable_chunks: u64,
     /// Environment steps that went into policy updates.
     pub trained_steps: u64,
+    /// Seconds the PPO thread spent building batches (decoding the
+    /// observations and handing them to the device), in all.
+    pub ppo_batch_seconds: f64,
+    /// Seconds the PPO thread spent in updates, in all.
+    pub ppo_update_seconds: f64,
     /// Environment steps received but discarded, oldest first, because the
     /// PPO thread's queue was full (the learner could not keep up).
     pub rollout_steps_discarded: u64,
@@ -151,6 +156,10 @@ pub struct StatusSnapshot {
     pub untrainable_chunks: u64,
     /// Environment steps that went into policy updates.
     pub trained_steps: u64,
+    /// Seconds the PPO thread spent building batches, in all.
+    pub ppo_batch_seconds: f64,
+    /// Seconds the PPO thread spent in updates, in all.
+    pub ppo_update_seconds: f64,
     /// Environment steps discarded because the PPO thread's queue was full.
     pub rollout_steps_discarded: u64,
     /// Environment steps waiting for the PPO thread.
@@ -226,6 +235,8 @@ impl LearnerStatus {
             rejected: BTreeMap::new(),
             untrainable_chunks: 0,
             trained_steps: 0,
+            ppo_batch_seconds: 0.0,
+            ppo_update_seconds: 0.0,
             rollout_steps_discarded: 0,
             rollout_steps_queued: 0,
             last_update: None,
@@ -370,6 +381,8 @@ impl LearnerStatus {
             dropped: actors.iter().map(|a| a.dropped).sum(),
             untrainable_chunks: self.untrainable_chunks,
             trained_steps: self.trained_steps,
+            ppo_batch_seconds: self.ppo_batch_seconds,
+            ppo_update_seconds: self.ppo_update_seconds,
             rollout_steps_discarded: self.rollout_steps_discarded,
             rollout_steps_queued: self.rollout_steps_queued,
             last_update: self.last_update,

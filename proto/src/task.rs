@@ -223,8 +223,17 @@ pub struct PolicyLayout {
 impl PolicyLayout {
     /// Elements of one flat observation.
     pub fn obs_len(&self) -> usize {
-        self.image_channels.iter().sum::<usize>() * self.image_size * self.image_size
-            + self.vector_dims.iter().sum::<usize>()
+        self.input_widths().sum()
+    }
+
+    /// Elements of each input in one flat observation, in its order: every
+    /// image (channels · side²), then every vector.
+    pub fn input_widths(&self) -> impl Iterator<Item = usize> + '_ {
+        let pixels = self.image_size * self.image_size;
+        self.image_channels
+            .iter()
+            .map(move |&c| c * pixels)
+            .chain(self.vector_dims.iter().copied())
     }
 }
 

@@ -9,6 +9,9 @@
 //! U-Net pass included, on its thread, and none waits for the others
 //! halfway.
 
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
 use rayon::prelude::*;
 
 use super::affordance_model::{AffordanceModel, CameraFrame};
@@ -38,6 +41,60 @@ impl Inference {
     }
 }
 
+/// Where [`Inference::Batched`] resets and steps spent their time in this
+/// process, in all: what a profiler would say of a lock-step round (which
+/// half waits for the slowest environment, how long the U-Net's batch
+/// takes), read by benchmarks as the difference of two readings.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct PhaseTimes {
+    /// Batched resets and steps.
+    pub rounds: u64,
+    /// The first halves, in parallel (simulation, rendering, and what an
+    /// environment does before it needs the U-Net).
+    pub first_halves: Duration,
+    /// The U-Net's batches.
+    pub unet: Duration,
+    /// The second halves, in parallel (the observation: map, state).
+    pub second_halves: Duration,
+}
+
+impl PhaseTimes {
+    /// The time from `earlier` to this reading.
+    pub fn since(&self, earlier: &PhaseTimes) -> PhaseTimes {
+        PhaseTimes {
+            rounds: self.rounds - earlier.rounds,
+            first_halves: self.first_halves - earlier.first_halves,
+            unet: self.unet - earlier.unet,
+            second_halves: self.second_halves - earlier.second_halves,
+        }
+    }
+}
+
+/// Nanoseconds of each phase and the rounds, process-wide.
+static ROUNDS: AtomicU64 = AtomicU64::new(0);
+static FIRST_HALVES_NS: AtomicU64 = AtomicU64::new(0);
+static UNET_NS: AtomicU64 = AtomicU64::new(0);
+static SECOND_HALVES_NS: AtomicU64 = AtomicU64::new(0);
+
+/// This process's [`PhaseTimes`] so far.
+pub fn phase_times() -> PhaseTimes {
+    let read = |a: &AtomicU64| Duration::from_nanos(a.load(Ordering::Relaxed));
+    PhaseTimes {
+        rounds: ROUNDS.load(Ordering::Relaxed),
+        first_halves: read(&FIRST_HALVES_NS),
+        unet: read(&UNET_NS),
+        second_halves: read(&SECOND_HALVES_NS),
+    }
+}
+
+/// Adds the time since `started` to `phase`; the time now.
+fn lap(phase: &AtomicU64, started: Instant) -> Instant {
+    let now = Instant::now();
+    let ns = u64::try_from((now - started).as_nanos()).unwrap_or(u64::MAX);
+    phase.fetch_add(ns, Ordering::Relaxed);
+    now
+}
+
 /// Resets every environment of `envs` with its seed in `seeds`.
 pub fn reset_all<E: Environment + ?Sized>(
     envs: &mut [&mut E],
@@ -56,11 +113,12 @@ pub fn reset_all<E: Environment + ?Sized>(
             })
             .collect();
     }
+    let started = Instant::now();
     envs.par_iter_mut()
         .zip(seeds)
         .map(|(env, &seed)| env.begin_reset(seed))
         .collect::<anyhow::Result<()>>()?;
-    observe_batched(envs, model)
+    observe_batched(envs, model, lap(&FIRST_HALVES_NS, started))
 }
 
 /// Steps every environment of `envs` with its action in `actions`.
@@ -81,14 +139,16 @@ pub fn step_all<E: Environment + ?Sized>(
             })
             .collect();
     }
+    let started = Instant::now();
     let outcomes: Vec<StepOutcome> = envs
         .par_iter_mut()
         .zip(actions)
         .map(|(env, &action)| env.begin_step(action))
         .collect::<anyhow::Result<_>>()?;
+    let halfway = lap(&FIRST_HALVES_NS, started);
     Ok(outcomes
         .into_iter()
-        .zip(observe_batched(envs, model)?)
+        .zip(observe_batched(envs, model, halfway)?)
         .collect())
 }
 
@@ -124,14 +184,20 @@ fn observe_alone<E: Environment + ?Sized>(
 }
 
 /// The second halves: the U-Net over every camera frame in one batch, then
-/// each environment's observation.
+/// each environment's observation; `halfway` is when the first halves ended.
 fn observe_batched<E: Environment + ?Sized>(
     envs: &mut [&mut E],
     model: Option<&AffordanceModel>,
+    halfway: Instant,
 ) -> anyhow::Result<Vec<Observation>> {
     let affordances = predict(envs.iter().map(|e| e.camera_frame()), model)?;
-    envs.par_iter_mut()
+    let predicted = lap(&UNET_NS, halfway);
+    let observations = envs
+        .par_iter_mut()
         .zip(affordances)
         .map(|(env, a)| env.observe(a))
-        .collect()
+        .collect();
+    lap(&SECOND_HALVES_NS, predicted);
+    ROUNDS.fetch_add(1, Ordering::Relaxed);
+    observations
 }

@@ -83,11 +83,11 @@ pub fn is_cpu(device: &Device) -> bool {
     *device == Device::flex()
 }
 
-/// True where burn's own convolutions are the fast ones: libtorch's
-/// (cuDNN). The CPU and wgpu backends train the policy's convolutions as
-/// matrix products instead (`conv_matmul`).
-pub fn has_native_convolutions(device: &Device) -> bool {
-    cfg!(feature = "gpu-torch") && !is_cpu(device)
+/// True on burn's wgpu backend: its matrix products have no split-K, so a
+/// product whose inner dimension is a whole batch runs on few cores
+/// (`conv_matmul` then takes one product per image).
+pub fn is_wgpu(device: &Device) -> bool {
+    cfg!(feature = "gpu") && !cfg!(feature = "gpu-torch") && !is_cpu(device)
 }
 
 /// libtorch on the first CUDA device. libtorch is linked, not loaded, so a

@@ -9,7 +9,7 @@ use burn::prelude::*;
 use burn::tensor::activation::{relu, tanh};
 use burn::tensor::Bool;
 pub use proto::{ObsDtype, PolicyLayout};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicU8, Ordering};
 
 mod cpu;
 
@@ -31,43 +31,61 @@ impl PolicyInput {
     ) -> Self {
         let len = config.obs_len();
         assert_eq!(obs.len(), rows * len, "observation length");
+        let mut start = 0;
+        let columns = config
+            .input_widths()
+            .map(|width| {
+                let mut column = Vec::with_capacity(rows * width);
+                for r in 0..rows {
+                    column.extend_from_slice(&obs[r * len + start..r * len + start + width]);
+                }
+                start += width;
+                column
+            })
+            .collect();
+        Self::from_columns(config, columns, masks, rows, device)
+    }
+
+    /// The same from the observations already split by input: `columns[i]`
+    /// holds input `i`'s values of every row, row after row, in
+    /// [`PolicyLayout::input_widths`]' order. The values move into the
+    /// tensors without another copy (a learner's batch is hundreds of MB).
+    ///
+    /// # Panics
+    /// If the lengths do not match `config`: callers validate first.
+    pub fn from_columns(
+        config: &PolicyLayout,
+        columns: Vec<Vec<f32>>,
+        masks: &[u8],
+        rows: usize,
+        device: &Device,
+    ) -> Self {
         assert_eq!(masks.len(), rows * config.n_actions, "mask length");
+        assert_eq!(
+            columns.len(),
+            config.image_channels.len() + config.vector_dims.len(),
+            "one column per input"
+        );
         let side = config.image_size;
-        let mut offsets = Vec::new();
-        let mut at = 0;
-        for &c in &config.image_channels {
-            offsets.push((at, c * side * side));
-            at += c * side * side;
-        }
-        for &d in &config.vector_dims {
-            offsets.push((at, d));
-            at += d;
-        }
-        let gather = |(start, width): (usize, usize)| -> Vec<f32> {
-            let mut out = Vec::with_capacity(rows * width);
-            for r in 0..rows {
-                out.extend_from_slice(&obs[r * len + start..r * len + start + width]);
-            }
-            out
-        };
-        let n_images = config.image_channels.len();
-        let images = config
+        let shapes = config
             .image_channels
             .iter()
-            .zip(&offsets)
-            .map(|(&c, &o)| {
-                Tensor::<1>::from_floats(gather(o).as_slice(), device)
-                    .reshape([rows, c, side, side])
-            })
-            .collect();
-        let vectors = config
-            .vector_dims
-            .iter()
-            .zip(&offsets[n_images..])
-            .map(|(&d, &o)| {
-                Tensor::<1>::from_floats(gather(o).as_slice(), device).reshape([rows, d])
-            })
-            .collect();
+            .map(|&c| vec![rows, c, side, side])
+            .chain(config.vector_dims.iter().map(|&d| vec![rows, d]));
+        let mut images = Vec::new();
+        let mut vectors = Vec::new();
+        for (column, shape) in columns.into_iter().zip(shapes) {
+            assert_eq!(
+                column.len(),
+                shape.iter().product::<usize>(),
+                "column length"
+            );
+            let data = TensorData::new(column, shape.clone());
+            match shape.len() {
+                4 => images.push(Tensor::<4>::from_data(data, device)),
+                _ => vectors.push(Tensor::<2>::from_data(data, device)),
+            }
+        }
         let mask = Tensor::<2, Bool>::from_data(
             TensorData::new(
                 masks.iter().map(|&m| m != 0).collect::<Vec<_>>(),
@@ -119,26 +137,34 @@ impl ConvEncoder {
 
     /// `[batch, channels, size, size]` → `[batch, 64]`.
     ///
-    /// The convolutions run as matrix products, channels-last after the
-    /// first (`conv_matmul`), unless [`ConvPath::Burn`] says burn's own or
-    /// the backend's own are the fast ones (libtorch's cuDNN). Either way
-    /// the features are flattened channels first, as burn's convolutions
-    /// give them, so the weights are the same.
+    /// The convolutions run as the process-wide [`ConvPath`] says: by
+    /// default as matrix products, channels-last after the first
+    /// (`conv_matmul`). Either way the features are flattened channels
+    /// first, as burn's convolutions give them, so the weights are the same.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<2> {
-        let products =
-            conv_path() == ConvPath::Auto && !crate::device::has_native_convolutions(&x.device());
-        self.forward_with(x, products)
+        use crate::conv_matmul::Product;
+        let product = match conv_path() {
+            ConvPath::Burn => None,
+            ConvPath::BatchProducts => Some(Product::Batch),
+            ConvPath::ImageProducts => Some(Product::PerImage),
+            ConvPath::Auto => Some(Product::for_device(&x.device())),
+        };
+        self.forward_with(x, product)
     }
 
-    fn forward_with(&self, x: Tensor<4>, matrix_products: bool) -> Tensor<2> {
-        if !matrix_products {
+    /// The forward pass with burn's convolutions (`None`) or as products.
+    fn forward_with(
+        &self,
+        x: Tensor<4>,
+        product: Option<crate::conv_matmul::Product>,
+    ) -> Tensor<2> {
+        let Some(product) = product else {
             let x = relu(self.conv1.forward(x));
             let x = relu(self.conv2.forward(x));
             let x = relu(self.conv3.forward(x));
             return relu(self.fc.forward(x.flatten(1, 3)));
-        }
-        use crate::conv_matmul::{conv, Layout, Product};
-        let product = Product::for_device(&x.device());
+        };
+        use crate::conv_matmul::{conv, Layout};
         let x = relu(conv(x, Layout::ChannelsFirst, &self.conv1, product));
         let x = relu(conv(x, Layout::ChannelsLast, &self.conv2, product));
         let x = relu(conv(x, Layout::ChannelsLast, &self.conv3, product));
@@ -146,35 +172,74 @@ impl ConvEncoder {
     }
 }
 
-/// How the policy encoders compute their strided convolutions. Both forms
-/// give the same values and gradients (tests `encoder_paths_agree`,
-/// `conv_matmul`'s); benchmarks compare their speed with [`set_conv_path`].
+/// How the policy encoders compute their strided convolutions. Every form
+/// gives the same values and gradients (tests `encoder_paths_agree`,
+/// `conv_matmul`'s); benchmarks and learners on a new GPU compare their
+/// speed with `AFX_POLICY_CONV` (`auto`, `burn`, `batch`, `image`) or
+/// [`set_conv_path`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ConvPath {
-    /// As matrix products (`conv_matmul`): one over the batch on the CPU,
-    /// one per image on a GPU, where it took half the time of burn's (a
-    /// 1 024-step PPO update at 128 px: 1.65 against 3.39 s on an H200);
-    /// burn's `Conv2d` on libtorch (cuDNN).
+    /// The device's best as measured: one product per image on wgpu (a
+    /// 1 024-step PPO update at 128 px on an H200: 1.65 s against 3.39 s
+    /// with burn's); one over the batch on the CPU and on libtorch (there
+    /// 119 ms against 176 ms per image and 383 ms with burn's).
     Auto,
-    /// burn's `Conv2d` (a direct convolution on the GPU backend).
+    /// burn's `Conv2d`.
     Burn,
+    /// One matrix product over every image of the batch.
+    BatchProducts,
+    /// One matrix product per image, the weights broadcast.
+    ImageProducts,
 }
 
-/// Whether the process-wide [`ConvPath`] is `Burn` (`Auto` until set).
-static BURN_CONV: AtomicBool = AtomicBool::new(false);
+impl std::str::FromStr for ConvPath {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.trim() {
+            "auto" => Ok(Self::Auto),
+            "burn" => Ok(Self::Burn),
+            "batch" => Ok(Self::BatchProducts),
+            "image" => Ok(Self::ImageProducts),
+            other => Err(format!(
+                "AFX_POLICY_CONV takes auto, burn, batch or image, not {other:?}"
+            )),
+        }
+    }
+}
+
+/// The process-wide [`ConvPath`]: `0` not chosen yet, else its index + 1.
+static CONV_PATH: AtomicU8 = AtomicU8::new(0);
+const PATHS: [ConvPath; 4] = [
+    ConvPath::Auto,
+    ConvPath::Burn,
+    ConvPath::BatchProducts,
+    ConvPath::ImageProducts,
+];
 
 /// Chooses how every policy encoder in this process computes its
 /// convolutions from now on.
 pub fn set_conv_path(path: ConvPath) {
-    BURN_CONV.store(path == ConvPath::Burn, Ordering::Relaxed);
+    let index = PATHS.iter().position(|&p| p == path).unwrap_or(0);
+    CONV_PATH.store(index as u8 + 1, Ordering::Relaxed);
 }
 
-/// The process-wide [`ConvPath`].
+/// The process-wide [`ConvPath`]: as set, else `AFX_POLICY_CONV` (read
+/// once; a value it does not take is said on stderr and ignored), else
+/// `Auto`.
 fn conv_path() -> ConvPath {
-    if BURN_CONV.load(Ordering::Relaxed) {
-        ConvPath::Burn
-    } else {
-        ConvPath::Auto
+    match CONV_PATH.load(Ordering::Relaxed) {
+        0 => {
+            let path = std::env::var("AFX_POLICY_CONV").map_or(ConvPath::Auto, |v| {
+                v.parse().unwrap_or_else(|e| {
+                    eprintln!("{e}; using auto");
+                    ConvPath::Auto
+                })
+            });
+            set_conv_path(path);
+            path
+        }
+        chosen => PATHS[usize::from(chosen - 1).min(PATHS.len() - 1)],
     }
 }
 
@@ -496,20 +561,35 @@ mod tests {
 
     #[test]
     fn encoder_paths_agree() {
-        // Values and first-layer weight gradients of both convolution paths.
+        // Values and first-layer weight gradients of every convolution path.
+        use crate::conv_matmul::Product;
         let device = Device::flex().autodiff();
         let encoder = ConvEncoder::new(5, 64, &device);
         let x = Tensor::<4>::random([3, 5, 64, 64], burn::tensor::Distribution::Default, &device);
-        let run = |matrix_products: bool| {
-            let out = encoder.forward_with(x.clone(), matrix_products);
+        let run = |product: Option<Product>| {
+            let out = encoder.forward_with(x.clone(), product);
             let grads = (out.clone() * out.clone()).sum().backward();
             let grad = encoder.conv1.weight.grad(&grads).expect("a gradient");
             (out.inner(), grad)
         };
-        let (burn_out, burn_grad) = run(false);
-        let (mm_out, mm_grad) = run(true);
-        crate::test_support::assert_close(mm_out, burn_out, "encoder outputs");
+        let (burn_out, burn_grad) = run(None);
         assert!(burn_grad.clone().abs().max().into_scalar::<f32>() > 0.0);
-        crate::test_support::assert_close(mm_grad, burn_grad, "conv1 weight gradients");
+        for product in [Product::Batch, Product::PerImage] {
+            let (mm_out, mm_grad) = run(Some(product));
+            crate::test_support::assert_close(mm_out, burn_out.clone(), "encoder outputs");
+            crate::test_support::assert_close(mm_grad, burn_grad.clone(), "conv1 weight gradients");
+        }
+    }
+
+    #[test]
+    fn conv_paths_parse_by_name() {
+        assert_eq!("batch".parse::<ConvPath>(), Ok(ConvPath::BatchProducts));
+        assert_eq!(" image".parse::<ConvPath>(), Ok(ConvPath::ImageProducts));
+        assert_eq!("burn".parse::<ConvPath>(), Ok(ConvPath::Burn));
+        assert_eq!("auto".parse::<ConvPath>(), Ok(ConvPath::Auto));
+        assert!("cudnn"
+            .parse::<ConvPath>()
+            .unwrap_err()
+            .contains("auto, burn, batch or image"));
     }
 }

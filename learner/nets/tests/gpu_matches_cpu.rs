@@ -2,6 +2,12 @@
 //! new weights, on the CPU and the GPU backend (within float tolerance).
 //! Built only with `--features gpu` or `--features gpu-torch`; skipped with
 //! a message where no GPU is usable.
+//!
+//! On libtorch run it with `NVIDIA_TF32_OVERRIDE=0` (as `deploy/gpu-check.sh`
+//! does): cuDNN convolutions use TF32 by default, as in PyTorch and in the
+//! learner, and with TF32 one U-Net step's new weights differ from the CPU's
+//! by about 10–20 % of the step's size (a gradient that is a sum with
+//! cancellations), against 5e-5 without it, measured on an H200.
 #![cfg(any(feature = "gpu", feature = "gpu-torch"))]
 
 use burn::optim::{GradientsParams, ModuleOptimizer, SgdConfig};

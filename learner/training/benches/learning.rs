@@ -24,9 +24,9 @@
 //! the default `ours` task's observations at 64 and 128 px, 4 epochs × 2
 //! minibatches, and the U-Net training step (batch 8, 128 px).
 //! `AFX_BENCH_SIDES=64` limits the PPO update to the sides listed.
-//! `AFX_POLICY_CONV=burn` trains with burn's own convolutions instead of
-//! matrix products (`nets::policy::ConvPath`); `AFX_TORCH_REFERENCE=none`
-//! skips PyTorch.
+//! `AFX_POLICY_CONV` (`auto`, `burn`, `batch`, `image`) chooses how the
+//! policy's encoders compute their convolutions (`nets::policy::ConvPath`);
+//! `AFX_TORCH_REFERENCE=none` skips PyTorch.
 
 use std::time::Instant;
 
@@ -265,14 +265,6 @@ fn main() {
     let quick = std::env::var_os("AFX_BENCH_QUICK").is_some();
     let repeats = if quick { 1 } else { 5 };
     let (device, gpu) = bench_device();
-    match std::env::var("AFX_POLICY_CONV").as_deref() {
-        Ok("burn") => nets::policy::set_conv_path(nets::policy::ConvPath::Burn),
-        Ok("auto") | Err(_) => {}
-        Ok(other) => {
-            eprintln!("AFX_POLICY_CONV takes auto or burn, not {other:?}");
-            std::process::exit(2);
-        }
-    }
     let mut rng = StdRng::seed_from_u64(1);
     let mut results: Vec<(&str, f64)> = Vec::new();
 
