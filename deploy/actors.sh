@@ -88,6 +88,9 @@ else
   BIN="$TARGET_DIR/$PROFILE"
 fi
 
+source deploy/libtorch-path.sh
+use_libtorch_of_python "$BIN/actor" || exit 1
+
 STOP_FILE="$LOGS/.stopping" SETUP_FAILED="$LOGS/.setup-failed"
 rm -f "$STOP_FILE" "$SETUP_FAILED" "$RUN_DIR/config.toml"
 

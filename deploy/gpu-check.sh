@@ -68,14 +68,9 @@ mkdir -p "$LOGS"
 LOGS="$(cd "$LOGS" && pwd)"
 skipped() { [[ ",$SKIP," == *",$1,"* ]]; }
 
-# A libtorch build needs libtorch's libraries at run time: those of the
-# machine's PyTorch, unless the loader already finds them.
-if ldd "$BIN/learner" 2>/dev/null | grep -q 'libtorch.*not found'; then
-  torch_lib="$(python3 -c 'import os, torch; print(os.path.join(os.path.dirname(torch.__file__), "lib"))' 2>/dev/null)" \
-    || { echo "gpu-check.sh: $BIN/learner needs libtorch and python3 has no torch to take it from" >&2; exit 2; }
-  export LD_LIBRARY_PATH="$torch_lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
-  echo "gpu-check.sh: libtorch from $torch_lib" >&2
-fi
+# A libtorch build finds libtorch through python3's torch if need be.
+source "$REPO/deploy/libtorch-path.sh"
+use_libtorch_of_python "$BIN/learner" || exit 2
 
 if [[ $QUICK -eq 1 ]]; then
   CAP_WARMUP=5 CAP_SECONDS=10 TP_WARMUP=15 TP_SECONDS=15 BENCH_QUICK=1

@@ -167,6 +167,9 @@ else
   BIN="$TARGET_DIR/$PROFILE"
 fi
 
+source deploy/libtorch-path.sh
+use_libtorch_of_python "$BIN/actor" || exit 1
+
 [[ -n "$RUN_DIR" ]] || RUN_DIR="runs/run-$(date -u +%Y%m%dT%H%M%SZ)"
 mkdir -p "$RUN_DIR/logs"
 RUN_DIR=$(cd "$RUN_DIR" && pwd)

@@ -117,6 +117,8 @@ if [[ -z "$BIN" ]]; then
   BIN="$TARGET_DIR/release"
 fi
 for b in learner actor; do [[ -x "$BIN/$b" ]] || fail "no executable $BIN/$b"; done
+source deploy/libtorch-path.sh
+use_libtorch_of_python "$BIN/actor" || exit 1
 
 mkdir -p "$ROOT"
 ROOT=$(cd "$ROOT" && pwd)
