@@ -498,7 +498,18 @@ fn environments_in_lock_step_play_exactly_the_episodes_they_play_alone() {
     // Together, the U-Net over both frames in one pass (the GPU's way): a
     // batch may round differently in the last bits, so the state may differ
     // by a byte level; the masks, and so the actions, are the same.
+    let before = actor::env::lockstep::phase_times();
     let batched = play_together(&task, &model, &seeds, steps, Inference::Batched);
+    // Its reset and steps were timed, phase by phase (other tests of this
+    // binary may add rounds of their own meanwhile).
+    let phases = actor::env::lockstep::phase_times().since(&before);
+    assert!(phases.rounds > steps as u64, "{phases:?}");
+    assert!(
+        [phases.first_halves, phases.unet, phases.second_halves]
+            .iter()
+            .all(|d| !d.is_zero()),
+        "{phases:?}"
+    );
     for (i, (a, b)) in alone.iter().zip(&batched).enumerate() {
         for (step, (x, y)) in a.iter().zip(b).enumerate() {
             assert_eq!(x.action_mask, y.action_mask, "environment {i}, step {step}");
