@@ -87,7 +87,10 @@ fn decode_columns(
         .input_widths()
         .map(|width| {
             let mut column = vec![0.0f32; rows * width];
-            let rows_per_task = (PER_TASK / width.max(1)).max(1);
+            if width == 0 {
+                return column; // an empty input: nothing to decode
+            }
+            let rows_per_task = (PER_TASK / width).max(1);
             column
                 .par_chunks_mut(rows_per_task * width)
                 .enumerate()

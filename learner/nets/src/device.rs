@@ -94,25 +94,26 @@ pub fn is_wgpu(device: &Device) -> bool {
 /// missing library stops the program before this runs (the loader names
 /// it); a libtorch without CUDA or a machine without a GPU fails the probe.
 #[cfg(feature = "gpu-torch")]
+#[allow(deprecated)] // burn 0.22 marks libtorch deprecated; chosen all the same (decision 0010)
 fn open_gpu() -> Result<Device, DeviceError> {
-    #[allow(deprecated)] // burn-tch: measured as the alternative to wgpu (decision 0010)
-    let device = Device::libtorch_cuda(0);
-    probe(device, "libtorch could not use CUDA")
+    probe(|| Device::libtorch_cuda(0), "libtorch could not use CUDA")
 }
 
 #[cfg(all(feature = "gpu", not(feature = "gpu-torch")))]
 fn open_gpu() -> Result<Device, DeviceError> {
     probe(
-        Device::wgpu(Default::default()),
+        || Device::wgpu(Default::default()),
         "the wgpu backend failed to start",
     )
 }
 
-/// Runs one small computation on `device`; a backend that panics (wgpu
-/// without an adapter, libtorch without CUDA) becomes an error.
+/// Opens a device with `open` and runs one small computation on it; a
+/// backend that panics (wgpu without an adapter, libtorch without CUDA)
+/// becomes an error.
 #[cfg(any(feature = "gpu", feature = "gpu-torch"))]
-fn probe(device: Device, failure: &str) -> Result<Device, DeviceError> {
+fn probe(open: impl FnOnce() -> Device, failure: &str) -> Result<Device, DeviceError> {
     std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
+        let device = open();
         let probe: f32 = Tensor::<1>::ones([4], &device).sum().into_scalar::<f32>();
         (probe == 4.0).then_some(device)
     }))
