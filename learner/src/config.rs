@@ -506,6 +506,7 @@ mod tests {
             (128, 600)
         );
         assert_eq!(scale.task.affordances.len(), 2);
+        assert_eq!(scale.policy.batch_steps, 1024);
         assert!(scale.task.labels_background());
         let w = scale.task.reward;
         let default = proto::RewardWeights::default();
