@@ -67,25 +67,19 @@ impl PolicyInput {
             "one column per input"
         );
         let side = config.image_size;
-        let shapes = config
+        let mut columns = columns.into_iter();
+        // The length check is TensorData's: it asserts values = shape's product.
+        let mut next = |shape: Vec<usize>| TensorData::new(columns.next().unwrap(), shape);
+        let images = config
             .image_channels
             .iter()
-            .map(|&c| vec![rows, c, side, side])
-            .chain(config.vector_dims.iter().map(|&d| vec![rows, d]));
-        let mut images = Vec::new();
-        let mut vectors = Vec::new();
-        for (column, shape) in columns.into_iter().zip(shapes) {
-            assert_eq!(
-                column.len(),
-                shape.iter().product::<usize>(),
-                "column length"
-            );
-            let data = TensorData::new(column, shape.clone());
-            match shape.len() {
-                4 => images.push(Tensor::<4>::from_data(data, device)),
-                _ => vectors.push(Tensor::<2>::from_data(data, device)),
-            }
-        }
+            .map(|&c| Tensor::<4>::from_data(next(vec![rows, c, side, side]), device))
+            .collect();
+        let vectors = config
+            .vector_dims
+            .iter()
+            .map(|&d| Tensor::<2>::from_data(next(vec![rows, d]), device))
+            .collect();
         let mask = Tensor::<2, Bool>::from_data(
             TensorData::new(
                 masks.iter().map(|&m| m != 0).collect::<Vec<_>>(),
