@@ -29,7 +29,9 @@ pub use error::ProtoError;
 pub use frames::{FrameBatch, FrameBatchView, LABEL_NEGATIVE, LABEL_POSITIVE, LABEL_UNKNOWN};
 pub use header::{MessageHeader, MessageKind, HEADER_LEN, LEARNER_ID, MAGIC, SCHEMA_VERSION};
 pub use join::{Join, JoinKey, JoinKeyError, JOIN_KEY_LEN, JOIN_PAYLOAD_LEN};
-pub use message::{decode, decode_weights, encode, encode_into, encoded_len, Limits, Message};
+pub use message::{
+    decode, decode_header, decode_weights, encode, encode_into, encoded_len, Limits, Message,
+};
 pub use payload::Payload;
 pub use rollout::{
     byte_to_unit, obs_bytes_from_f32, unit_to_byte, ObsDtype, RolloutChunk, RolloutView,

@@ -82,15 +82,18 @@ pub fn encode<P: Payload>(payload: &P, header: MessageHeader) -> Vec<u8> {
     out
 }
 
-/// Validates `bytes` completely and returns a typed view.
+/// Validates everything about `bytes` that does not need the payload read:
+/// header length, magic, schema version, kind, sender id, payload length
+/// against the header and the limit. Returns the header and its kind.
 ///
-/// Checks, in order: header length, magic, schema version, kind, sender id,
-/// payload length against the header and the limit, checksum, then the
-/// kind-specific layout and values. Never panics on any input.
-pub fn decode<'a>(
-    bytes: &'a [u8],
+/// For a relay that passes messages on to a receiver which [`decode`]s
+/// them (a gateway between hosts): it routes by the header and leaves the
+/// checksum and the payload's layout to the receiver, instead of reading
+/// every byte once more. Never panics on any input.
+pub fn decode_header(
+    bytes: &[u8],
     limits: &Limits,
-) -> Result<(MessageHeader, Message<'a>), ProtoError> {
+) -> Result<(MessageHeader, MessageKind), ProtoError> {
     let header = MessageHeader::read(bytes)?;
     if header.magic != MAGIC {
         return Err(ProtoError::BadMagic(header.magic));
@@ -103,11 +106,11 @@ pub fn decode<'a>(
     }
     let kind = MessageKind::from_wire(header.kind)?;
     check_sender(kind, header.actor_id, limits)?;
-    let payload = &bytes[HEADER_LEN..];
-    if header.payload_len != payload.len() as u64 {
+    let payload_len = bytes.len() - HEADER_LEN;
+    if header.payload_len != payload_len as u64 {
         return Err(ProtoError::PayloadLengthMismatch {
             declared: header.payload_len,
-            actual: payload.len(),
+            actual: payload_len,
         });
     }
     if header.payload_len > limits.max_payload_len {
@@ -116,6 +119,19 @@ pub fn decode<'a>(
             limit: limits.max_payload_len,
         });
     }
+    Ok((header, kind))
+}
+
+/// Validates `bytes` completely and returns a typed view.
+///
+/// Checks, in order: what [`decode_header`] checks, then the checksum, then
+/// the kind-specific layout and values. Never panics on any input.
+pub fn decode<'a>(
+    bytes: &'a [u8],
+    limits: &Limits,
+) -> Result<(MessageHeader, Message<'a>), ProtoError> {
+    let (header, kind) = decode_header(bytes, limits)?;
+    let payload = &bytes[HEADER_LEN..];
     let actual = crc32fast::hash(payload);
     if actual != header.checksum {
         return Err(ProtoError::BadChecksum {

@@ -3,9 +3,9 @@
 
 use proptest::prelude::*;
 use proto::{
-    decode, decode_weights, encode, EpisodeStats, FrameBatch, JoinKey, Limits, Message,
-    MessageHeader, MessageKind, ObsDtype, ProtoError, RolloutChunk, StatField, WeightsBlob,
-    HEADER_LEN, JOIN_KEY_LEN, LEARNER_ID, WEIGHTS_TAG_LEN,
+    decode, decode_header, decode_weights, encode, EpisodeStats, FrameBatch, JoinKey, Limits,
+    Message, MessageHeader, MessageKind, ObsDtype, ProtoError, RolloutChunk, StatField,
+    WeightsBlob, HEADER_LEN, JOIN_KEY_LEN, LEARNER_ID, WEIGHTS_TAG_LEN,
 };
 
 const LIMITS: Limits = Limits {
@@ -228,6 +228,41 @@ proptest! {
         }
         prop_assume!(bytes != original);
         prop_assert!(decode(&bytes, &LIMITS).is_err());
+    }
+
+    #[test]
+    fn the_header_alone_agrees_with_the_whole_decode(bytes in any_message()) {
+        let (header, message) = decode(&bytes, &LIMITS).unwrap();
+        prop_assert_eq!(decode_header(&bytes, &LIMITS).unwrap(), (header, message.kind()));
+    }
+
+    #[test]
+    fn the_header_alone_refuses_truncations_and_damaged_envelopes(bytes in any_message(), cut in any::<prop::sample::Index>(), field in 0usize..3, value in any::<u32>()) {
+        let cut = cut.index(bytes.len());
+        prop_assert!(decode_header(&bytes[..cut], &LIMITS).is_err());
+        let mut damaged = bytes.clone();
+        match field {
+            0 => damaged[0..4].copy_from_slice(&value.to_le_bytes()),
+            1 => damaged[4..6].copy_from_slice(&(value as u16).to_le_bytes()),
+            _ => damaged[40..48].copy_from_slice(&u64::from(value).to_le_bytes()),
+        }
+        prop_assume!(damaged != bytes);
+        prop_assert!(decode_header(&damaged, &LIMITS).is_err());
+    }
+
+    #[test]
+    fn the_header_alone_does_not_read_the_payload(bytes in any_message(), at in any::<prop::sample::Index>(), bit in 0u8..8) {
+        // What it leaves to the receiver's whole decode: a flipped payload bit.
+        let mut bytes = bytes;
+        let at = HEADER_LEN + at.index(bytes.len() - HEADER_LEN);
+        bytes[at] ^= 1 << bit;
+        prop_assert!(decode_header(&bytes, &LIMITS).is_ok());
+        prop_assert!(decode(&bytes, &LIMITS).is_err());
+    }
+
+    #[test]
+    fn random_bytes_never_make_the_header_check_panic(bytes in prop::collection::vec(any::<u8>(), 0..512)) {
+        let _ = decode_header(&bytes, &LIMITS);
     }
 
     #[test]

@@ -14,7 +14,7 @@ use anyhow::Context;
 use proto::{JoinKey, Limits, Message, MessageHeader, MessageKind};
 use transport::membership::{Membership, Sender};
 use transport::{LearnerPorts, TransportConfig};
-use zenoh::handlers::{FifoChannel, FifoChannelHandler};
+use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::Publisher;
 use zenoh::qos::{CongestionControl, Priority};
 use zenoh::query::Reply;
@@ -22,6 +22,7 @@ use zenoh::Wait;
 
 use crate::keys::{check_name, RunKeys, UPSTREAM};
 use crate::link::{self, Role};
+use crate::weights_in::WeightsIn;
 use crate::{run_transport_config, write_whole, zenoh_error, STATUS_EVERY};
 
 /// Messages of one kind taken from shared memory per pass, so one busy
@@ -119,12 +120,7 @@ pub fn run(options: &ActorHost, stop: &AtomicBool) -> anyhow::Result<()> {
     );
     let mut ports = LearnerPorts::open(&transport, key.clone())?;
     let publishers = upstream_publishers(&session, &keys, &options.host)?;
-    let weights_in = session
-        .declare_subscriber(keys.weights())
-        .with(FifoChannel::new(4))
-        .wait()
-        .map_err(zenoh_error)
-        .context("subscribing to the learner's weights")?;
+    let mut weights_in = WeightsIn::start(&session, &keys, &transport)?;
     let mut forwarding = Forwarding {
         transport: &transport,
         key: &key,
@@ -137,7 +133,7 @@ pub fn run(options: &ActorHost, stop: &AtomicBool) -> anyhow::Result<()> {
     let mut last_maintenance = Instant::now();
     while !stop.load(Ordering::Relaxed) {
         // Weights first, live or asked for, so actors never wait behind data.
-        while let Ok(Some(sample)) = weights_in.try_recv() {
+        while let Some(sample) = weights_in.try_next()? {
             forwarding.weights(&mut ports, &sample.payload().to_bytes())?;
         }
         if forwarding.last_weights.is_none()
@@ -160,8 +156,8 @@ pub fn run(options: &ActorHost, stop: &AtomicBool) -> anyhow::Result<()> {
                 }
             }
         }
-        // Short: weights arriving from the learner's host are looked for
-        // between waits.
+        // Woken by local actors' messages and by weights arriving from the
+        // learner's host ([`WeightsIn`]).
         ports.wait(Duration::from_millis(2))?;
         if last_maintenance.elapsed() >= MAINTENANCE_EVERY {
             // Hands the newest weights (the service's history) to actors
@@ -287,15 +283,24 @@ impl Forwarding<'_> {
                 }
             };
             let bytes = message.bytes();
-            let (header, decoded) = match proto::decode(bytes, &limits) {
-                Ok(decoded) => decoded,
+            // The header routes it; the learner checks the rest (checksum,
+            // layout) on arrival, so it is not read here once more.
+            let (header, carried) = match proto::decode_header(bytes, &limits) {
+                Ok(checked) => checked,
                 Err(error) => {
                     self.refuse(error.reason());
                     continue;
                 }
             };
-            let admitted = match &decoded {
-                Message::Join(join) => self.members.join(header.actor_id, join, origin).map(|_| ()),
+            let admitted = match carried {
+                MessageKind::Join => match proto::decode(bytes, &limits) {
+                    Ok((_, Message::Join(join))) => self
+                        .members
+                        .join(header.actor_id, &join, origin)
+                        .map(|_| ()),
+                    Ok(_) => Err("kind_under_another_key"),
+                    Err(error) => Err(error.reason()),
+                },
                 _ if sender == Sender::Stranger => Err("unknown_publisher"),
                 _ => self.members.admit(header.actor_id, kind, origin),
             };

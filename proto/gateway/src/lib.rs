@@ -13,6 +13,7 @@ pub mod keys;
 pub mod learner_host;
 pub mod link;
 pub mod remote;
+mod weights_in;
 
 use std::path::Path;
 use std::time::Duration;

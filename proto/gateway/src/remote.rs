@@ -127,21 +127,27 @@ impl<F: Forward> RemoteActors<F> {
             max_actors: self.transport.max_actors,
             max_payload_len: self.transport.max_bytes(kind) as u64,
         };
-        let (header, message) = match proto::decode(bytes, &limits) {
-            Ok(decoded) => decoded,
+        // The header routes it; the learner checks the rest (checksum,
+        // layout) on arrival, so it is not read here once more.
+        let (header, wire_kind) = match proto::decode_header(bytes, &limits) {
+            Ok(checked) => checked,
             Err(error) => return Outcome::Refused(error.reason()),
         };
-        let carried = match &message {
-            Message::Rollout(_) => MessageKind::Rollout,
-            Message::Frames(_) => MessageKind::Frames,
-            Message::Stats(_) | Message::Join(_) => MessageKind::Stats,
-            Message::Weights(_) => MessageKind::Weights,
+        // Joins travel on the stats service, as inside a host.
+        let carried = match wire_kind {
+            MessageKind::Join => MessageKind::Stats,
+            other => other,
         };
         if carried != kind {
             return Outcome::Refused("kind_under_another_key");
         }
         let id = header.actor_id;
-        if let Message::Join(join) = message {
+        if wire_kind == MessageKind::Join {
+            let join = match proto::decode(bytes, &limits) {
+                Ok((_, Message::Join(join))) => join,
+                Ok(_) => return Outcome::Refused("kind_under_another_key"),
+                Err(error) => return Outcome::Refused(error.reason()),
+            };
             if !join.verify(&self.key, id) {
                 return Outcome::Refused("bad_join_proof");
             }

@@ -21,6 +21,7 @@ mod join_key;
 mod learner_side;
 pub mod membership;
 mod services;
+mod wakeup;
 mod weights_side;
 
 pub use actor_side::ActorPorts;
@@ -29,6 +30,7 @@ pub use config::TransportConfig;
 pub use error::TransportError;
 pub use join_key::{load_or_create_join_key, read_join_key, JoinKeyFileError, JOIN_KEY_FILE};
 pub use learner_side::{LearnerPorts, ReceivedMessage};
+pub use wakeup::Wakeup;
 pub use weights_side::{WeightsSubscriber, WeightsTap};
 
 /// The file in a learner's run directory where the gateway on the learner's
