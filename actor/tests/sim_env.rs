@@ -8,7 +8,7 @@ use actor::env::Environment;
 use foxglove::messages::{CameraCalibration, FrameTransform, Grid, RawImage, SceneUpdate};
 use foxglove::Decode;
 use mapper::Affordance;
-use proto::{Method, StatField, LABEL_UNKNOWN};
+use proto::{AffordanceStat, Method, StatField, StatKey, LABEL_UNKNOWN};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use sim::agent::Failure;
@@ -119,36 +119,34 @@ fn an_episode_runs_labels_and_repeats_exactly() {
     assert_eq!(batch.n_affordances, 2);
     let stats: std::collections::HashMap<_, _> = summary.stats.into_iter().collect();
     println!("episode metrics: {stats:?}");
+    let per = |affordance, stat| StatKey::Affordance(affordance, stat);
+    let wide = StatKey::Episode;
     for field in [
-        StatField::InteractionSuccessRate,
-        StatField::InteractedObjectRate,
-        StatField::InteractableAnnotationRate,
-        StatField::NonInteractableAnnotationRate,
-        StatField::AffordanceIou,
-        StatField::ObjectAccuracy,
-        StatField::InteractionAttemptRate,
-        StatField::InteractionOutOfReachRate,
-        StatField::InteractionUnaffordedRate,
-        StatField::PickUpIou,
-        StatField::PushIou,
-        StatField::PickUpObjectAccuracy,
-        StatField::PushObjectAccuracy,
+        wide(StatField::InteractionSuccessRate),
+        wide(StatField::InteractedObjectRate),
+        wide(StatField::InteractableAnnotationRate),
+        wide(StatField::NonInteractableAnnotationRate),
+        wide(StatField::AffordanceIou),
+        wide(StatField::ObjectAccuracy),
+        wide(StatField::InteractionAttemptRate),
+        wide(StatField::InteractionOutOfReachRate),
+        wide(StatField::InteractionUnaffordedRate),
+        per(Affordance::PickUp, AffordanceStat::Iou),
+        per(Affordance::Push, AffordanceStat::Iou),
+        per(Affordance::PickUp, AffordanceStat::ObjectAccuracy),
+        per(Affordance::Push, AffordanceStat::ObjectAccuracy),
     ] {
         let v = stats[&field];
         assert!((0.0..=1.0).contains(&v), "{field:?} = {v}");
     }
-    for (both, pick_up, push) in [
+    for (both, plane) in [
+        (wide(StatField::AffordanceIou), AffordanceStat::Iou),
         (
-            StatField::AffordanceIou,
-            StatField::PickUpIou,
-            StatField::PushIou,
-        ),
-        (
-            StatField::ObjectAccuracy,
-            StatField::PickUpObjectAccuracy,
-            StatField::PushObjectAccuracy,
+            wide(StatField::ObjectAccuracy),
+            AffordanceStat::ObjectAccuracy,
         ),
     ] {
+        let (pick_up, push) = (per(Affordance::PickUp, plane), per(Affordance::Push, plane));
         let (lo, hi) = (
             stats[&pick_up].min(stats[&push]),
             stats[&pick_up].max(stats[&push]),
@@ -164,36 +162,28 @@ fn an_episode_runs_labels_and_repeats_exactly() {
         "a random policy that favours interactions tries some"
     );
     assert_eq!(
-        stats[&StatField::InteractionAttemptRate],
+        stats[&wide(StatField::InteractionAttemptRate)],
         attempts.len() as f32 / steps as f32,
         "one attempt per pick-up or push selected"
     );
     assert_eq!(
-        Some(stats[&StatField::InteractionOutOfReachRate]),
+        Some(stats[&wide(StatField::InteractionOutOfReachRate)]),
         failed_share(&attempts, |f| matches!(f, Failure::OutOfReach { .. })),
         "attempts that failed beyond reach"
     );
     assert_eq!(
-        Some(stats[&StatField::InteractionUnaffordedRate]),
+        Some(stats[&wide(StatField::InteractionUnaffordedRate)]),
         failed_share(&attempts, Failure::object_does_not_afford),
         "attempts on objects that do not afford the action"
     );
-    for (affordance, attempt_rate, success_rate, out_of_reach_rate, unafforded_rate) in [
-        (
-            Affordance::PickUp,
-            StatField::PickUpAttemptRate,
-            StatField::PickUpSuccessRate,
-            StatField::PickUpOutOfReachRate,
-            StatField::PickUpUnaffordedRate,
-        ),
-        (
-            Affordance::Push,
-            StatField::PushAttemptRate,
-            StatField::PushSuccessRate,
-            StatField::PushOutOfReachRate,
-            StatField::PushUnaffordedRate,
-        ),
-    ] {
+    for affordance in [Affordance::PickUp, Affordance::Push] {
+        let [attempt_rate, success_rate, out_of_reach_rate, unafforded_rate] = [
+            AffordanceStat::AttemptRate,
+            AffordanceStat::SuccessRate,
+            AffordanceStat::OutOfReachRate,
+            AffordanceStat::UnaffordedRate,
+        ]
+        .map(|stat| per(affordance, stat));
         let tried: Vec<&ActionOutcome> = outcomes
             .iter()
             .filter(|(_, tried)| *tried == Some(affordance))

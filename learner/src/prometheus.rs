@@ -405,7 +405,7 @@ mod tests {
     fn every_metric_the_grafana_dashboard_plots_is_served() {
         let mut status = LearnerStatus::new("run".into());
         let mut stats = proto::EpisodeStats::new(1, 100, 0);
-        for field in proto::StatField::ALL {
+        for field in proto::StatKey::all() {
             stats = stats.with(field, 0.5);
         }
         status.add_episode(&stats);

@@ -2,6 +2,7 @@
 //! One struct behind a mutex; `/api/status` and `/metrics` both render the same
 //! [`StatusSnapshot`], so they always agree.
 
+use std::borrow::Cow;
 use std::collections::{BTreeMap, VecDeque};
 use std::time::Instant;
 
@@ -81,9 +82,9 @@ pub struct LearnerStatus {
     /// Latest U-Net round.
     pub last_unet: Option<UnetRound>,
     /// Latest episode's reported metrics.
-    pub last_episode: BTreeMap<&'static str, f32>,
+    pub last_episode: BTreeMap<Cow<'static, str>, f32>,
     /// Each metric of the last [`EPISODE_WINDOW`] episodes that reported it.
-    recent_episodes: BTreeMap<&'static str, VecDeque<f32>>,
+    recent_episodes: BTreeMap<Cow<'static, str>, VecDeque<f32>>,
     /// Per-actor state, by actor id.
     pub actors: BTreeMap<u32, ActorState>,
     /// Publishers on each actor→learner service (slots taken).
@@ -312,8 +313,8 @@ impl LearnerStatus {
     pub fn add_episode(&mut self, stats: &EpisodeStats) {
         self.episodes += 1;
         for (field, value) in stats.present() {
-            self.last_episode.insert(field.as_str(), value);
-            let recent = self.recent_episodes.entry(field.as_str()).or_default();
+            self.last_episode.insert(field.name(), value);
+            let recent = self.recent_episodes.entry(field.name()).or_default();
             recent.push_back(value);
             if recent.len() > EPISODE_WINDOW {
                 recent.pop_front();

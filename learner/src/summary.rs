@@ -7,7 +7,9 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use proto::StatField;
+use std::collections::BTreeMap;
+
+use proto::StatKey;
 use serde_json::{json, Value};
 
 use crate::history::read_records;
@@ -68,7 +70,7 @@ pub struct Summary {
     /// Runs summarised: one, or repeats of one setting.
     pub runs: usize,
     /// The episode metrics some episode reported, in wire order.
-    pub fields: Vec<StatField>,
+    pub fields: Vec<StatKey>,
     /// One row per span that ended an episode (in every run), in step order.
     pub rows: Vec<SummaryRow>,
 }
@@ -77,8 +79,8 @@ pub struct Summary {
 #[derive(Default)]
 struct SpanSums {
     episodes: usize,
-    /// Sum and count per [`StatField`], in wire order.
-    fields: [(f64, usize); StatField::COUNT],
+    /// Sum and count per metric.
+    fields: BTreeMap<StatKey, (f64, usize)>,
     entropy: (f64, usize),
 }
 
@@ -96,9 +98,9 @@ pub fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
         match record["kind"].as_str() {
             Some("episode") => {
                 span.episodes += 1;
-                for field in StatField::ALL {
-                    if let Some(v) = record["stats"][field.as_str()].as_f64() {
-                        let (sum, n) = &mut span.fields[field as usize];
+                for key in StatKey::all() {
+                    if let Some(v) = record["stats"][key.name().as_ref()].as_f64() {
+                        let (sum, n) = span.fields.entry(key).or_default();
                         *sum += v;
                         *n += 1;
                     }
@@ -120,9 +122,8 @@ pub fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
         run_dir.display()
     );
     let mean = |(sum, n): (f64, usize)| (n > 0).then(|| Spread::one(sum / n as f64));
-    let fields: Vec<StatField> = StatField::ALL
-        .into_iter()
-        .filter(|&f| spans.values().any(|span| span.fields[f as usize].1 > 0))
+    let fields: Vec<StatKey> = StatKey::all()
+        .filter(|f| spans.values().any(|span| span.fields.contains_key(f)))
         .collect();
     let rows = spans
         .iter()
@@ -132,7 +133,7 @@ pub fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
             episodes: span.episodes,
             means: fields
                 .iter()
-                .map(|&f| mean(span.fields[f as usize]))
+                .map(|f| span.fields.get(f).and_then(|&sums| mean(sums)))
                 .collect(),
             entropy: mean(span.entropy),
         })
@@ -155,8 +156,7 @@ pub fn summarize_repeats(run_dirs: &[PathBuf], every: u64) -> anyhow::Result<Sum
     let Some(first) = summaries.first() else {
         anyhow::bail!("no run directory to summarise");
     };
-    let fields: Vec<StatField> = StatField::ALL
-        .into_iter()
+    let fields: Vec<StatKey> = StatKey::all()
         .filter(|f| summaries.iter().any(|s| s.fields.contains(f)))
         .collect();
     let mut rows = Vec::new();
@@ -173,7 +173,7 @@ pub fn summarize_repeats(run_dirs: &[PathBuf], every: u64) -> anyhow::Result<Sum
         else {
             continue;
         };
-        let field_mean = |summary: &Summary, row: &SummaryRow, field: StatField| {
+        let field_mean = |summary: &Summary, row: &SummaryRow, field: StatKey| {
             let column = summary.fields.iter().position(|&f| f == field)?;
             row.means[column].map(|spread| spread.mean)
         };
@@ -205,7 +205,7 @@ impl Summary {
     pub fn markdown(&self) -> String {
         let mut out = String::from("| steps | episodes |");
         for field in &self.fields {
-            let _ = write!(out, " {} |", field.as_str());
+            let _ = write!(out, " {} |", field.name());
         }
         out.push_str(" ppo entropy |\n|---|---|");
         out.push_str(&"---|".repeat(self.fields.len() + 1));
@@ -255,14 +255,14 @@ impl From<&Summary> for Value {
                 let columns = summary
                     .fields
                     .iter()
-                    .map(|f| f.as_str())
+                    .map(|f| f.name())
                     .zip(&row.means)
-                    .chain(std::iter::once(("ppo_entropy", &row.entropy)));
+                    .chain(std::iter::once(("ppo_entropy".into(), &row.entropy)));
                 for (name, spread) in columns {
-                    ranges.insert(name.into(), json!(spread.map(|s| [s.min, s.max])));
                     if name != "ppo_entropy" {
-                        means.insert(name.into(), json!(spread.map(|s| s.mean)));
+                        means.insert(name.to_string(), json!(spread.map(|s| s.mean)));
                     }
+                    ranges.insert(name.into_owned(), json!(spread.map(|s| [s.min, s.max])));
                 }
                 let mut object = json!({
                     "from_steps": row.from_steps,
@@ -286,6 +286,7 @@ impl From<&Summary> for Value {
 mod tests {
     use super::*;
     use crate::history::History;
+    use proto::StatField;
 
     fn episode(history: &mut History, steps: u64, success: f64, attempts: Option<f64>) {
         let mut stats = json!({"interaction_success_rate": success});
@@ -317,8 +318,8 @@ mod tests {
         assert_eq!(
             summary.fields,
             [
-                StatField::InteractionSuccessRate,
-                StatField::InteractionAttemptRate
+                StatKey::Episode(StatField::InteractionSuccessRate),
+                StatKey::Episode(StatField::InteractionAttemptRate)
             ]
         );
         assert_eq!(

@@ -37,7 +37,7 @@ pub use rollout::{
     byte_to_unit, obs_bytes_from_f32, unit_to_byte, ObsDtype, RolloutChunk, RolloutView,
     MAX_ACTIONS, MAX_STEPS,
 };
-pub use stats::{EpisodeStats, StatField};
+pub use stats::{AffordanceStat, EpisodeStats, StatField, StatKey};
 pub use task::{Affordance, EnvKind, Method, PolicyLayout, RewardWeights, TaskError, TaskSpec};
 pub use weights::{
     WeightsBlob, WeightsView, WEIGHTS_META_ENV_STEPS, WEIGHTS_META_TEMPERATURE,

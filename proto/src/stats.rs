@@ -1,18 +1,26 @@
-//! Per-episode metrics (actor → learner): a fixed 120-byte record.
+//! Per-episode metrics (actor → learner).
 //!
-//! Layout after the message header: episode_id u64, steps u32, scene_index u32,
-//! present u32 (bit i set = field i carries a value), reserved u32 (0), then one
-//! f32 per [`StatField`], in order.
+//! Layout after the message header: episode_id u64, steps u32, scene_index
+//! u32, present u32 (bit i set = episode-wide field i carries a value),
+//! reserved u32 (0), one f32 per [`StatField`] in order; then the number of
+//! affordance records u32 (at most one per [`Affordance`]), and per record:
+//! the affordance's code u32 (records in increasing code order), present
+//! u32 (bit i set = [`AffordanceStat`] i carries a value), one f32 per
+//! [`AffordanceStat`] in order. A new affordance adds records, not fields.
+
+use std::borrow::Cow;
 
 use crate::arrays::{read_u32, read_u64};
 use crate::payload::{check_layout, Payload};
+use crate::task::Affordance;
 use crate::{MessageKind, ProtoError};
 
 const FIXED_LEN: usize = 24;
-const PAYLOAD_LEN: usize = FIXED_LEN + 4 * StatField::COUNT;
+const EPISODE_LEN: usize = FIXED_LEN + 4 * StatField::COUNT;
+const RECORD_LEN: usize = 8 + 4 * AffordanceStat::COUNT;
 
-/// The metrics an episode can report. Rates lie in `[0, 1]`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+/// The episode-wide metrics an episode can report. Rates lie in `[0, 1]`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 #[repr(u8)]
 pub enum StatField {
     /// Sum of rewards.
@@ -52,41 +60,11 @@ pub enum StatField {
     /// wide, static, or did not move when pushed): the policy chose the
     /// wrong object. Reported when the episode attempted any.
     InteractionUnaffordedRate = 11,
-    /// Pick-up attempts / steps (when the task has pick up).
-    PickUpAttemptRate = 12,
-    /// Successful pick-ups / pick-up attempts: each success is an object
-    /// whose every view gets positive pick-up labels. Reported when the
-    /// episode tried any.
-    PickUpSuccessRate = 13,
-    /// Push attempts / steps (when the task has push).
-    PushAttemptRate = 14,
-    /// Successful pushes / push attempts. Reported when the episode tried any.
-    PushSuccessRate = 15,
-    /// [`StatField::AffordanceIou`] of the pick-up plane alone (the paper's
-    /// Fig. 3 shows pick up); reported when the task has pick up.
-    PickUpIou = 16,
-    /// [`StatField::AffordanceIou`] of the push plane alone.
-    PushIou = 17,
-    /// [`StatField::ObjectAccuracy`] of the pick-up plane alone.
-    PickUpObjectAccuracy = 18,
-    /// [`StatField::ObjectAccuracy`] of the push plane alone.
-    PushObjectAccuracy = 19,
-    /// [`StatField::InteractionOutOfReachRate`] of the pick-up attempts
-    /// alone. Reported when the episode tried any.
-    PickUpOutOfReachRate = 20,
-    /// [`StatField::InteractionUnaffordedRate`] of the pick-up attempts
-    /// alone: objects that cannot be picked up, or are too heavy or wide.
-    PickUpUnaffordedRate = 21,
-    /// [`StatField::InteractionOutOfReachRate`] of the push attempts alone.
-    PushOutOfReachRate = 22,
-    /// [`StatField::InteractionUnaffordedRate`] of the push attempts alone:
-    /// static objects, or objects that did not move.
-    PushUnaffordedRate = 23,
 }
 
 impl StatField {
     /// Number of fields.
-    pub const COUNT: usize = 24;
+    pub const COUNT: usize = 12;
     /// All fields in wire order.
     pub const ALL: [StatField; Self::COUNT] = [
         StatField::EpisodeReturn,
@@ -101,18 +79,6 @@ impl StatField {
         StatField::InteractionAttemptRate,
         StatField::InteractionOutOfReachRate,
         StatField::InteractionUnaffordedRate,
-        StatField::PickUpAttemptRate,
-        StatField::PickUpSuccessRate,
-        StatField::PushAttemptRate,
-        StatField::PushSuccessRate,
-        StatField::PickUpIou,
-        StatField::PushIou,
-        StatField::PickUpObjectAccuracy,
-        StatField::PushObjectAccuracy,
-        StatField::PickUpOutOfReachRate,
-        StatField::PickUpUnaffordedRate,
-        StatField::PushOutOfReachRate,
-        StatField::PushUnaffordedRate,
     ];
 
     /// snake_case name used in metrics and JSON.
@@ -130,18 +96,6 @@ impl StatField {
             StatField::InteractionAttemptRate => "interaction_attempt_rate",
             StatField::InteractionOutOfReachRate => "interaction_out_of_reach_rate",
             StatField::InteractionUnaffordedRate => "interaction_unafforded_rate",
-            StatField::PickUpAttemptRate => "pick_up_attempt_rate",
-            StatField::PickUpSuccessRate => "pick_up_success_rate",
-            StatField::PushAttemptRate => "push_attempt_rate",
-            StatField::PushSuccessRate => "push_success_rate",
-            StatField::PickUpIou => "pick_up_iou",
-            StatField::PushIou => "push_iou",
-            StatField::PickUpObjectAccuracy => "pick_up_object_accuracy",
-            StatField::PushObjectAccuracy => "push_object_accuracy",
-            StatField::PickUpOutOfReachRate => "pick_up_out_of_reach_rate",
-            StatField::PickUpUnaffordedRate => "pick_up_unafforded_rate",
-            StatField::PushOutOfReachRate => "push_out_of_reach_rate",
-            StatField::PushUnaffordedRate => "push_unafforded_rate",
         }
     }
 
@@ -155,6 +109,110 @@ impl StatField {
     }
 }
 
+/// A metric an episode reports for each affordance of its task. Rates lie
+/// in `[0, 1]`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[repr(u8)]
+pub enum AffordanceStat {
+    /// Attempts of this affordance / steps.
+    AttemptRate = 0,
+    /// Successful attempts / attempts: each success is an object whose
+    /// every view gets positive labels. Reported when the episode tried any.
+    SuccessRate = 1,
+    /// [`StatField::AffordanceIou`] of this affordance's plane alone (the
+    /// paper's Fig. 3 shows pick up).
+    Iou = 2,
+    /// [`StatField::ObjectAccuracy`] of this affordance's plane alone.
+    ObjectAccuracy = 3,
+    /// [`StatField::InteractionOutOfReachRate`] of this affordance's
+    /// attempts alone. Reported when the episode tried any.
+    OutOfReachRate = 4,
+    /// [`StatField::InteractionUnaffordedRate`] of this affordance's
+    /// attempts alone (for pick up: objects that cannot be picked up, or are
+    /// too heavy or wide; for push: static objects, or objects that did not
+    /// move). Reported when the episode tried any.
+    UnaffordedRate = 5,
+}
+
+impl AffordanceStat {
+    /// Number of per-affordance metrics.
+    pub const COUNT: usize = 6;
+    /// All of them in wire order.
+    pub const ALL: [AffordanceStat; Self::COUNT] = [
+        AffordanceStat::AttemptRate,
+        AffordanceStat::SuccessRate,
+        AffordanceStat::Iou,
+        AffordanceStat::ObjectAccuracy,
+        AffordanceStat::OutOfReachRate,
+        AffordanceStat::UnaffordedRate,
+    ];
+
+    /// snake_case name, after the affordance's in metrics and JSON
+    /// (`pick_up_attempt_rate`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            AffordanceStat::AttemptRate => "attempt_rate",
+            AffordanceStat::SuccessRate => "success_rate",
+            AffordanceStat::Iou => "iou",
+            AffordanceStat::ObjectAccuracy => "object_accuracy",
+            AffordanceStat::OutOfReachRate => "out_of_reach_rate",
+            AffordanceStat::UnaffordedRate => "unafforded_rate",
+        }
+    }
+}
+
+/// What one number of an episode's metrics measures: an episode-wide
+/// field, or a metric of one affordance.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum StatKey {
+    /// See [`StatField`].
+    Episode(StatField),
+    /// See [`AffordanceStat`].
+    Affordance(Affordance, AffordanceStat),
+}
+
+impl StatKey {
+    /// Every key, in wire order: the episode-wide fields, then each
+    /// affordance's metrics.
+    pub fn all() -> impl Iterator<Item = StatKey> {
+        let episode = StatField::ALL.into_iter().map(StatKey::Episode);
+        let per_affordance = Affordance::ALL.into_iter().flat_map(|affordance| {
+            AffordanceStat::ALL
+                .into_iter()
+                .map(move |stat| StatKey::Affordance(affordance, stat))
+        });
+        episode.chain(per_affordance)
+    }
+
+    /// snake_case name used in metrics and JSON: the field's, or the
+    /// affordance's then the metric's (`pick_up_success_rate`).
+    pub fn name(self) -> Cow<'static, str> {
+        match self {
+            StatKey::Episode(field) => Cow::Borrowed(field.as_str()),
+            StatKey::Affordance(affordance, stat) => {
+                Cow::Owned(format!("{}_{}", affordance.as_str(), stat.as_str()))
+            }
+        }
+    }
+
+    /// The inclusive range a value must lie in.
+    fn range(self) -> (f32, f32) {
+        match self {
+            StatKey::Episode(field) => field.range(),
+            StatKey::Affordance(..) => (0.0, 1.0),
+        }
+    }
+}
+
+impl From<StatField> for StatKey {
+    fn from(field: StatField) -> Self {
+        StatKey::Episode(field)
+    }
+}
+
+/// Values of one affordance's metrics, by [`AffordanceStat`].
+type AffordanceValues = [Option<f32>; AffordanceStat::COUNT];
+
 /// Metrics of one finished episode.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct EpisodeStats {
@@ -165,6 +223,8 @@ pub struct EpisodeStats {
     /// Index of the scene the episode ran in.
     pub scene_index: u32,
     values: [Option<f32>; StatField::COUNT],
+    /// By [`Affordance`] code.
+    per_affordance: [AffordanceValues; Affordance::COUNT],
 }
 
 impl EpisodeStats {
@@ -174,38 +234,69 @@ impl EpisodeStats {
             episode_id,
             steps,
             scene_index,
-            values: [None; StatField::COUNT],
+            ..Self::default()
         }
     }
 
     /// Sets a metric; builder style.
-    pub fn with(mut self, field: StatField, value: f32) -> Self {
-        self.values[field as usize] = Some(value);
+    pub fn with(mut self, key: impl Into<StatKey>, value: f32) -> Self {
+        *self.slot(key.into()) = Some(value);
         self
     }
 
     /// The metric's value, if the episode reported it.
-    pub fn get(&self, field: StatField) -> Option<f32> {
-        self.values[field as usize]
+    pub fn get(&self, key: impl Into<StatKey>) -> Option<f32> {
+        match key.into() {
+            StatKey::Episode(field) => self.values[field as usize],
+            StatKey::Affordance(affordance, stat) => {
+                self.per_affordance[affordance.code() as usize][stat as usize]
+            }
+        }
     }
 
-    /// All reported metrics.
-    pub fn present(&self) -> impl Iterator<Item = (StatField, f32)> + '_ {
-        StatField::ALL
+    fn slot(&mut self, key: StatKey) -> &mut Option<f32> {
+        match key {
+            StatKey::Episode(field) => &mut self.values[field as usize],
+            StatKey::Affordance(affordance, stat) => {
+                &mut self.per_affordance[affordance.code() as usize][stat as usize]
+            }
+        }
+    }
+
+    /// All reported metrics, in wire order.
+    pub fn present(&self) -> impl Iterator<Item = (StatKey, f32)> + '_ {
+        StatKey::all().filter_map(|key| self.get(key).map(|v| (key, v)))
+    }
+
+    /// The affordances with at least one metric, as records go on the wire.
+    fn records(&self) -> impl Iterator<Item = (Affordance, &AffordanceValues)> {
+        Affordance::ALL
             .into_iter()
-            .filter_map(|f| self.get(f).map(|v| (f, v)))
+            .map(|a| (a, &self.per_affordance[a.code() as usize]))
+            .filter(|(_, values)| values.iter().any(Option::is_some))
     }
 
     pub(crate) fn parse(payload: &[u8]) -> Result<Self, ProtoError> {
-        check_layout("stats", PAYLOAD_LEN as u64, payload.len())?;
-        let present = read_u32(payload, 16);
-        if present >> StatField::COUNT != 0 {
-            return Err(ProtoError::OutOfRange {
-                field: "present",
-                value: present.into(),
-                allowed: "only the bits of known fields, 0..StatField::COUNT",
+        if payload.len() < EPISODE_LEN + 4 {
+            return Err(ProtoError::Truncated {
+                what: "stats",
+                needed: EPISODE_LEN + 4,
+                got: payload.len(),
             });
         }
+        let count = read_u32(payload, EPISODE_LEN);
+        if count as usize > Affordance::COUNT {
+            return Err(ProtoError::OutOfRange {
+                field: "affordance records",
+                value: count.into(),
+                allowed: "at most one per affordance",
+            });
+        }
+        check_layout(
+            "stats",
+            (EPISODE_LEN + 4 + count as usize * RECORD_LEN) as u64,
+            payload.len(),
+        )?;
         let reserved = read_u32(payload, 20);
         if reserved != 0 {
             return Err(ProtoError::OutOfRange {
@@ -219,24 +310,78 @@ impl EpisodeStats {
             read_u32(payload, 8),
             read_u32(payload, 12),
         );
-        for field in StatField::ALL {
-            let i = field as usize;
-            let value = f32::from_bits(read_u32(payload, FIXED_LEN + 4 * i));
+        let fields = StatField::ALL.map(StatKey::Episode);
+        stats.read_values(payload, (16, FIXED_LEN), &fields, "present")?;
+        let mut previous: Option<u32> = None;
+        for record in 0..count as usize {
+            let at = EPISODE_LEN + 4 + record * RECORD_LEN;
+            let code = read_u32(payload, at);
+            let affordance = Affordance::from_code(code)
+                .filter(|_| previous.is_none_or(|p| code > p))
+                .ok_or(ProtoError::OutOfRange {
+                    field: "affordance code",
+                    value: code.into(),
+                    allowed: "a known affordance, records in increasing code order",
+                })?;
+            previous = Some(code);
+            let keys = AffordanceStat::ALL.map(|stat| StatKey::Affordance(affordance, stat));
+            stats.read_values(payload, (at + 4, at + 8), &keys, "affordance present")?;
+        }
+        Ok(stats)
+    }
+
+    /// Reads a present-bits word and one f32 per key of `keys`, at the
+    /// offsets `(present, values)`, checking each present value is finite
+    /// and in its range.
+    fn read_values(
+        &mut self,
+        payload: &[u8],
+        (present_at, values_at): (usize, usize),
+        keys: &[StatKey],
+        present_name: &'static str,
+    ) -> Result<(), ProtoError> {
+        let present = read_u32(payload, present_at);
+        if present >> keys.len() != 0 {
+            return Err(ProtoError::OutOfRange {
+                field: present_name,
+                value: present.into(),
+                allowed: "only the bits of known metrics",
+            });
+        }
+        for (i, &key) in keys.iter().enumerate() {
             if present & (1 << i) == 0 {
                 continue;
             }
-            let (lo, hi) = field.range();
+            let value = f32::from_bits(read_u32(payload, values_at + 4 * i));
+            let (lo, hi) = key.range();
             if !value.is_finite() || value < lo || value > hi {
                 return Err(ProtoError::BadFloat {
-                    field: field.as_str(),
+                    field: match key {
+                        StatKey::Episode(field) => field.as_str(),
+                        StatKey::Affordance(_, stat) => stat.as_str(),
+                    },
                     index: 0,
                     value,
                     extra: " and in its range",
                 });
             }
-            stats.values[i] = Some(value);
+            *self.slot(key) = Some(value);
         }
-        Ok(stats)
+        Ok(())
+    }
+}
+
+/// Writes the present bits of `values` into `present_at` and the values
+/// (0 where absent) into `values_at`.
+fn write_values(values: &[Option<f32>], present_at: &mut [u8], values_at: &mut [u8]) {
+    let present = values
+        .iter()
+        .enumerate()
+        .filter(|(_, v)| v.is_some())
+        .fold(0u32, |acc, (i, _)| acc | (1 << i));
+    present_at[..4].copy_from_slice(&present.to_le_bytes());
+    for (i, v) in values.iter().enumerate() {
+        values_at[4 * i..4 * i + 4].copy_from_slice(&v.unwrap_or(0.0).to_le_bytes());
     }
 }
 
@@ -244,24 +389,153 @@ impl Payload for EpisodeStats {
     const KIND: MessageKind = MessageKind::Stats;
 
     fn payload_len(&self) -> usize {
-        PAYLOAD_LEN
+        EPISODE_LEN + 4 + self.records().count() * RECORD_LEN
     }
 
     fn write_payload(&self, out: &mut [u8]) {
         out[0..8].copy_from_slice(&self.episode_id.to_le_bytes());
         out[8..12].copy_from_slice(&self.steps.to_le_bytes());
         out[12..16].copy_from_slice(&self.scene_index.to_le_bytes());
-        let present = self
-            .values
-            .iter()
-            .enumerate()
-            .filter(|(_, v)| v.is_some())
-            .fold(0u32, |acc, (i, _)| acc | (1 << i));
-        out[16..20].copy_from_slice(&present.to_le_bytes());
         out[20..24].copy_from_slice(&0u32.to_le_bytes());
-        for (i, v) in self.values.iter().enumerate() {
-            let at = FIXED_LEN + 4 * i;
-            out[at..at + 4].copy_from_slice(&v.unwrap_or(0.0).to_le_bytes());
+        let (head, fields) = out.split_at_mut(FIXED_LEN);
+        write_values(&self.values, &mut head[16..20], fields);
+        let records: Vec<_> = self.records().collect();
+        out[EPISODE_LEN..EPISODE_LEN + 4].copy_from_slice(&(records.len() as u32).to_le_bytes());
+        for (i, (affordance, values)) in records.into_iter().enumerate() {
+            let at = EPISODE_LEN + 4 + i * RECORD_LEN;
+            let record = &mut out[at..at + RECORD_LEN];
+            record[0..4].copy_from_slice(&affordance.code().to_le_bytes());
+            let (present, rest) = record[4..].split_at_mut(4);
+            write_values(values, present, rest);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{decode, encode, Limits, Message, MessageHeader, HEADER_LEN};
+
+    const LIMITS: Limits = Limits {
+        max_actors: 4,
+        max_payload_len: 1 << 20,
+    };
+
+    fn decoded(bytes: &[u8]) -> Result<EpisodeStats, ProtoError> {
+        match decode(bytes, &LIMITS)?.1 {
+            Message::Stats(stats) => Ok(stats),
+            other => panic!("not stats: {:?}", other.kind()),
+        }
+    }
+
+    /// Re-encodes `bytes` after `edit` with a checksum that matches again.
+    fn edited(mut bytes: Vec<u8>, edit: impl FnOnce(&mut [u8])) -> Vec<u8> {
+        edit(&mut bytes[HEADER_LEN..]);
+        let crc = crc32fast::hash(&bytes[HEADER_LEN..]);
+        bytes[12..16].copy_from_slice(&crc.to_le_bytes());
+        bytes
+    }
+
+    #[test]
+    fn names_are_those_metrics_and_dashboards_already_read() {
+        let names: Vec<_> = StatKey::all().map(StatKey::name).collect();
+        for name in [
+            "episode_return",
+            "interaction_unafforded_rate",
+            "pick_up_attempt_rate",
+            "pick_up_success_rate",
+            "push_attempt_rate",
+            "push_success_rate",
+            "pick_up_iou",
+            "push_iou",
+            "pick_up_object_accuracy",
+            "push_object_accuracy",
+            "pick_up_out_of_reach_rate",
+            "pick_up_unafforded_rate",
+            "push_out_of_reach_rate",
+            "push_unafforded_rate",
+        ] {
+            assert!(names.iter().any(|n| n == name), "{name}");
+        }
+        let unique: std::collections::BTreeSet<_> = names.iter().collect();
+        assert_eq!(unique.len(), names.len());
+    }
+
+    #[test]
+    fn only_affordances_with_a_metric_take_a_record() {
+        let episode_only = EpisodeStats::new(1, 10, 0).with(StatField::EpisodeReturn, 2.0);
+        assert_eq!(episode_only.payload_len(), EPISODE_LEN + 4);
+        let push = episode_only.with(
+            StatKey::Affordance(Affordance::Push, AffordanceStat::SuccessRate),
+            0.5,
+        );
+        assert_eq!(push.payload_len(), EPISODE_LEN + 4 + RECORD_LEN);
+        let got = decoded(&encode(&push, MessageHeader::default())).unwrap();
+        assert_eq!(got, push);
+        assert_eq!(
+            got.present().collect::<Vec<_>>(),
+            vec![
+                (StatKey::Episode(StatField::EpisodeReturn), 2.0),
+                (
+                    StatKey::Affordance(Affordance::Push, AffordanceStat::SuccessRate),
+                    0.5
+                ),
+            ]
+        );
+    }
+
+    #[test]
+    fn bad_affordance_records_are_refused() {
+        let stats = EpisodeStats::new(1, 10, 0)
+            .with(
+                StatKey::Affordance(Affordance::PickUp, AffordanceStat::AttemptRate),
+                0.25,
+            )
+            .with(
+                StatKey::Affordance(Affordance::Push, AffordanceStat::Iou),
+                0.5,
+            );
+        let bytes = encode(&stats, MessageHeader::default());
+        assert_eq!(decoded(&bytes).unwrap(), stats);
+        let first = EPISODE_LEN + 4;
+        let second = first + RECORD_LEN;
+        let put = |at: usize, value: u32| {
+            move |p: &mut [u8]| p[at..at + 4].copy_from_slice(&value.to_le_bytes())
+        };
+        let cases: Vec<(&str, Vec<u8>)> = vec![
+            ("unknown affordance", edited(bytes.clone(), put(first, 7))),
+            (
+                "the same affordance twice",
+                edited(bytes.clone(), put(second, Affordance::PickUp.code())),
+            ),
+            (
+                "records out of order",
+                edited(bytes.clone(), |p| {
+                    p[first..first + 4].copy_from_slice(&Affordance::Push.code().to_le_bytes());
+                    p[second..second + 4].copy_from_slice(&Affordance::PickUp.code().to_le_bytes());
+                }),
+            ),
+            (
+                "more records than affordances",
+                edited(bytes.clone(), put(EPISODE_LEN, 3)),
+            ),
+            (
+                "a count the length disagrees with",
+                edited(bytes.clone(), put(EPISODE_LEN, 1)),
+            ),
+            (
+                "present bits of no metric",
+                edited(bytes.clone(), put(first + 4, 1 << AffordanceStat::COUNT)),
+            ),
+            (
+                "a rate above 1",
+                edited(bytes.clone(), |p| {
+                    p[first + 8..first + 12].copy_from_slice(&1.5f32.to_le_bytes());
+                }),
+            ),
+        ];
+        for (what, bytes) in cases {
+            assert!(decoded(&bytes).is_err(), "{what} was accepted");
         }
     }
 }

@@ -18,8 +18,20 @@ pub enum Affordance {
 }
 
 impl Affordance {
+    /// How many there are.
+    pub const COUNT: usize = 2;
     /// Every affordance, in index order.
-    pub const ALL: [Affordance; 2] = [Affordance::PickUp, Affordance::Push];
+    pub const ALL: [Affordance; Self::COUNT] = [Affordance::PickUp, Affordance::Push];
+
+    /// Its code on the wire (and its index in per-affordance arrays).
+    pub fn code(self) -> u32 {
+        self as u32
+    }
+
+    /// The affordance with wire code `code`, if any.
+    pub fn from_code(code: u32) -> Option<Self> {
+        Self::ALL.into_iter().find(|a| a.code() == code)
+    }
 
     /// snake_case name, as in configs and metrics.
     pub fn as_str(self) -> &'static str {

@@ -4,7 +4,7 @@
 use proptest::prelude::*;
 use proto::{
     decode, decode_header, decode_weights, encode, EpisodeStats, FrameBatch, JoinKey, Limits,
-    Message, MessageHeader, MessageKind, ObsDtype, ProtoError, RolloutChunk, StatField,
+    Message, MessageHeader, MessageKind, ObsDtype, ProtoError, RolloutChunk, StatField, StatKey,
     WeightsBlob, HEADER_LEN, JOIN_KEY_LEN, LEARNER_ID, WEIGHTS_TAG_LEN,
 };
 
@@ -112,16 +112,15 @@ fn stats_strategy() -> impl Strategy<Value = EpisodeStats> {
         any::<u64>(),
         any::<u32>(),
         0u32..30,
-        prop::collection::vec(prop::option::of(0.0f32..1.0), 8),
+        prop::collection::vec(prop::option::of(0.0f32..1.0), StatKey::all().count()),
     )
         .prop_map(|(id, steps, scene, values)| {
-            StatField::ALL.into_iter().zip(values).fold(
-                EpisodeStats::new(id, steps, scene),
-                |s, (f, v)| match v {
-                    Some(v) => s.with(f, v),
+            StatKey::all()
+                .zip(values)
+                .fold(EpisodeStats::new(id, steps, scene), |s, (key, v)| match v {
+                    Some(v) => s.with(key, v),
                     None => s,
-                },
-            )
+                })
         })
 }
 

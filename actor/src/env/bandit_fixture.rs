@@ -99,7 +99,7 @@ impl Environment for BanditFixture {
         Ok(EpisodeEnd {
             frames: None,
             stats: vec![(
-                StatField::InteractionSuccessRate,
+                StatField::InteractionSuccessRate.into(),
                 self.successes as f32 / self.step.max(1) as f32,
             )],
         })

@@ -16,7 +16,7 @@ pub use sim_environment::SimEnvironment;
 pub use training_rooms::training_rooms;
 
 use anyhow::Context;
-use proto::{FrameBatch, PolicyLayout, StatField};
+use proto::{FrameBatch, PolicyLayout, StatKey};
 
 use affordance_model::{AffordanceModel, CameraFrame};
 
@@ -47,7 +47,7 @@ pub struct EpisodeEnd {
     /// Labelled frames for the U-Net (environments with a labeler).
     pub frames: Option<FrameBatch>,
     /// Metrics the environment measured (the loop adds return and steps/s).
-    pub stats: Vec<(StatField, f32)>,
+    pub stats: Vec<(StatKey, f32)>,
 }
 
 /// An episodic environment with a discrete, maskable action space.

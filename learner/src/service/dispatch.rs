@@ -81,7 +81,7 @@ impl Learner {
                 };
                 let fields: serde_json::Map<String, serde_json::Value> = stats
                     .present()
-                    .map(|(f, v)| (f.as_str().to_string(), serde_json::json!(v)))
+                    .map(|(f, v)| (f.name().into_owned(), serde_json::json!(v)))
                     .collect();
                 self.history
                     .lock()

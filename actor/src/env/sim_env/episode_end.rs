@@ -3,6 +3,7 @@
 //! simulator's ground truth.
 
 use super::*;
+use proto::{AffordanceStat, StatField};
 
 impl SimEnv {
     /// Ends the episode: its labelled frames for the learner (interaction
@@ -126,7 +127,7 @@ fn episode_stats(
     pixels: usize,
     uses_map: bool,
     affordances: &[Affordance],
-) -> Vec<(StatField, f32)> {
+) -> Vec<(StatKey, f32)> {
     let planes = episode.scores.len();
     // Annotation rates of the labels over every frame of the episode.
     let (mut positive, mut negative) = (0.0f64, 0.0f64);
@@ -160,78 +161,72 @@ fn episode_stats(
     };
     let attempts: u32 = episode.attempts.iter().sum();
     let successes: u32 = episode.successes.iter().sum();
+    let episode_wide = |field: StatField, value: f32| (StatKey::Episode(field), value);
     let mut stats = vec![
-        (StatField::EpisodeReturn, episode.episode_return),
-        (
+        episode_wide(StatField::EpisodeReturn, episode.episode_return),
+        episode_wide(
             StatField::InteractionSuccessRate,
             successes as f32 / attempts.max(1) as f32,
         ),
-        (
+        episode_wide(
             StatField::InteractionAttemptRate,
             attempts as f32 / episode.steps.max(1) as f32,
         ),
-        (
+        episode_wide(
             StatField::InteractedObjectRate,
             interacted as f32 / interactable.max(1) as f32,
         ),
-        (
+        episode_wide(
             StatField::InteractableAnnotationRate,
             (positive / rated) as f32,
         ),
-        (
+        episode_wide(
             StatField::NonInteractableAnnotationRate,
             (negative / rated) as f32,
         ),
     ];
     if attempts > 0 {
         let attempts = attempts as f32;
-        stats.push((
+        stats.push(episode_wide(
             StatField::InteractionOutOfReachRate,
             episode.out_of_reach.iter().sum::<u32>() as f32 / attempts,
         ));
-        stats.push((
+        stats.push(episode_wide(
             StatField::InteractionUnaffordedRate,
             episode.unafforded.iter().sum::<u32>() as f32 / attempts,
         ));
     }
-    for &affordance in affordances {
-        let kind = affordance as usize;
-        let (attempts, successes) = (episode.attempts[kind], episode.successes[kind]);
-        let [attempt_rate, success_rate, out_of_reach_rate, unafforded_rate] = match affordance {
-            Affordance::PickUp => [
-                StatField::PickUpAttemptRate,
-                StatField::PickUpSuccessRate,
-                StatField::PickUpOutOfReachRate,
-                StatField::PickUpUnaffordedRate,
-            ],
-            Affordance::Push => [
-                StatField::PushAttemptRate,
-                StatField::PushSuccessRate,
-                StatField::PushOutOfReachRate,
-                StatField::PushUnaffordedRate,
-            ],
-        };
-        stats.push((attempt_rate, attempts as f32 / episode.steps.max(1) as f32));
-        if attempts > 0 {
-            let share = |n: u32| n as f32 / attempts as f32;
-            stats.push((success_rate, share(successes)));
-            stats.push((out_of_reach_rate, share(episode.out_of_reach[kind])));
-            stats.push((unafforded_rate, share(episode.unafforded[kind])));
-        }
-    }
     if let Some(iou) = mean(|s| (s.iou, s.iou_frames)) {
-        stats.push((StatField::AffordanceIou, iou));
+        stats.push(episode_wide(StatField::AffordanceIou, iou));
     }
     if let Some(accuracy) = mean(|s| (s.accuracy, s.accuracy_frames)) {
-        stats.push((StatField::ObjectAccuracy, accuracy));
+        stats.push(episode_wide(StatField::ObjectAccuracy, accuracy));
     }
     for (&affordance, sums) in affordances.iter().zip(&episode.scores) {
-        let (iou, accuracy) = match affordance {
-            Affordance::PickUp => (StatField::PickUpIou, StatField::PickUpObjectAccuracy),
-            Affordance::Push => (StatField::PushIou, StatField::PushObjectAccuracy),
-        };
-        stats.extend(per_frame(sums.iou, sums.iou_frames).map(|v| (iou, v)));
-        stats.extend(per_frame(sums.accuracy, sums.accuracy_frames).map(|v| (accuracy, v)));
+        let of = |stat| StatKey::Affordance(affordance, stat);
+        let kind = affordance.code() as usize;
+        let (attempts, successes) = (episode.attempts[kind], episode.successes[kind]);
+        stats.push((
+            of(AffordanceStat::AttemptRate),
+            attempts as f32 / episode.steps.max(1) as f32,
+        ));
+        if attempts > 0 {
+            let share = |n: u32| n as f32 / attempts as f32;
+            stats.push((of(AffordanceStat::SuccessRate), share(successes)));
+            stats.push((
+                of(AffordanceStat::OutOfReachRate),
+                share(episode.out_of_reach[kind]),
+            ));
+            stats.push((
+                of(AffordanceStat::UnaffordedRate),
+                share(episode.unafforded[kind]),
+            ));
+        }
+        stats.extend(per_frame(sums.iou, sums.iou_frames).map(|v| (of(AffordanceStat::Iou), v)));
+        stats.extend(
+            per_frame(sums.accuracy, sums.accuracy_frames)
+                .map(|v| (of(AffordanceStat::ObjectAccuracy), v)),
+        );
     }
     if uses_map {
         let frames = episode
@@ -241,7 +236,7 @@ fn episode_stats(
             .map(|(truth, frame)| (truth.as_slice(), frame.map_ids.as_slice()));
         let current = |id: u32| episode.map.current_id(ObjectId(id)).0;
         if let Some(consistency) = map_id_consistency(frames, current) {
-            stats.push((StatField::MapIdConsistency, consistency));
+            stats.push(episode_wide(StatField::MapIdConsistency, consistency));
         }
     }
     stats

@@ -23,7 +23,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use mapper::{Affordance, Map, MapConfig, ObjectId, Outcome as MapOutcome, Pose};
 use nalgebra::Point2;
-use proto::{FrameBatch, Method, StatField};
+use proto::{FrameBatch, Method, StatKey};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use sim::agent::{Failure, Simulator};
@@ -239,7 +239,7 @@ pub struct EpisodeSummary {
     /// The labelled frames (balanced ones only, if so configured).
     pub frames: FrameBatch,
     /// Metrics, means over the configured affordances where per affordance.
-    pub stats: Vec<(StatField, f32)>,
+    pub stats: Vec<(StatKey, f32)>,
 }
 
 impl SimEnv {
