@@ -225,8 +225,7 @@ fn sim_env(
     image_size: usize,
     renderer: Renderer,
 ) -> SimEnv {
-    let mut profile = RobotProfile::load("default").expect("profile");
-    profile.image_size = image_size;
+    let profile = RobotProfile::load("default").expect("profile");
     let source = SceneSource::open(
         Some(&data.join("ithor-livingrooms")),
         SceneSet::Test,
@@ -236,6 +235,7 @@ fn sim_env(
     .expect("scenes");
     let config = SimEnvConfig {
         episode_steps: episode_steps(),
+        image_size,
         ..SimEnvConfig::paper(method, &AFFORDANCES)
     };
     SimEnv::new(config, source, profile, renderer)

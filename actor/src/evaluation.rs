@@ -39,6 +39,9 @@ pub struct EvaluationSettings {
     pub model: String,
     /// Affordances, in the network's plane order.
     pub affordances: Vec<Affordance>,
+    /// Side of the camera's square images, pixels (the run's
+    /// `[task] image_size`, what the network takes).
+    pub image_size: usize,
     /// Test views per room (Table 1).
     pub views_per_scene: usize,
     /// Seed of the test views.
@@ -89,6 +92,7 @@ pub fn evaluate(
         let views = test_views(
             scene,
             profile,
+            settings.image_size,
             &reachable,
             renderer,
             settings.views_per_scene,
@@ -123,8 +127,15 @@ pub fn evaluate(
             if object.is_floor() {
                 continue;
             }
-            let (view, scored_by) = match sight_object(scene, profile, &reachable, index, renderer)?
-            {
+            let sighting = sight_object(
+                scene,
+                profile,
+                settings.image_size,
+                &reachable,
+                index,
+                renderer,
+            )?;
+            let (view, scored_by) = match sighting {
                 Sighting::Reachable(view) => (view, ScoredBy::Trial),
                 Sighting::OutOfReach(view) => (view, ScoredBy::GroundTruth),
                 Sighting::Unseen => {

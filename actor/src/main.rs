@@ -176,6 +176,9 @@ struct SimViewArgs {
     /// Directory to write the PNGs to (created).
     #[arg(long)]
     out: PathBuf,
+    /// Side of the camera's square images, pixels (a run's is its `[task] image_size`).
+    #[arg(long, default_value_t = 128)]
+    image_size: usize,
     #[command(flatten)]
     sim: SimArgs,
 }
@@ -273,6 +276,7 @@ fn sim_view(args: SimViewArgs) -> anyhow::Result<()> {
         data_dir: sim.data,
         profile: sim.profile,
         renderer: sim.renderer,
+        image_size: args.image_size,
         out: args.out,
     };
     let summary = actor::sim_view::run(&settings)?;
@@ -310,8 +314,7 @@ fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
     );
     let device = nets::device::open_device(nets::device::DeviceChoice::Cpu)?;
     let mut model = AffordanceModel::new(task.affordances.len(), &device);
-    let mut profile = RobotProfile::load(&sim.profile)?;
-    profile.image_size = task.image_size;
+    let profile = RobotProfile::load(&sim.profile)?;
     let rooms = sim.data.join("ithor-livingrooms");
     let load_rooms = |set: SceneSet| {
         sim::ithor::load_set(&rooms, set).with_context(|| {
@@ -335,6 +338,7 @@ fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
         let settings = actor::evaluation::EvaluationSettings {
             model: name.to_string(),
             affordances: task.affordances.clone(),
+            image_size: task.image_size,
             views_per_scene: views,
             seed: args.seed,
         };
@@ -443,8 +447,7 @@ fn sim_environment(
     scenes: Scenes,
     cli: &RunArgs,
 ) -> anyhow::Result<SimEnvironment> {
-    let mut profile = RobotProfile::load(&sim.profile)?;
-    profile.image_size = task.image_size;
+    let profile = RobotProfile::load(&sim.profile)?;
     let source = actor::env::training_rooms(&sim.data, matches!(scenes, Scenes::Ithor), &profile)
         .with_context(|| {
         format!(
@@ -464,6 +467,7 @@ fn sim_environment(
         },
         confidence_after_steps: Some(task.confidence_after_steps),
         reward: task.reward,
+        image_size: task.image_size,
         ..SimEnvConfig::paper(task.method, &task.affordances)
     };
     let mut env = SimEnv::new(config, source, profile, renderer);

@@ -47,6 +47,8 @@ pub struct SimViewSettings {
     pub profile: String,
     /// Renderer.
     pub renderer: RendererChoice,
+    /// Side of the camera's square images, pixels.
+    pub image_size: usize,
     /// Output directory (created).
     pub out: PathBuf,
 }
@@ -90,7 +92,12 @@ pub fn run(settings: &SimViewSettings) -> anyhow::Result<SimViewSummary> {
     let profile = RobotProfile::load(&settings.profile)?;
     let scene = load_named_scene(&settings.scene, &settings.data_dir, &profile)?;
     let start = central_start(&scene, &profile)?;
-    let mut sim = Simulator::new(scene, profile, start)?;
+    anyhow::ensure!(
+        settings.image_size >= 8,
+        "--image-size must be at least 8 pixels, got {}",
+        settings.image_size
+    );
+    let mut sim = Simulator::new(scene, profile, start, settings.image_size)?;
     let mut renderer = Renderer::open(settings.renderer)?;
     std::fs::create_dir_all(&settings.out)
         .with_context(|| format!("creating {}", settings.out.display()))?;

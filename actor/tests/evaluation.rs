@@ -19,8 +19,7 @@ const AFFORDANCES: [Affordance; 2] = [Affordance::PickUp, Affordance::Push];
 fn room() -> (Scene, RobotProfile) {
     let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../../shared/data/ithor-livingrooms/FloorPlan227.json");
-    let mut profile = RobotProfile::load("default").unwrap();
-    profile.image_size = 64;
+    let profile = RobotProfile::load("default").unwrap();
     (load_scene(&path).unwrap(), profile)
 }
 
@@ -28,6 +27,7 @@ fn run(scene: &Scene, profile: &RobotProfile, predict: &Predictor<'_>) -> Report
     let settings = EvaluationSettings {
         model: "the ground truth".into(),
         affordances: AFFORDANCES.to_vec(),
+        image_size: 64,
         views_per_scene: 4,
         seed: 3,
     };

@@ -41,7 +41,7 @@ fn facing_pickupable() -> (Simulator, u32, usize) {
                 yaw_deg: 30.0 * k as f32,
                 horizon_deg: 30.0,
             };
-            let sim = Simulator::new(scene.clone(), profile.clone(), start).unwrap();
+            let sim = Simulator::new(scene.clone(), profile.clone(), start, 128).unwrap();
             let frame = sim.render_cpu();
             let camera = sim.camera();
             let distance = |p: usize| {

@@ -28,6 +28,7 @@ fn settings(scene: &str, out: &Path) -> SimViewSettings {
         data_dir: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"),
         profile: "default".into(),
         renderer: RendererChoice::Cpu,
+        image_size: 128,
         out: out.to_owned(),
     }
 }

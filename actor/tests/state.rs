@@ -28,7 +28,7 @@ fn simulator() -> Simulator {
         yaw_deg: 0.0,
         horizon_deg: 30.0,
     };
-    Simulator::new(scene, profile, start).unwrap()
+    Simulator::new(scene, profile, start, 128).unwrap()
 }
 
 /// Integrates the current view and builds the state.

@@ -25,7 +25,7 @@ fn episode(renderer: &mut Renderer) -> (Duration, Duration, Duration) {
     let scene = load_scene(&dir.join("FloorPlan227.json")).expect("the test scene loads");
     let profile = RobotProfile::load("default").expect("the default profile loads");
     let (mut sim, _) =
-        randomise(&scene, &profile, &mut StdRng::seed_from_u64(3)).expect("randomises");
+        randomise(&scene, &profile, 128, &mut StdRng::seed_from_u64(3)).expect("randomises");
     let mut script = Script::new(7);
     let mut frame = sim.render(renderer).expect("renders");
     let (mut stepping, mut rendering) = (Duration::ZERO, Duration::ZERO);

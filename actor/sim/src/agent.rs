@@ -190,6 +190,8 @@ pub struct Simulator {
     scene: Scene,
     geometry: SceneGeometry,
     profile: RobotProfile,
+    /// Side of the camera's square image, pixels.
+    image_size: usize,
     agent: AgentState,
     /// Index of the object in the hand, if any (it is not in the room's geometry).
     held: Option<usize>,
@@ -213,13 +215,20 @@ pub enum SetupError {
 }
 
 impl Simulator {
-    /// Puts an agent with `profile` into `scene` at `start`.
-    pub fn new(scene: Scene, profile: RobotProfile, start: AgentState) -> Result<Self, SetupError> {
+    /// Puts an agent with `profile` into `scene` at `start`, its camera
+    /// taking square images of `image_size` pixels a side.
+    pub fn new(
+        scene: Scene,
+        profile: RobotProfile,
+        start: AgentState,
+        image_size: usize,
+    ) -> Result<Self, SetupError> {
         let geometry = SceneGeometry::new(&scene);
         let sim = Self {
             scene,
             geometry,
             profile,
+            image_size,
             agent: start,
             held: None,
             hand: DEFAULT_HAND,
@@ -343,8 +352,8 @@ impl Simulator {
                 a.yaw_deg,
                 a.horizon_deg,
             ),
-            width: self.profile.image_size,
-            height: self.profile.image_size,
+            width: self.image_size,
+            height: self.image_size,
             fov_deg: self.profile.fov_deg,
         }
     }

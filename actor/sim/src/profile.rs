@@ -1,5 +1,8 @@
-//! Robot profiles: what the robot can reach, lift, grasp and push, and its
-//! camera. Read from TOML; two are shipped (`default`, `weak-arm`).
+//! Robot profiles: what the robot can reach, lift, grasp and push, and where
+//! its camera sits and how wide it sees. Read from TOML; two are shipped
+//! (`default`, `weak-arm`). The camera's resolution is not the robot's: it
+//! is the run's (`[task] image_size`, what the networks take), given to the
+//! [`Simulator`](crate::agent::Simulator) when it is made.
 
 use serde::Deserialize;
 
@@ -21,8 +24,6 @@ pub struct RobotProfile {
     pub camera_height_m: f32,
     /// Horizontal field of view, degrees.
     pub fov_deg: f32,
-    /// Side of the square image, pixels.
-    pub image_size: usize,
     /// Radius of the agent's capsule, metres.
     pub agent_radius_m: f32,
     /// Height of the agent's capsule, metres.
@@ -67,6 +68,11 @@ impl RobotProfile {
             origin: origin.to_string(),
             message,
         };
+        if toml::from_str::<toml::Table>(text).is_ok_and(|t| t.contains_key("image_size")) {
+            return Err(invalid(
+                "image_size is no longer a robot setting: remove it; the camera's resolution is the run's `[task] image_size`".into(),
+            ));
+        }
         let p: Self = toml::from_str(text).map_err(|e| invalid(e.to_string()))?;
         for (field, value) in [
             ("reach_m", p.reach_m),
@@ -85,12 +91,6 @@ impl RobotProfile {
             return Err(invalid(format!(
                 "fov_deg must be in 1..179, got {}",
                 p.fov_deg
-            )));
-        }
-        if p.image_size < 8 {
-            return Err(invalid(format!(
-                "image_size must be at least 8, got {}",
-                p.image_size
             )));
         }
         if p.camera_height_m > p.agent_height_m {
@@ -134,5 +134,9 @@ mod tests {
         assert!(e.to_string().contains("reach_m must be positive"), "{e}");
         let e = RobotProfile::from_toml("name = \"a\"\nspeed = 3", "y.toml").unwrap_err();
         assert!(e.to_string().contains("y.toml"), "{e}");
+        // A profile written before the resolution moved to the run's task.
+        let old = format!("{}\nimage_size = 128\n", include_str!("../profiles/default.toml"));
+        let e = RobotProfile::from_toml(&old, "old.toml").unwrap_err();
+        assert!(e.to_string().contains("[task] image_size"), "{e}");
     }
 }

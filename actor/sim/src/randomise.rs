@@ -42,10 +42,12 @@ pub struct RandomiseReport {
 }
 
 /// Re-places the pickupable objects of `scene` and returns a simulator with
-/// the agent at a random reachable start. Deterministic for a given `rng` state.
+/// the agent at a random reachable start, its camera taking images of
+/// `image_size` pixels a side. Deterministic for a given `rng` state.
 pub fn randomise(
     scene: &Scene,
     profile: &RobotProfile,
+    image_size: usize,
     rng: &mut impl Rng,
 ) -> Result<(Simulator, RandomiseReport), RandomiseError> {
     let mut scene = scene.clone();
@@ -96,7 +98,10 @@ pub fn randomise(
         yaw_deg: 30.0 * rng.random_range(0..12) as f32,
         horizon_deg: [0.0, 15.0, 30.0][rng.random_range(0..3)],
     };
-    Ok((Simulator::new(scene, profile.clone(), start)?, report))
+    Ok((
+        Simulator::new(scene, profile.clone(), start, image_size)?,
+        report,
+    ))
 }
 
 /// A release pose for `object` a little above a random point of the
@@ -154,6 +159,10 @@ pub fn reachable_nearest(
         .expect("reachable_grid is never empty"))
 }
 
+/// The camera side of simulators made only to ask where the agent fits:
+/// they never render.
+const NEVER_RENDERED: usize = 1;
+
 /// A simulator at the first free grid spot, only to ask for the reachable grid.
 fn probe_start(scene: &Scene, profile: &RobotProfile) -> Result<Simulator, RandomiseError> {
     let nx = ((scene.floor_max.x - scene.floor_min.x) / 0.25) as i32;
@@ -167,7 +176,7 @@ fn probe_start(scene: &Scene, profile: &RobotProfile) -> Result<Simulator, Rando
                 yaw_deg: 0.0,
                 horizon_deg: 0.0,
             };
-            Simulator::new(scene.clone(), profile.clone(), state).ok()
+            Simulator::new(scene.clone(), profile.clone(), state, NEVER_RENDERED).ok()
         })
         .ok_or_else(|| RandomiseError::NoReachablePosition {
             scene: scene.name.clone(),

@@ -17,7 +17,7 @@ fn run(seed: u64, steps: usize) -> Trace {
         .join("../../../shared/data/ithor-livingrooms");
     let scene = load_scene(&dir.join("FloorPlan227.json")).unwrap();
     let profile = RobotProfile::load("default").unwrap();
-    let (mut sim, _) = randomise(&scene, &profile, &mut StdRng::seed_from_u64(seed)).unwrap();
+    let (mut sim, _) = randomise(&scene, &profile, 128, &mut StdRng::seed_from_u64(seed)).unwrap();
     let mut frame = sim.render_cpu();
     let mut script = Script::new(1000 + seed);
     let mut trace = Vec::with_capacity(steps);

@@ -36,7 +36,7 @@ fn gpu_frames_match_the_cpu_reference_on_50_poses_in_3_scenes() {
                 yaw_deg: rng.random_range(0.0..360.0),
                 horizon_deg: rng.random_range(-30.0..60.0),
             };
-            let sim = Simulator::new(scene.clone(), profile.clone(), start).unwrap();
+            let sim = Simulator::new(scene.clone(), profile.clone(), start, 128).unwrap();
             let camera = sim.camera();
             let cpu = render(&geometry, &camera, 20.0);
             let frame = gpu.render(&geometry, &camera, 20.0).unwrap();

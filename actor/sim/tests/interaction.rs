@@ -41,6 +41,7 @@ fn facing(
                     yaw_deg: 0.0,
                     horizon_deg: 0.0,
                 },
+                128,
             )
             .ok()
         })?;
@@ -59,7 +60,7 @@ fn facing(
             yaw_deg: dy.atan2(dx).to_degrees(),
             horizon_deg: down.atan2(horizontal).to_degrees().clamp(-30.0, 60.0),
         };
-        let sim = Simulator::new(scene.clone(), profile.clone(), state).ok()?;
+        let sim = Simulator::new(scene.clone(), profile.clone(), state, 128).ok()?;
         let frame = sim.render_cpu();
         let id = index as u32 + 1;
         let pixels: Vec<usize> = (0..frame.ids.len())
@@ -330,7 +331,7 @@ fn reach_is_measured_from_the_agents_axis_so_objects_on_the_floor_can_be_picked_
         yaw_deg: 0.0,
         horizon_deg: 45.0,
     };
-    let sim = Simulator::new(scene, profile, start).unwrap();
+    let sim = Simulator::new(scene, profile, start, 128).unwrap();
     let (u, v) = middle_pixel(&sim, 2);
     let mut far = sim.clone();
     let outcome = far.apply(Action::PickUp { u, v });

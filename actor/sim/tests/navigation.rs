@@ -50,6 +50,7 @@ fn moving_into_a_wall_fails_and_leaves_the_agent_in_place() {
         empty_room(),
         RobotProfile::load("default").unwrap(),
         start(0.0, 0.0, 0.0),
+        128,
     )
     .unwrap();
     let mut moves = 0;
@@ -75,6 +76,7 @@ fn turning_and_looking_follow_ai2thor_limits() {
         empty_room(),
         RobotProfile::load("default").unwrap(),
         start(0.0, 0.0, 0.0),
+        128,
     )
     .unwrap();
     for expected in [15.0, 30.0, 45.0, 60.0] {
@@ -109,8 +111,13 @@ fn furniture_blocks_and_the_reachable_grid_is_free_and_connected() {
         .bounds
         .center;
     let profile = RobotProfile::load("default").unwrap();
-    let err =
-        Simulator::new(scene.clone(), profile.clone(), start(sofa.x, sofa.y, 0.0)).unwrap_err();
+    let err = Simulator::new(
+        scene.clone(),
+        profile.clone(),
+        start(sofa.x, sofa.y, 0.0),
+        128,
+    )
+    .unwrap_err();
     assert!(matches!(err, SetupError::StartBlocked { .. }));
     assert!(err.to_string().contains("Sofa"), "{err}");
 
@@ -122,18 +129,18 @@ fn furniture_blocks_and_the_reachable_grid_is_free_and_connected() {
                 scene.floor_min.x + 0.25 * i as f32,
                 scene.floor_min.y + 0.25 * j as f32,
             );
-            Simulator::new(scene.clone(), profile.clone(), start(x, y, 0.0)).ok()
+            Simulator::new(scene.clone(), profile.clone(), start(x, y, 0.0), 128).ok()
         })
         .expect("some free spot");
     let reachable = reference.reachable_positions();
     eprintln!("FloorPlan227: {} reachable grid positions", reachable.len());
     assert!(reachable.len() > 40);
     for &(x, y) in reachable.iter().step_by(7) {
-        assert!(Simulator::new(scene.clone(), profile.clone(), start(x, y, 90.0)).is_ok());
+        assert!(Simulator::new(scene.clone(), profile.clone(), start(x, y, 90.0), 128).is_ok());
     }
     // Walking around the reachable grid: every blocked move names what blocked it.
     let (x, y) = reachable[reachable.len() / 2];
-    let mut sim = Simulator::new(scene, profile, start(x, y, 0.0)).unwrap();
+    let mut sim = Simulator::new(scene, profile, start(x, y, 0.0), 128).unwrap();
     let mut blocked_by_objects = 0;
     for k in 0..200 {
         let action = if k % 5 == 4 {

@@ -157,7 +157,7 @@ fn randomised_episodes_interpenetrate_nothing_and_are_deterministic() {
     let profile = RobotProfile::load("default").unwrap();
     let run = |seed: u64| {
         let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-        randomise(&scene, &profile, &mut rng).unwrap()
+        randomise(&scene, &profile, 128, &mut rng).unwrap()
     };
     let (sim, report) = run(7);
     eprintln!("{}: {report:?}, agent {:?}", scene.name, sim.agent());

@@ -71,6 +71,7 @@ pub const SEARCH_RADIUS_M: f32 = 3.0;
 pub fn sight_object(
     scene: &Scene,
     profile: &RobotProfile,
+    image_size: usize,
     reachable: &[(f32, f32)],
     index: usize,
     renderer: &mut Renderer,
@@ -83,9 +84,9 @@ pub fn sight_object(
         .filter(|p| distance(p) >= NEAREST_M)
         .collect();
     candidates.sort_by(|a, b| distance(a).total_cmp(&distance(b)));
-    let min_pixels = MIN_PIXELS.max((MIN_SHARE * (profile.image_size.pow(2)) as f32) as usize);
+    let min_pixels = MIN_PIXELS.max((MIN_SHARE * (image_size.pow(2)) as f32) as usize);
     for &position in candidates.iter().take(CANDIDATE_POSITIONS) {
-        if let Some(view) = view_from(scene, profile, index, position, renderer)? {
+        if let Some(view) = view_from(scene, profile, image_size, index, position, renderer)? {
             if view.pixels.len() >= min_pixels && within_reach(&view) {
                 return Ok(Sighting::Reachable(view));
             }
@@ -96,7 +97,7 @@ pub fn sight_object(
         .iter()
         .take_while(|p| distance(p) <= SEARCH_RADIUS_M)
     {
-        let Some(view) = view_from(scene, profile, index, position, renderer)? else {
+        let Some(view) = view_from(scene, profile, image_size, index, position, renderer)? else {
             continue;
         };
         if within_reach(&view) {
@@ -117,6 +118,7 @@ pub fn sight_object(
 fn view_from(
     scene: &Scene,
     profile: &RobotProfile,
+    image_size: usize,
     index: usize,
     (x, y): (f32, f32),
     renderer: &mut Renderer,
@@ -133,7 +135,7 @@ fn view_from(
             .to_degrees()
             .clamp(-30.0, 60.0),
     };
-    let sim = Simulator::new(scene.clone(), profile.clone(), pose)
+    let sim = Simulator::new(scene.clone(), profile.clone(), pose, image_size)
         .with_context(|| format!("placing the agent in {}", scene.name))?;
     let frame = sim
         .render(renderer)

@@ -26,6 +26,7 @@ const DRAWS_PER_VIEW: usize = 50;
 pub fn test_views(
     scene: &Scene,
     profile: &RobotProfile,
+    image_size: usize,
     reachable: &[(f32, f32)],
     renderer: &mut Renderer,
     count: usize,
@@ -49,7 +50,7 @@ pub fn test_views(
             yaw_deg: 30.0 * rng.random_range(0..12) as f32,
             horizon_deg: HORIZONS_DEG[rng.random_range(0..HORIZONS_DEG.len())],
         };
-        let sim = Simulator::new(scene.clone(), profile.clone(), pose)
+        let sim = Simulator::new(scene.clone(), profile.clone(), pose, image_size)
             .with_context(|| format!("placing the agent in {}", scene.name))?;
         let frame = sim
             .render(renderer)

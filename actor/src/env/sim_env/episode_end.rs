@@ -56,7 +56,7 @@ impl SimEnv {
     /// Stores on the map a confidence label for every untouched object the
     /// calibrated U-Net is sure about over the episode's frames.
     fn annotate_by_confidence(&self, episode: &mut Episode) -> anyhow::Result<()> {
-        let pixels = self.profile.image_size * self.profile.image_size;
+        let pixels = self.config.image_size * self.config.image_size;
         for (plane, &affordance) in self.config.affordances.iter().enumerate() {
             let planes: Vec<Vec<f32>> = episode
                 .probabilities

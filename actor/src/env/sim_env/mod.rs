@@ -67,6 +67,9 @@ pub struct SimEnvConfig {
     pub affordances: Vec<Affordance>,
     /// Steps per episode (600 in the paper).
     pub episode_steps: usize,
+    /// Side of the camera's square images, pixels (the run's
+    /// `[task] image_size`; 128 in the paper).
+    pub image_size: usize,
     /// Reward weights.
     pub reward: RewardWeights,
     /// Object selection.
@@ -93,6 +96,7 @@ impl SimEnvConfig {
             method,
             affordances: affordances.to_vec(),
             episode_steps: 600,
+            image_size: 128,
             reward: RewardWeights::default(),
             selection: SelectionRule::default(),
             map: MapConfig::default(),
@@ -252,8 +256,8 @@ impl SimEnv {
     ) -> Self {
         let space = ActionSpace::new(&config.affordances, Selection::of(config.method));
         let state_config = StateConfig {
-            image_size: profile.image_size,
-            map_cells: profile.image_size,
+            image_size: config.image_size,
+            map_cells: config.image_size,
             ..StateConfig::paper(config.method, &config.affordances, space.len())
         };
         Self {
@@ -346,7 +350,7 @@ impl SimEnv {
     pub fn begin_reset(&mut self, seed: u64) -> anyhow::Result<()> {
         let (scene_index, scene) = self.source.pick(seed);
         let mut rng = StdRng::seed_from_u64(seed);
-        let (sim, _) = randomise(&scene, &self.profile, &mut rng)
+        let (sim, _) = randomise(&scene, &self.profile, self.config.image_size, &mut rng)
             .with_context(|| format!("setting up an episode in {}", scene.name))?;
         let start = sim.agent();
         let truth = ground_truth_planes(sim.scene(), &self.profile, &self.config.affordances);

@@ -110,7 +110,7 @@ impl SimEnv {
             true,
         ) = (self.space.to_sim(action, &episode.targets), outcome.success)
         {
-            let width = self.profile.image_size;
+            let width = self.config.image_size;
             let instance = episode
                 .truth_ids
                 .last()
