@@ -26,7 +26,7 @@ use crate::actor_host::{self, ActorHost};
 use crate::learner_host::{self, LearnerHost};
 
 /// Messages a sender may have in flight.
-const WINDOW: usize = 4;
+pub(crate) const WINDOW: usize = 4;
 
 /// How long one case may take before the benchmark gives up.
 const CASE_TIMEOUT: Duration = Duration::from_secs(120);
@@ -63,6 +63,8 @@ pub struct Report {
     pub paths: Vec<Figures>,
     /// Per weights size, through the gateway pair.
     pub weights: Vec<WeightsFigure>,
+    /// Cases that could not be measured, and why.
+    pub failed: Vec<String>,
 }
 
 /// A safetensors file of one `size`-byte tensor: what a weights message
@@ -80,13 +82,13 @@ fn safetensors_of(size: usize) -> Vec<u8> {
 /// Messages received so far, which a sender can sleep on (a spinning
 /// sender would take a core from the paths it measures).
 #[derive(Default)]
-struct Received {
+pub(crate) struct Received {
     count: Mutex<usize>,
     changed: Condvar,
 }
 
 impl Received {
-    fn add(&self) {
+    pub(crate) fn add(&self) {
         *self.count.lock().unwrap_or_else(|p| p.into_inner()) += 1;
         self.changed.notify_all();
     }
@@ -120,12 +122,13 @@ fn percentile(sorted: &[f64], q: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * q).round() as usize]
 }
 
-/// Streams `count` messages through `send` with at most [`WINDOW`] in
+/// Streams `count` messages through `send` with at most `window` in
 /// flight, then `count` more one at a time; `received` counts what arrived.
-fn measure(
+pub(crate) fn measure(
     path: &'static str,
     bytes: usize,
     count: usize,
+    window: usize,
     received: &Received,
     send: &mut dyn FnMut() -> anyhow::Result<()>,
 ) -> anyhow::Result<Figures> {
@@ -151,7 +154,7 @@ fn measure(
     base = received.now();
     let start = Instant::now();
     for sent in 0..count {
-        wait_until((base + sent).saturating_sub(WINDOW - 1))?;
+        wait_until((base + sent).saturating_sub(window - 1))?;
         send()?;
     }
     wait_until(base + count)?;
@@ -233,6 +236,7 @@ fn local(sizes: &[usize], count: usize, key: &JoinKey, tag: &str) -> anyhow::Res
             "iceoryx2, one host",
             encoded_len(&chunk),
             count,
+            WINDOW,
             &received,
             &mut || publish(&mut actor, &chunk),
         )?);
@@ -281,6 +285,7 @@ fn tcp(sizes: &[usize], count: usize) -> anyhow::Result<Vec<Figures>> {
             "loopback TCP",
             out.len(),
             count,
+            WINDOW,
             &received,
             &mut || {
                 proto::encode_into(&chunk, MessageHeader::default(), &mut out);
@@ -373,6 +378,7 @@ fn gateways(
             "gateway pair (Zenoh, loopback TCP)",
             encoded_len(&chunk),
             count,
+            WINDOW,
             &received,
             &mut || publish(&mut actor, &chunk),
         )?);
@@ -421,22 +427,40 @@ fn gateways(
     Ok(Report {
         paths: figures,
         weights,
+        failed: Vec::new(),
     })
 }
 
 /// Runs every case for message sizes `sizes` (bytes), `count` messages
-/// each; scratch files go to `scratch`. Returns the figures and, per size,
-/// the median time (ms) new weights took to reach the remote actor.
-pub fn run(sizes: &[usize], count: usize, scratch: &Path) -> anyhow::Result<Report> {
+/// each; scratch files go to `scratch`; with `upstream_tunnel` (the path of
+/// `iox2-link-tunnel-zenoh`) also through iceoryx2's own bridge. Returns
+/// the figures and, per size, the median time (ms) new weights took to
+/// reach the remote actor.
+pub fn run(
+    sizes: &[usize],
+    count: usize,
+    scratch: &Path,
+    upstream_tunnel: Option<&Path>,
+) -> anyhow::Result<Report> {
     let key = JoinKey::from_bytes([9; proto::JOIN_KEY_LEN]);
     let tag = std::process::id().to_string();
     let mut figures = local(sizes, count, &key, &tag)?;
     figures.extend(tcp(sizes, count)?);
     let through = gateways(sizes, count, &key, &tag, scratch)?;
     figures.extend(through.paths);
+    let mut failed = Vec::new();
+    if let Some(binary) = upstream_tunnel {
+        for row in crate::bench_tunnel::upstream_tunnel(binary, sizes, count, scratch)? {
+            match row {
+                Ok(f) => figures.push(f),
+                Err(why) => failed.push(why),
+            }
+        }
+    }
     Ok(Report {
         paths: figures,
         weights: through.weights,
+        failed,
     })
 }
 
@@ -452,7 +476,9 @@ pub fn table(report: &Report) -> String {
             .find(|t| t.path == "loopback TCP" && t.bytes == f.bytes)
             .map(|t| t.mib_per_s);
         let ratio = match tcp {
-            Some(tcp) if f.path.starts_with("gateway") => format!("{:.2}", f.mib_per_s / tcp),
+            Some(tcp) if f.path != "loopback TCP" && f.path != "iceoryx2, one host" => {
+                format!("{:.2}", f.mib_per_s / tcp)
+            }
             _ => String::new(),
         };
         out.push_str(&format!(
@@ -463,6 +489,9 @@ pub fn table(report: &Report) -> String {
             f.p50_ms,
             f.p99_ms
         ));
+    }
+    for why in &report.failed {
+        out.push_str(&format!("\nNot measured: {why}\n"));
     }
     out.push_str("\n| weights | publish → checked by the remote actor, median ms |\n|---|---|\n");
     for WeightsFigure {
@@ -485,7 +514,7 @@ mod tests {
     #[test]
     fn every_path_carries_small_messages_and_weights_reach_the_remote_actor() {
         let dir = tempfile::tempdir().unwrap();
-        let report = run(&[64 << 10], 3, dir.path()).unwrap();
+        let report = run(&[64 << 10], 3, dir.path(), None).unwrap();
         let paths: Vec<_> = report.paths.iter().map(|f| f.path).collect();
         assert_eq!(
             paths,

@@ -9,6 +9,7 @@
 
 pub mod actor_host;
 pub mod bench;
+mod bench_tunnel;
 pub mod keys;
 pub mod learner_host;
 pub mod link;

@@ -89,6 +89,11 @@ enum Command {
         /// Messages per size and path (as many again for latency).
         #[arg(long, default_value_t = 50)]
         count: usize,
+        /// Also through iceoryx2's own bridge, as a baseline: the path of
+        /// its `iox2-link-tunnel-zenoh` binary (`cargo install
+        /// iceoryx2-integrations-zenoh-link-tunnel-cli`).
+        #[arg(long, value_name = "BINARY")]
+        upstream_tunnel: Option<PathBuf>,
     },
 }
 
@@ -108,7 +113,11 @@ fn main() -> anyhow::Result<()> {
         signal_hook::flag::register(signal, stop.clone()).context("installing signal handlers")?;
     }
     match cli.command {
-        Command::Bench { sizes_mib, count } => {
+        Command::Bench {
+            sizes_mib,
+            count,
+            upstream_tunnel,
+        } => {
             anyhow::ensure!(
                 count > 0 && sizes_mib.iter().all(|&s| s > 0.0 && s <= 64.0),
                 "--count must be positive and --sizes-mib in (0, 64]"
@@ -119,7 +128,14 @@ fn main() -> anyhow::Result<()> {
                 .collect();
             let scratch =
                 std::env::temp_dir().join(format!("afx-gateway-bench-{}", std::process::id()));
-            let result = gateway::bench::run(&sizes, count, &scratch);
+            if let Some(binary) = &upstream_tunnel {
+                anyhow::ensure!(
+                    binary.is_file(),
+                    "--upstream-tunnel {}: no such file (install it with `cargo install iceoryx2-integrations-zenoh-link-tunnel-cli`)",
+                    binary.display()
+                );
+            }
+            let result = gateway::bench::run(&sizes, count, &scratch, upstream_tunnel.as_deref());
             let _ = std::fs::remove_dir_all(&scratch);
             print!("{}", gateway::bench::table(&result?));
             Ok(())
