@@ -135,7 +135,10 @@ mod tests {
         let e = RobotProfile::from_toml("name = \"a\"\nspeed = 3", "y.toml").unwrap_err();
         assert!(e.to_string().contains("y.toml"), "{e}");
         // A profile written before the resolution moved to the run's task.
-        let old = format!("{}\nimage_size = 128\n", include_str!("../profiles/default.toml"));
+        let old = format!(
+            "{}\nimage_size = 128\n",
+            include_str!("../profiles/default.toml")
+        );
         let e = RobotProfile::from_toml(&old, "old.toml").unwrap_err();
         assert!(e.to_string().contains("[task] image_size"), "{e}");
     }
