@@ -226,7 +226,18 @@ proptest! {
             _ => bytes[40..48].copy_from_slice(&u64::from(value).to_le_bytes()),
         }
         prop_assume!(bytes != original);
-        prop_assert!(decode(&bytes, &LIMITS).is_err());
+        match decode(&bytes, &LIMITS) {
+            Err(_) => {}
+            // The checksum covers the payload, not the kind: a payload that
+            // also happens to be a valid layout of another kind (an 80-byte
+            // frame batch read as a join) decodes as that kind, and its
+            // contents then face that kind's own checks (a join's proof).
+            Ok((_, message)) => prop_assert!(
+                field == 2,
+                "{:?} accepted after damage to header field {field}",
+                message.kind()
+            ),
+        }
     }
 
     #[test]
