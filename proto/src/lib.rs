@@ -16,6 +16,7 @@ mod frames;
 mod header;
 mod join;
 mod message;
+mod method;
 mod payload;
 mod rollout;
 pub mod service;
@@ -32,13 +33,14 @@ pub use join::{Join, JoinKey, JoinKeyError, JOIN_KEY_LEN, JOIN_PAYLOAD_LEN};
 pub use message::{
     decode, decode_header, decode_weights, encode, encode_into, encoded_len, Limits, Message,
 };
+pub use method::{LabelSource, Method, MethodSpec, Selection};
 pub use payload::Payload;
 pub use rollout::{
     byte_to_unit, obs_bytes_from_f32, unit_to_byte, ObsDtype, RolloutChunk, RolloutView,
     MAX_ACTIONS, MAX_STEPS,
 };
 pub use stats::{AffordanceStat, EpisodeStats, StatField, StatKey};
-pub use task::{Affordance, EnvKind, Method, PolicyLayout, RewardWeights, TaskError, TaskSpec};
+pub use task::{Affordance, EnvKind, PolicyLayout, RewardWeights, TaskError, TaskSpec};
 pub use weights::{
     WeightsBlob, WeightsView, WEIGHTS_META_ENV_STEPS, WEIGHTS_META_TEMPERATURE,
     WEIGHTS_POLICY_PREFIX, WEIGHTS_TAG_LEN, WEIGHTS_UNET_PREFIX,

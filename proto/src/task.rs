@@ -5,6 +5,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::method::Method;
 use crate::ObsDtype;
 
 /// What the robot can try on an object.
@@ -38,38 +39,6 @@ impl Affordance {
         match self {
             Affordance::PickUp => "pick_up",
             Affordance::Push => "push",
-        }
-    }
-}
-
-/// The four methods of the paper's comparison (ARCHITECTURE.md, "Methods").
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Method {
-    /// Map-based state and labels: annotation by interaction and by confidence.
-    Ours,
-    /// No map: GRU memory, labels from segmentation masks.
-    NomapSeg,
-    /// No map: GRU memory, 20 cm sphere labels.
-    NomapNoseg,
-    /// IntExp: RGB + affordances, most-centred object, sphere labels.
-    Intexp,
-}
-
-impl Method {
-    /// Whether the method sees an instance segmentation (and so knows the
-    /// background from the objects).
-    pub fn segments(self) -> bool {
-        matches!(self, Method::Ours | Method::NomapSeg)
-    }
-
-    /// kebab-case name, as on the command line.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Method::Ours => "ours",
-            Method::NomapSeg => "nomap-seg",
-            Method::NomapNoseg => "nomap-noseg",
-            Method::Intexp => "intexp",
         }
     }
 }
@@ -323,16 +292,13 @@ impl TaskSpec {
     /// precision 0.13 → 0.60 with it: docs/decisions/0002-background-labels.md).
     pub fn labels_background(&self) -> bool {
         self.background_negative
-            .unwrap_or_else(|| self.method.segments())
+            .unwrap_or_else(|| self.method.spec().segmentation)
     }
 
     /// Object-selection actions per affordance: a 3 × 3 grid, or for
     /// `intexp` one action on the most-centred object.
     pub fn selection_slots(&self) -> usize {
-        match self.method {
-            Method::Intexp => 1,
-            _ => GRID_CELLS,
-        }
+        self.method.spec().selection.slots()
     }
 
     /// Actions of the simulator's head: navigation, the selection slots per
@@ -352,7 +318,7 @@ impl TaskSpec {
     /// Whether the method keeps an object-level map (only `ours`); the
     /// others remember through a GRU.
     pub fn uses_map(&self) -> bool {
-        self.method == Method::Ours
+        self.method.spec().map
     }
 
     /// Channels of the camera input. `ours`: RGB, distance, and per
@@ -361,11 +327,8 @@ impl TaskSpec {
     /// probabilities; `intexp`: RGB and the probabilities.
     pub fn camera_channels(&self) -> usize {
         let a = self.affordances.len();
-        match self.method {
-            Method::Ours => 4 + 3 * a,
-            Method::NomapSeg | Method::NomapNoseg => 4 + a,
-            Method::Intexp => 3 + a,
-        }
+        let spec = self.method.spec();
+        3 + usize::from(spec.distance) + a + if spec.map { 2 * a } else { 0 }
     }
 
     /// Channels of each 2-D map: visited, occupancy, and per affordance
@@ -392,23 +355,19 @@ impl TaskSpec {
                 gru_hidden: None,
             },
             EnvKind::Sim => {
-                let (image_channels, vector_dims) = match self.method {
-                    // Camera, global map (10 m), local map (2 m); history and inventory.
-                    Method::Ours => (
-                        vec![
-                            self.camera_channels(),
-                            self.map_channels(),
-                            self.map_channels(),
-                        ],
-                        vec![self.history_len(), 1],
-                    ),
-                    Method::NomapSeg | Method::NomapNoseg => {
-                        (vec![self.camera_channels()], vec![self.history_len(), 1])
-                    }
-                    // IntExp sees the image and the affordances; the
-                    // inventory tells it what the hand holds.
-                    Method::Intexp => (vec![self.camera_channels()], vec![1]),
-                };
+                // The camera; with a map its global (10 m) and local (2 m)
+                // maps. The history if the method has it; the inventory
+                // (what the hand holds) always.
+                let spec = self.method.spec();
+                let mut image_channels = vec![self.camera_channels()];
+                if spec.map {
+                    image_channels.extend([self.map_channels(), self.map_channels()]);
+                }
+                let mut vector_dims = Vec::new();
+                if spec.history {
+                    vector_dims.push(self.history_len());
+                }
+                vector_dims.push(1);
                 PolicyLayout {
                     image_channels,
                     image_size: self.image_size,

@@ -50,32 +50,10 @@ pub enum PolicyAction {
     MoveHeld(HandMove),
 }
 
-/// How the policy picks the object to interact with.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Selection {
-    /// One action per cell of the 3 × 3 grid (the paper's).
-    Grid,
-    /// One action: the most-centred object (IntExp's).
-    Centred,
-}
+pub use proto::Selection;
 
-impl Selection {
-    /// The selection of `method`.
-    pub fn of(method: proto::Method) -> Self {
-        match method {
-            proto::Method::Intexp => Selection::Centred,
-            _ => Selection::Grid,
-        }
-    }
-
-    /// Selection actions per affordance.
-    pub fn slots(self) -> usize {
-        match self {
-            Selection::Grid => GRID * GRID,
-            Selection::Centred => 1,
-        }
-    }
-}
+// The grid's geometry here and its action count in the task agree.
+const _: () = assert!(GRID * GRID == proto::task::GRID_CELLS);
 
 /// The action space for a set of affordances.
 #[derive(Debug, Clone, PartialEq)]
@@ -447,7 +425,7 @@ mod tests {
                 method,
                 ..proto::TaskSpec::default()
             };
-            let space = ActionSpace::new(&task.affordances, Selection::of(method));
+            let space = ActionSpace::new(&task.affordances, method.spec().selection);
             assert_eq!(space.len(), task.n_actions(), "{method:?}");
         }
     }

@@ -83,7 +83,7 @@ impl StateConfig {
 
     /// Channels of each map input (0 without a map).
     pub fn map_channels(&self) -> usize {
-        if self.method == Method::Ours {
+        if self.method.spec().map {
             self.task().map_channels()
         } else {
             0
@@ -109,7 +109,7 @@ impl StateConfig {
 
     /// Length of the history vector (0 for `intexp`).
     pub fn history_len(&self) -> usize {
-        if self.method == Method::Intexp {
+        if !self.method.spec().history {
             0
         } else {
             self.history * (self.n_actions + 2)
@@ -228,7 +228,7 @@ fn camera_planes(config: &StateConfig, input: &StateInputs<'_>, map: Option<&Map
     }
     let k = input.intrinsics;
     let (ax, ay, _) = input.agent;
-    let distance = config.method != Method::Intexp;
+    let distance = config.method.spec().distance;
     out.extend(
         input
             .depth_m

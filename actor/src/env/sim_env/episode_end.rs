@@ -3,7 +3,7 @@
 //! simulator's ground truth.
 
 use super::*;
-use proto::{AffordanceStat, StatField};
+use proto::{AffordanceStat, LabelSource, StatField};
 
 impl SimEnv {
     /// Ends the episode: its labelled frames for the learner (interaction
@@ -86,9 +86,9 @@ impl SimEnv {
         let planes = self.config.affordances.len();
         let poses = &episode.object_poses;
         let pose_of = |frame: usize, object: usize| poses[frame][object];
-        match self.config.method {
-            Method::Ours => map_labels(&episode.map, &episode.frames, &self.config.affordances),
-            Method::NomapSeg => segment_labels(
+        match self.config.method.spec().labels {
+            LabelSource::Map => map_labels(&episode.map, &episode.frames, &self.config.affordances),
+            LabelSource::Segments => segment_labels(
                 &episode.frames,
                 k,
                 &episode.points,
@@ -96,7 +96,7 @@ impl SimEnv {
                 &pose_of,
                 &self.config.sphere,
             ),
-            Method::NomapNoseg | Method::Intexp => sphere_labels(
+            LabelSource::Spheres => sphere_labels(
                 &episode.frames,
                 k,
                 &episode.points,

@@ -110,7 +110,7 @@ impl SimEnvConfig {
 
     /// Whether the method keeps the object-level map.
     fn uses_map(&self) -> bool {
-        self.method == Method::Ours
+        self.method.spec().map
     }
 }
 
@@ -254,7 +254,7 @@ impl SimEnv {
         profile: RobotProfile,
         renderer: Renderer,
     ) -> Self {
-        let space = ActionSpace::new(&config.affordances, Selection::of(config.method));
+        let space = ActionSpace::new(&config.affordances, config.method.spec().selection);
         let state_config = StateConfig {
             image_size: config.image_size,
             map_cells: config.image_size,

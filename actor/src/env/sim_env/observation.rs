@@ -107,7 +107,7 @@ impl SimEnv {
         let k = intrinsics(&camera);
         let agent = episode.sim.agent();
         let holding = episode.sim.held().is_some();
-        episode.targets = match Selection::of(self.config.method) {
+        episode.targets = match self.config.method.spec().selection {
             Selection::Grid => cell_targets(
                 &map_ids,
                 frame.width,
