@@ -8,7 +8,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::task::GRID_CELLS;
+/// Cells of the object-selection grid per affordance (3 × 3).
+pub const GRID_CELLS: usize = 9;
 
 /// The four methods of the paper's comparison (ARCHITECTURE.md, "Methods").
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]

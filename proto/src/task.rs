@@ -61,8 +61,6 @@ pub const BANDIT_ACTIONS: usize = 4;
 pub const HISTORY_STEPS: usize = 5;
 /// Navigation actions of the simulator's action space.
 pub const NAV_ACTIONS: usize = 5;
-/// Cells of the object-selection grid per affordance (3 × 3).
-pub const GRID_CELLS: usize = 9;
 /// Moves of a held object (± 0.1 m along three axes).
 pub const HAND_MOVES: usize = 6;
 /// GRU hidden size of the methods without a map (IntExp: one layer of 512).

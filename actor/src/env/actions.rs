@@ -53,7 +53,7 @@ pub enum PolicyAction {
 pub use proto::Selection;
 
 // The grid's geometry here and its action count in the task agree.
-const _: () = assert!(GRID * GRID == proto::task::GRID_CELLS);
+const _: () = assert!(GRID * GRID == proto::GRID_CELLS);
 
 /// The action space for a set of affordances.
 #[derive(Debug, Clone, PartialEq)]

@@ -27,7 +27,7 @@ use iceoryx2::config::Config;
 use iceoryx2::prelude::*;
 use proto::{encoded_len, Limits, MessageHeader, RolloutChunk};
 
-use crate::bench::{measure, Figures, Received, WINDOW};
+use crate::measure::{measure, Figures, Received, WINDOW};
 
 /// What the rows of this path are called in the table.
 pub const PATH: &str = "upstream iox2 tunnel (Zenoh, loopback TCP)";

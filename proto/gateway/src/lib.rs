@@ -13,6 +13,7 @@ mod bench_tunnel;
 pub mod keys;
 pub mod learner_host;
 pub mod link;
+mod measure;
 pub mod remote;
 mod weights_in;
 
