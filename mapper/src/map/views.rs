@@ -11,9 +11,9 @@ use crate::render::{raycast_layer, render_layers, Pixels, PlacedLayer, RenderTar
 use crate::Pose;
 
 impl Map {
-    /// The placed objects ([`MapObject::is_placed`]) in a camera, front to
-    /// back (rendered in this order, the z-buffer cuts the rays of occluded
-    /// objects short).
+    /// The placed objects ([`MapObject::is_placed`](super::MapObject::is_placed))
+    /// in a camera, front to back (rendered in this order, the z-buffer cuts
+    /// the rays of occluded objects short).
     pub fn objects_in_camera(&self, t_world_camera: &Pose) -> Vec<PlacedLayer<'_>> {
         let t_camera_world = t_world_camera.inverse();
         let mut layers: Vec<(ObjectId, PlacedLayer<'_>)> = self
