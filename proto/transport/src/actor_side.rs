@@ -9,7 +9,7 @@ use proto::{Join, JoinKey, MessageHeader, MessageKind, Payload, ProtoError, Weig
 
 use crate::config::TransportConfig;
 use crate::learner_side::ReceivedMessage;
-use crate::services::{open_event, open_pubsub, wakeup_service};
+use crate::services::{open_pubsub, wakeup_notifier};
 use crate::weights_side::WeightsSubscriber;
 use crate::{open_node, Delivery, Ipc, TransportError};
 
@@ -105,12 +105,7 @@ impl ActorPorts {
             upstream(MessageKind::Stats)?,
         ];
         let weights = WeightsSubscriber::open(&node, config)?;
-        let wakeup = open_event(&node, config, &wakeup_service(config)?)?
-            .notifier_builder()
-            .create()
-            .map_err(|e| {
-                TransportError::new("create notifier", proto::service::LEARNER_WAKEUP, e)
-            })?;
+        let wakeup = wakeup_notifier(&node, config)?;
         let mut ports = Self {
             actor_id,
             upstream,

@@ -1,6 +1,7 @@
 //! One function per service shape, with every limit spelled out. Both sides
 //! call these, so the settings always agree.
 
+use iceoryx2::port::notifier::Notifier;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 use proto::MessageKind;
@@ -70,6 +71,18 @@ pub(crate) fn open_event(
 /// The event an actor notifies after publishing.
 pub(crate) fn wakeup_service(config: &TransportConfig) -> Result<ServiceName, TransportError> {
     service_name(&config.service_prefix, proto::service::LEARNER_WAKEUP)
+}
+
+/// A notifier on the wakeup event of `config`'s run: what an actor rings
+/// after publishing (and a thread that stands in for one, [`crate::Wakeup`]).
+pub(crate) fn wakeup_notifier(
+    node: &Node<Ipc>,
+    config: &TransportConfig,
+) -> Result<Notifier<Ipc>, TransportError> {
+    open_event(node, config, &wakeup_service(config)?)?
+        .notifier_builder()
+        .create()
+        .map_err(|e| TransportError::new("create notifier", proto::service::LEARNER_WAKEUP, e))
 }
 
 /// The event the learner notifies after publishing weights.

@@ -13,7 +13,7 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::prelude::*;
 
 use crate::config::TransportConfig;
-use crate::services::{open_event, wakeup_service};
+use crate::services::wakeup_notifier;
 use crate::{open_node, Ipc, TransportError};
 
 /// A notifier on the wakeup event of the run described by a config, on a
@@ -28,12 +28,7 @@ impl Wakeup {
     /// (it takes one of the event's spare notifier slots).
     pub fn open(config: &TransportConfig, name: &str) -> Result<Self, TransportError> {
         let node = open_node(name)?;
-        let notifier = open_event(&node, config, &wakeup_service(config)?)?
-            .notifier_builder()
-            .create()
-            .map_err(|e| {
-                TransportError::new("create notifier", proto::service::LEARNER_WAKEUP, e)
-            })?;
+        let notifier = wakeup_notifier(&node, config)?;
         Ok(Self {
             notifier,
             _node: node,
