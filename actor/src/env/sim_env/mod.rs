@@ -11,17 +11,19 @@
 //! The methods without a map skip the map: objects are the simulator's
 //! segmentation, each interaction leaves a 3-D point on its object, and the
 //! labels come from those points (the whole segment under the point for
-//! `nomap-seg`, a 0.2 m sphere for `nomap-noseg` and `intexp`).
+//! `nomap-seg`, a 0.2 m sphere for `nomap-noseg` and `intexp`). Which of the
+//! two an episode keeps is its [`ObjectMemory`]; its metrics accumulate in
+//! an [`EpisodeMetrics`]; a recording, when asked for, observes it.
 //!
 //! This file holds the settings, the episode's working state and resets;
 //! `step` the first half of a step, `observation` the second (capture and
 //! observe), `episode_end` the labels and metrics of a finished episode,
-//! `episode_recording` its recording.
+//! `recorder` its recording.
 
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use mapper::{Affordance, Map, MapConfig, ObjectId, Outcome as MapOutcome, Pose};
+use mapper::{Affordance, MapConfig};
 use nalgebra::Point2;
 use proto::{FrameBatch, Method, StatKey};
 use rand::rngs::StdRng;
@@ -31,32 +33,29 @@ use sim::profile::RobotProfile;
 use sim::randomise::randomise;
 use sim::raycast::Frame;
 use sim::renderer::Renderer;
-use sim::scene::OrientedBox;
 use sim::scenes::SceneSource;
 
 use crate::env::actions::{
     cell_targets, centred_target, ActionSpace, CellTargets, PolicyAction, Selection, SelectionRule,
-    Target,
 };
 use crate::env::affordance_model::{AffordanceModel, CameraFrame};
+use crate::env::episode_metrics::EpisodeMetrics;
+use crate::env::object_memory::{object_memory, Interaction, MemoryRules, ObjectMemory};
 use crate::env::reward::{RewardTracker, RewardWeights, StepEvent};
 use crate::env::state::{build_state, ActionHistory, State, StateConfig, StateInputs};
-use crate::frame_scores::{annotation_rates, ground_truth_planes, map_id_consistency, score_frame};
+use crate::frame_scores::ground_truth_planes;
 use crate::labeler::{
-    apply_confidence_labels, confidence_labels, frame_batch, label_background_negative, map_labels,
-    segment_labels, sphere_labels, ConfidenceRule, EpisodeFrame, InteractionPoint, SphereRule,
+    frame_batch, label_background_negative, ConfidenceRule, EpisodeFrame, SphereRule,
 };
-use crate::mapping::{class_image, instance_classes, intrinsics, map_frame};
-use crate::recording::{
-    write_episode, EpisodeRecord, FrameRecord, MapLayout, MapPlanesRecord, ObjectRecord, StepRecord,
-};
+use crate::mapping::{instance_classes, intrinsics};
+use crate::recording::StepRecord;
 
 mod episode_end;
-mod episode_recording;
 mod observation;
+mod recorder;
 mod step;
 
-use episode_recording::{RecordedMapPlanes, Recording};
+use recorder::{EpisodeRecorder, Recording};
 
 /// Settings of the environment.
 #[derive(Debug, Clone)]
@@ -111,6 +110,15 @@ impl SimEnvConfig {
     /// Whether the method keeps the object-level map.
     fn uses_map(&self) -> bool {
         self.method.spec().map
+    }
+
+    /// The rules the episode's object memory labels by.
+    fn memory_rules(&self) -> MemoryRules {
+        MemoryRules {
+            map: self.map,
+            confidence: self.confidence,
+            sphere: self.sphere,
+        }
     }
 }
 
@@ -180,60 +188,22 @@ struct Episode {
     /// The frame of the reset or step begun, until [`SimEnv::observe`].
     pending: Option<Captured>,
     sim: Simulator,
-    map: Map,
+    /// The map, or interaction points without one.
+    memory: Box<dyn ObjectMemory>,
     reward: RewardTracker,
     history: ActionHistory,
     visited: Vec<Point2<f32>>,
     frames: Vec<EpisodeFrame>,
     targets: CellTargets,
-    /// Methods without a map: every interaction as a point on its object.
-    points: Vec<InteractionPoint>,
-    /// Methods without a map: every scene object's pose in every frame.
-    object_poses: Vec<Vec<Pose>>,
     steps: usize,
     scene_index: u64,
-    /// The object in the hand: its map id and its box when it was picked up.
-    in_hand: Option<(ObjectId, OrientedBox)>,
-    /// Ground truth per scene object and affordance (plane order).
-    truth: Vec<Vec<bool>>,
-    /// The simulator's instance ids of every frame (object index + 1).
-    truth_ids: Vec<Vec<u32>>,
-    /// The class of every instance id ([`instance_classes`]), for the map.
-    classes: Vec<u16>,
-    /// Wall-clock time of every frame, nanoseconds since the Unix epoch.
-    stamps: Vec<u64>,
-    /// What every step did, for recordings.
-    step_log: Vec<StepRecord>,
-    /// The policy's map planes of every frame, for recordings (methods
-    /// with a map; empty when not recording).
-    map_planes: Vec<RecordedMapPlanes>,
     /// The U-Net's calibrated probabilities of every frame, one byte per
-    /// pixel and affordance (planes in order), for annotation by confidence.
+    /// pixel and affordance (planes in order), for annotation by confidence
+    /// and recordings.
     probabilities: Vec<Vec<u8>>,
-    /// Per affordance: sums and counts of the U-Net's frame IoU and object accuracy.
-    scores: Vec<ScoreSums>,
-    /// Interactions tried and those that succeeded, per affordance
-    /// (indexed by `Affordance as usize`).
-    attempts: [u32; Affordance::ALL.len()],
-    successes: [u32; Affordance::ALL.len()],
-    /// Interactions that failed because the object was beyond reach, and
-    /// because it does not afford the action
-    /// ([`Failure::object_does_not_afford`]), per
-    /// affordance like `attempts`.
-    out_of_reach: [u32; Affordance::ALL.len()],
-    unafforded: [u32; Affordance::ALL.len()],
-    /// Interactable scene objects an interaction succeeded on.
-    interacted: std::collections::BTreeSet<usize>,
-    episode_return: f32,
-}
-
-/// Running sums of per-frame scores.
-#[derive(Debug, Clone, Copy, Default)]
-struct ScoreSums {
-    iou: f64,
-    iou_frames: u32,
-    accuracy: f64,
-    accuracy_frames: u32,
+    metrics: EpisodeMetrics,
+    /// What a recording needs besides, when episodes are recorded.
+    recorder: Option<EpisodeRecorder>,
 }
 
 /// What an episode leaves behind: labelled frames for the learner and the
@@ -357,32 +327,23 @@ impl SimEnv {
         let classes = instance_classes(sim.scene().objects.iter().map(|o| o.object_type.as_str()));
         self.episode = Some(Episode {
             pending: None,
-            truth,
-            classes,
-            truth_ids: Vec::new(),
+            memory: object_memory(
+                &self.config.method.spec(),
+                &self.config.memory_rules(),
+                &self.config.affordances,
+                classes,
+            ),
             probabilities: Vec::new(),
-            stamps: Vec::new(),
-            step_log: Vec::new(),
-            map_planes: Vec::new(),
-            scores: vec![ScoreSums::default(); self.config.affordances.len()],
-            attempts: Default::default(),
-            successes: Default::default(),
-            out_of_reach: [0; Affordance::ALL.len()],
-            unafforded: [0; Affordance::ALL.len()],
-            interacted: Default::default(),
-            episode_return: 0.0,
+            metrics: EpisodeMetrics::new(truth, &self.config.affordances),
+            recorder: self.recording.as_ref().map(|_| EpisodeRecorder::default()),
             reward: RewardTracker::new(self.config.reward, start),
             visited: vec![Point2::new(start.x, start.y)],
             sim,
-            map: Map::new(self.config.map),
             history: ActionHistory::default(),
             frames: Vec::new(),
             targets: CellTargets::default(),
-            points: Vec::new(),
-            object_poses: Vec::new(),
             steps: 0,
             scene_index,
-            in_hand: None,
         });
         self.timings = StepTimings::default();
         self.capture()

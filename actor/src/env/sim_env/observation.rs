@@ -1,47 +1,22 @@
-//! A frame becomes an observation: rendered and integrated into the map
-//! ([`SimEnv::capture`]), handed to the U-Net ([`SimEnv::camera_frame`]),
+//! A frame becomes an observation: rendered and taken in by the episode's
+//! object memory ([`SimEnv::capture`]), handed to the U-Net ([`SimEnv::camera_frame`]),
 //! then scored against the ground truth, turned into targets and the
 //! policy's state ([`SimEnv::observe`]).
 
 use super::*;
 
 impl SimEnv {
-    /// Renders the agent's view and integrates it into the map; the frame
+    /// Renders the agent's view and lets the object memory name its objects
+    /// (integrating it into the map, where there is one); the frame
     /// then waits for the U-Net ([`SimEnv::camera_frame`], [`SimEnv::observe`]).
     pub(super) fn capture(&mut self) -> anyhow::Result<()> {
         let episode = self.episode.as_mut().context("capture before reset")?;
         let t0 = Instant::now();
         let frame: Frame = episode.sim.render(&mut self.renderer)?;
-        let camera = episode.sim.camera();
         let t1 = Instant::now();
-        // The frame's objects: map ids, or the segmentation without a map.
-        let map_ids = if self.config.uses_map() {
-            episode
-                .map
-                .integrate(&map_frame(
-                    &camera,
-                    &frame,
-                    &class_image(&frame.ids, &episode.classes),
-                ))
-                .context("integrating the frame into the map")?
-        } else {
-            episode.object_poses.push(
-                episode
-                    .sim
-                    .scene()
-                    .objects
-                    .iter()
-                    .map(|o| Pose::from_parts(o.bounds.center.coords.into(), o.bounds.rotation))
-                    .collect(),
-            );
-            frame.ids.clone()
-        };
+        let map_ids = episode.memory.take_in(&episode.sim, &frame)?;
         let t2 = Instant::now();
-        let map_stages = if self.config.uses_map() {
-            episode.map.last_timings()
-        } else {
-            mapper::IntegrateTimings::default()
-        };
+        let map_stages = episode.memory.integrate_timings();
         episode.pending = Some(Captured { frame, map_ids });
         self.timings = StepTimings {
             sim: Duration::ZERO,
@@ -87,21 +62,6 @@ impl SimEnv {
             frame.width
         );
         let t3 = Instant::now();
-        for (plane, (probabilities, sums)) in
-            probabilities.iter().zip(&mut episode.scores).enumerate()
-        {
-            let truth = &episode.truth;
-            let affords = |id: u32| truth.get(id as usize - 1).is_some_and(|t| t[plane]);
-            let scores = score_frame(probabilities, &frame.ids, &affords);
-            if let Some(iou) = scores.iou {
-                sums.iou += f64::from(iou);
-                sums.iou_frames += 1;
-            }
-            if let Some(accuracy) = scores.object_accuracy {
-                sums.accuracy += f64::from(accuracy);
-                sums.accuracy_frames += 1;
-            }
-        }
         // The agent has not moved since the frame was captured.
         let camera = episode.sim.camera();
         let k = intrinsics(&camera);
@@ -135,33 +95,16 @@ impl SimEnv {
                 reach_m: self.profile.reach_m,
                 visited: &episode.visited,
                 probabilities: &probabilities,
-                map: self.config.uses_map().then_some(&episode.map),
+                map: episode.memory.map(),
                 history: &episode.history,
                 holding,
             },
         );
-        if self.recording.is_some() && !state.global_map.is_empty() {
-            episode.map_planes.push(RecordedMapPlanes {
-                agent: (agent.x, agent.y, agent.yaw_deg.to_radians()),
-                global: state
-                    .global_map
-                    .iter()
-                    .map(|&v| proto::unit_to_byte(v))
-                    .collect(),
-                local: state
-                    .local_map
-                    .iter()
-                    .map(|&v| proto::unit_to_byte(v))
-                    .collect(),
-            });
+        if let Some(recorder) = &mut episode.recorder {
+            recorder.observation(&state, (agent.x, agent.y, agent.yaw_deg.to_radians()));
         }
         let mask = self.space.mask(holding, &episode.targets);
-        episode.truth_ids.push(frame.ids);
-        episode.stamps.push(
-            std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map_or(0, |d| d.as_nanos() as u64),
-        );
+        episode.metrics.observe_frame(&probabilities, frame.ids);
         episode.probabilities.push(
             probabilities
                 .iter()

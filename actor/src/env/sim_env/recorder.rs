@@ -1,7 +1,11 @@
 //! An episode as a Foxglove recording (`crate::recording`): its frames,
 //! the policy's maps, and the map's objects with their meshes and labels.
+//! While episodes are recorded, each has an [`EpisodeRecorder`] that
+//! observes its steps and observations for what the episode does not keep
+//! itself.
 
 use super::*;
+use crate::recording::{write_episode, EpisodeRecord, FrameRecord, MapLayout, MapPlanesRecord};
 
 /// Which episodes go to MCAP files, and where.
 #[derive(Debug, Clone)]
@@ -30,14 +34,59 @@ impl Recording {
     }
 }
 
+/// What a recording needs of an episode beyond what the episode keeps:
+/// when each frame was observed, what each step did, and the policy's map
+/// planes.
+#[derive(Default)]
+pub(super) struct EpisodeRecorder {
+    /// Wall-clock time of every frame, nanoseconds since the Unix epoch.
+    stamps: Vec<u64>,
+    /// What every step did.
+    steps: Vec<StepRecord>,
+    /// The policy's map planes of every frame (methods with a map).
+    map_planes: Vec<RecordedMapPlanes>,
+}
+
+impl EpisodeRecorder {
+    /// A step done.
+    pub(super) fn step(&mut self, record: StepRecord) {
+        self.steps.push(record);
+    }
+
+    /// A frame observed, with the state the policy got from it and where
+    /// the agent was (x, y in metres, heading in radians).
+    pub(super) fn observation(&mut self, state: &State, agent: (f32, f32, f32)) {
+        self.stamps.push(
+            std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_nanos() as u64),
+        );
+        if !state.global_map.is_empty() {
+            self.map_planes.push(RecordedMapPlanes {
+                agent,
+                global: state
+                    .global_map
+                    .iter()
+                    .map(|&v| proto::unit_to_byte(v))
+                    .collect(),
+                local: state
+                    .local_map
+                    .iter()
+                    .map(|&v| proto::unit_to_byte(v))
+                    .collect(),
+            });
+        }
+    }
+}
+
 /// One frame's map planes as the policy saw them, kept for a recording.
-pub(super) struct RecordedMapPlanes {
+struct RecordedMapPlanes {
     /// x, y (metres), heading (radians).
-    pub(super) agent: (f32, f32, f32),
+    agent: (f32, f32, f32),
     /// The planes as bytes (`proto::unit_to_byte`, as the wire carries
     /// them): a quarter of the floats' memory for every frame of the episode.
-    pub(super) global: Vec<u8>,
-    pub(super) local: Vec<u8>,
+    global: Vec<u8>,
+    local: Vec<u8>,
 }
 
 impl SimEnv {
@@ -52,27 +101,29 @@ impl SimEnv {
         });
     }
 
-    /// Writes the episode to an MCAP file at `path`.
+    /// Writes the episode, observed by `recorder`, to an MCAP file at `path`.
     pub(super) fn record(
         &self,
         episode: &Episode,
+        recorder: &EpisodeRecorder,
         labels: &[Vec<u8>],
         k: &mapper::Intrinsics,
         path: &std::path::Path,
     ) -> anyhow::Result<()> {
+        let truth_ids = episode.metrics.truth_ids();
         let records: Vec<FrameRecord<'_>> = (0..episode.frames.len())
             .map(|i| {
                 let frame = &episode.frames[i];
                 FrameRecord {
-                    stamp_ns: episode.stamps[i],
+                    stamp_ns: recorder.stamps.get(i).copied().unwrap_or(0),
                     rgb: &frame.rgb,
                     depth_m: &frame.depth_m,
-                    instance_ids: &episode.truth_ids[i],
+                    instance_ids: &truth_ids[i],
                     map_ids: &frame.map_ids,
                     labels: &labels[i],
                     predictions: &episode.probabilities[i],
                     t_world_camera: &frame.t_world_camera,
-                    map_planes: episode.map_planes.get(i).map(|p| MapPlanesRecord {
+                    map_planes: recorder.map_planes.get(i).map(|p| MapPlanesRecord {
                         agent: p.agent,
                         global: &p.global,
                         local: &p.local,
@@ -80,7 +131,7 @@ impl SimEnv {
                 }
             })
             .collect();
-        let with_map = !episode.map_planes.is_empty();
+        let with_map = !recorder.map_planes.is_empty();
         let layout = MapLayout {
             plane_names: self.state_config.map_plane_names(),
             cells: self.state_config.map_cells,
@@ -90,53 +141,17 @@ impl SimEnv {
             ],
             floor_z: episode.sim.scene().floor_top_m,
         };
-        let objects = if with_map {
-            self.object_records(&episode.map)?
-        } else {
-            Vec::new()
-        };
         write_episode(
             path,
             &EpisodeRecord {
                 intrinsics: k,
                 affordances: &self.config.affordances,
                 frames: &records,
-                steps: &episode.step_log,
+                steps: &recorder.steps,
                 map_layout: with_map.then_some(&layout),
-                objects: &objects,
+                objects: &episode.memory.object_records()?,
             },
         )?;
         Ok(())
-    }
-
-    /// The map's objects with their meshes and labels, for a recording.
-    fn object_records(&self, map: &Map) -> anyhow::Result<Vec<ObjectRecord>> {
-        map.objects()
-            .values()
-            .map(|object| {
-                let mesh = map
-                    .object_mesh(object.id)
-                    .context("meshing a map object for the recording")?;
-                let mut metadata = vec![(
-                    "class".to_owned(),
-                    object
-                        .class()
-                        .map_or_else(|| "unknown".to_owned(), |c| c.to_string()),
-                )];
-                for &a in &self.config.affordances {
-                    let label = match object.labels.label(a) {
-                        Some(true) => "positive",
-                        Some(false) => "negative",
-                        None => "unknown",
-                    };
-                    metadata.push((a.as_str().to_owned(), label.to_owned()));
-                }
-                Ok(ObjectRecord {
-                    id: object.id.0,
-                    mesh,
-                    metadata,
-                })
-            })
-            .collect()
     }
 }

@@ -1,0 +1,245 @@
+//! The paper's per-episode metrics against the simulator's ground truth,
+//! accumulated as the episode runs: return, how often interactions were
+//! tried and succeeded (and why they failed), which interactable objects
+//! were touched, the U-Net's frame scores; at the end the annotation rates
+//! of the episode's labels join them ([`EpisodeMetrics::finish`]).
+
+use std::collections::BTreeSet;
+
+use mapper::Affordance;
+use proto::{AffordanceStat, StatField, StatKey};
+use sim::agent::{Failure, Outcome};
+
+use crate::frame_scores::{annotation_rates, score_frame};
+
+/// Counts per affordance, indexed by [`Affordance::code`].
+type PerAffordance = [u32; Affordance::COUNT];
+
+/// Running sums of per-frame scores.
+#[derive(Debug, Clone, Copy, Default)]
+struct ScoreSums {
+    iou: f64,
+    iou_frames: u32,
+    accuracy: f64,
+    accuracy_frames: u32,
+}
+
+/// One episode's metrics so far.
+#[derive(Debug, Clone)]
+pub struct EpisodeMetrics {
+    /// Affordances scored, in plane order.
+    affordances: Vec<Affordance>,
+    /// Ground truth per scene object and affordance (plane order).
+    truth: Vec<Vec<bool>>,
+    /// The simulator's instance ids of every frame (object index + 1).
+    truth_ids: Vec<Vec<u32>>,
+    /// Per plane: sums and counts of the U-Net's frame IoU and object accuracy.
+    scores: Vec<ScoreSums>,
+    attempts: PerAffordance,
+    successes: PerAffordance,
+    /// Interactions that failed because the object was beyond reach, and
+    /// because it does not afford the action ([`Failure::object_does_not_afford`]).
+    out_of_reach: PerAffordance,
+    unafforded: PerAffordance,
+    /// Scene objects an interaction succeeded on.
+    interacted: BTreeSet<usize>,
+    episode_return: f32,
+}
+
+impl EpisodeMetrics {
+    /// Nothing counted yet, on a scene whose objects afford what `truth`
+    /// says (per object, one flag per affordance of `affordances`).
+    pub fn new(truth: Vec<Vec<bool>>, affordances: &[Affordance]) -> Self {
+        Self {
+            affordances: affordances.to_vec(),
+            truth,
+            truth_ids: Vec::new(),
+            scores: vec![ScoreSums::default(); affordances.len()],
+            attempts: Default::default(),
+            successes: Default::default(),
+            out_of_reach: Default::default(),
+            unafforded: Default::default(),
+            interacted: BTreeSet::new(),
+            episode_return: 0.0,
+        }
+    }
+
+    /// A frame observed: the U-Net's `probabilities` (one plane per
+    /// affordance) scored against the frame's instance ids `ids`, which are
+    /// kept.
+    pub fn observe_frame(&mut self, probabilities: &[Vec<f32>], ids: Vec<u32>) {
+        for (plane, (probabilities, sums)) in probabilities.iter().zip(&mut self.scores).enumerate()
+        {
+            let scores = score_frame(probabilities, &ids, &|id| affords(&self.truth, id, plane));
+            if let Some(iou) = scores.iou {
+                sums.iou += f64::from(iou);
+                sums.iou_frames += 1;
+            }
+            if let Some(accuracy) = scores.object_accuracy {
+                sums.accuracy += f64::from(accuracy);
+                sums.accuracy_frames += 1;
+            }
+        }
+        self.truth_ids.push(ids);
+    }
+
+    /// An interaction of `affordance` tried, and what came of it.
+    pub fn interaction(&mut self, affordance: Affordance, outcome: &Outcome) {
+        let kind = affordance.code() as usize;
+        self.attempts[kind] += 1;
+        self.successes[kind] += u32::from(outcome.success);
+        if let Some(failure) = &outcome.failure {
+            self.out_of_reach[kind] += u32::from(matches!(failure, Failure::OutOfReach { .. }));
+            self.unafforded[kind] += u32::from(failure.object_does_not_afford());
+        }
+    }
+
+    /// An interaction aimed at pixel `(u, v)` of the last frame observed
+    /// succeeded: the scene object there counts as interacted with.
+    pub fn touched(&mut self, u: usize, v: usize, width: usize) {
+        let instance = self
+            .truth_ids
+            .last()
+            .and_then(|ids| ids.get(v * width + u).copied())
+            .unwrap_or(0);
+        if instance > 0 {
+            self.interacted.insert(instance as usize - 1);
+        }
+    }
+
+    /// A step's reward.
+    pub fn reward(&mut self, reward: f32) {
+        self.episode_return += reward;
+    }
+
+    /// The simulator's instance ids of every frame observed.
+    pub fn truth_ids(&self) -> &[Vec<u32>] {
+        &self.truth_ids
+    }
+
+    /// The episode's metrics after `steps` steps, with the annotation rates
+    /// of its `labels` (per frame observed, one byte per pixel of its
+    /// `pixels` and affordance) and the memory's `id_consistency`
+    /// ([`crate::env::object_memory::ObjectMemory::id_consistency`]).
+    /// Rates per affordance are means over the affordances where episode-wide.
+    pub fn finish(
+        &self,
+        steps: usize,
+        labels: &[Vec<u8>],
+        pixels: usize,
+        id_consistency: Option<f32>,
+    ) -> Vec<(StatKey, f32)> {
+        let (positive, negative, rated) = self.annotation_rates(labels, pixels);
+        let interactable = self.truth.iter().filter(|t| t.iter().any(|&x| x)).count();
+        let interacted = self
+            .interacted
+            .iter()
+            .filter(|&&i| self.truth.get(i).is_some_and(|t| t.iter().any(|&x| x)))
+            .count();
+        let attempts: u32 = self.attempts.iter().sum();
+        let successes: u32 = self.successes.iter().sum();
+        let per_step = |n: u32| n as f32 / steps.max(1) as f32;
+        let episode_wide = |field: StatField, value: f32| (StatKey::Episode(field), value);
+        let mut stats = vec![
+            episode_wide(StatField::EpisodeReturn, self.episode_return),
+            episode_wide(
+                StatField::InteractionSuccessRate,
+                successes as f32 / attempts.max(1) as f32,
+            ),
+            episode_wide(StatField::InteractionAttemptRate, per_step(attempts)),
+            episode_wide(
+                StatField::InteractedObjectRate,
+                interacted as f32 / interactable.max(1) as f32,
+            ),
+            episode_wide(
+                StatField::InteractableAnnotationRate,
+                (positive / rated) as f32,
+            ),
+            episode_wide(
+                StatField::NonInteractableAnnotationRate,
+                (negative / rated) as f32,
+            ),
+        ];
+        if attempts > 0 {
+            let share = |n: &PerAffordance| n.iter().sum::<u32>() as f32 / attempts as f32;
+            stats.push(episode_wide(
+                StatField::InteractionOutOfReachRate,
+                share(&self.out_of_reach),
+            ));
+            stats.push(episode_wide(
+                StatField::InteractionUnaffordedRate,
+                share(&self.unafforded),
+            ));
+        }
+        let total = |f: fn(&ScoreSums) -> (f64, u32)| {
+            let (sum, n) = self
+                .scores
+                .iter()
+                .map(f)
+                .fold((0.0, 0), |(s, c), (x, k)| (s + x, c + k));
+            per_frame(sum, n)
+        };
+        if let Some(iou) = total(|s| (s.iou, s.iou_frames)) {
+            stats.push(episode_wide(StatField::AffordanceIou, iou));
+        }
+        if let Some(accuracy) = total(|s| (s.accuracy, s.accuracy_frames)) {
+            stats.push(episode_wide(StatField::ObjectAccuracy, accuracy));
+        }
+        for (&affordance, sums) in self.affordances.iter().zip(&self.scores) {
+            let of = |stat| StatKey::Affordance(affordance, stat);
+            let kind = affordance.code() as usize;
+            let attempts = self.attempts[kind];
+            stats.push((of(AffordanceStat::AttemptRate), per_step(attempts)));
+            if attempts > 0 {
+                let share = |n: &PerAffordance| n[kind] as f32 / attempts as f32;
+                stats.push((of(AffordanceStat::SuccessRate), share(&self.successes)));
+                stats.push((
+                    of(AffordanceStat::OutOfReachRate),
+                    share(&self.out_of_reach),
+                ));
+                stats.push((of(AffordanceStat::UnaffordedRate), share(&self.unafforded)));
+            }
+            stats
+                .extend(per_frame(sums.iou, sums.iou_frames).map(|v| (of(AffordanceStat::Iou), v)));
+            stats.extend(
+                per_frame(sums.accuracy, sums.accuracy_frames)
+                    .map(|v| (of(AffordanceStat::ObjectAccuracy), v)),
+            );
+        }
+        if let Some(consistency) = id_consistency {
+            stats.push(episode_wide(StatField::MapIdConsistency, consistency));
+        }
+        stats
+    }
+
+    /// Sums of the positive and negative annotation rates of `labels` over
+    /// every frame and plane, and how many (frame, plane) pairs were rated.
+    fn annotation_rates(&self, labels: &[Vec<u8>], pixels: usize) -> (f64, f64, f64) {
+        let (mut positive, mut negative) = (0.0f64, 0.0f64);
+        for (frame_labels, ids) in labels.iter().zip(&self.truth_ids) {
+            for (plane, plane_labels) in frame_labels.chunks(pixels).enumerate() {
+                let (p, n) =
+                    annotation_rates(plane_labels, ids, &|id| affords(&self.truth, id, plane));
+                positive += f64::from(p);
+                negative += f64::from(n);
+            }
+        }
+        let rated = (self.truth_ids.len() * self.scores.len()).max(1) as f64;
+        (positive, negative, rated)
+    }
+}
+
+/// A sum of per-frame scores over its `frames`, as their mean; `None`
+/// without frames.
+fn per_frame(sum: f64, frames: u32) -> Option<f32> {
+    (frames > 0).then(|| (sum / f64::from(frames)) as f32)
+}
+
+/// Whether scene instance `id` (object index + 1) affords plane `plane`'s
+/// affordance, by the ground truth `truth`.
+fn affords(truth: &[Vec<bool>], id: u32, plane: usize) -> bool {
+    (id as usize)
+        .checked_sub(1)
+        .and_then(|object| truth.get(object))
+        .is_some_and(|t| t[plane])
+}
