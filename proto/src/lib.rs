@@ -22,6 +22,8 @@ mod rollout;
 pub mod service;
 mod stats;
 pub mod task;
+#[cfg(test)]
+mod third_affordance;
 mod weights;
 
 pub use actors::{ActorSettings, ActorSettingsError, ACTOR_DEVICES, RENDERERS, TRAINING_SCENES};

@@ -16,13 +16,27 @@ pub enum Affordance {
     PickUp = 0,
     /// Push the object.
     Push = 1,
+    /// A fake third affordance, compiled into this crate's own tests only
+    /// (`third_affordance`): it proves that a new affordance is added here,
+    /// in the task's definition, and crosses the wire with no change there.
+    #[cfg(test)]
+    Open = 2,
 }
 
 impl Affordance {
     /// How many there are.
+    #[cfg(not(test))]
     pub const COUNT: usize = 2;
+    /// How many there are (with the fake third of this crate's tests).
+    #[cfg(test)]
+    pub const COUNT: usize = 3;
     /// Every affordance, in index order.
+    #[cfg(not(test))]
     pub const ALL: [Affordance; Self::COUNT] = [Affordance::PickUp, Affordance::Push];
+    /// Every affordance, in index order (with the fake third of this crate's tests).
+    #[cfg(test)]
+    pub const ALL: [Affordance; Self::COUNT] =
+        [Affordance::PickUp, Affordance::Push, Affordance::Open];
 
     /// Its code on the wire (and its index in per-affordance arrays).
     pub fn code(self) -> u32 {
@@ -39,6 +53,8 @@ impl Affordance {
         match self {
             Affordance::PickUp => "pick_up",
             Affordance::Push => "push",
+            #[cfg(test)]
+            Affordance::Open => "open",
         }
     }
 }
@@ -108,6 +124,8 @@ impl RewardWeights {
         let own = match affordance {
             Affordance::PickUp => self.pick_up_interaction,
             Affordance::Push => self.push_interaction,
+            #[cfg(test)]
+            Affordance::Open => None,
         };
         own.unwrap_or(self.interaction)
     }
