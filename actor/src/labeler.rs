@@ -24,7 +24,9 @@ use std::collections::BTreeMap;
 
 use mapper::{Affordance, Intrinsics, Map, MapError, ObjectId, Pose};
 use nalgebra::Point3;
-use proto::{FrameBatch, LABEL_NEGATIVE, LABEL_POSITIVE, LABEL_UNKNOWN};
+use proto::{
+    ConfidenceRule, FrameBatch, SphereRule, LABEL_NEGATIVE, LABEL_POSITIVE, LABEL_UNKNOWN,
+};
 
 /// One frame of an episode as the labeler needs it.
 #[derive(Debug, Clone, PartialEq)]
@@ -37,28 +39,6 @@ pub struct EpisodeFrame {
     pub map_ids: Vec<u32>,
     /// Where the camera was.
     pub t_world_camera: Pose,
-}
-
-/// Thresholds of annotation by confidence.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ConfidenceRule {
-    /// ξ_T: an object is positive when its largest per-frame P95 exceeds this.
-    pub positive_above: f32,
-    /// ξ_F: an object is negative when its smallest per-frame P5 is below this.
-    pub negative_below: f32,
-    /// Fewest pixels of an object in a frame for that frame to count; pixels
-    /// of a 128 × 128 image, scaled to the frame's area ([`mapper::scaled_px`]).
-    pub min_pixels: usize,
-}
-
-impl Default for ConfidenceRule {
-    fn default() -> Self {
-        Self {
-            positive_above: 0.9,
-            negative_below: 0.1,
-            min_pixels: 10,
-        }
-    }
 }
 
 /// The `q`-quantile (0..1) of `values` by nearest rank; `values` is sorted in place.
@@ -193,25 +173,6 @@ pub struct InteractionPoint {
     pub success: bool,
     /// The point in the object's frame.
     pub p_object: Point3<f32>,
-}
-
-/// Settings of the sphere labeler.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SphereRule {
-    /// Pixels whose 3-D point lies within this distance of an interaction point are labelled, metres.
-    pub radius_m: f32,
-    /// A point counts as in view if the frame's depth at its pixel is not
-    /// nearer than the point by more than this, metres.
-    pub occlusion_tolerance_m: f32,
-}
-
-impl Default for SphereRule {
-    fn default() -> Self {
-        Self {
-            radius_m: 0.2,
-            occlusion_tolerance_m: 0.1,
-        }
-    }
 }
 
 /// Per frame, `n_affordances` label planes from interaction points:

@@ -7,7 +7,6 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use actor::config::RunConfig;
-use actor::env::actions::SelectionRule;
 use actor::env::affordance_model::{AffordanceModel, CameraFrame};
 use actor::env::sim_env::{SimEnv, SimEnvConfig};
 use actor::env::{BanditFixture, Environment, SimEnvironment};
@@ -457,20 +456,7 @@ fn sim_environment(
         )
     })?;
     let renderer = Renderer::open(sim.renderer)?;
-    let config = SimEnvConfig {
-        episode_steps: task.episode_steps,
-        balanced_frames: task.balanced_frames,
-        background_negative: task.labels_background(),
-        selection: SelectionRule {
-            min_confidence: task.selection_confidence,
-            ..SelectionRule::default()
-        },
-        confidence_after_steps: Some(task.confidence_after_steps),
-        reward: task.reward,
-        image_size: task.image_size,
-        ..SimEnvConfig::paper(task.method, &task.affordances)
-    };
-    let mut env = SimEnv::new(config, source, profile, renderer);
+    let mut env = SimEnv::new(SimEnvConfig::from_task(task), source, profile, renderer);
     if let Some(dir) = &cli.record {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("creating the --record directory {}", dir.display()))?;

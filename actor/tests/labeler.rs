@@ -3,12 +3,12 @@
 
 use actor::labeler::{
     confidence_labels, frame_batch, label_background_negative, map_labels, segment_labels,
-    sphere_labels, ConfidenceRule, EpisodeFrame, InteractionPoint, SphereRule,
+    sphere_labels, EpisodeFrame, InteractionPoint,
 };
 use actor::mapping::{class_image, instance_classes, intrinsics, map_frame};
 use mapper::{Affordance, Map, MapConfig, ObjectId, Outcome, Pose};
 use nalgebra::{Point3, Translation3};
-use proto::{LABEL_NEGATIVE, LABEL_POSITIVE, LABEL_UNKNOWN};
+use proto::{ConfidenceRule, SphereRule, LABEL_NEGATIVE, LABEL_POSITIVE, LABEL_UNKNOWN};
 use sim::agent::{AgentState, NavAction, Simulator};
 use sim::ithor::load_scene;
 use sim::profile::RobotProfile;

@@ -25,7 +25,7 @@ use crate::integrate::{
 use crate::labels::ObjectLabels;
 use crate::layer::Layer;
 use crate::render::RenderTarget;
-use crate::segmentation::{segment_geometric, Segmentation};
+use crate::segmentation::{segment_geometric, GeometricParams, Segmentation};
 use crate::Pose;
 
 /// Why a frame or a request was refused.
@@ -77,30 +77,46 @@ pub struct MapConfig {
 }
 
 impl Default for MapConfig {
+    /// The run config's defaults ([`proto::MapSettings`]).
     fn default() -> Self {
-        let voxel_size_m = 0.04;
+        Self::from_settings(&proto::MapSettings::default())
+    }
+}
+
+impl MapConfig {
+    /// The map a run's `[task.map]` describes: its settings, and the values
+    /// that follow from the voxel size (the free-space margin is one voxel,
+    /// measured and rendered depth agree within two voxels but at least 3 cm,
+    /// tracking's gates scale with it).
+    pub fn from_settings(settings: &proto::MapSettings) -> Self {
+        let voxel_size_m = settings.voxel_size_m;
         Self {
             voxel_size_m,
-            background_voxel_size_m: 2.0 * voxel_size_m,
+            background_voxel_size_m: settings.background_voxel_size_m,
             integration: IntegrationParams {
-                truncation_m: 0.12,
-                max_weight: 50.0,
-                min_depth_m: 0.1,
-                max_depth_m: 8.0,
+                truncation_m: settings.truncation_m,
+                max_weight: settings.max_weight,
+                min_depth_m: settings.min_depth_m,
+                max_depth_m: settings.max_depth_m,
                 free_space_margin_m: voxel_size_m,
             },
             association: AssociationParams {
-                min_segment_px: 20,
-                new_object_min_px: 50,
-                min_iou: 0.3,
-                min_coverage: 0.5,
+                min_segment_px: settings.min_segment_px,
+                new_object_min_px: settings.new_object_min_px,
+                min_iou: settings.min_iou,
+                min_coverage: settings.min_coverage,
                 depth_tolerance_m: (2.0 * voxel_size_m).max(0.03),
-                min_containment: 0.8,
+                min_containment: settings.min_containment,
             },
             tracking: TrackingParams::for_voxel(voxel_size_m),
-            segmentation: Segmentation::Provided,
-            max_misses: 10,
-            miss_min_rendered_px: 50,
+            segmentation: match settings.segmentation {
+                proto::MapSegmentation::GroundTruth => Segmentation::Provided,
+                proto::MapSegmentation::Geometric => {
+                    Segmentation::Geometric(GeometricParams::default())
+                }
+            },
+            max_misses: settings.max_misses,
+            miss_min_rendered_px: settings.miss_min_rendered_px,
         }
     }
 }

@@ -19,6 +19,7 @@ mod message;
 mod method;
 mod payload;
 mod rollout;
+mod rules;
 pub mod service;
 mod stats;
 pub mod task;
@@ -41,6 +42,7 @@ pub use rollout::{
     byte_to_unit, obs_bytes_from_f32, unit_to_byte, ObsDtype, RolloutChunk, RolloutView,
     MAX_ACTIONS, MAX_STEPS,
 };
+pub use rules::{ConfidenceRule, MapSegmentation, MapSettings, SelectionRule, SphereRule};
 pub use stats::{AffordanceStat, EpisodeStats, StatField, StatKey};
 pub use task::{Affordance, EnvKind, PolicyLayout, RewardWeights, TaskError, TaskSpec};
 pub use weights::{

@@ -6,6 +6,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::method::Method;
+use crate::rules::{ConfidenceRule, MapSettings, SelectionRule, SphereRule};
 use crate::ObsDtype;
 
 /// What the robot can try on an object.
@@ -179,6 +180,14 @@ pub struct TaskSpec {
     pub memory_size: usize,
     /// The reward's α weights (`[task.reward]`).
     pub reward: RewardWeights,
+    /// Object selection's grid and most-centred object.
+    pub selection: SelectionRule,
+    /// Thresholds of annotation by confidence (`ours`).
+    pub confidence: ConfidenceRule,
+    /// The point labels of the methods without a map.
+    pub sphere: SphereRule,
+    /// The object-level map (`ours`).
+    pub map: MapSettings,
 }
 
 impl Default for TaskSpec {
@@ -195,6 +204,10 @@ impl Default for TaskSpec {
             selection_confidence: 0.05,
             memory_size: DEFAULT_MEMORY_SIZE,
             reward: RewardWeights::default(),
+            selection: SelectionRule::default(),
+            confidence: ConfidenceRule::default(),
+            sphere: SphereRule::default(),
+            map: MapSettings::default(),
         }
     }
 }
@@ -260,6 +273,9 @@ pub enum TaskError {
     /// A selection threshold that is not a probability.
     #[error("task.selection_confidence {0} must be a probability, between 0 and 1")]
     SelectionConfidence(f32),
+    /// A selection, label or map rule outside what it can mean.
+    #[error(transparent)]
+    Rule(#[from] crate::rules::RuleError),
 }
 
 impl TaskSpec {
@@ -300,6 +316,7 @@ impl TaskSpec {
                 self.method.as_str(),
             ));
         }
+        crate::rules::validate_all(&self.selection, &self.confidence, &self.sphere, &self.map)?;
         Ok(())
     }
 

@@ -19,6 +19,7 @@
 //! centred in the image ([`centred_target`]).
 
 use mapper::Affordance;
+use proto::SelectionRule;
 use sim::agent::{Action, HandMove, NavAction};
 
 /// Cells per side of the selection grid.
@@ -186,29 +187,6 @@ impl CellTargets {
     }
 }
 
-/// Settings of object selection.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SelectionRule {
-    /// Fraction of the image's width and height that the grid covers, centred.
-    pub centre_fraction: f32,
-    /// Objects with fewer pixels are ignored; pixels of a 128 × 128 image,
-    /// scaled to the frame's area ([`mapper::scaled_px`]).
-    pub min_pixels: usize,
-    /// Objects whose mean predicted probability is below this lose the cell
-    /// to any object above it.
-    pub min_confidence: f32,
-}
-
-impl Default for SelectionRule {
-    fn default() -> Self {
-        Self {
-            centre_fraction: 0.75,
-            min_pixels: 10,
-            min_confidence: 0.05,
-        }
-    }
-}
-
 /// Pixel statistics of one object in a frame.
 #[derive(Debug, Clone, Default)]
 struct Blob {
@@ -240,12 +218,15 @@ enum Preference {
 
 /// The grid targets for a frame: `map_ids` is the frame's map-id image
 /// (`width` wide); `probabilities[k]`, when given, is the U-Net's plane for
-/// `affordances[k]`, used to prefer objects it is confident about.
+/// `affordances[k]`, used to prefer objects it is confident about: an
+/// object whose mean probability is below `min_confidence` (the task's
+/// `selection_confidence`) loses its cell to any object above it.
 pub fn cell_targets(
     map_ids: &[u32],
     width: usize,
     affordances: &[Affordance],
     probabilities: Option<&[Vec<f32>]>,
+    min_confidence: f32,
     rule: &SelectionRule,
 ) -> CellTargets {
     let height = map_ids.len() / width.max(1);
@@ -308,7 +289,7 @@ pub fn cell_targets(
                 None => Preference::Confident(blob.pixels),
                 Some(_) => {
                     let mean = (blob.sum_probability[k] / blob.pixels as f64) as f32;
-                    if mean >= rule.min_confidence {
+                    if mean >= min_confidence {
                         Preference::Confident(blob.pixels)
                     } else {
                         Preference::Doubtful(mean)
@@ -393,6 +374,9 @@ pub fn centred_target(
 mod tests {
     use super::*;
 
+    /// The task's default `selection_confidence`.
+    const MIN_CONFIDENCE: f32 = 0.05;
+
     /// A 30 × 30 id image with rectangles `(id, u0, v0, u1, v1)` (exclusive ends).
     fn image(rects: &[(u32, usize, usize, usize, usize)]) -> Vec<u32> {
         let mut ids = vec![0; 900];
@@ -468,6 +452,7 @@ mod tests {
             30,
             &[Affordance::PickUp, Affordance::Push],
             None,
+            MIN_CONFIDENCE,
             &SelectionRule::default(),
         );
         for holding in [false, true] {
@@ -513,7 +498,7 @@ mod tests {
         // Top-left: a big object (2) and a small one (3); bottom-right: object 5.
         let ids = image(&[(2, 3, 3, 10, 10), (3, 10, 3, 12, 8), (5, 22, 22, 27, 27)]);
         let rule = SelectionRule::default();
-        let t = cell_targets(&ids, 30, &[Affordance::Push], None, &rule);
+        let t = cell_targets(&ids, 30, &[Affordance::Push], None, MIN_CONFIDENCE, &rule);
         assert_eq!(t.target(Affordance::Push, 0).unwrap().object, 2);
         assert_eq!(t.target(Affordance::Push, 8).unwrap().object, 5);
         assert!(t.target(Affordance::Push, 4).is_none());
@@ -522,7 +507,14 @@ mod tests {
             .iter()
             .map(|&id| if id == 2 { 0.01 } else { 0.6 })
             .collect();
-        let t = cell_targets(&ids, 30, &[Affordance::Push], Some(&[plane]), &rule);
+        let t = cell_targets(
+            &ids,
+            30,
+            &[Affordance::Push],
+            Some(&[plane]),
+            MIN_CONFIDENCE,
+            &rule,
+        );
         assert_eq!(t.target(Affordance::Push, 0).unwrap().object, 3);
         // Sure of nothing in the cell: the cell stays selectable and takes
         // the object rated highest, however small.
@@ -534,7 +526,14 @@ mod tests {
                 _ => 0.0,
             })
             .collect();
-        let t = cell_targets(&ids, 30, &[Affordance::Push], Some(&[plane]), &rule);
+        let t = cell_targets(
+            &ids,
+            30,
+            &[Affordance::Push],
+            Some(&[plane]),
+            MIN_CONFIDENCE,
+            &rule,
+        );
         assert_eq!(t.target(Affordance::Push, 0).unwrap().object, 3);
         assert_eq!(t.target(Affordance::Push, 8).unwrap().object, 5);
         assert!(t.target(Affordance::Push, 4).is_none());
@@ -549,7 +548,14 @@ mod tests {
                 let mut ids = vec![0; width * width];
                 let centre = width / 2 * width + width / 2;
                 ids[centre..centre + pixels].fill(4);
-                let t = cell_targets(&ids, width, &[Affordance::Push], None, &rule);
+                let t = cell_targets(
+                    &ids,
+                    width,
+                    &[Affordance::Push],
+                    None,
+                    MIN_CONFIDENCE,
+                    &rule,
+                );
                 assert_eq!(
                     t.target(Affordance::Push, 4).is_some(),
                     selectable,

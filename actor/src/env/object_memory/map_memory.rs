@@ -8,15 +8,14 @@ use anyhow::Context;
 use mapper::{
     Affordance, IntegrateTimings, Intrinsics, Map, MapConfig, ObjectId, Outcome as MapOutcome, Pose,
 };
+use proto::ConfidenceRule;
 use sim::agent::{Outcome, Simulator};
 use sim::raycast::Frame;
 use sim::scene::OrientedBox;
 
 use super::{tells_the_affordance, Interaction, ObjectMemory};
 use crate::frame_scores::map_id_consistency;
-use crate::labeler::{
-    apply_confidence_labels, confidence_labels, map_labels, ConfidenceRule, EpisodeFrame,
-};
+use crate::labeler::{apply_confidence_labels, confidence_labels, map_labels, EpisodeFrame};
 use crate::mapping::{class_image, map_frame};
 use crate::recording::ObjectRecord;
 

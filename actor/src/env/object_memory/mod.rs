@@ -15,12 +15,12 @@ pub use map_memory::MapMemory;
 pub use point_memory::{PointLabels, PointMemory};
 
 use mapper::{Affordance, IntegrateTimings, Intrinsics, Map, MapConfig};
-use proto::{LabelSource, MethodSpec};
+use proto::{ConfidenceRule, LabelSource, MethodSpec, SphereRule};
 use sim::agent::{Failure, Outcome, Simulator};
 use sim::raycast::Frame;
 
 use crate::env::actions::Target;
-use crate::labeler::{ConfidenceRule, EpisodeFrame, SphereRule};
+use crate::labeler::EpisodeFrame;
 use crate::recording::ObjectRecord;
 
 /// An interaction the agent is about to try.

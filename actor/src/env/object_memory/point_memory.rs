@@ -9,8 +9,9 @@ use sim::agent::{Outcome, Simulator};
 use sim::raycast::Frame;
 
 use super::{tells_the_affordance, Interaction, ObjectMemory};
-use crate::labeler::{segment_labels, sphere_labels, EpisodeFrame, InteractionPoint, SphereRule};
+use crate::labeler::{segment_labels, sphere_labels, EpisodeFrame, InteractionPoint};
 use crate::mapping::intrinsics;
+use proto::SphereRule;
 
 /// How points become labels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -25,7 +25,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use mapper::{Affordance, MapConfig};
 use nalgebra::Point2;
-use proto::{FrameBatch, Method, StatKey};
+use proto::{ConfidenceRule, FrameBatch, Method, SelectionRule, SphereRule, StatKey, TaskSpec};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use sim::agent::{Failure, Simulator};
@@ -36,7 +36,7 @@ use sim::renderer::Renderer;
 use sim::scenes::SceneSource;
 
 use crate::env::actions::{
-    cell_targets, centred_target, ActionSpace, CellTargets, PolicyAction, Selection, SelectionRule,
+    cell_targets, centred_target, ActionSpace, CellTargets, PolicyAction, Selection,
 };
 use crate::env::affordance_model::{AffordanceModel, CameraFrame};
 use crate::env::episode_metrics::EpisodeMetrics;
@@ -44,9 +44,7 @@ use crate::env::object_memory::{object_memory, Interaction, MemoryRules, ObjectM
 use crate::env::reward::{RewardTracker, RewardWeights, StepEvent};
 use crate::env::state::{build_state, ActionHistory, State, StateConfig, StateInputs};
 use crate::frame_scores::ground_truth_planes;
-use crate::labeler::{
-    frame_batch, label_background_negative, ConfidenceRule, EpisodeFrame, SphereRule,
-};
+use crate::labeler::{frame_batch, label_background_negative, EpisodeFrame};
 use crate::mapping::{instance_classes, intrinsics};
 use crate::recording::StepRecord;
 
@@ -71,8 +69,11 @@ pub struct SimEnvConfig {
     pub image_size: usize,
     /// Reward weights.
     pub reward: RewardWeights,
-    /// Object selection.
+    /// Object selection's grid and most-centred object.
     pub selection: SelectionRule,
+    /// Objects the U-Net rates below this lose their grid cell to any rated
+    /// above it (the task's `selection_confidence`).
+    pub selection_confidence: f32,
     /// The map.
     pub map: MapConfig,
     /// Send only frames with both label classes.
@@ -89,6 +90,27 @@ pub struct SimEnvConfig {
 }
 
 impl SimEnvConfig {
+    /// The settings a run's task gives its environments: every one of them
+    /// from the task, so all actors of a run (and an evaluation of it) step
+    /// alike.
+    pub fn from_task(task: &TaskSpec) -> Self {
+        Self {
+            method: task.method,
+            affordances: task.affordances.clone(),
+            episode_steps: task.episode_steps,
+            image_size: task.image_size,
+            reward: task.reward,
+            selection: task.selection,
+            selection_confidence: task.selection_confidence,
+            map: MapConfig::from_settings(&task.map),
+            balanced_frames: task.balanced_frames,
+            background_negative: task.labels_background(),
+            confidence_after_steps: Some(task.confidence_after_steps),
+            confidence: task.confidence,
+            sphere: task.sphere,
+        }
+    }
+
     /// The paper's settings of `method` for `affordances`.
     pub fn paper(method: Method, affordances: &[Affordance]) -> Self {
         Self {
@@ -98,6 +120,7 @@ impl SimEnvConfig {
             image_size: 128,
             reward: RewardWeights::default(),
             selection: SelectionRule::default(),
+            selection_confidence: TaskSpec::default().selection_confidence,
             map: MapConfig::default(),
             balanced_frames: true,
             background_negative: false,
@@ -347,5 +370,57 @@ impl SimEnv {
         });
         self.timings = StepTimings::default();
         self.capture()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_environment_takes_every_rule_from_the_task() {
+        let task = TaskSpec {
+            selection_confidence: 0.2,
+            selection: SelectionRule {
+                centre_fraction: 0.5,
+                min_pixels: 4,
+            },
+            confidence: ConfidenceRule {
+                positive_above: 0.8,
+                negative_below: 0.3,
+                min_pixels: 7,
+            },
+            sphere: SphereRule {
+                radius_m: 0.3,
+                occlusion_tolerance_m: 0.05,
+            },
+            map: proto::MapSettings {
+                voxel_size_m: 0.05,
+                max_misses: 4,
+                segmentation: proto::MapSegmentation::Geometric,
+                ..proto::MapSettings::default()
+            },
+            ..TaskSpec::default()
+        };
+        task.validate().unwrap();
+        let config = SimEnvConfig::from_task(&task);
+        assert_eq!(config.selection, task.selection);
+        assert_eq!(config.selection_confidence, 0.2);
+        assert_eq!(config.confidence, task.confidence);
+        assert_eq!(config.sphere, task.sphere);
+        assert_eq!(config.map, MapConfig::from_settings(&task.map));
+        assert_eq!(config.map.voxel_size_m, 0.05);
+        assert_eq!(config.map.max_misses, 4);
+        assert!(matches!(
+            config.map.segmentation,
+            mapper::Segmentation::Geometric(_)
+        ));
+        assert_eq!(
+            config.map.integration.free_space_margin_m, 0.05,
+            "derived from the voxel size"
+        );
+        let defaults = SimEnvConfig::from_task(&TaskSpec::default());
+        assert_eq!(defaults.map, MapConfig::default());
+        assert_eq!(defaults.selection, SelectionRule::default());
     }
 }

@@ -73,6 +73,7 @@ impl SimEnv {
                 frame.width,
                 &self.config.affordances,
                 Some(&probabilities),
+                self.config.selection_confidence,
                 &self.config.selection,
             ),
             Selection::Centred => centred_target(
