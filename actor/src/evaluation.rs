@@ -19,7 +19,7 @@ pub use report::{
     Confusion, ObjectRow, ObjectTrial, Percentiles, PixelRow, Reference, Report, ScoredBy,
 };
 pub use selection::{Candidate, Selection, RULE as SELECTION_RULE};
-pub use test_views::{test_views, MIN_OBJECT_SHARE};
+pub(crate) use test_views::test_views;
 pub use weights::{checkpoint_steps, load_checkpoint_unet, CheckpointUnet};
 
 use anyhow::Context;

@@ -41,7 +41,7 @@ pub fn ground_truth_planes(
 
 /// Scores of one frame for one affordance.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct FrameScores {
+pub(crate) struct FrameScores {
     /// |predicted ∩ true| / |predicted ∪ true| over every pixel, structure
     /// (instance 0) a negative like the floor, as in the paper and in
     /// [`pixel_scores`]; `None` when both are empty.
@@ -52,7 +52,7 @@ pub struct FrameScores {
 }
 
 /// Scores a probability plane (threshold 0.5) against the ground truth.
-pub fn score_frame(
+pub(crate) fn score_frame(
     probabilities: &[f32],
     instances: &[u32],
     affords: &dyn Fn(u32) -> bool,
@@ -86,7 +86,7 @@ pub fn score_frame(
 /// where it is undefined: precision without predicted positives, recall
 /// without true ones, F1 without either.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PixelScores {
+pub(crate) struct PixelScores {
     /// True positives over predicted positives.
     pub precision: Option<f32>,
     /// True positives over true positives and false negatives.
@@ -97,7 +97,7 @@ pub struct PixelScores {
 
 /// Scores a probability plane (threshold 0.5) pixel by pixel against the
 /// ground truth (see [`PixelScores`]).
-pub fn pixel_scores(
+pub(crate) fn pixel_scores(
     probabilities: &[f32],
     instances: &[u32],
     affords: &dyn Fn(u32) -> bool,
@@ -120,7 +120,7 @@ pub fn pixel_scores(
 /// The annotation rates of a label plane: pixels correctly labelled
 /// positive over all pixels, and pixels correctly labelled negative over
 /// all pixels.
-pub fn annotation_rates(
+pub(crate) fn annotation_rates(
     labels: &[u8],
     instances: &[u32],
     affords: &dyn Fn(u32) -> bool,

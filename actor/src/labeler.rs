@@ -97,7 +97,7 @@ pub fn confidence_labels(
 }
 
 /// Stores confidence labels on the map, where interaction labels already live.
-pub fn apply_confidence_labels(
+pub(crate) fn apply_confidence_labels(
     map: &mut Map,
     affordance: Affordance,
     labels: &[(ObjectId, bool)],
@@ -309,7 +309,7 @@ fn in_view(
 }
 
 /// True if some affordance plane of the frame has both positive and negative pixels.
-pub fn is_balanced(planes: &[u8], pixels: usize) -> bool {
+pub(crate) fn is_balanced(planes: &[u8], pixels: usize) -> bool {
     planes
         .chunks(pixels)
         .any(|plane| plane.contains(&LABEL_POSITIVE) && plane.contains(&LABEL_NEGATIVE))

@@ -4,6 +4,12 @@
 //! evaluation of its networks with the comparison page built from it.
 //!
 //! It never trains: weights only arrive from the learner.
+//!
+//! Only the binary, its benches and tests use this library, so items are
+//! `pub(crate)` unless those do; its documentation is read with the private
+//! items (`cargo doc --document-private-items`, as CI builds it), where
+//! links to them resolve.
+#![allow(rustdoc::private_intra_doc_links)]
 
 pub mod config;
 pub mod env;

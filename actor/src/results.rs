@@ -18,7 +18,7 @@ use serde::Deserialize;
 use crate::evaluation::Report;
 
 /// File name of the manifest `deploy/reproduce.sh` writes into its root.
-pub const MANIFEST_FILE: &str = "reproduce.json";
+pub(crate) const MANIFEST_FILE: &str = "reproduce.json";
 
 /// What `deploy/reproduce.sh` ran: the comparison's settings.
 #[derive(Debug, Clone, PartialEq, Deserialize)]

@@ -65,7 +65,7 @@ pub struct SimViewSummary {
 }
 
 /// Loads `FloorPlan2NN` from the data directory or generates `generated:SEED`.
-pub fn load_named_scene(
+pub(crate) fn load_named_scene(
     name: &str,
     data_dir: &Path,
     profile: &RobotProfile,
@@ -147,7 +147,7 @@ fn central_start(scene: &Scene, profile: &RobotProfile) -> anyhow::Result<AgentS
 
 /// Depth as colours: near yellow through green and blue to far purple
 /// (a viridis-like ramp over 0–6 m); black where nothing was hit.
-pub fn depth_colours(frame: &Frame) -> Vec<u8> {
+pub(crate) fn depth_colours(frame: &Frame) -> Vec<u8> {
     const RAMP: [[f32; 3]; 5] = [
         [253.0, 231.0, 37.0],
         [94.0, 201.0, 98.0],
@@ -173,7 +173,7 @@ pub fn depth_colours(frame: &Frame) -> Vec<u8> {
 }
 
 /// Instance ids as distinct colours (a hash of the id); 0 is black.
-pub fn id_colours(frame: &Frame) -> Vec<u8> {
+pub(crate) fn id_colours(frame: &Frame) -> Vec<u8> {
     frame
         .ids
         .iter()
@@ -261,7 +261,12 @@ fn top_down_map(scene: &Scene, path: &[AgentState]) -> (usize, usize, Vec<u8>) {
 }
 
 /// Writes an 8-bit RGB PNG.
-pub fn write_png(path: &Path, width: usize, height: usize, rgb: &[u8]) -> anyhow::Result<()> {
+pub(crate) fn write_png(
+    path: &Path,
+    width: usize,
+    height: usize,
+    rgb: &[u8],
+) -> anyhow::Result<()> {
     let file =
         std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
     let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), width as u32, height as u32);

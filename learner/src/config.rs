@@ -157,7 +157,7 @@ impl Default for PolicyConfig {
 
 impl PolicyConfig {
     /// The PPO update's settings.
-    pub fn ppo(&self) -> PpoConfig {
+    pub(crate) fn ppo(&self) -> PpoConfig {
         PpoConfig {
             learning_rate: self.learning_rate,
             adam_eps: self.adam_eps,

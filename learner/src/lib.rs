@@ -4,6 +4,12 @@
 //!
 //! It never runs a simulator or a map; it only sees what actors send through
 //! the `transport` crate, in the layouts of `proto`.
+//!
+//! Only the binary, its benches and tests use this library, so items are
+//! `pub(crate)` unless those do; its documentation is read with the private
+//! items (`cargo doc --document-private-items`, as CI builds it), where
+//! links to them resolve.
+#![allow(rustdoc::private_intra_doc_links)]
 
 pub(crate) mod affordance_learner;
 pub mod bench_capacity;

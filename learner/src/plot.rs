@@ -21,7 +21,7 @@ use crate::summary::Spread;
 /// beyond the arm's reach) or of a better choice (the object does not afford
 /// the interaction), and the U-Net's two scores per affordance plane (the
 /// paper's Fig. 3 shows pick up's).
-pub const CURVES: [(&str, &str); 14] = [
+pub(crate) const CURVES: [(&str, &str); 14] = [
     ("interaction_success_rate", "interaction success rate"),
     ("interacted_object_rate", "interacted object rate"),
     (
@@ -54,10 +54,10 @@ pub const CURVES: [(&str, &str); 14] = [
 const PANELS_PER_ROW: usize = CURVES.len().div_ceil(2);
 
 /// One curve: (environment steps, value) per episode, in file order.
-pub type Series = Vec<(f64, f64)>;
+pub(crate) type Series = Vec<(f64, f64)>;
 
 /// Reads every episode record of a history file into one series per curve.
-pub fn read_curves(run_dir: &Path) -> anyhow::Result<Vec<Series>> {
+pub(crate) fn read_curves(run_dir: &Path) -> anyhow::Result<Vec<Series>> {
     let mut curves = vec![Series::new(); CURVES.len()];
     for record in read_records(run_dir, Some("episode"))? {
         let steps = record["env_steps"].as_f64().unwrap_or(0.0);
@@ -71,7 +71,7 @@ pub fn read_curves(run_dir: &Path) -> anyhow::Result<Vec<Series>> {
 }
 
 /// Trailing moving average over `window` points.
-pub fn moving_average(series: &Series, window: usize) -> Series {
+pub(crate) fn moving_average(series: &Series, window: usize) -> Series {
     let window = window.max(1);
     series
         .iter()
@@ -156,7 +156,11 @@ impl RunGroup {
 /// where the shortest run ends, the mean, lowest and highest of the runs'
 /// moving averages (each run's latest value at or before that step).
 /// Steps before every run has a value are left out.
-pub fn group_curve(runs: &[Series], window: usize, points: usize) -> Vec<(f64, f64, f64, f64)> {
+pub(crate) fn group_curve(
+    runs: &[Series],
+    window: usize,
+    points: usize,
+) -> Vec<(f64, f64, f64, f64)> {
     let averaged: Vec<Series> = runs
         .iter()
         .filter(|s| !s.is_empty())

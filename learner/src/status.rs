@@ -96,10 +96,10 @@ pub struct LearnerStatus {
 /// Farthest ahead of an actor's next sequence number (per kind) a message
 /// may be: a million lost messages is hours of an actor's output, so a
 /// larger jump is a forged number, refused rather than counted as losses.
-pub const SEQUENCE_WINDOW: u64 = 1_000_000;
+pub(crate) const SEQUENCE_WINDOW: u64 = 1_000_000;
 
 /// Episodes in the means `/metrics` and `/api/status` report.
-pub const EPISODE_WINDOW: usize = 100;
+pub(crate) const EPISODE_WINDOW: usize = 100;
 
 /// Durations of the learner's two kinds of training work, as Prometheus
 /// histograms (seconds).
@@ -124,7 +124,7 @@ impl Default for Timings {
 
 /// A consistent copy of the status for rendering.
 #[derive(Debug, Clone, Serialize)]
-pub struct StatusSnapshot {
+pub(crate) struct StatusSnapshot {
     /// Run id.
     pub run_id: String,
     /// Seconds since the learner started.
@@ -188,7 +188,7 @@ pub struct StatusSnapshot {
 
 /// One row of rejected-message counts.
 #[derive(Debug, Clone, Serialize)]
-pub struct RejectedCount {
+pub(crate) struct RejectedCount {
     /// Service the message arrived on.
     pub service: String,
     /// The failed check.
@@ -199,7 +199,7 @@ pub struct RejectedCount {
 
 /// One actor in the snapshot.
 #[derive(Debug, Clone, Serialize)]
-pub struct ActorSnapshot {
+pub(crate) struct ActorSnapshot {
     /// Actor id.
     pub id: u32,
     /// Seen within the timeout.
@@ -302,7 +302,7 @@ impl LearnerStatus {
     }
 
     /// Adds environment steps from an accepted chunk.
-    pub fn add_steps(&mut self, actor_id: u32, steps: u64) {
+    pub(crate) fn add_steps(&mut self, actor_id: u32, steps: u64) {
         self.env_steps += steps;
         if let Some(actor) = self.actors.get_mut(&actor_id) {
             actor.env_steps += steps;
@@ -310,7 +310,7 @@ impl LearnerStatus {
     }
 
     /// Records a finished episode's metrics.
-    pub fn add_episode(&mut self, stats: &EpisodeStats) {
+    pub(crate) fn add_episode(&mut self, stats: &EpisodeStats) {
         self.episodes += 1;
         for (field, value) in stats.present() {
             self.last_episode.insert(field.name(), value);
@@ -323,7 +323,7 @@ impl LearnerStatus {
     }
 
     /// Counts a rejected message.
-    pub fn reject(&mut self, kind: MessageKind, reason: &'static str) {
+    pub(crate) fn reject(&mut self, kind: MessageKind, reason: &'static str) {
         *self
             .rejected
             .entry((proto::service::for_kind(kind), reason))
@@ -331,7 +331,7 @@ impl LearnerStatus {
     }
 
     /// A consistent copy for rendering.
-    pub fn snapshot(&self, actor_timeout_s: f64) -> StatusSnapshot {
+    pub(crate) fn snapshot(&self, actor_timeout_s: f64) -> StatusSnapshot {
         let actors: Vec<ActorSnapshot> = self
             .actors
             .iter()

@@ -85,7 +85,7 @@ struct SpanSums {
 }
 
 /// Means of `run_dir`'s history per `every` environment steps.
-pub fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
+pub(crate) fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
     anyhow::ensure!(every > 0, "the span must be at least one step");
     // Only spans that hold a record are kept, so a small `every` on a long
     // run costs what its records cost.

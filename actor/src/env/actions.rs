@@ -23,9 +23,9 @@ use proto::SelectionRule;
 use sim::agent::{Action, HandMove, NavAction};
 
 /// Cells per side of the selection grid.
-pub const GRID: usize = 3;
+pub(crate) const GRID: usize = 3;
 /// The navigation actions, in index order.
-pub const NAV: [NavAction; 5] = [
+pub(crate) const NAV: [NavAction; 5] = [
     NavAction::MoveAhead,
     NavAction::RotateRight,
     NavAction::RotateLeft,
@@ -120,7 +120,7 @@ impl ActionSpace {
 
     /// The simulator action for a policy action; `None` for a selection
     /// whose cell has no target.
-    pub fn to_sim(&self, action: PolicyAction, targets: &CellTargets) -> Option<Action> {
+    pub(crate) fn to_sim(&self, action: PolicyAction, targets: &CellTargets) -> Option<Action> {
         Some(match action {
             PolicyAction::Nav(a) => Action::Nav(a),
             PolicyAction::Select { affordance, cell } => {
@@ -221,7 +221,7 @@ enum Preference {
 /// `affordances[k]`, used to prefer objects it is confident about: an
 /// object whose mean probability is below `min_confidence` (the task's
 /// `selection_confidence`) loses its cell to any object above it.
-pub fn cell_targets(
+pub(crate) fn cell_targets(
     map_ids: &[u32],
     width: usize,
     affordances: &[Affordance],
@@ -330,7 +330,7 @@ pub fn cell_targets(
 /// image's centre, looked for within the grid's middle cell, for every
 /// affordance in selection slot 0 (no confidence filter: IntExp has none).
 /// `ids` is the frame's object-id image, `width` wide.
-pub fn centred_target(
+pub(crate) fn centred_target(
     ids: &[u32],
     width: usize,
     affordances: &[Affordance],

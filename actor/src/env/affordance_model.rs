@@ -47,7 +47,7 @@ impl AffordanceModel {
     ///
     /// # Panics
     /// If the frames differ in size: an actor's environments share one task.
-    pub fn predict_batch(&self, frames: &[CameraFrame<'_>]) -> Vec<Vec<Vec<f32>>> {
+    pub(crate) fn predict_batch(&self, frames: &[CameraFrame<'_>]) -> Vec<Vec<Vec<f32>>> {
         let Some(first) = frames.first() else {
             return Vec::new();
         };

@@ -26,7 +26,7 @@ struct ScoreSums {
 
 /// One episode's metrics so far.
 #[derive(Debug, Clone)]
-pub struct EpisodeMetrics {
+pub(crate) struct EpisodeMetrics {
     /// Affordances scored, in plane order.
     affordances: Vec<Affordance>,
     /// Ground truth per scene object and affordance (plane order).
@@ -67,7 +67,7 @@ impl EpisodeMetrics {
     /// A frame observed: the U-Net's `probabilities` (one plane per
     /// affordance) scored against the frame's instance ids `ids`, which are
     /// kept.
-    pub fn observe_frame(&mut self, probabilities: &[Vec<f32>], ids: Vec<u32>) {
+    pub(crate) fn observe_frame(&mut self, probabilities: &[Vec<f32>], ids: Vec<u32>) {
         for (plane, (probabilities, sums)) in probabilities.iter().zip(&mut self.scores).enumerate()
         {
             let scores = score_frame(probabilities, &ids, &|id| affords(&self.truth, id, plane));
@@ -96,7 +96,7 @@ impl EpisodeMetrics {
 
     /// An interaction aimed at pixel `(u, v)` of the last frame observed
     /// succeeded: the scene object there counts as interacted with.
-    pub fn touched(&mut self, u: usize, v: usize, width: usize) {
+    pub(crate) fn touched(&mut self, u: usize, v: usize, width: usize) {
         let instance = self
             .truth_ids
             .last()
@@ -113,7 +113,7 @@ impl EpisodeMetrics {
     }
 
     /// The simulator's instance ids of every frame observed.
-    pub fn truth_ids(&self) -> &[Vec<u32>] {
+    pub(crate) fn truth_ids(&self) -> &[Vec<u32>] {
         &self.truth_ids
     }
 
@@ -122,7 +122,7 @@ impl EpisodeMetrics {
     /// `pixels` and affordance) and the memory's `id_consistency`
     /// ([`crate::env::object_memory::ObjectMemory::id_consistency`]).
     /// Rates per affordance are means over the affordances where episode-wide.
-    pub fn finish(
+    pub(crate) fn finish(
         &self,
         steps: usize,
         labels: &[Vec<u8>],

@@ -3,9 +3,9 @@
 pub mod actions;
 pub mod affordance_model;
 mod bandit_fixture;
-pub mod episode_metrics;
+pub(crate) mod episode_metrics;
 pub mod lockstep;
-pub mod object_memory;
+pub(crate) mod object_memory;
 pub mod reward;
 pub mod sim_env;
 mod sim_environment;

@@ -18,7 +18,7 @@ const NEW_HEADING: f32 = 0.3;
 
 /// What happened in a step, as the reward sees it.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct StepEvent {
+pub(crate) struct StepEvent {
     /// The agent after the step.
     pub agent: AgentState,
     /// Whether the action succeeded.
@@ -29,7 +29,7 @@ pub struct StepEvent {
 
 /// The reward's memory of one episode.
 #[derive(Debug, Clone, Default)]
-pub struct RewardTracker {
+pub(crate) struct RewardTracker {
     weights: RewardWeights,
     positions: HashSet<(i32, i32)>,
     headings: HashSet<(i32, i32, i32)>,

@@ -118,7 +118,7 @@ impl StateConfig {
 
     /// Image-like inputs' channels and vector inputs' lengths, in the
     /// policy's input order (empty inputs left out).
-    pub fn input_shapes(&self) -> (Vec<usize>, Vec<usize>) {
+    pub(crate) fn input_shapes(&self) -> (Vec<usize>, Vec<usize>) {
         let images = [
             self.camera_channels(),
             self.map_channels(),
@@ -315,7 +315,7 @@ fn map_planes(
 
 /// A reward as the history holds it: `[-1, 2]` mapped onto `[0, 1]` (clamped),
 /// so that every input of the state lies in 0..1 and travels as a byte.
-pub fn encode_reward(reward: f32) -> f32 {
+pub(crate) fn encode_reward(reward: f32) -> f32 {
     ((reward + 1.0) / 3.0).clamp(0.0, 1.0)
 }
 

@@ -12,7 +12,7 @@ use sim::renderer::Renderer;
 use sim::scene::Scene;
 
 /// Least share of a test view's pixels that objects must cover.
-pub const MIN_OBJECT_SHARE: f32 = 0.1;
+pub(crate) const MIN_OBJECT_SHARE: f32 = 0.1;
 /// Camera tilts of the test views, degrees (as an episode's start).
 const HORIZONS_DEG: [f32; 3] = [0.0, 15.0, 30.0];
 /// Poses drawn per wanted view before giving up on the room.
@@ -23,7 +23,7 @@ const DRAWS_PER_VIEW: usize = 50;
 /// `reachable` (the room's reachable grid), headings in 30° steps and horizons of 0°, 15° or 30°, each
 /// kept if objects cover at least [`MIN_OBJECT_SHARE`] of it. Fewer if the
 /// room rarely shows that much.
-pub fn test_views(
+pub(crate) fn test_views(
     scene: &Scene,
     profile: &RobotProfile,
     image_size: usize,

@@ -5,7 +5,7 @@
 /// The colour of `id` as RGB bytes: black for 0 (nothing), otherwise a
 /// saturated hue that differs clearly between neighbouring ids (hues step
 /// by the golden angle).
-pub fn id_colour(id: u32) -> [u8; 3] {
+pub(crate) fn id_colour(id: u32) -> [u8; 3] {
     if id == 0 {
         return [0, 0, 0];
     }
@@ -29,7 +29,7 @@ pub fn id_colour(id: u32) -> [u8; 3] {
 }
 
 /// An id image as interleaved RGB bytes in [`id_colour`]'s colours.
-pub fn colour_ids(ids: &[u32]) -> Vec<u8> {
+pub(crate) fn colour_ids(ids: &[u32]) -> Vec<u8> {
     ids.iter().flat_map(|&id| id_colour(id)).collect()
 }
 

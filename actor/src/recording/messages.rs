@@ -11,19 +11,19 @@ use foxglove::messages::{
 use mapper::{Intrinsics, Mesh, Pose};
 
 /// The room's frame.
-pub const WORLD_FRAME: &str = "world";
+pub(crate) const WORLD_FRAME: &str = "world";
 /// The camera's optical frame.
-pub const CAMERA_FRAME: &str = "camera";
+pub(crate) const CAMERA_FRAME: &str = "camera";
 
 /// A wall-clock time, nanoseconds since the Unix epoch, as Foxglove's.
-pub fn timestamp(ns: u64) -> Timestamp {
+pub(crate) fn timestamp(ns: u64) -> Timestamp {
     let sec = u32::try_from(ns / 1_000_000_000).unwrap_or(u32::MAX);
     Timestamp::new(sec, (ns % 1_000_000_000) as u32)
 }
 
 /// An image in the camera's frame; `data` holds `height` rows of `width`
 /// pixels of `bytes_per_pixel` bytes.
-pub fn camera_image(
+pub(crate) fn camera_image(
     ns: u64,
     (width, height): (usize, usize),
     encoding: &str,
@@ -64,7 +64,7 @@ pub fn calibration(ns: u64, k: &Intrinsics) -> CameraCalibration {
 }
 
 /// The camera's pose in the world as the `world` → `camera` transform.
-pub fn world_to_camera(ns: u64, t_world_camera: &Pose) -> FrameTransform {
+pub(crate) fn world_to_camera(ns: u64, t_world_camera: &Pose) -> FrameTransform {
     let t = t_world_camera.translation.vector;
     let q = t_world_camera.rotation;
     FrameTransform {
@@ -88,7 +88,7 @@ pub fn world_to_camera(ns: u64, t_world_camera: &Pose) -> FrameTransform {
 /// Where an egocentric map lies: centred on the agent, its top row ahead
 /// of it (`mapper::GridSpec` with the agent's heading).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct GridPlacement {
+pub(crate) struct GridPlacement {
     /// The agent: world x and y (metres) and heading (radians from +x,
     /// counter-clockwise).
     pub agent: (f32, f32, f32),
@@ -107,7 +107,12 @@ pub struct GridPlacement {
 /// Foxglove lays a grid's rows along its frame's +y; the planes' rows run
 /// backwards from the agent, so rows are written last first and the grid's
 /// +x is the agent's right, +y its front (a right-handed frame, z up).
-pub fn agent_grid(ns: u64, placement: &GridPlacement, names: &[String], planes: &[f32]) -> Grid {
+pub(crate) fn agent_grid(
+    ns: u64,
+    placement: &GridPlacement,
+    names: &[String],
+    planes: &[f32],
+) -> Grid {
     let n = placement.cells;
     let fields = names.len();
     let (x, y, heading) = placement.agent;
@@ -167,7 +172,7 @@ pub fn agent_grid(ns: u64, placement: &GridPlacement, names: &[String], planes: 
 
 /// One map object: its mesh (world frame) in `rgb`, with `metadata`
 /// (labels, class) shown when it is selected.
-pub fn object_entity(
+pub(crate) fn object_entity(
     ns: u64,
     id: u32,
     mesh: &Mesh,

@@ -35,11 +35,11 @@ use mcap::records::MessageHeader;
 use proto::{LABEL_NEGATIVE, LABEL_POSITIVE};
 use serde::Serialize;
 
-pub use id_colours::{colour_ids, id_colour};
+pub(crate) use id_colours::{colour_ids, id_colour};
 
 /// Why a recording could not be written.
 #[derive(Debug, thiserror::Error)]
-pub enum RecordingError {
+pub(crate) enum RecordingError {
     /// The file could not be created or written.
     #[error("writing recording {path}: {message}")]
     Write {
@@ -52,7 +52,7 @@ pub enum RecordingError {
 
 /// What the agent did in one step.
 #[derive(Debug, Clone, PartialEq)]
-pub struct StepRecord {
+pub(crate) struct StepRecord {
     /// Index of the action in the action space.
     pub action: usize,
     /// The action, readable.
@@ -69,7 +69,7 @@ pub struct StepRecord {
 
 /// The policy's map planes of one frame (methods with a map).
 #[derive(Debug, Clone, Copy)]
-pub struct MapPlanesRecord<'a> {
+pub(crate) struct MapPlanesRecord<'a> {
     /// The agent the planes are centred on: x, y (metres), heading (radians).
     pub agent: (f32, f32, f32),
     /// The planes at the global extent, `[planes, cells, cells]`, as bytes
@@ -81,7 +81,7 @@ pub struct MapPlanesRecord<'a> {
 
 /// One frame of the episode.
 #[derive(Debug, Clone, Copy)]
-pub struct FrameRecord<'a> {
+pub(crate) struct FrameRecord<'a> {
     /// Wall-clock time of the frame, nanoseconds since the Unix epoch.
     pub stamp_ns: u64,
     /// RGB, interleaved.
@@ -104,7 +104,7 @@ pub struct FrameRecord<'a> {
 
 /// How the policy's map planes are laid out (methods with a map).
 #[derive(Debug, Clone, PartialEq)]
-pub struct MapLayout {
+pub(crate) struct MapLayout {
     /// Name of every plane, in order.
     pub plane_names: Vec<String>,
     /// Cells per edge.
@@ -117,7 +117,7 @@ pub struct MapLayout {
 
 /// One map object at the end of the episode.
 #[derive(Debug, Clone)]
-pub struct ObjectRecord {
+pub(crate) struct ObjectRecord {
     /// Its map id (the ids of `/map/object_ids`).
     pub id: u32,
     /// Its surface, world frame.
@@ -128,7 +128,7 @@ pub struct ObjectRecord {
 
 /// Everything one recording holds.
 #[derive(Debug, Clone, Copy)]
-pub struct EpisodeRecord<'a> {
+pub(crate) struct EpisodeRecord<'a> {
     /// The camera.
     pub intrinsics: &'a Intrinsics,
     /// The affordances, in plane order.
@@ -145,7 +145,7 @@ pub struct EpisodeRecord<'a> {
 
 /// Counts of what a recording holds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct RecordingSummary {
+pub(crate) struct RecordingSummary {
     /// Messages written.
     pub messages: u64,
     /// Frames written.
@@ -302,7 +302,7 @@ fn label_pixels(plane: &[u8]) -> Vec<u8> {
 }
 
 /// Writes one episode to `path` (lz4-compressed chunks).
-pub fn write_episode(
+pub(crate) fn write_episode(
     path: &Path,
     episode: &EpisodeRecord<'_>,
 ) -> Result<RecordingSummary, RecordingError> {

@@ -124,7 +124,7 @@ impl HistorySummary {
 
     /// True when the last tenth's interacted-object rate fell below half
     /// of the best tenth's: the policy stopped exploring.
-    pub fn collapsed(&self) -> bool {
+    pub(crate) fn collapsed(&self) -> bool {
         let rates: Vec<f64> = self
             .tenths
             .iter()

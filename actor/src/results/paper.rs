@@ -4,7 +4,7 @@
 //! the ordering of the methods, not numbers to match.
 
 /// One method's published scores.
-pub struct PaperRow {
+pub(crate) struct PaperRow {
     /// The paper's name for it.
     pub name: &'static str,
     /// Table 1 medians per affordance (pick up, push): precision, recall,
@@ -16,7 +16,7 @@ pub struct PaperRow {
 }
 
 /// The paper's four methods.
-pub const PAPER: [PaperRow; 4] = [
+pub(crate) const PAPER: [PaperRow; 4] = [
     PaperRow {
         name: "Ours",
         pixel: [[0.20, 0.37, 0.22, 0.89], [0.99, 0.48, 0.60, 0.76]],
@@ -40,7 +40,7 @@ pub const PAPER: [PaperRow; 4] = [
 ];
 
 /// The paper's index of an affordance's rows (`None` for one it did not report).
-pub fn affordance_index(affordance: &str) -> Option<usize> {
+pub(crate) fn affordance_index(affordance: &str) -> Option<usize> {
     match affordance {
         "pick_up" => Some(0),
         "push" => Some(1),

@@ -37,7 +37,7 @@ pub use run_checkpoint::resume;
 
 /// Counters saved in every checkpoint.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
-pub struct Counters {
+pub(crate) struct Counters {
     /// Run id.
     pub run_id: String,
     /// Environment steps trained on.

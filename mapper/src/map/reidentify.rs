@@ -34,7 +34,7 @@ use crate::Pose;
 const HEADINGS: usize = 8;
 
 /// Least share of the object's visible model that must match the segment
-/// (tracking asks for [`crate::TrackingParams::min_inlier_ratio`], 0.5).
+/// (tracking asks for [`crate::icp::TrackingParams::min_inlier_ratio`], 0.5).
 /// Over `ours` episodes (seeds 1, 3 and 5, 2 400 steps), the eight wrong
 /// re-identifications the weaker tests let through matched 0.54–0.94 of
 /// the model; the right ones 0.50–0.96.
@@ -67,7 +67,7 @@ type Alignment = (usize, Pose);
 impl Map {
     /// The lost object that `segment` shows, if exactly one fits it: of the
     /// segment's class where the frame has classes, within
-    /// [`crate::TrackingParams::max_reidentify_m`] of where it was lost, no
+    /// [`crate::icp::TrackingParams::max_reidentify_m`] of where it was lost, no
     /// smaller than half the segment's spread, and aligned to it from
     /// [`HEADINGS`] headings, sliding and turning on a horizontal
     /// support (or, where the segment lies higher or lower, standing

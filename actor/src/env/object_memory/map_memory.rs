@@ -20,7 +20,7 @@ use crate::mapping::{class_image, map_frame};
 use crate::recording::ObjectRecord;
 
 /// The map and what the episode's step needs around it.
-pub struct MapMemory {
+pub(crate) struct MapMemory {
     map: Map,
     /// The class of every instance id of the scene, for the map's frames.
     classes: Vec<u16>,

@@ -11,8 +11,8 @@
 mod map_memory;
 mod point_memory;
 
-pub use map_memory::MapMemory;
-pub use point_memory::{PointLabels, PointMemory};
+pub(crate) use map_memory::MapMemory;
+pub(crate) use point_memory::{PointLabels, PointMemory};
 
 use mapper::{Affordance, IntegrateTimings, Intrinsics, Map, MapConfig};
 use proto::{ConfidenceRule, LabelSource, MethodSpec, SphereRule};
@@ -25,7 +25,7 @@ use crate::recording::ObjectRecord;
 
 /// An interaction the agent is about to try.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Interaction {
+pub(crate) struct Interaction {
     /// What it tries.
     pub affordance: Affordance,
     /// The object it aims at: its id in the last frame's ids
@@ -34,7 +34,7 @@ pub struct Interaction {
 }
 
 /// An episode's memory of its objects.
-pub trait ObjectMemory: Send {
+pub(crate) trait ObjectMemory: Send {
     /// Takes in the frame just rendered from `sim`'s camera and returns the
     /// id of the object under each pixel (0: none): map ids, or the
     /// simulator's segmentation without a map.
@@ -100,7 +100,7 @@ pub trait ObjectMemory: Send {
 
 /// The rules a memory labels by, from the run's settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct MemoryRules {
+pub(crate) struct MemoryRules {
     /// The map's settings.
     pub map: MapConfig,
     /// The thresholds of annotation by confidence.
@@ -111,7 +111,7 @@ pub struct MemoryRules {
 
 /// The memory `spec`'s method keeps in an episode on a scene whose instance
 /// ids have the classes `classes` ([`crate::mapping::instance_classes`]).
-pub fn object_memory(
+pub(crate) fn object_memory(
     spec: &MethodSpec,
     rules: &MemoryRules,
     affordances: &[Affordance],

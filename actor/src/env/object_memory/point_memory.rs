@@ -15,7 +15,7 @@ use proto::SphereRule;
 
 /// How points become labels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum PointLabels {
+pub(crate) enum PointLabels {
     /// The whole segment under a point, in every frame where it is in view.
     Segments,
     /// The pixels within a sphere around a point.
@@ -23,7 +23,7 @@ pub enum PointLabels {
 }
 
 /// The points and the objects' poses they move with.
-pub struct PointMemory {
+pub(crate) struct PointMemory {
     labels: PointLabels,
     affordances: Vec<Affordance>,
     sphere: SphereRule,

@@ -298,7 +298,7 @@ impl SimEnv {
     }
 
     /// Index of the current room in the scene source.
-    pub fn scene_index(&self) -> u64 {
+    pub(crate) fn scene_index(&self) -> u64 {
         self.episode.as_ref().map_or(0, |e| e.scene_index)
     }
 
@@ -340,7 +340,7 @@ impl SimEnv {
 
     /// Starts an episode: a room picked and randomised by `seed`; its first
     /// frame is rendered and mapped, and waits for [`SimEnv::observe`].
-    pub fn begin_reset(&mut self, seed: u64) -> anyhow::Result<()> {
+    pub(crate) fn begin_reset(&mut self, seed: u64) -> anyhow::Result<()> {
         let (scene_index, scene) = self.source.pick(seed);
         let mut rng = StdRng::seed_from_u64(seed);
         let (sim, _) = randomise(&scene, &self.profile, self.config.image_size, &mut rng)

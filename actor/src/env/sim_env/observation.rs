@@ -31,7 +31,7 @@ impl SimEnv {
 
     /// The frame of the reset or step begun, for the U-Net; `None` before a
     /// reset or once observed.
-    pub fn camera_frame(&self) -> Option<CameraFrame<'_>> {
+    pub(crate) fn camera_frame(&self) -> Option<CameraFrame<'_>> {
         let frame = &self.episode.as_ref()?.pending.as_ref()?.frame;
         Some(CameraFrame {
             rgb: &frame.rgb,

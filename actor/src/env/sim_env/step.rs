@@ -9,7 +9,7 @@ use super::*;
 impl SimEnv {
     /// Applies action `index` of the action space; the next frame is
     /// rendered and mapped, and waits for [`SimEnv::observe`].
-    pub fn begin_step(&mut self, index: usize) -> anyhow::Result<ActionOutcome> {
+    pub(crate) fn begin_step(&mut self, index: usize) -> anyhow::Result<ActionOutcome> {
         let action = self.space.get(index).with_context(|| {
             format!(
                 "action {index} is outside the action space ({})",
