@@ -12,20 +12,17 @@
 #![allow(rustdoc::private_intra_doc_links)]
 
 pub(crate) mod affordance_learner;
-pub mod bench_capacity;
-pub mod bench_transport;
 pub(crate) mod checkpoint;
 pub mod config;
 pub mod config_docs;
 pub(crate) mod history;
 pub mod http;
-pub mod plot;
 pub(crate) mod policy_worker;
 pub(crate) mod prometheus;
 pub mod service;
 pub mod shared;
 pub mod status;
-pub mod summary;
 pub(crate) mod tensorboard;
+pub mod tools;
 pub(crate) mod train;
 pub(crate) mod unet_worker;

@@ -42,7 +42,7 @@ enum Command {
         /// highest value; `LABEL=` in front names the line:
         /// `--run-dir ours=runs/a,runs/b`.
         #[arg(long, required = true, value_name = "[LABEL=]DIR[,DIR...]")]
-        run_dir: Vec<learner::plot::RunGroup>,
+        run_dir: Vec<learner::tools::plot::RunGroup>,
         /// SVG file to write (default RUN_DIR/training_curves.svg for one run;
         /// required for several).
         #[arg(long)]
@@ -213,15 +213,18 @@ fn bench_capacity(args: CapacityArgs) -> anyhow::Result<()> {
         "bench-capacity: {setting}; {} s warm-up, {} s counted",
         args.warmup, args.seconds
     );
-    let feed = learner::bench_capacity::FeedSettings {
+    let feed = learner::tools::bench_capacity::FeedSettings {
         actors: args.actors,
         chunk_steps: args.chunk_steps,
         labelled_share: args.labelled_share,
         warmup: std::time::Duration::from_secs(args.warmup),
         window: std::time::Duration::from_secs(args.seconds),
     };
-    let capacity = learner::bench_capacity::run(config, &device, &policy_device, &feed)?;
-    print!("{}", learner::bench_capacity::table(&[(setting, capacity)]));
+    let capacity = learner::tools::bench_capacity::run(config, &device, &policy_device, &feed)?;
+    print!(
+        "{}",
+        learner::tools::bench_capacity::table(&[(setting, capacity)])
+    );
     Ok(())
 }
 
@@ -252,8 +255,8 @@ fn main() -> anyhow::Result<()> {
         }
         Command::BenchCapacity(args) => bench_capacity(args),
         Command::BenchTransport { repeats } => {
-            let measurements = learner::bench_transport::run(repeats.max(1))?;
-            print!("{}", learner::bench_transport::table(&measurements));
+            let measurements = learner::tools::bench_transport::run(repeats.max(1))?;
+            print!("{}", learner::tools::bench_transport::table(&measurements));
             Ok(())
         }
         Command::Plot {
@@ -268,7 +271,7 @@ fn main() -> anyhow::Result<()> {
                     "several runs given: say where the comparison goes with --out FILE.svg"
                 ),
             };
-            let episodes = learner::plot::plot(&run_dir, &out, window)?;
+            let episodes = learner::tools::plot::plot(&run_dir, &out, window)?;
             let runs: usize = run_dir.iter().map(|g| g.dirs.len()).sum();
             if runs == 1 {
                 println!("plotted {episodes} episodes into {}", out.display());
@@ -286,7 +289,7 @@ fn main() -> anyhow::Result<()> {
             every,
             json,
         } => {
-            let summary = learner::summary::summarize_repeats(&run_dir, every)?;
+            let summary = learner::tools::summary::summarize_repeats(&run_dir, every)?;
             if json {
                 println!("{}", serde_json::Value::from(&summary));
             } else {

@@ -12,7 +12,7 @@ use std::str::FromStr;
 use plotters::prelude::*;
 
 use crate::history::{read_records, HISTORY_FILE};
-use crate::summary::Spread;
+use crate::tools::summary::Spread;
 
 /// The per-episode metrics drawn, in panel order: the paper's six training
 /// curves, then the return PPO maximises, how often the policy still

@@ -1,0 +1,9 @@
+//! The learner's offline tools, apart from the service: they read a run's
+//! files (`plot`: training curves; `summary`: repeats' figures) or measure
+//! the learner on this machine (`bench_capacity`: what the learner takes
+//! from synthetic actors; `bench_transport`: the shared-memory transport).
+
+pub mod bench_capacity;
+pub mod bench_transport;
+pub mod plot;
+pub mod summary;
