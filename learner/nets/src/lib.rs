@@ -7,6 +7,8 @@
 //! - [`policy`]: the exploration policy (conv encoders, MLPs, optional GRU,
 //!   actor and critic heads with masked logits), on burn;
 //! - [`unet`]: the affordance U-Net and its labelled-pixels-only loss;
+//! - `layers`: one description of each network's layers (sizes, kernels,
+//!   strides, activations) that both implementations read;
 //! - `kernels`: the CPU convolution kernels (Winograd, nine taps, GEMM) the
 //!   two CPU paths below share;
 //! - [`unet_cpu`]: the same U-Net's forward pass for CPU inference, without
@@ -21,6 +23,7 @@
 mod conv_matmul;
 pub mod device;
 mod kernels;
+mod layers;
 mod masked_categorical;
 pub mod policy;
 pub mod unet;

@@ -6,10 +6,13 @@ use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::gru::{Gru, GruConfig};
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
-use burn::tensor::activation::{relu, tanh};
 use burn::tensor::Bool;
 pub use proto::{ObsDtype, PolicyLayout};
 use std::sync::atomic::{AtomicU8, Ordering};
+
+use crate::layers::{
+    ENCODER_ACTIVATION, ENCODER_CONVS, ENCODER_FEATURES, HEAD_ACTIVATION, HEAD_WIDTHS,
+};
 
 mod cpu;
 
@@ -95,10 +98,8 @@ impl PolicyInput {
     }
 }
 
-/// Features out of each encoder.
-const ENCODER_FEATURES: usize = 64;
-
-/// A small conv encoder: 8×8/4, 4×4/2, 3×3/2 convolutions, then a linear layer.
+/// A small conv encoder: the strided convolutions of
+/// [`ENCODER_CONVS`](crate::layers::ENCODER_CONVS), then a linear layer.
 #[derive(Module, Debug)]
 pub struct ConvEncoder {
     conv1: Conv2d,
@@ -107,25 +108,22 @@ pub struct ConvEncoder {
     fc: Linear,
 }
 
-/// Spatial side after a valid convolution.
-fn conv_out(size: usize, kernel: usize, stride: usize) -> usize {
-    (size - kernel) / stride + 1
-}
-
 impl ConvEncoder {
     fn new(channels: usize, size: usize, device: &Device) -> Self {
-        let side = conv_out(conv_out(conv_out(size, 8, 4), 4, 2), 3, 2);
+        let conv = |inputs: usize, layer: crate::layers::StridedConv| {
+            Conv2dConfig::new([inputs, layer.outputs], [layer.kernel, layer.kernel])
+                .with_stride([layer.stride, layer.stride])
+                .init(device)
+        };
+        let [first, second, third] = ENCODER_CONVS;
+        let side = ENCODER_CONVS
+            .iter()
+            .fold(size, |side, layer| layer.output_side(side));
         Self {
-            conv1: Conv2dConfig::new([channels, 16], [8, 8])
-                .with_stride([4, 4])
-                .init(device),
-            conv2: Conv2dConfig::new([16, 32], [4, 4])
-                .with_stride([2, 2])
-                .init(device),
-            conv3: Conv2dConfig::new([32, 32], [3, 3])
-                .with_stride([2, 2])
-                .init(device),
-            fc: LinearConfig::new(32 * side * side, ENCODER_FEATURES).init(device),
+            conv1: conv(channels, first),
+            conv2: conv(first.outputs, second),
+            conv3: conv(second.outputs, third),
+            fc: LinearConfig::new(third.outputs * side * side, ENCODER_FEATURES).init(device),
         }
     }
 
@@ -152,17 +150,18 @@ impl ConvEncoder {
         x: Tensor<4>,
         product: Option<crate::conv_matmul::Product>,
     ) -> Tensor<2> {
+        let act = |x| ENCODER_ACTIVATION.tensor(x);
         let Some(product) = product else {
-            let x = relu(self.conv1.forward(x));
-            let x = relu(self.conv2.forward(x));
-            let x = relu(self.conv3.forward(x));
-            return relu(self.fc.forward(x.flatten(1, 3)));
+            let x = act(self.conv1.forward(x));
+            let x = act(self.conv2.forward(x));
+            let x = act(self.conv3.forward(x));
+            return ENCODER_ACTIVATION.tensor(self.fc.forward(x.flatten(1, 3)));
         };
         use crate::conv_matmul::{conv, Layout};
-        let x = relu(conv(x, Layout::ChannelsFirst, &self.conv1, product));
-        let x = relu(conv(x, Layout::ChannelsLast, &self.conv2, product));
-        let x = relu(conv(x, Layout::ChannelsLast, &self.conv3, product));
-        relu(self.fc.forward(x.permute([0, 3, 1, 2]).flatten(1, 3)))
+        let x = act(conv(x, Layout::ChannelsFirst, &self.conv1, product));
+        let x = act(conv(x, Layout::ChannelsLast, &self.conv2, product));
+        let x = act(conv(x, Layout::ChannelsLast, &self.conv3, product));
+        ENCODER_ACTIVATION.tensor(self.fc.forward(x.permute([0, 3, 1, 2]).flatten(1, 3)))
     }
 }
 
@@ -254,11 +253,14 @@ impl VectorEncoder {
 
     /// `[batch, dim]` → `[batch, 64]`.
     pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
-        relu(self.fc2.forward(relu(self.fc1.forward(x))))
+        let act = |x| ENCODER_ACTIVATION.tensor(x);
+        act(self.fc2.forward(act(self.fc1.forward(x))))
     }
 }
 
-/// Three-layer MLP head: (64, 32, out) with tanh between layers.
+/// Three-layer MLP head: [`HEAD_WIDTHS`](crate::layers::HEAD_WIDTHS), then
+/// the output, with [`HEAD_ACTIVATION`](crate::layers::HEAD_ACTIVATION)
+/// between layers.
 #[derive(Module, Debug)]
 pub struct Head {
     fc1: Linear,
@@ -268,17 +270,19 @@ pub struct Head {
 
 impl Head {
     fn new(input: usize, output: usize, device: &Device) -> Self {
+        let [first, second] = HEAD_WIDTHS;
         Self {
-            fc1: LinearConfig::new(input, 64).init(device),
-            fc2: LinearConfig::new(64, 32).init(device),
-            out: LinearConfig::new(32, output).init(device),
+            fc1: LinearConfig::new(input, first).init(device),
+            fc2: LinearConfig::new(first, second).init(device),
+            out: LinearConfig::new(second, output).init(device),
         }
     }
 
     /// `[batch, input]` → `[batch, output]`.
     pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
+        let act = |x| HEAD_ACTIVATION.tensor(x);
         self.out
-            .forward(tanh(self.fc2.forward(tanh(self.fc1.forward(x)))))
+            .forward(act(self.fc2.forward(act(self.fc1.forward(x)))))
     }
 }
 

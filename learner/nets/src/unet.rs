@@ -13,8 +13,7 @@ use burn::prelude::*;
 
 use crate::unet_conv_cpu::conv3x3_relu;
 
-/// Encoder channels per level, shallow to deep (the paper's).
-pub const UNET_CHANNELS: [usize; 4] = [24, 48, 92, 164];
+pub use crate::layers::UNET_CHANNELS;
 
 /// Two 3 × 3 same-padded convolutions with ReLU.
 #[derive(Module, Debug)]
@@ -78,19 +77,19 @@ impl AffordanceUnet {
     /// one output per affordance.
     pub fn new(input_channels: usize, affordances: usize, device: &Device) -> Self {
         let c = UNET_CHANNELS;
+        let inputs = std::iter::once(input_channels).chain(c);
         Self {
-            down: vec![
-                DoubleConv::new(input_channels, c[0], device),
-                DoubleConv::new(c[0], c[1], device),
-                DoubleConv::new(c[1], c[2], device),
-                DoubleConv::new(c[2], c[3], device),
-            ],
+            down: inputs
+                .zip(c)
+                .map(|(i, o)| DoubleConv::new(i, o, device))
+                .collect(),
             pool: MaxPool2dConfig::new([2, 2]).init(),
-            up: vec![
-                UpLevel::new(c[3], c[2], device),
-                UpLevel::new(c[2], c[1], device),
-                UpLevel::new(c[1], c[0], device),
-            ],
+            // Deep to shallow, as the decoder runs.
+            up: c
+                .windows(2)
+                .rev()
+                .map(|pair| UpLevel::new(pair[1], pair[0], device))
+                .collect(),
             head: Conv2dConfig::new([c[0], affordances], [1, 1]).init(device),
         }
     }

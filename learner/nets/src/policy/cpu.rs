@@ -17,6 +17,7 @@ use burn::nn::Linear;
 
 use super::{ConvEncoder, Head, PolicyLayout, PolicyNet, VectorEncoder, MASKED_LOGIT};
 use crate::kernels::{bias_values, matmul, values};
+use crate::layers::{ENCODER_ACTIVATION, HEAD_ACTIVATION};
 
 /// The policy's weights, laid out for [`CpuPolicy::forward`].
 #[derive(Debug, Clone)]
@@ -59,10 +60,7 @@ impl CpuPolicy {
             images: net
                 .images
                 .iter()
-                .map(|e: &ConvEncoder| {
-                    [(&e.conv1, 4), (&e.conv2, 2), (&e.conv3, 2)]
-                        .map(|(layer, stride)| Conv::from_layer(layer, stride))
-                })
+                .map(|e: &ConvEncoder| [&e.conv1, &e.conv2, &e.conv3].map(Conv::from_layer))
                 .collect(),
             image_fcs: net
                 .images
@@ -97,6 +95,7 @@ impl CpuPolicy {
         assert_eq!(observation.len(), layout.obs_len(), "observation length");
         assert_eq!(mask.len(), layout.n_actions, "mask length");
         let side = layout.image_size;
+        let encoder = |v| ENCODER_ACTIVATION.value(v);
         let mut features = Vec::new();
         let mut at = 0;
         for ((convs, fc), &channels) in self
@@ -111,12 +110,12 @@ impl CpuPolicy {
             for conv in convs {
                 (x, size) = conv.forward(&x, size);
             }
-            features.extend(fc.forward(&x, relu));
+            features.extend(fc.forward(&x, encoder));
             at += len;
         }
         for (mlp, &dim) in self.vectors.iter().zip(&layout.vector_dims) {
-            let inner = mlp[0].forward(&observation[at..at + dim], relu);
-            features.extend(mlp[1].forward(&inner, relu));
+            let inner = mlp[0].forward(&observation[at..at + dim], encoder);
+            features.extend(mlp[1].forward(&inner, encoder));
             at += dim;
         }
         let hidden = self.gru.as_ref().map(|gru| {
@@ -127,8 +126,9 @@ impl CpuPolicy {
         });
         let trunk = hidden.as_deref().unwrap_or(&features);
         let head = |h: &[Dense; 3]| {
-            let x = h[0].forward(trunk, f32::tanh);
-            let x = h[1].forward(&x, f32::tanh);
+            let hidden = |v| HEAD_ACTIVATION.value(v);
+            let x = h[0].forward(trunk, hidden);
+            let x = h[1].forward(&x, hidden);
             h[2].forward(&x, |v| v)
         };
         let mut logits = head(&self.actor);
@@ -145,10 +145,6 @@ impl CpuPolicy {
             hidden,
         }
     }
-}
-
-fn relu(v: f32) -> f32 {
-    v.max(0.0)
 }
 
 fn sigmoid(v: f32) -> f32 {
@@ -216,7 +212,8 @@ impl CpuGru {
     }
 }
 
-/// A valid (unpadded), strided, square convolution followed by ReLU.
+/// A valid (unpadded), strided, square convolution followed by the
+/// encoders' activation.
 #[derive(Debug, Clone)]
 struct Conv {
     inputs: usize,
@@ -230,8 +227,9 @@ struct Conv {
 }
 
 impl Conv {
-    fn from_layer(layer: &Conv2d, stride: usize) -> Self {
+    fn from_layer(layer: &Conv2d) -> Self {
         let [outputs, inputs, kernel, _] = layer.weight.val().dims();
+        let stride = layer.stride[0];
         Self {
             inputs,
             outputs,
@@ -277,7 +275,7 @@ impl Conv {
             true,
         );
         for v in &mut y {
-            *v = v.max(0.0);
+            *v = ENCODER_ACTIVATION.value(*v);
         }
         (y, out)
     }
