@@ -41,7 +41,7 @@ use actor::env::affordance_model::AffordanceModel;
 use actor::env::lockstep::{self, reset_all, step_all, Inference};
 use actor::env::sim_env::{SimEnv, SimEnvConfig, StepTimings};
 use actor::env::threads::{Done, EnvThreads, Task};
-use actor::env::{Environment, Observation, SimEnvironment};
+use actor::env::{Environment, FlatSimEnv, Observation};
 use burn::prelude::*;
 use mapper::Affordance;
 use nets::policy::{CpuPolicy, PolicyInput, PolicyLayout, PolicyNet};
@@ -275,11 +275,11 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
                 episode_steps: episode_steps(),
                 ..TaskSpec::default()
             };
-            let new_envs = || -> Vec<SimEnvironment> {
+            let new_envs = || -> Vec<FlatSimEnv> {
                 (0..n)
                     .map(|_| {
                         let renderer = Renderer::open(renderer_choice).expect("the renderer");
-                        SimEnvironment::new(sim_env(data, method, side, renderer), &task)
+                        FlatSimEnv::new(sim_env(data, method, side, renderer), &task)
                             .expect("the environment fits its task")
                     })
                     .collect()
@@ -347,10 +347,10 @@ impl SeveralEnvs<'_> {
     /// steps' phases (resets not included).
     fn lockstep(
         &self,
-        mut envs: Vec<SimEnvironment>,
+        mut envs: Vec<FlatSimEnv>,
     ) -> ((Duration, Duration), Duration, lockstep::PhaseTimes) {
         let model = self.model.read().unwrap();
-        let mut refs: Vec<&mut SimEnvironment> = envs.iter_mut().collect();
+        let mut refs: Vec<&mut FlatSimEnv> = envs.iter_mut().collect();
         let seeds: Vec<u64> = (1..=refs.len() as u64).collect();
         let mut observations =
             reset_all(&mut refs, &seeds, model.as_ref(), self.inference).expect("reset");
@@ -391,7 +391,7 @@ impl SeveralEnvs<'_> {
 
     /// One episode of each of `envs`, free-running as the actor runs them
     /// on the CPU: the policy on this thread, one observation at a time.
-    fn free_running(&self, envs: Vec<SimEnvironment>) -> (Duration, Duration) {
+    fn free_running(&self, envs: Vec<FlatSimEnv>) -> (Duration, Duration) {
         let n = envs.len();
         std::thread::scope(|scope| {
             let boxed = envs

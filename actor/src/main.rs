@@ -9,7 +9,7 @@ use std::time::Duration;
 use actor::config::RunConfig;
 use actor::env::affordance_model::{AffordanceModel, CameraFrame};
 use actor::env::sim_env::{SimEnv, SimEnvConfig};
-use actor::env::{BanditFixture, Environment, SimEnvironment};
+use actor::env::{BanditFixture, Environment, FlatSimEnv};
 use actor::episode_loop::{run, LoopSettings};
 use actor::sim_view::SimViewSettings;
 use anyhow::Context;
@@ -440,12 +440,12 @@ fn results(args: ResultsArgs) -> anyhow::Result<()> {
 }
 
 /// The simulator environment for `task`, in `scenes`, as `sim` says.
-fn sim_environment(
+fn flat_sim_env(
     task: &TaskSpec,
     sim: &Sim,
     scenes: Scenes,
     cli: &RunArgs,
-) -> anyhow::Result<SimEnvironment> {
+) -> anyhow::Result<FlatSimEnv> {
     let profile = RobotProfile::load(&sim.profile)?;
     let source = actor::env::training_rooms(&sim.data, matches!(scenes, Scenes::Ithor), &profile)
         .with_context(|| {
@@ -466,7 +466,7 @@ fn sim_environment(
             cli.record_every,
         );
     }
-    SimEnvironment::new(env, task)
+    FlatSimEnv::new(env, task)
 }
 
 /// Reads the run's join key (`--join-key`, or join.key beside `--config`),
@@ -558,7 +558,7 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
         .map(|_| -> anyhow::Result<Box<dyn Environment>> {
             Ok(match task.env {
                 EnvKind::BanditFixture => Box::new(BanditFixture::new()),
-                EnvKind::Sim => Box::new(sim_environment(&task, &sim, scenes, &cli)?),
+                EnvKind::Sim => Box::new(flat_sim_env(&task, &sim, scenes, &cli)?),
             })
         })
         .collect::<anyhow::Result<Vec<_>>>()?;

@@ -373,7 +373,7 @@ fn methods_without_a_map_fit_their_layout_and_label_from_interaction_points() {
         let layout = task.layout();
         assert_eq!(env.action_space().len(), layout.n_actions);
         // The wrapper checks the state against the task's layout.
-        let mut env = actor::env::SimEnvironment::new(env, &task).unwrap();
+        let mut env = actor::env::FlatSimEnv::new(env, &task).unwrap();
         let mut rng = StdRng::seed_from_u64(3);
         let mut observation = env.reset(3, Some(&model)).unwrap();
         let mut interactions = 0;
@@ -424,10 +424,10 @@ fn play_together(
     use actor::env::lockstep::{reset_all, step_all};
     let mut envs: Vec<_> = seeds
         .iter()
-        .map(|_| actor::env::SimEnvironment::new(environment(steps), task).unwrap())
+        .map(|_| actor::env::FlatSimEnv::new(environment(steps), task).unwrap())
         .collect();
     let mut rngs: Vec<StdRng> = seeds.iter().map(|&s| StdRng::seed_from_u64(s)).collect();
-    let mut refs: Vec<&mut actor::env::SimEnvironment> = envs.iter_mut().collect();
+    let mut refs: Vec<&mut actor::env::FlatSimEnv> = envs.iter_mut().collect();
     let mut observations = reset_all(&mut refs, seeds, Some(model), inference).unwrap();
     let mut traces: Vec<Vec<_>> = observations.iter().map(|o| vec![o.clone()]).collect();
     for _ in 0..steps {
@@ -460,7 +460,7 @@ fn environments_in_lock_step_play_exactly_the_episodes_they_play_alone() {
     // Each environment alone, its actions drawn from its own generator.
     let mut alone = Vec::new();
     for &seed in &seeds {
-        let mut env = actor::env::SimEnvironment::new(environment(steps), &task).unwrap();
+        let mut env = actor::env::FlatSimEnv::new(environment(steps), &task).unwrap();
         let mut rng = StdRng::seed_from_u64(seed);
         let mut observation = env.reset(seed, Some(&model)).unwrap();
         let mut trace = vec![observation.clone()];

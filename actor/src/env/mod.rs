@@ -4,17 +4,17 @@ pub mod actions;
 pub mod affordance_model;
 mod bandit_fixture;
 pub(crate) mod episode_metrics;
+mod flat_sim_env;
 pub mod lockstep;
 pub(crate) mod object_memory;
 pub mod reward;
 pub mod sim_env;
-mod sim_environment;
 pub mod state;
 pub mod threads;
 mod training_rooms;
 
 pub use bandit_fixture::BanditFixture;
-pub use sim_environment::SimEnvironment;
+pub use flat_sim_env::FlatSimEnv;
 pub use training_rooms::training_rooms;
 
 use anyhow::Context;

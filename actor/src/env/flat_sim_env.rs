@@ -1,5 +1,6 @@
 //! The simulator environment behind the episode loop's [`Environment`]
-//! interface: the state's inputs flattened in the task's layout order
+//! interface ([`SimEnv`] flattened, hence the name): the state's inputs
+//! flattened in the task's layout order
 //! (camera, global map, local map, history, inventory; those the method
 //! does not have are empty) and quantised to
 //! bytes, which is exactly what the policy acts on and what the learner
@@ -13,7 +14,7 @@ use super::sim_env::{SimEnv, SimObservation};
 use super::{Environment, EpisodeEnd, Observation, StepOutcome};
 
 /// [`SimEnv`] as an [`Environment`].
-pub struct SimEnvironment {
+pub struct FlatSimEnv {
     env: SimEnv,
     layout: PolicyLayout,
 }
@@ -23,7 +24,7 @@ fn quantise(v: f32) -> f32 {
     proto::byte_to_unit(proto::unit_to_byte(v))
 }
 
-impl SimEnvironment {
+impl FlatSimEnv {
     /// Wraps `env`, which must produce `task`'s layout.
     pub fn new(env: SimEnv, task: &TaskSpec) -> anyhow::Result<Self> {
         let layout = task.layout();
@@ -68,7 +69,7 @@ impl SimEnvironment {
     }
 }
 
-impl Environment for SimEnvironment {
+impl Environment for FlatSimEnv {
     fn layout(&self) -> &PolicyLayout {
         &self.layout
     }
