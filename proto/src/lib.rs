@@ -36,7 +36,7 @@ pub use join::{Join, JoinKey, JoinKeyError, JOIN_KEY_LEN, JOIN_PAYLOAD_LEN};
 pub use message::{
     decode, decode_header, decode_weights, encode, encode_into, encoded_len, Limits, Message,
 };
-pub use method::{LabelSource, Method, MethodSpec, Selection, GRID_CELLS};
+pub use method::{LabelSource, Method, MethodSpec, Selection, GRID_CELLS, HISTORY_STEPS};
 pub use payload::Payload;
 pub use rollout::{
     byte_to_unit, obs_bytes_from_f32, unit_to_byte, ObsDtype, RolloutChunk, RolloutView,

@@ -101,6 +101,39 @@ pub struct MethodSpec {
     pub labels: LabelSource,
 }
 
+/// Actions remembered in the policy's history input.
+pub const HISTORY_STEPS: usize = 5;
+
+impl MethodSpec {
+    /// Channels of the camera input for `affordances` affordances: RGB, the
+    /// distance if the method has it, per affordance the U-Net's
+    /// probability, and with a map the interacted (success, failure) masks.
+    pub fn camera_channels(&self, affordances: usize) -> usize {
+        3 + usize::from(self.distance) + affordances + if self.map { 2 * affordances } else { 0 }
+    }
+
+    /// Channels of each 2-D map (visited, occupancy, and per affordance
+    /// interacted with success, with failure, and not interacted); 0
+    /// without a map.
+    pub fn map_channels(&self, affordances: usize) -> usize {
+        if self.map {
+            2 + 3 * affordances
+        } else {
+            0
+        }
+    }
+
+    /// Length of the action-history input with `n_actions` actions: per
+    /// remembered action its one-hot, success and reward; 0 without one.
+    pub fn history_len(&self, n_actions: usize) -> usize {
+        if self.history {
+            HISTORY_STEPS * (n_actions + 2)
+        } else {
+            0
+        }
+    }
+}
+
 /// How an interaction action picks its object.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Selection {

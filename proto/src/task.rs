@@ -74,8 +74,6 @@ pub enum EnvKind {
 pub const BANDIT_OBS_DIM: usize = 8;
 /// Actions of the bandit fixture.
 pub const BANDIT_ACTIONS: usize = 4;
-/// Actions remembered in the policy's history input.
-pub const HISTORY_STEPS: usize = 5;
 /// Navigation actions of the simulator's action space.
 pub const NAV_ACTIONS: usize = 5;
 /// Moves of a held object (± 0.1 m along three axes).
@@ -359,21 +357,17 @@ impl TaskSpec {
     /// failure) masks from the map; without a map: RGB, distance and the
     /// probabilities; `intexp`: RGB and the probabilities.
     pub fn camera_channels(&self) -> usize {
-        let a = self.affordances.len();
-        let spec = self.method.spec();
-        3 + usize::from(spec.distance) + a + if spec.map { 2 * a } else { 0 }
+        self.method.spec().camera_channels(self.affordances.len())
     }
 
-    /// Channels of each 2-D map: visited, occupancy, and per affordance
-    /// interacted (success, failure) and not interacted.
+    /// Channels of each 2-D map (0 without a map; [`crate::MethodSpec::map_channels`]).
     pub fn map_channels(&self) -> usize {
-        2 + 3 * self.affordances.len()
+        self.method.spec().map_channels(self.affordances.len())
     }
 
-    /// Length of the action-history input: per remembered action its
-    /// one-hot, success and reward.
+    /// Length of the action-history input (0 without one; [`crate::MethodSpec::history_len`]).
     pub fn history_len(&self) -> usize {
-        HISTORY_STEPS * (self.n_actions() + 2)
+        self.method.spec().history_len(self.n_actions())
     }
 
     /// The policy's input layout.

@@ -26,7 +26,7 @@ use std::collections::VecDeque;
 use mapper::projection::{visited, SurfacePoints};
 use mapper::{Affordance, GridSpec, Map, ObjectId, Pose, ProjectionKind};
 use nalgebra::Point2;
-use proto::{Method, TaskSpec};
+use proto::{Method, HISTORY_STEPS};
 
 /// Sizes and extents of the state.
 #[derive(Debug, Clone, PartialEq)]
@@ -45,8 +45,6 @@ pub struct StateConfig {
     pub global_extent_m: f32,
     /// Edge of the local map, metres.
     pub local_extent_m: f32,
-    /// Actions remembered.
-    pub history: usize,
     /// Heights above the floor that count as occupied, metres.
     pub occupancy_heights_m: (f32, f32),
 }
@@ -62,32 +60,18 @@ impl StateConfig {
             map_cells: 128,
             global_extent_m: 10.0,
             local_extent_m: 2.0,
-            history: 5,
             occupancy_heights_m: (0.05, 1.8),
         }
     }
 
-    /// The task's view of this state (channel counts live there, once).
-    fn task(&self) -> TaskSpec {
-        TaskSpec {
-            method: self.method,
-            affordances: self.affordances.clone(),
-            ..TaskSpec::default()
-        }
-    }
-
-    /// Channels of the camera input.
+    /// Channels of the camera input ([`proto::MethodSpec::camera_channels`]).
     pub fn camera_channels(&self) -> usize {
-        self.task().camera_channels()
+        self.method.spec().camera_channels(self.affordances.len())
     }
 
     /// Channels of each map input (0 without a map).
     pub fn map_channels(&self) -> usize {
-        if self.method.spec().map {
-            self.task().map_channels()
-        } else {
-            0
-        }
+        self.method.spec().map_channels(self.affordances.len())
     }
 
     /// Names of the map planes in their order ([`build_state`]'s): where
@@ -109,11 +93,7 @@ impl StateConfig {
 
     /// Length of the history vector (0 for `intexp`).
     pub fn history_len(&self) -> usize {
-        if !self.method.spec().history {
-            0
-        } else {
-            self.history * (self.n_actions + 2)
-        }
+        self.method.spec().history_len(self.n_actions)
     }
 
     /// Image-like inputs' channels and vector inputs' lengths, in the
@@ -325,8 +305,7 @@ fn history_vector(config: &StateConfig, history: &ActionHistory) -> Vec<f32> {
         return Vec::new();
     }
     let mut out = vec![0.0; config.history_len()];
-    for (slot, &(action, success, reward)) in
-        history.entries.iter().take(config.history).enumerate()
+    for (slot, &(action, success, reward)) in history.entries.iter().take(HISTORY_STEPS).enumerate()
     {
         let row = &mut out[slot * width..(slot + 1) * width];
         if action < config.n_actions {

@@ -79,7 +79,7 @@ impl SimEnv {
         episode.visited.push(Point2::new(agent.x, agent.y));
         episode
             .history
-            .push(index, outcome.success, reward, self.state_config.history);
+            .push(index, outcome.success, reward, proto::HISTORY_STEPS);
         episode.steps += 1;
         let done = episode.steps >= self.config.episode_steps;
         let sim_time = started.elapsed();
