@@ -151,10 +151,16 @@ fn only_the_publishers_that_joined_speak_for_an_actor() {
         dropped_after < dropped_before + 1000,
         "the forged sequence counted as drops: {dropped_before} → {dropped_after}"
     );
+    // Parsed, not searched as text: a real episode's steps_per_second
+    // (51234.59375 once) can hold the digits "1234.5".
     let history = std::fs::read_to_string(dir.join("run/history.jsonl")).expect("history");
+    let spoofed = history
+        .lines()
+        .filter_map(|line| serde_json::from_str::<serde_json::Value>(line).ok())
+        .find(|record| record["stats"]["episode_return"].as_f64() == Some(1234.5));
     assert!(
-        !history.contains("1234.5"),
-        "a spoofed episode reached the history"
+        spoofed.is_none(),
+        "a spoofed episode reached the history: {spoofed:?}"
     );
 
     // The real actor is still heard.
