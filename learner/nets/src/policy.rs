@@ -98,8 +98,8 @@ impl PolicyInput {
     }
 }
 
-/// A small conv encoder: the strided convolutions of
-/// [`ENCODER_CONVS`](crate::layers::ENCODER_CONVS), then a linear layer.
+/// A small conv encoder: the strided convolutions `layers::ENCODER_CONVS`
+/// describes, then a linear layer.
 #[derive(Module, Debug)]
 pub struct ConvEncoder {
     conv1: Conv2d,
@@ -258,9 +258,8 @@ impl VectorEncoder {
     }
 }
 
-/// Three-layer MLP head: [`HEAD_WIDTHS`](crate::layers::HEAD_WIDTHS), then
-/// the output, with [`HEAD_ACTIVATION`](crate::layers::HEAD_ACTIVATION)
-/// between layers.
+/// Three-layer MLP head: `layers::HEAD_WIDTHS`, then the output, with
+/// `layers::HEAD_ACTIVATION` between layers.
 #[derive(Module, Debug)]
 pub struct Head {
     fc1: Linear,
