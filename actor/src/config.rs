@@ -81,11 +81,11 @@ mod tests {
     use super::*;
 
     fn read(text: &str) -> anyhow::Result<RunConfig> {
-        let path = std::env::temp_dir().join(format!(
-            "afx-run-config-{}-{}.toml",
-            std::process::id(),
-            text.len()
-        ));
+        // A file of its own per call: the tests run in parallel.
+        static CALLS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let call = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let path =
+            std::env::temp_dir().join(format!("afx-run-config-{}-{call}.toml", std::process::id()));
         std::fs::write(&path, text).unwrap();
         let config = run_config_from_toml_file(&path);
         std::fs::remove_file(&path).ok();
@@ -117,6 +117,42 @@ mod tests {
             ("[actors]\nrenderer = \"vulkan\"\n", "actors.renderer"),
             ("[actors]\nrender = \"cpu\"\n", "render"),
             ("[policy]\nseed = -1\n", "seed"),
+        ] {
+            let err = format!("{:#}", read(text).unwrap_err());
+            assert!(err.contains(says), "{text}: {err}");
+        }
+    }
+
+    #[test]
+    fn the_tasks_rules_are_read_and_a_bad_one_is_named() {
+        let config = read(
+            "[task.sphere]\nradius_m = 0.3\n[task.map]\nvoxel_size_m = 0.05\n\
+             segmentation = \"geometric\"\n[task.selection]\nmin_pixels = 4\n",
+        )
+        .unwrap();
+        assert_eq!(config.task.sphere.radius_m, 0.3);
+        assert_eq!(config.task.map.voxel_size_m, 0.05);
+        assert_eq!(
+            config.task.map.segmentation,
+            proto::MapSegmentation::Geometric
+        );
+        assert_eq!(config.task.selection.min_pixels, 4);
+        assert_eq!(
+            config.task.confidence,
+            proto::ConfidenceRule::default(),
+            "unset tables keep their defaults"
+        );
+        for (text, says) in [
+            (
+                "[task.map]\nvoxel_size_m = 0.0\n",
+                "task.map.voxel_size_m = 0 must be above 0",
+            ),
+            (
+                "[task.confidence]\nnegative_below = 0.95\n",
+                "task.confidence.negative_below",
+            ),
+            ("[task.sphere]\nradius = 0.3\n", "radius"),
+            ("[task.map]\nsegmentation = \"paint\"\n", "segmentation"),
         ] {
             let err = format!("{:#}", read(text).unwrap_err());
             assert!(err.contains(says), "{text}: {err}");
