@@ -68,6 +68,45 @@ fn config(tag: &str, max: usize) -> TransportConfig {
     }
 }
 
+/// What one upstream measurement saw: when streaming started, when the
+/// receiver decoded the last streamed message, and each lock-step round
+/// trip (ms).
+struct Upstream {
+    start: Instant,
+    last_received: Instant,
+    latencies: Vec<f64>,
+}
+
+/// Sends `count` messages back to back, waits for the receiver's ack of the
+/// last (`acks` carries when it decoded each message), then `count` more one
+/// at a time, each waiting for its ack.
+fn stream_then_lock_step(
+    count: usize,
+    mut send: impl FnMut() -> anyhow::Result<()>,
+    acks: &mpsc::Receiver<Instant>,
+) -> anyhow::Result<Upstream> {
+    let start = Instant::now();
+    for _ in 0..count {
+        send()?;
+    }
+    let last_received = acks
+        .recv_timeout(Duration::from_secs(30))
+        .context("streaming phase")?;
+    let mut latencies = Vec::new();
+    for _ in 0..count {
+        let t = Instant::now();
+        send()?;
+        acks.recv_timeout(Duration::from_secs(10))
+            .context("lock-step ack")?;
+        latencies.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    Ok(Upstream {
+        start,
+        last_received,
+        latencies,
+    })
+}
+
 /// Streaming throughput (GiB/s) from the sender's start to the receiver's
 /// decode of the last message, and the median lock-step latency (ms).
 fn summarise(
@@ -119,26 +158,17 @@ fn iceoryx_upstream(size: usize, count: usize) -> anyhow::Result<(f64, f64)> {
         }
         Ok(())
     };
-    let start = Instant::now();
-    for _ in 0..count {
-        send(&mut actor)?;
-    }
-    let last = ack_rx
-        .recv_timeout(Duration::from_secs(30))
-        .context("streaming phase")?;
-    let mut latencies = Vec::new();
-    for _ in 0..count {
-        let t = Instant::now();
-        send(&mut actor)?;
-        ack_rx
-            .recv_timeout(Duration::from_secs(10))
-            .context("lock-step ack")?;
-        latencies.push(t.elapsed().as_secs_f64() * 1e3);
-    }
+    let figures = stream_then_lock_step(count, || send(&mut actor), &ack_rx)?;
     receiver
         .join()
         .map_err(|_| anyhow::anyhow!("receiver panicked"))??;
-    Ok(summarise(len, count, start, last, latencies))
+    Ok(summarise(
+        len,
+        count,
+        figures.start,
+        figures.last_received,
+        figures.latencies,
+    ))
 }
 
 fn read_message(stream: &mut TcpStream, buf: &mut Vec<u8>) -> anyhow::Result<()> {
@@ -184,26 +214,17 @@ fn tcp_upstream(size: usize, count: usize) -> anyhow::Result<(f64, f64)> {
         stream.write_all(&out)?;
         Ok(())
     };
-    let start = Instant::now();
-    for _ in 0..count {
-        send(&mut stream)?;
-    }
-    let last = ack_rx
-        .recv_timeout(Duration::from_secs(30))
-        .context("streaming phase")?;
-    let mut latencies = Vec::new();
-    for _ in 0..count {
-        let t = Instant::now();
-        send(&mut stream)?;
-        ack_rx
-            .recv_timeout(Duration::from_secs(10))
-            .context("lock-step ack")?;
-        latencies.push(t.elapsed().as_secs_f64() * 1e3);
-    }
+    let figures = stream_then_lock_step(count, || send(&mut stream), &ack_rx)?;
     receiver
         .join()
         .map_err(|_| anyhow::anyhow!("receiver panicked"))??;
-    Ok(summarise(len, count, start, last, latencies))
+    Ok(summarise(
+        len,
+        count,
+        figures.start,
+        figures.last_received,
+        figures.latencies,
+    ))
 }
 
 /// Learner → `subscribers` actors over iceoryx2, lock-step: every publish
