@@ -498,7 +498,10 @@ mod tests {
         // Top-left: a big object (2) and a small one (3); bottom-right: object 5.
         let ids = image(&[(2, 3, 3, 10, 10), (3, 10, 3, 12, 8), (5, 22, 22, 27, 27)]);
         let rule = SelectionRule::default();
-        let t = cell_targets(&ids, 30, &[Affordance::Push], None, MIN_CONFIDENCE, &rule);
+        let push_targets = |planes: Option<&[Vec<f32>]>| {
+            cell_targets(&ids, 30, &[Affordance::Push], planes, MIN_CONFIDENCE, &rule)
+        };
+        let t = push_targets(None);
         assert_eq!(t.target(Affordance::Push, 0).unwrap().object, 2);
         assert_eq!(t.target(Affordance::Push, 8).unwrap().object, 5);
         assert!(t.target(Affordance::Push, 4).is_none());
@@ -507,14 +510,7 @@ mod tests {
             .iter()
             .map(|&id| if id == 2 { 0.01 } else { 0.6 })
             .collect();
-        let t = cell_targets(
-            &ids,
-            30,
-            &[Affordance::Push],
-            Some(&[plane]),
-            MIN_CONFIDENCE,
-            &rule,
-        );
+        let t = push_targets(Some(&[plane]));
         assert_eq!(t.target(Affordance::Push, 0).unwrap().object, 3);
         // Sure of nothing in the cell: the cell stays selectable and takes
         // the object rated highest, however small.
@@ -526,14 +522,7 @@ mod tests {
                 _ => 0.0,
             })
             .collect();
-        let t = cell_targets(
-            &ids,
-            30,
-            &[Affordance::Push],
-            Some(&[plane]),
-            MIN_CONFIDENCE,
-            &rule,
-        );
+        let t = push_targets(Some(&[plane]));
         assert_eq!(t.target(Affordance::Push, 0).unwrap().object, 3);
         assert_eq!(t.target(Affordance::Push, 8).unwrap().object, 5);
         assert!(t.target(Affordance::Push, 4).is_none());
