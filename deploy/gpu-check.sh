@@ -20,7 +20,9 @@ Runs, one after the other, each under a time limit (about 7 minutes in all):
      (DIR/env_steps, its several-environments table for 1 and 16
      environments), when DIR has env_steps;
   5. deploy/throughput.sh: the whole system, `ours`, 1x16 and 2x8 at 64 px with
-     the CPU renderer and 1x16 at 128 px with the GPU renderer.
+     the CPU renderer and 1x16 at 128 px with the GPU renderer;
+  6. the gateway pair against loopback TCP (`gateway bench`, issue 41's
+     figure, which the 2-core VM cannot reach), when DIR has gateway.
 and writes every result into one Markdown report.
 
 DIR holds the binaries built here with a GPU backend, FEATURE being nets/gpu
@@ -30,7 +32,8 @@ build time, see docs/decisions/0010-libtorch-on-a-gpu.md):
   cargo build --release -p training --bench learning --features FEATURE
   cargo build --release -p nets --test gpu_matches_cpu --features FEATURE
   cargo build --release -p actor --bench env_steps --features FEATURE
-(copy target/release/{learner,actor} and the deps/learning-*, deps/gpu_matches_cpu-*,
+  cargo build --release -p gateway
+(copy target/release/{learner,actor,gateway} and the deps/learning-*, deps/gpu_matches_cpu-*,
 deps/env_steps-* executables into DIR as learning, gpu_matches_cpu, env_steps). Binaries linked to
 libtorch find it through LD_LIBRARY_PATH, which this script points at the
 libtorch of python3's torch when the loader cannot find it otherwise.
@@ -41,7 +44,7 @@ Options:
   --out FILE      the report (default gpu-check.md)
   --logs DIR      full logs of every step (default gpu-check-logs)
   --skip LIST     comma-separated steps to leave out: agreement, training,
-                  capacity, actor, throughput
+                  capacity, actor, throughput, gateway
   --quick         shorter windows (a smoke test of the script itself)
   -h, --help      this help
 USAGE
@@ -140,8 +143,10 @@ fi
 
 if ! skipped actor && [[ -x "$BIN/env_steps" ]]; then
   section "One actor process at 128 px, GPU renderer (env_steps)"
+  # 16 environments in lock-step and free-running (the actor's way since
+  # issue 40's free-running GPU actor), 1 for scale.
   AFX_DEVICE=gpu AFX_DATA="$DATA" AFX_CASES=none AFX_ENVS=1,16 AFX_ENVS_PX=128 AFX_ENVS_RENDERER=gpu \
-    limited 180 "$LOGS/actor.log" "$BIN/env_steps"
+    limited 240 "$LOGS/actor.log" "$BIN/env_steps"
   add "$(grep -E '^\||^Several' "$LOGS/actor.log" || echo "FAILED: $(tail -n 5 "$LOGS/actor.log" | tr '\n' ' ')")"
 fi
 
@@ -162,6 +167,12 @@ if ! skipped throughput; then
       add "FAILED: $(tail -n 5 "$log" | tr '\n' ' ')" ""
     fi
   done
+fi
+
+if ! skipped gateway && [[ -x "$BIN/gateway" ]]; then
+  section "Gateway pair against loopback TCP (gateway bench)"
+  limited 150 "$LOGS/gateway.log" "$BIN/gateway" bench --sizes-mib 0.1,1,4,16 --count 30
+  add "$(grep -E '^\|' "$LOGS/gateway.log" || echo "FAILED: $(tail -n 5 "$LOGS/gateway.log" | tr '\n' ' ')")"
 fi
 
 cat "$OUT_FILE"

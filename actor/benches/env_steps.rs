@@ -13,9 +13,11 @@
 //! N`) through a whole episode, each step with the policy's forward pass as
 //! the actor runs it (the actions themselves stay random): in lock-step (on
 //! a GPU the U-Net over all their frames in one batch, on the CPU each
-//! environment's U-Net pass on its own thread) and, on the CPU, also
-//! free-running as the actor runs them there (`actor::env::threads`: each
-//! environment on its own thread, the policy on the caller's). It reports
+//! environment's U-Net pass on its own thread) and free-running as the
+//! actor runs them (`actor::env::threads`: each environment on its own
+//! thread, the policy on the caller's over every observation that came in
+//! since its last pass; on a GPU the U-Net in one batching thread's
+//! batches, `actor::env::unet_batcher`). It reports
 //! steps/s per process and per environment, then the episode's end
 //! (labelling, in parallel) and steps/s per process with that end included.
 //!
@@ -31,6 +33,8 @@
 //! The second table runs at 64 px with the CPU renderer unless `AFX_ENVS_PX`
 //! (image side) and `AFX_ENVS_RENDERER` (`cpu` or `gpu`) say otherwise: the
 //! paper's 128 px on a GPU machine is `AFX_ENVS_PX=128 AFX_ENVS_RENDERER=gpu`.
+//! `AFX_ENVS_INFERENCE=batched` runs the second table as on a GPU (the
+//! U-Net's frames in batches) with the U-Net on the CPU.
 
 use std::sync::RwLock;
 use std::time::{Duration, Instant};
@@ -41,6 +45,7 @@ use actor::env::affordance_model::AffordanceModel;
 use actor::env::lockstep::{self, reset_all, step_all, Inference};
 use actor::env::sim_env::{SimEnv, SimEnvConfig, StepTimings};
 use actor::env::threads::{Done, EnvThreads, Task};
+use actor::env::unet_batcher::{batch_times, BatchTimes};
 use actor::env::{Environment, FlatSimEnv, Observation};
 use burn::prelude::*;
 use mapper::Affordance;
@@ -86,6 +91,17 @@ fn several_envs_setting() -> (usize, RendererChoice) {
             other => panic!("AFX_ENVS_RENDERER takes cpu or gpu, not {other:?}"),
         });
     (side, renderer)
+}
+
+/// How the second table's networks see the environments: as the actor on
+/// `device` does, unless `AFX_ENVS_INFERENCE` (`batched` or
+/// `per-environment`) says otherwise (to run a GPU's way on a CPU).
+fn several_envs_inference(device: &Device) -> Inference {
+    std::env::var("AFX_ENVS_INFERENCE").map_or(Inference::for_device(device), |s| match s.trim() {
+        "batched" => Inference::Batched,
+        "per-environment" => Inference::PerEnvironment,
+        other => panic!("AFX_ENVS_INFERENCE takes batched or per-environment, not {other:?}"),
+    })
 }
 
 /// True if the first table's row `name` is selected by `AFX_CASES`.
@@ -261,10 +277,10 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
         .collect();
     let (side, renderer_choice) = several_envs_setting();
     let model = RwLock::new(Some(AffordanceModel::new(AFFORDANCES.len(), device)));
-    let inference = Inference::for_device(device);
+    let inference = several_envs_inference(device);
     println!();
     println!("Several environments per process, {renderer_choice:?} renderer, U-Net inference {inference:?}:");
-    println!("| method | px | environments | stepped | steps/s per process | steps/s per environment | episode end | steps/s per process, end included | per round: policy / first halves / U-Net / second halves |");
+    println!("| method | px | environments | stepped | steps/s per process | steps/s per environment | episode end | steps/s per process, end included | lock-step, per round: policy / first halves (slowest environment's, mean) / U-Net / second halves; free-running on a GPU: the U-Net's batches |");
     println!("|---|---|---|---|---|---|---|---|---|");
     for method in [Method::Ours, Method::NomapSeg] {
         for &n in &counts {
@@ -316,16 +332,29 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
                 "—".to_string() // per environment: no halves to time apart
             } else {
                 format!(
-                    "{:.1} / {:.1} / {:.1} / {:.1} ms",
+                    "{:.1} / {:.1} (slowest environment {:.1}, mean {:.1}) / {:.1} / {:.1} ms",
                     policy.as_secs_f64() * 1e3 / episode_steps() as f64,
                     ms(phases.first_halves),
+                    ms(phases.slowest_first_halves),
+                    ms(phases.each_first_half) / n as f64,
                     ms(phases.unet),
                     ms(phases.second_halves)
                 )
             };
             row("lock-step", times, phases);
-            if inference == Inference::PerEnvironment && n > 1 {
-                row("free-running", bench.free_running(new_envs()), "—".into());
+            if n > 1 {
+                let (stepping, end, batches) = bench.free_running(new_envs());
+                let unet = if batches.batches == 0 {
+                    "—".to_string() // the U-Net on each environment's thread
+                } else {
+                    format!(
+                        "U-Net batches of {:.1} frames, busy {:.0} % of the time ({:.1} ms each)",
+                        batches.frames as f64 / batches.batches as f64,
+                        100.0 * batches.busy.as_secs_f64() / stepping.as_secs_f64(),
+                        batches.busy.as_secs_f64() * 1e3 / batches.batches as f64
+                    )
+                };
+                row("free-running", (stepping, end), unet);
             }
         }
     }
@@ -389,35 +418,40 @@ impl SeveralEnvs<'_> {
         ((stepping, end_started.elapsed()), policy, phases)
     }
 
-    /// One episode of each of `envs`, free-running as the actor runs them
-    /// on the CPU: the policy on this thread, one observation at a time.
-    fn free_running(&self, envs: Vec<FlatSimEnv>) -> (Duration, Duration) {
+    /// One episode of each of `envs`, free-running as the actor runs them:
+    /// the policy on this thread over every observation that came in since
+    /// its last pass; on a GPU the U-Net in the batching thread's batches.
+    /// The stepping, the episode's end, and what the batching thread did.
+    fn free_running(&self, envs: Vec<FlatSimEnv>) -> (Duration, Duration, BatchTimes) {
         let n = envs.len();
         std::thread::scope(|scope| {
             let boxed = envs
                 .into_iter()
                 .map(|env| Box::new(env) as Box<dyn Environment>)
                 .collect();
-            let threads = EnvThreads::start(scope, boxed, self.model);
+            let threads = EnvThreads::start(scope, boxed, self.model, self.inference);
             for index in 0..n {
                 threads
                     .send(index, Task::Reset(index as u64 + 1))
                     .expect("reset");
             }
             let mut rng = StdRng::seed_from_u64(1);
-            let mut act = |index: usize, observation: &Observation| {
+            let mut act = |ready: &[(usize, Observation)]| {
+                let observations: Vec<Observation> = ready.iter().map(|(_, o)| o.clone()).collect();
                 policy_pass(
                     self.policy,
                     self.layout,
-                    std::slice::from_ref(observation),
+                    &observations,
                     self.device,
                     self.inference,
                 );
-                let action =
-                    random_allowed_action(self.space, &observation.action_mask, 0.5, &mut rng);
-                threads
-                    .send(index, Task::Step(action as u32))
-                    .expect("step");
+                for (index, observation) in ready {
+                    let action =
+                        random_allowed_action(self.space, &observation.action_mask, 0.5, &mut rng);
+                    threads
+                        .send(*index, Task::Step(action as u32))
+                        .expect("step");
+                }
             };
             let mut first = Vec::new();
             for _ in 0..n {
@@ -427,23 +461,31 @@ impl SeveralEnvs<'_> {
                 }
             }
             let start = Instant::now();
-            for (index, observation) in &first {
-                act(*index, observation);
-            }
+            let before = batch_times();
+            act(&first);
             let mut stepped = vec![0; n];
             let mut running = n;
             while running > 0 {
-                let (index, Done::Step(_, observation)) = threads.next().expect("step") else {
-                    panic!("a step answered");
-                };
-                stepped[index] += 1;
-                if stepped[index] < episode_steps() {
-                    act(index, &observation);
-                } else {
-                    running -= 1;
+                let mut finished = vec![threads.next().expect("step")];
+                finished.extend(threads.finished().expect("steps"));
+                let mut ready = Vec::new();
+                for (index, done) in finished {
+                    let Done::Step(_, observation) = done else {
+                        panic!("a step answered");
+                    };
+                    stepped[index] += 1;
+                    if stepped[index] < episode_steps() {
+                        ready.push((index, observation));
+                    } else {
+                        running -= 1;
+                    }
+                }
+                if !ready.is_empty() {
+                    act(&ready);
                 }
             }
             let stepping = start.elapsed();
+            let batches = batch_times().since(&before);
             let end_started = Instant::now();
             for index in 0..n {
                 threads
@@ -453,7 +495,7 @@ impl SeveralEnvs<'_> {
             for _ in 0..n {
                 threads.next().expect("the episode's end");
             }
-            (stepping, end_started.elapsed())
+            (stepping, end_started.elapsed(), batches)
         })
     }
 }

@@ -4,6 +4,7 @@
 use burn::prelude::*;
 use nets::unet::AffordanceUnet;
 use nets::unet_inference::UnetInference;
+use rayon::prelude::*;
 
 /// The U-Net the actor infers with, and its calibration.
 #[derive(Debug)]
@@ -43,7 +44,7 @@ impl AffordanceModel {
     }
 
     /// [`AffordanceModel::predict`] for several frames of one size (on a GPU
-    /// in one forward pass).
+    /// in one forward pass; the inputs and probabilities on every core).
     ///
     /// # Panics
     /// If the frames differ in size: an actor's environments share one task.
@@ -58,23 +59,54 @@ impl AffordanceModel {
                 .all(|f| (f.height, f.width) == (height, width)),
             "frames of one batch share a size"
         );
-        let n = height * width;
-        let inputs: Vec<Vec<f32>> = frames.iter().map(network_input).collect();
+        let inputs: Vec<Vec<f32>> = frames.par_iter().map(network_input).collect();
         let inputs: Vec<&[f32]> = inputs.iter().map(Vec::as_slice).collect();
-        let logits = self.net.logits(&inputs, height, width);
+        self.logits(&inputs, height, width)
+            .par_iter()
+            .map(Logits::probabilities)
+            .collect()
+    }
+
+    /// The network's output for `inputs` ([`network_input`]s of frames of
+    /// `height · width`), in one forward pass on a GPU: the only part of a
+    /// prediction that needs the model.
+    pub(crate) fn logits(&self, inputs: &[&[f32]], height: usize, width: usize) -> Vec<Logits> {
+        self.net
+            .logits(inputs, height, width)
+            .into_iter()
+            .map(|values| Logits {
+                values,
+                pixels: height * width,
+                affordances: self.affordances,
+                temperature: self.temperature,
+            })
+            .collect()
+    }
+}
+
+/// One frame's output of the U-Net, and its calibration.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Logits {
+    /// Planes of `pixels` logits, one per output channel.
+    values: Vec<f32>,
+    pixels: usize,
+    affordances: usize,
+    /// The learner's calibration when the logits were made.
+    temperature: f32,
+}
+
+impl Logits {
+    /// Per affordance, the calibrated probability plane (sigmoid of
+    /// logit / temperature).
+    pub(crate) fn probabilities(&self) -> Vec<Vec<f32>> {
         let t = self.temperature.max(1e-3);
-        logits
-            .iter()
-            .map(|frame| {
-                frame
-                    .chunks(n)
-                    .take(self.affordances)
-                    .map(|plane| {
-                        plane
-                            .iter()
-                            .map(|&l| 1.0 / (1.0 + (-l / t).exp()))
-                            .collect()
-                    })
+        self.values
+            .chunks(self.pixels.max(1))
+            .take(self.affordances)
+            .map(|plane| {
+                plane
+                    .iter()
+                    .map(|&l| 1.0 / (1.0 + (-l / t).exp()))
                     .collect()
             })
             .collect()
@@ -83,7 +115,7 @@ impl AffordanceModel {
 
 /// The U-Net's input for one frame: `[r, g, b, depth]` planes, colour in
 /// 0..1, depth in metres with nothing seen as 0.
-fn network_input(frame: &CameraFrame<'_>) -> Vec<f32> {
+pub(crate) fn network_input(frame: &CameraFrame<'_>) -> Vec<f32> {
     let mut input = Vec::with_capacity(4 * frame.height * frame.width);
     for c in 0..3 {
         input.extend(

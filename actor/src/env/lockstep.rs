@@ -1,13 +1,14 @@
-//! Several environments stepped as one, a thread each.
+//! Several environments stepped as one, a thread each (the actor's way for
+//! policies with a GRU; the others' environments run free,
+//! [`super::threads`]).
 //!
 //! [`Inference::Batched`] (for a U-Net on a GPU): the first halves of their
 //! resets or steps run in parallel, the U-Net sees all their camera frames in
-//! one batch, then the second halves run in parallel. This is how one actor
-//! process can keep a GPU busy, with batches of frames rather than one frame
-//! at a time. [`Inference::PerEnvironment`] (for the CPU, where a batch
-//! costs the same per frame): each environment runs its whole reset or step,
-//! U-Net pass included, on its thread, and none waits for the others
-//! halfway.
+//! one batch, then the second halves run in parallel: batches of frames
+//! rather than one frame at a time. [`Inference::PerEnvironment`] (for the
+//! CPU, where a batch costs the same per frame): each environment runs its
+//! whole reset or step, U-Net pass included, on its thread, and none waits
+//! for the others halfway.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
@@ -52,6 +53,14 @@ pub struct PhaseTimes {
     /// The first halves, in parallel (simulation, rendering, and what an
     /// environment does before it needs the U-Net).
     pub first_halves: Duration,
+    /// The slowest environment's first half of each round, in all: what
+    /// the rounds' first halves would take if nothing but the barrier
+    /// held them up.
+    pub slowest_first_halves: Duration,
+    /// Every environment's first half, in all (divided by the rounds and
+    /// the environments: the mean, which grows over one environment's
+    /// alone when the environments compete for something).
+    pub each_first_half: Duration,
     /// The U-Net's batches.
     pub unet: Duration,
     /// The second halves, in parallel (the observation: map, state).
@@ -64,6 +73,8 @@ impl PhaseTimes {
         PhaseTimes {
             rounds: self.rounds - earlier.rounds,
             first_halves: self.first_halves - earlier.first_halves,
+            slowest_first_halves: self.slowest_first_halves - earlier.slowest_first_halves,
+            each_first_half: self.each_first_half - earlier.each_first_half,
             unet: self.unet - earlier.unet,
             second_halves: self.second_halves - earlier.second_halves,
         }
@@ -73,6 +84,8 @@ impl PhaseTimes {
 /// Nanoseconds of each phase and the rounds, process-wide.
 static ROUNDS: AtomicU64 = AtomicU64::new(0);
 static FIRST_HALVES_NS: AtomicU64 = AtomicU64::new(0);
+static SLOWEST_FIRST_HALVES_NS: AtomicU64 = AtomicU64::new(0);
+static EACH_FIRST_HALF_NS: AtomicU64 = AtomicU64::new(0);
 static UNET_NS: AtomicU64 = AtomicU64::new(0);
 static SECOND_HALVES_NS: AtomicU64 = AtomicU64::new(0);
 
@@ -82,17 +95,49 @@ pub fn phase_times() -> PhaseTimes {
     PhaseTimes {
         rounds: ROUNDS.load(Ordering::Relaxed),
         first_halves: read(&FIRST_HALVES_NS),
+        slowest_first_halves: read(&SLOWEST_FIRST_HALVES_NS),
+        each_first_half: read(&EACH_FIRST_HALF_NS),
         unet: read(&UNET_NS),
         second_halves: read(&SECOND_HALVES_NS),
     }
 }
 
+/// Adds `time` to `phase`.
+fn add(phase: &AtomicU64, time: Duration) {
+    let ns = u64::try_from(time.as_nanos()).unwrap_or(u64::MAX);
+    phase.fetch_add(ns, Ordering::Relaxed);
+}
+
 /// Adds the time since `started` to `phase`; the time now.
 fn lap(phase: &AtomicU64, started: Instant) -> Instant {
     let now = Instant::now();
-    let ns = u64::try_from((now - started).as_nanos()).unwrap_or(u64::MAX);
-    phase.fetch_add(ns, Ordering::Relaxed);
+    add(phase, now - started);
     now
+}
+
+/// `first_half` of every environment of `envs` with its argument in
+/// `args`, in parallel; each one's time is booked in [`PhaseTimes`].
+fn first_halves<E: Environment + ?Sized, A: Sync, R: Send>(
+    envs: &mut [&mut E],
+    args: &[A],
+    first_half: impl Fn(&mut E, &A) -> anyhow::Result<R> + Sync,
+) -> anyhow::Result<Vec<R>> {
+    let timed: Vec<(R, Duration)> = envs
+        .par_iter_mut()
+        .zip(args)
+        .map(|(env, arg)| {
+            let started = Instant::now();
+            let result = first_half(&mut **env, arg)?;
+            Ok((result, started.elapsed()))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    let times = timed.iter().map(|(_, t)| *t);
+    add(
+        &SLOWEST_FIRST_HALVES_NS,
+        times.clone().max().unwrap_or_default(),
+    );
+    add(&EACH_FIRST_HALF_NS, times.sum());
+    Ok(timed.into_iter().map(|(r, _)| r).collect())
 }
 
 /// Resets every environment of `envs` with its seed in `seeds`.
@@ -114,10 +159,7 @@ pub fn reset_all<E: Environment + ?Sized>(
             .collect();
     }
     let started = Instant::now();
-    envs.par_iter_mut()
-        .zip(seeds)
-        .map(|(env, &seed)| env.begin_reset(seed))
-        .collect::<anyhow::Result<()>>()?;
+    first_halves(envs, seeds, |env, &seed| env.begin_reset(seed))?;
     observe_batched(envs, model, lap(&FIRST_HALVES_NS, started))
 }
 
@@ -140,11 +182,7 @@ pub fn step_all<E: Environment + ?Sized>(
             .collect();
     }
     let started = Instant::now();
-    let outcomes: Vec<StepOutcome> = envs
-        .par_iter_mut()
-        .zip(actions)
-        .map(|(env, &action)| env.begin_step(action))
-        .collect::<anyhow::Result<_>>()?;
+    let outcomes = first_halves(envs, actions, |env, &action| env.begin_step(action))?;
     let halfway = lap(&FIRST_HALVES_NS, started);
     Ok(outcomes
         .into_iter()

@@ -12,6 +12,7 @@ pub mod sim_env;
 pub mod state;
 pub mod threads;
 mod training_rooms;
+pub mod unet_batcher;
 
 pub use bandit_fixture::BanditFixture;
 pub use flat_sim_env::FlatSimEnv;

@@ -14,6 +14,11 @@
 //! map's parallel loops inside a step stay on that thread (as they did when
 //! a lock-step environment ran on a worker of the shared pool) instead of
 //! handing work to a pool whose threads compete with the environments.
+//!
+//! The U-Net sees each camera frame on its environment's thread
+//! ([`Inference::PerEnvironment`], the CPU) or in the batches of one thread
+//! that all environments hand their frames to ([`Inference::Batched`], a
+//! GPU: [`super::unet_batcher`]).
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::mpsc::{channel, Receiver, Sender};
@@ -23,7 +28,8 @@ use std::thread::Scope;
 use anyhow::{anyhow, Context};
 
 use super::affordance_model::AffordanceModel;
-use super::lockstep::{self, Inference};
+use super::lockstep::Inference;
+use super::unet_batcher::{self, UnetClient};
 use super::{Environment, EpisodeEnd, Observation, StepOutcome};
 
 /// Work for an environment.
@@ -69,20 +75,27 @@ pub struct EnvThreads {
 impl EnvThreads {
     /// Starts a thread for each of `envs` in `scope`; `model` is the U-Net
     /// for their camera frames, which the caller may replace between tasks
-    /// (a task holds it for reading while it runs).
+    /// (a task or a batch holds it for reading while it runs), seen as
+    /// `inference` says.
     pub fn start<'scope, 'env>(
         scope: &'scope Scope<'scope, 'env>,
         envs: Vec<Box<dyn Environment + 'env>>,
         model: &'env RwLock<Option<AffordanceModel>>,
+        inference: Inference,
     ) -> Self {
         let (done_tx, done) = channel();
+        let batcher = (inference == Inference::Batched).then(|| unet_batcher::start(scope, model));
         let jobs = envs
             .into_iter()
             .enumerate()
             .map(|(index, env)| {
                 let (job_tx, job_rx) = channel();
                 let done_tx = done_tx.clone();
-                scope.spawn(move || serve(index, env, job_rx, done_tx, model));
+                let unet = match &batcher {
+                    Some(clients) => Unet::Batched(clients.client()),
+                    None => Unet::OnThisThread(model),
+                };
+                scope.spawn(move || serve(index, env, job_rx, done_tx, unet));
                 job_tx
             })
             .collect();
@@ -118,6 +131,15 @@ impl EnvThreads {
         Ok((index, done.with_context(|| format!("environment {index}"))?))
     }
 
+    /// The tasks finished since the last look, without waiting: the caller
+    /// can act on several environments at once.
+    pub fn finished(&self) -> anyhow::Result<Vec<(usize, Done)>> {
+        self.done
+            .try_iter()
+            .map(|(index, done)| Ok((index, done.with_context(|| format!("environment {index}"))?)))
+            .collect()
+    }
+
     fn job(&self, index: usize, job: Job) -> anyhow::Result<()> {
         self.jobs
             .get(index)
@@ -127,13 +149,39 @@ impl EnvThreads {
     }
 }
 
+/// Where an environment's thread gets the U-Net's planes for its frames.
+enum Unet<'env> {
+    /// From the model, on this thread.
+    OnThisThread(&'env RwLock<Option<AffordanceModel>>),
+    /// From the batching thread.
+    Batched(UnetClient),
+}
+
+impl Unet<'_> {
+    /// The planes for `env`'s camera frame (none without a camera).
+    fn planes_for(&self, env: &dyn Environment) -> anyhow::Result<Vec<Vec<f32>>> {
+        let Some(frame) = env.camera_frame() else {
+            return Ok(Vec::new());
+        };
+        match self {
+            Unet::OnThisThread(model) => Ok(model
+                .read()
+                .unwrap_or_else(PoisonError::into_inner)
+                .as_ref()
+                .context("this environment's camera frames need the U-Net")?
+                .predict(&frame)),
+            Unet::Batched(client) => client.predict(&frame),
+        }
+    }
+}
+
 /// An environment's thread: does its jobs in order until the caller hangs up.
 fn serve(
     index: usize,
     mut env: Box<dyn Environment + '_>,
     jobs: Receiver<Job>,
     done: Sender<(usize, anyhow::Result<Done>)>,
-    model: &RwLock<Option<AffordanceModel>>,
+    unet: Unet<'_>,
 ) {
     let pool = match rayon::ThreadPoolBuilder::new().num_threads(1).build() {
         Ok(pool) => pool,
@@ -149,7 +197,7 @@ fn serve(
                     env.set_global_steps(steps);
                     continue;
                 }
-                Job::Do(task) => catch_unwind(AssertUnwindSafe(|| work(env.as_mut(), task, model)))
+                Job::Do(task) => catch_unwind(AssertUnwindSafe(|| work(env.as_mut(), task, &unet)))
                     .unwrap_or_else(|_| Err(anyhow!("the environment panicked"))),
             };
             if done.send((index, result)).is_err() {
@@ -160,22 +208,17 @@ fn serve(
 }
 
 /// One task of an environment.
-fn work(
-    env: &mut dyn Environment,
-    task: Task,
-    model: &RwLock<Option<AffordanceModel>>,
-) -> anyhow::Result<Done> {
-    let model = || model.read().unwrap_or_else(PoisonError::into_inner);
-    let alone = Inference::PerEnvironment;
+fn work(env: &mut dyn Environment, task: Task, unet: &Unet<'_>) -> anyhow::Result<Done> {
     Ok(match task {
         Task::Reset(seed) => {
-            let mut observed = lockstep::reset_all(&mut [env], &[seed], model().as_ref(), alone)?;
-            Done::Reset(observed.pop().context("a reset observes")?)
+            env.begin_reset(seed)?;
+            let planes = unet.planes_for(env)?;
+            Done::Reset(env.observe(planes)?)
         }
         Task::Step(action) => {
-            let mut stepped = lockstep::step_all(&mut [env], &[action], model().as_ref(), alone)?;
-            let (outcome, observation) = stepped.pop().context("a step observes")?;
-            Done::Step(outcome, observation)
+            let outcome = env.begin_step(action)?;
+            let planes = unet.planes_for(env)?;
+            Done::Step(outcome, env.observe(planes)?)
         }
         Task::Finish(id) => {
             let scene = env.scene_index();
@@ -220,7 +263,7 @@ mod tests {
                 .iter()
                 .map(|_| Box::new(BanditFixture::new()) as Box<dyn Environment>)
                 .collect();
-            let threads = EnvThreads::start(scope, envs, model);
+            let threads = EnvThreads::start(scope, envs, model, Inference::PerEnvironment);
             assert_eq!(threads.len(), 3);
             for (index, &seed) in seeds.iter().enumerate() {
                 threads.send(index, Task::Reset(seed)).unwrap();
@@ -295,6 +338,120 @@ mod tests {
         fn set_global_steps(&mut self, _steps: u64) {}
     }
 
+    /// A bandit with a camera: its observation's first feature is the mean
+    /// of the U-Net's first plane for its frame, which its reset seed shades.
+    struct Seeing {
+        bandit: BanditFixture,
+        rgb: Vec<u8>,
+        depth_m: Vec<f32>,
+    }
+
+    const SEEING_SIDE: usize = 8;
+
+    fn mean(plane: &[f32]) -> f32 {
+        plane.iter().sum::<f32>() / plane.len() as f32
+    }
+
+    impl Seeing {
+        fn frame(&self) -> CameraFrame<'_> {
+            CameraFrame {
+                rgb: &self.rgb,
+                depth_m: &self.depth_m,
+                height: SEEING_SIDE,
+                width: SEEING_SIDE,
+            }
+        }
+    }
+
+    impl Environment for Seeing {
+        fn layout(&self) -> &PolicyLayout {
+            self.bandit.layout()
+        }
+        fn scene_index(&self) -> u32 {
+            0
+        }
+        fn begin_reset(&mut self, seed: u64) -> anyhow::Result<()> {
+            let pixels = SEEING_SIDE * SEEING_SIDE;
+            self.rgb = (0..3 * pixels).map(|i| (i as u64 * seed) as u8).collect();
+            self.depth_m = (0..pixels)
+                .map(|i| 0.3 + (i as u64 % seed) as f32)
+                .collect();
+            self.bandit.begin_reset(seed)
+        }
+        fn begin_step(&mut self, action: u32) -> anyhow::Result<StepOutcome> {
+            self.bandit.begin_step(action)
+        }
+        fn camera_frame(&self) -> Option<CameraFrame<'_>> {
+            Some(self.frame())
+        }
+        fn observe(&mut self, affordances: Vec<Vec<f32>>) -> anyhow::Result<Observation> {
+            let mut observation = self.bandit.observe(Vec::new())?;
+            observation.features[0] = mean(&affordances[0]);
+            Ok(observation)
+        }
+        fn finish_episode(&mut self, id: u64) -> anyhow::Result<EpisodeEnd> {
+            self.bandit.finish_episode(id)
+        }
+        fn set_global_steps(&mut self, _steps: u64) {}
+    }
+
+    #[test]
+    fn each_environment_gets_the_planes_of_its_own_frame_on_its_thread_or_batched() {
+        let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).unwrap();
+        let model = RwLock::new(Some(AffordanceModel::new(2, &device)));
+        let seeds = [3u64, 5, 8, 13];
+        let seeing = || Seeing {
+            bandit: BanditFixture::new(),
+            rgb: Vec::new(),
+            depth_m: Vec::new(),
+        };
+        let mut expected = Vec::new();
+        for &seed in &seeds {
+            let mut env = seeing();
+            env.begin_reset(seed).unwrap();
+            let planes = model
+                .read()
+                .unwrap()
+                .as_ref()
+                .unwrap()
+                .predict(&env.frame());
+            expected.push(mean(&planes[0]));
+        }
+        for (k, a) in expected.iter().enumerate() {
+            for b in &expected[k + 1..] {
+                assert!(
+                    (a - b).abs() > 1e-4,
+                    "the frames tell the environments apart"
+                );
+            }
+        }
+        for inference in [Inference::PerEnvironment, Inference::Batched] {
+            let mut got = vec![f32::NAN; seeds.len()];
+            std::thread::scope(|scope| {
+                let envs = seeds
+                    .iter()
+                    .map(|_| Box::new(seeing()) as Box<dyn Environment>)
+                    .collect();
+                let threads = EnvThreads::start(scope, envs, &model, inference);
+                for (index, &seed) in seeds.iter().enumerate() {
+                    threads.send(index, Task::Reset(seed)).unwrap();
+                }
+                for _ in 0..seeds.len() {
+                    let (index, Done::Reset(observation)) = threads.next().unwrap() else {
+                        panic!("a reset answered");
+                    };
+                    got[index] = observation.features[0];
+                }
+            });
+            for (k, (g, e)) in got.iter().zip(&expected).enumerate() {
+                assert!(
+                    (g - e).abs() < 1e-5,
+                    "{inference:?}, environment {k}: {g} vs {e}"
+                );
+            }
+        }
+    }
+
     #[test]
     fn a_panicking_environment_is_an_error_for_the_caller_not_a_hang() {
         let model = &NO_MODEL;
@@ -303,7 +460,7 @@ mod tests {
                 Box::new(BanditFixture::new()),
                 Box::new(Panicking(BanditFixture::new())),
             ];
-            let threads = EnvThreads::start(scope, envs, model);
+            let threads = EnvThreads::start(scope, envs, model, Inference::PerEnvironment);
             threads.send(1, Task::Reset(1)).unwrap();
             assert!(matches!(threads.next().unwrap(), (1, Done::Reset(_))));
             threads.send(1, Task::Step(0)).unwrap();

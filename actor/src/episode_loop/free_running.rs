@@ -8,11 +8,9 @@
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use anyhow::Context;
-
 use super::{Acted, Actor, RunningEpisode};
 use crate::env::threads::{Done, EnvThreads, Task};
-use crate::env::{lockstep, Environment};
+use crate::env::Environment;
 
 /// Where an environment is, as the loop sees it.
 enum Phase {
@@ -26,21 +24,21 @@ enum Phase {
     Finishing(RunningEpisode),
 }
 
-/// Whether `envs` environments should run free: several of them, each
-/// with its U-Net pass on its own thread (a CPU device), a policy pass cheap
-/// enough for this thread to run for all of them (the CPU's own,
+/// Whether `envs` environments should run free: several of them, a policy
+/// pass cheap enough for this thread to run (the CPU's own,
 /// `nets::policy::CpuPolicy`), and steps long and uneven enough that waiting
 /// at a barrier costs more than this thread's competing with the
 /// environments for the cores. That is the methods with a map, whose
-/// policies have no GRU (the GRU stands in for the map). Measured with 2
-/// environments (env bench, both with the CPU pass): `ours` 95–107 steps/s
-/// in lock-step, 109–135 free-running; `nomap-seg`, whose short, even steps
-/// lose 3 % at the barrier, 202–203 in lock-step and 184 free-running.
+/// policies have no GRU (the GRU stands in for the map). Measured on the CPU
+/// with 2 environments (env bench, both with the CPU pass): `ours` 95–107
+/// steps/s in lock-step, 109–135 free-running; `nomap-seg`, whose short,
+/// even steps lose 3 % at the barrier, 202–203 in lock-step and 184
+/// free-running. On a GPU the U-Net's frames go to one batching thread
+/// (`crate::env::unet_batcher`) instead of a lock-step batch, whose barrier
+/// at 16 environments made `ours`' rounds wait for the slowest of them
+/// (docs/notebook/2026-11-27-free-running-gpu-actor.md).
 pub(super) fn suits(actor: &Actor<'_>, envs: usize) -> bool {
-    envs > 1
-        && actor.inference == lockstep::Inference::PerEnvironment
-        && actor.policy.cpu.is_some()
-        && actor.policy.layout.gru_hidden.is_none()
+    envs > 1 && actor.policy.cpu.is_some() && actor.policy.layout.gru_hidden.is_none()
 }
 
 /// Runs `envs` free-running until `stop` is set or `max_episodes` are done.
@@ -51,13 +49,23 @@ pub(super) fn run(
 ) -> anyhow::Result<()> {
     let model = actor.model;
     std::thread::scope(|scope| {
-        let threads = EnvThreads::start(scope, envs, model);
+        let threads = EnvThreads::start(scope, envs, model, actor.inference);
         drive(actor, &threads, stop)
         // Dropping `threads` ends them; the scope waits for them.
     })
 }
 
-/// Hands out tasks and books what comes back.
+/// What comes after an environment's finished task.
+enum Next {
+    /// This phase.
+    Phase(Phase),
+    /// An action for this episode, chosen with the others that need one.
+    Act(RunningEpisode),
+}
+
+/// Hands out tasks and books what comes back: every task finished by the
+/// time the last one is booked, with one policy pass for those that need
+/// an action.
 fn drive(actor: &mut Actor<'_>, threads: &EnvThreads, stop: &AtomicBool) -> anyhow::Result<()> {
     let start = |actor: &mut Actor<'_>, index: usize| -> anyhow::Result<Phase> {
         if stop.load(Ordering::Relaxed) {
@@ -71,49 +79,61 @@ fn drive(actor: &mut Actor<'_>, threads: &EnvThreads, stop: &AtomicBool) -> anyh
             None => Phase::Idle,
         })
     };
-    let step = |actor: &mut Actor<'_>, index: usize, episode: RunningEpisode| {
-        let acted = actor
-            .act(&[(&episode.observation, episode.hidden.as_deref())])?
-            .pop()
-            .context("the policy acted")?;
-        threads.send(index, Task::Step(acted.action))?;
-        anyhow::Ok(Phase::Stepping(episode, acted))
-    };
     let mut phases = Vec::with_capacity(threads.len());
     for index in 0..threads.len() {
         phases.push(start(actor, index)?);
     }
     while phases.iter().any(|p| !matches!(p, Phase::Idle)) {
-        let (index, done) = threads.next()?;
+        let mut finished = vec![threads.next()?];
+        finished.extend(threads.finished()?);
         if let Some(steps) = actor.refresh_weights()? {
             threads.set_global_steps(steps)?;
         }
         let stopping = stop.load(Ordering::Relaxed);
-        let phase = std::mem::replace(&mut phases[index], Phase::Idle);
-        phases[index] = match (phase, done) {
-            (Phase::Resetting(id), Done::Reset(observation)) => {
-                let episode = actor.begin_episode(id, observation);
-                step(actor, index, episode)?
-            }
-            (Phase::Stepping(mut episode, acted), Done::Step(outcome, observation)) => {
-                let closing =
-                    actor.record_step(&mut episode, acted, &outcome, observation, stopping);
-                if let Some(ended) = closing {
-                    actor.close_chunks(vec![(&mut episode, ended)])?;
+        let mut acting = Vec::new();
+        for (index, done) in finished {
+            let phase = std::mem::replace(&mut phases[index], Phase::Idle);
+            let next = match (phase, done) {
+                (Phase::Resetting(id), Done::Reset(observation)) => {
+                    Next::Act(actor.begin_episode(id, observation))
                 }
-                if outcome.done || stopping {
-                    threads.send(index, Task::Finish(episode.id))?;
-                    Phase::Finishing(episode)
-                } else {
-                    step(actor, index, episode)?
+                (Phase::Stepping(mut episode, acted), Done::Step(outcome, observation)) => {
+                    let closing =
+                        actor.record_step(&mut episode, acted, &outcome, observation, stopping);
+                    if let Some(ended) = closing {
+                        actor.close_chunks(vec![(&mut episode, ended)])?;
+                    }
+                    if outcome.done || stopping {
+                        threads.send(index, Task::Finish(episode.id))?;
+                        Next::Phase(Phase::Finishing(episode))
+                    } else {
+                        Next::Act(episode)
+                    }
                 }
+                (Phase::Finishing(episode), Done::Finish { end, scene }) => {
+                    actor.publish_end(&episode, end, scene)?;
+                    Next::Phase(start(actor, index)?)
+                }
+                _ => anyhow::bail!("environment {index} answered a task it was not given"),
+            };
+            match next {
+                Next::Phase(phase) => phases[index] = phase,
+                Next::Act(episode) => acting.push((index, episode)),
             }
-            (Phase::Finishing(episode), Done::Finish { end, scene }) => {
-                actor.publish_end(&episode, end, scene)?;
-                start(actor, index)?
-            }
-            _ => anyhow::bail!("environment {index} answered a task it was not given"),
-        };
+        }
+        if acting.is_empty() {
+            continue;
+        }
+        let inputs: Vec<_> = acting
+            .iter()
+            .map(|(_, e)| (&e.observation, e.hidden.as_deref()))
+            .collect();
+        let acted = actor.act(&inputs)?;
+        anyhow::ensure!(acted.len() == acting.len(), "the policy acted for each");
+        for ((index, episode), acted) in acting.into_iter().zip(acted) {
+            threads.send(index, Task::Step(acted.action))?;
+            phases[index] = Phase::Stepping(episode, acted);
+        }
     }
     Ok(())
 }

@@ -1,0 +1,258 @@
+//! One U-Net for free-running environments on a GPU: each environment's
+//! thread hands its camera frame (as the network's input) to a batching
+//! thread and waits for its logits; the batching thread runs every frame
+//! waiting in one forward pass. The environments' threads make the inputs
+//! and the probabilities, so the batching thread does nothing but the pass.
+//!
+//! Why: in lock-step ([`super::lockstep`]) a GPU sees all environments'
+//! frames in one batch, but every step of every environment waits for the
+//! slowest one, and no environment works while the U-Net runs. Here nobody
+//! waits at a barrier, and the batches size themselves: while one batch
+//! runs, the frames of the environments that finish their first halves
+//! meanwhile queue up for the next, so the busier the U-Net, the larger its
+//! batches.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{channel, Receiver, Sender};
+use std::sync::{PoisonError, RwLock};
+use std::thread::Scope;
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, Context};
+
+use super::affordance_model::{network_input, AffordanceModel, CameraFrame, Logits};
+
+/// A frame's logits (or why there are none).
+type Reply = Result<Logits, String>;
+
+/// A camera frame as the network's input, and where its logits go.
+struct Request {
+    input: Vec<f32>,
+    height: usize,
+    width: usize,
+    reply: Sender<Reply>,
+}
+
+/// An environment thread's way to the batching thread.
+pub(crate) struct UnetClient {
+    requests: Sender<Request>,
+    reply: Sender<Reply>,
+    replies: Receiver<Reply>,
+}
+
+impl UnetClient {
+    /// A client of the batching thread that `requests` reach.
+    fn new(requests: Sender<Request>) -> Self {
+        let (reply, replies) = channel();
+        Self {
+            requests,
+            reply,
+            replies,
+        }
+    }
+
+    /// Per affordance, the probability plane of `frame`, from the next batch.
+    pub(crate) fn predict(&self, frame: &CameraFrame<'_>) -> anyhow::Result<Vec<Vec<f32>>> {
+        let request = Request {
+            input: network_input(frame),
+            height: frame.height,
+            width: frame.width,
+            reply: self.reply.clone(),
+        };
+        let ended = || anyhow!("the U-Net's batching thread ended");
+        self.requests.send(request).map_err(|_| ended())?;
+        let logits = self
+            .replies
+            .recv()
+            .map_err(|_| ended())?
+            .map_err(|e| anyhow!(e))
+            .context("the U-Net's batch")?;
+        Ok(logits.probabilities())
+    }
+}
+
+/// Starts the batching thread in `scope`, running `model` (which the caller
+/// may replace between batches); returns a maker of clients. The thread
+/// ends once the maker and every client are dropped.
+pub(crate) fn start<'scope, 'env>(
+    scope: &'scope Scope<'scope, 'env>,
+    model: &'env RwLock<Option<AffordanceModel>>,
+) -> Clients {
+    let (requests, queue) = channel();
+    scope.spawn(move || serve(model, queue));
+    Clients { requests }
+}
+
+/// Makes [`UnetClient`]s of one batching thread.
+pub(crate) struct Clients {
+    requests: Sender<Request>,
+}
+
+impl Clients {
+    /// A client for one environment's thread.
+    pub(crate) fn client(&self) -> UnetClient {
+        UnetClient::new(self.requests.clone())
+    }
+}
+
+/// Runs every waiting frame in one batch, until no client is left.
+fn serve(model: &RwLock<Option<AffordanceModel>>, queue: Receiver<Request>) {
+    while let Ok(first) = queue.recv() {
+        let mut batch = vec![first];
+        batch.extend(queue.try_iter());
+        let started = Instant::now();
+        let logits = infer(model, &batch);
+        record(batch.len(), started.elapsed());
+        for (request, logits) in batch.into_iter().zip(logits) {
+            // A client gone meanwhile (its environment failed) wants nothing.
+            let _ = request.reply.send(logits);
+        }
+    }
+}
+
+/// The logits of each frame of `batch`: one forward pass per frame size
+/// (an actor's environments share one task, so normally one pass).
+fn infer(model: &RwLock<Option<AffordanceModel>>, batch: &[Request]) -> Vec<Reply> {
+    let model = model.read().unwrap_or_else(PoisonError::into_inner);
+    let Some(model) = model.as_ref() else {
+        let error = "this environment's camera frames need the U-Net".to_string();
+        return batch.iter().map(|_| Err(error.clone())).collect();
+    };
+    let mut replies: Vec<Option<Reply>> = batch.iter().map(|_| None).collect();
+    let mut sizes: Vec<(usize, usize)> = batch.iter().map(|r| (r.height, r.width)).collect();
+    sizes.sort_unstable();
+    sizes.dedup();
+    for (height, width) in sizes {
+        let members: Vec<usize> = (0..batch.len())
+            .filter(|&i| (batch[i].height, batch[i].width) == (height, width))
+            .collect();
+        let inputs: Vec<&[f32]> = members.iter().map(|&i| batch[i].input.as_slice()).collect();
+        for (&i, logits) in members.iter().zip(model.logits(&inputs, height, width)) {
+            replies[i] = Some(Ok(logits));
+        }
+    }
+    replies
+        .into_iter()
+        .map(|r| r.unwrap_or_else(|| Err("the U-Net gave no logits for a frame".into())))
+        .collect()
+}
+
+/// What the batching threads of this process did, in all: read by
+/// benchmarks as the difference of two readings (how large the batches
+/// grew, how busy the U-Net was).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct BatchTimes {
+    /// Batches run.
+    pub batches: u64,
+    /// Frames in them.
+    pub frames: u64,
+    /// Time spent running them.
+    pub busy: Duration,
+}
+
+impl BatchTimes {
+    /// What happened from `earlier` to this reading.
+    pub fn since(&self, earlier: &BatchTimes) -> BatchTimes {
+        BatchTimes {
+            batches: self.batches - earlier.batches,
+            frames: self.frames - earlier.frames,
+            busy: self.busy - earlier.busy,
+        }
+    }
+}
+
+static BATCHES: AtomicU64 = AtomicU64::new(0);
+static FRAMES: AtomicU64 = AtomicU64::new(0);
+static BUSY_NS: AtomicU64 = AtomicU64::new(0);
+
+/// This process's [`BatchTimes`] so far.
+pub fn batch_times() -> BatchTimes {
+    BatchTimes {
+        batches: BATCHES.load(Ordering::Relaxed),
+        frames: FRAMES.load(Ordering::Relaxed),
+        busy: Duration::from_nanos(BUSY_NS.load(Ordering::Relaxed)),
+    }
+}
+
+fn record(frames: usize, busy: Duration) {
+    BATCHES.fetch_add(1, Ordering::Relaxed);
+    FRAMES.fetch_add(frames as u64, Ordering::Relaxed);
+    let ns = u64::try_from(busy.as_nanos()).unwrap_or(u64::MAX);
+    BUSY_NS.fetch_add(ns, Ordering::Relaxed);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame_bytes(side: usize, shade: u8) -> (Vec<u8>, Vec<f32>) {
+        let rgb = (0..side * side * 3)
+            .map(|i| (i as u8).wrapping_mul(shade))
+            .collect();
+        let depth = (0..side * side)
+            .map(|i| 0.5 + (i % 7) as f32 * 0.1 + f32::from(shade) * 0.01)
+            .collect();
+        (rgb, depth)
+    }
+
+    #[test]
+    fn every_thread_gets_the_planes_of_its_own_frame_as_the_model_alone_gives_them() {
+        let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).unwrap();
+        let model = RwLock::new(Some(AffordanceModel::new(2, &device)));
+        let frames: Vec<(Vec<u8>, Vec<f32>)> = (1..=6).map(|k| frame_bytes(16, k)).collect();
+        fn camera((rgb, depth): &(Vec<u8>, Vec<f32>)) -> CameraFrame<'_> {
+            CameraFrame {
+                rgb,
+                depth_m: depth,
+                height: 16,
+                width: 16,
+            }
+        }
+        let before = batch_times();
+        let got: Vec<Vec<Vec<f32>>> = std::thread::scope(|scope| {
+            let clients = start(scope, &model);
+            let handles: Vec<_> = frames
+                .iter()
+                .map(|f| {
+                    let client = clients.client();
+                    scope.spawn(move || client.predict(&camera(f)).unwrap())
+                })
+                .collect();
+            drop(clients);
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        let model = model.read().unwrap();
+        for (k, (planes, f)) in got.iter().zip(&frames).enumerate() {
+            let alone = model.as_ref().unwrap().predict(&camera(f));
+            assert_eq!(planes.len(), 2, "frame {k}: a plane per affordance");
+            for (p, a) in planes.iter().zip(&alone) {
+                let worst = p
+                    .iter()
+                    .zip(a)
+                    .map(|(x, y)| (x - y).abs())
+                    .fold(0.0, f32::max);
+                assert!(worst < 1e-5, "frame {k}: {worst}");
+            }
+        }
+        let batched = batch_times().since(&before);
+        assert!(batched.frames >= 6 && batched.batches >= 1, "{batched:?}");
+    }
+
+    #[test]
+    fn without_a_model_a_frame_is_an_error_not_a_hang() {
+        let model = RwLock::new(None);
+        let (rgb, depth) = frame_bytes(8, 1);
+        let error = std::thread::scope(|scope| {
+            let client = start(scope, &model).client();
+            client
+                .predict(&CameraFrame {
+                    rgb: &rgb,
+                    depth_m: &depth,
+                    height: 8,
+                    width: 8,
+                })
+                .unwrap_err()
+        });
+        assert!(format!("{error:#}").contains("need the U-Net"), "{error:#}");
+    }
+}
