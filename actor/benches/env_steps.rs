@@ -420,7 +420,8 @@ impl SeveralEnvs<'_> {
 
     /// One episode of each of `envs`, free-running as the actor runs them:
     /// the policy on this thread over every observation that came in since
-    /// its last pass; on a GPU the U-Net in the batching thread's batches.
+    /// its last pass (on the CPU one at a time); on a GPU the U-Net in the
+    /// batching thread's batches.
     /// The stepping, the episode's end, and what the batching thread did.
     fn free_running(&self, envs: Vec<FlatSimEnv>) -> (Duration, Duration, BatchTimes) {
         let n = envs.len();
@@ -437,14 +438,15 @@ impl SeveralEnvs<'_> {
             }
             let mut rng = StdRng::seed_from_u64(1);
             let mut act = |ready: &[(usize, Observation)]| {
+                // As the actor: one pass at a time on the CPU, else all at once.
                 let observations: Vec<Observation> = ready.iter().map(|(_, o)| o.clone()).collect();
-                policy_pass(
-                    self.policy,
-                    self.layout,
-                    &observations,
-                    self.device,
-                    self.inference,
-                );
+                let batches: Vec<&[Observation]> = match self.inference {
+                    Inference::PerEnvironment => observations.chunks(1).collect(),
+                    Inference::Batched => vec![&observations],
+                };
+                for batch in batches {
+                    policy_pass(self.policy, self.layout, batch, self.device, self.inference);
+                }
                 for (index, observation) in ready {
                     let action =
                         random_allowed_action(self.space, &observation.action_mask, 0.5, &mut rng);
