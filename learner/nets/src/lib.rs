@@ -28,6 +28,8 @@ mod masked_categorical;
 pub mod policy;
 pub mod unet;
 mod unet_conv_cpu;
+#[cfg(feature = "gpu-torch")]
+mod unet_conv_torch;
 pub mod unet_cpu;
 pub mod unet_inference;
 pub mod weights;

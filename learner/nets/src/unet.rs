@@ -36,8 +36,18 @@ impl DoubleConv {
     }
 
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        conv3x3_relu(&self.second, conv3x3_relu(&self.first, x))
+        conv_relu(&self.second, conv_relu(&self.first, x))
     }
+}
+
+/// `relu(layer(x))` by the backend's best way: libtorch's own backward
+/// step there (`unet_conv_torch`), the CPU's kernels on the CPU, else burn.
+fn conv_relu(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+    #[cfg(feature = "gpu-torch")]
+    if let Some(out) = crate::unet_conv_torch::conv3x3_relu(layer, &x) {
+        return out;
+    }
+    conv3x3_relu(layer, x)
 }
 
 /// One decoder level: upsample, concatenate the skip, two convolutions.
