@@ -12,6 +12,7 @@
 //! meanwhile queue up for the next, so the busier the U-Net, the larger its
 //! batches.
 
+use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::{PoisonError, RwLock};
@@ -101,7 +102,12 @@ fn serve(model: &RwLock<Option<AffordanceModel>>, queue: Receiver<Request>) {
         let mut batch = vec![first];
         batch.extend(queue.try_iter());
         let started = Instant::now();
-        let logits = infer(model, &batch);
+        // A panic in the network (a backend's) is every frame's error, not
+        // a thread gone while environments wait for it.
+        let logits = catch_unwind(AssertUnwindSafe(|| infer(model, &batch))).unwrap_or_else(|_| {
+            let error = "the U-Net panicked".to_string();
+            batch.iter().map(|_| Err(error.clone())).collect()
+        });
         record(batch.len(), started.elapsed());
         for (request, logits) in batch.into_iter().zip(logits) {
             // A client gone meanwhile (its environment failed) wants nothing.
