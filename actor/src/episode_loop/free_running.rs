@@ -30,10 +30,11 @@ enum Phase {
 /// at a barrier costs more than this thread's competing with the
 /// environments for the cores. That is the methods with a map, whose
 /// policies have no GRU (the GRU stands in for the map). Measured on the CPU
-/// with 2 environments (env bench, both with the CPU pass): `ours` 95–107
-/// steps/s in lock-step, 109–135 free-running; `nomap-seg`, whose short,
-/// even steps lose 3 % at the barrier, 202–203 in lock-step and 184
-/// free-running. On a GPU the U-Net's frames go to one batching thread
+/// with 2 environments, 64 px (env bench, both with the CPU pass): `ours`
+/// 95–107 steps/s in lock-step, 109–135 free-running on 2026-11-23, 152–158
+/// and 144–182 on 2026-11-27; `nomap-seg`, whose short, even steps lose
+/// little at the barrier, 202–203 and 184 on 2026-11-23, 226–243 and
+/// 225–227 on 2026-11-27. On a GPU the U-Net's frames go to one batching thread
 /// (`crate::env::unet_batcher`) instead of a lock-step batch, whose barrier
 /// at 16 environments made `ours`' rounds wait for the slowest of them
 /// (docs/notebook/2026-11-27-free-running-gpu-actor.md).
