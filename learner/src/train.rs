@@ -224,9 +224,16 @@ impl PolicyTrainer {
             hidden,
             episode_starts: vec![0.0; rows],
         });
-        let columns = decode_columns(&g.obs, self.layout.obs_dtype, &self.layout, rows);
+        // On libtorch the bytes go to the device and become floats there;
+        // elsewhere they are decoded here, on every core.
+        let input =
+            PolicyInput::from_wire_bytes(&self.layout, &g.obs, &g.masks, rows, &self.device)
+                .unwrap_or_else(|| {
+                    let columns = decode_columns(&g.obs, self.layout.obs_dtype, &self.layout, rows);
+                    PolicyInput::from_columns(&self.layout, columns, &g.masks, rows, &self.device)
+                });
         Ok(Some(PpoBatch {
-            input: PolicyInput::from_columns(&self.layout, columns, &g.masks, rows, &self.device),
+            input,
             actions: g.actions,
             behaviour_log_probs: g.log_probs,
             values: g.values,

@@ -15,6 +15,8 @@ use crate::layers::{
 };
 
 mod cpu;
+#[cfg(feature = "gpu-torch")]
+mod wire_bytes;
 
 pub use cpu::{CpuPolicy, CpuPolicyStep};
 
@@ -47,6 +49,30 @@ impl PolicyInput {
             })
             .collect();
         Self::from_columns(config, columns, masks, rows, device)
+    }
+
+    /// The same from the wire's byte observations (`obs`, `rows · obs_len`
+    /// bytes), moved to the device as bytes and converted there: on
+    /// libtorch, where this spares a learner's batch two host copies of its
+    /// floats. `None` on other backends and for float layouts: decode on
+    /// the host and use [`PolicyInput::from_columns`].
+    ///
+    /// # Panics
+    /// If the lengths do not match `config`: callers validate first.
+    pub fn from_wire_bytes(
+        config: &PolicyLayout,
+        obs: &[u8],
+        masks: &[u8],
+        rows: usize,
+        device: &Device,
+    ) -> Option<Self> {
+        #[cfg(feature = "gpu-torch")]
+        return wire_bytes::upload(config, obs, masks, rows, device);
+        #[cfg(not(feature = "gpu-torch"))]
+        {
+            let _ = (config, obs, masks, rows, device);
+            None
+        }
     }
 
     /// The same from the observations already split by input: `columns[i]`
