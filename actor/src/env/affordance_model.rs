@@ -85,7 +85,7 @@ impl AffordanceModel {
 }
 
 /// One frame's output of the U-Net, and its calibration.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug)]
 pub(crate) struct Logits {
     /// Planes of `pixels` logits, one per output channel.
     values: Vec<f32>,

@@ -116,31 +116,24 @@ fn serve(model: &RwLock<Option<AffordanceModel>>, queue: Receiver<Request>) {
     }
 }
 
-/// The logits of each frame of `batch`: one forward pass per frame size
-/// (an actor's environments share one task, so normally one pass).
+/// The logits of each frame of `batch`, in one forward pass (an actor's
+/// environments share one task, so its frames share one size).
 fn infer(model: &RwLock<Option<AffordanceModel>>, batch: &[Request]) -> Vec<Reply> {
+    let every = |error: &str| batch.iter().map(|_| Err(error.to_string())).collect();
     let model = model.read().unwrap_or_else(PoisonError::into_inner);
     let Some(model) = model.as_ref() else {
-        let error = "this environment's camera frames need the U-Net".to_string();
-        return batch.iter().map(|_| Err(error.clone())).collect();
+        return every("this environment's camera frames need the U-Net");
     };
-    let mut replies: Vec<Option<Reply>> = batch.iter().map(|_| None).collect();
-    let mut sizes: Vec<(usize, usize)> = batch.iter().map(|r| (r.height, r.width)).collect();
-    sizes.sort_unstable();
-    sizes.dedup();
-    for (height, width) in sizes {
-        let members: Vec<usize> = (0..batch.len())
-            .filter(|&i| (batch[i].height, batch[i].width) == (height, width))
-            .collect();
-        let inputs: Vec<&[f32]> = members.iter().map(|&i| batch[i].input.as_slice()).collect();
-        for (&i, logits) in members.iter().zip(model.logits(&inputs, height, width)) {
-            replies[i] = Some(Ok(logits));
-        }
+    let (height, width) = (batch[0].height, batch[0].width);
+    if batch.iter().any(|r| (r.height, r.width) != (height, width)) {
+        return every("the frames of one batch differ in size");
     }
-    replies
-        .into_iter()
-        .map(|r| r.unwrap_or_else(|| Err("the U-Net gave no logits for a frame".into())))
-        .collect()
+    let inputs: Vec<&[f32]> = batch.iter().map(|r| r.input.as_slice()).collect();
+    let logits = model.logits(&inputs, height, width);
+    if logits.len() != batch.len() {
+        return every("the U-Net gave logits for a different number of frames");
+    }
+    logits.into_iter().map(Ok).collect()
 }
 
 /// What the batching threads of this process did, in all: read by
