@@ -39,7 +39,51 @@ pub use masked_categorical::sample;
 /// What the crate's tests share.
 #[cfg(test)]
 mod test_support {
+    use burn::nn::conv::Conv2d;
     use burn::prelude::*;
+
+    /// Asserts that two computations of the same convolution layers (each
+    /// with its ReLU) from the same input agree: their outputs `ours` and
+    /// `burns`, and, from losses weighing the outputs by `weights`, the
+    /// gradients of their inputs `x_ours` and `x_burn` and of each of
+    /// `layers`' weights and bias. The ReLU must cut some outputs, or it
+    /// would go untested.
+    pub(crate) fn assert_same_values_and_gradients(
+        (ours, x_ours): (Tensor<4>, &Tensor<4>),
+        (burns, x_burn): (Tensor<4>, &Tensor<4>),
+        weights: Tensor<4>,
+        layers: &[(&str, &Conv2d)],
+        what: &str,
+    ) {
+        let ours_grads = (ours.clone() * weights.clone()).sum().backward();
+        let burn_grads = (burns.clone() * weights).sum().backward();
+        let cut = burns
+            .clone()
+            .equal_elem(0.0)
+            .int()
+            .sum()
+            .into_scalar::<i64>();
+        assert!(cut > 0, "{what}: the ReLU must cut some outputs");
+        assert_close(ours, burns, &format!("outputs, {what}"));
+        assert_close(
+            x_ours.grad(&ours_grads).expect("gradient"),
+            x_burn.grad(&burn_grads).expect("gradient"),
+            &format!("input gradients, {what}"),
+        );
+        for (name, layer) in layers {
+            assert_close(
+                layer.weight.grad(&ours_grads).expect("gradient"),
+                layer.weight.grad(&burn_grads).expect("gradient"),
+                &format!("{name} layer's weight gradients, {what}"),
+            );
+            let bias = layer.bias.as_ref().expect("bias");
+            assert_close(
+                bias.grad(&ours_grads).expect("gradient"),
+                bias.grad(&burn_grads).expect("gradient"),
+                &format!("{name} layer's bias gradients, {what}"),
+            );
+        }
+    }
 
     /// Asserts that `ours` is within 1e-5 of `burns`' largest value.
     pub(crate) fn assert_close<const D: usize>(ours: Tensor<D>, burns: Tensor<D>, what: &str) {

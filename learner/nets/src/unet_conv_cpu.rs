@@ -523,7 +523,7 @@ fn input_gradient(masked: &[f32], weight: &[f32], s: Sizes) -> Vec<f32> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::test_support::assert_close;
+    use crate::test_support::{assert_close, assert_same_values_and_gradients};
     use burn::nn::conv::Conv2dConfig;
     use burn::nn::PaddingConfig2d;
     use burn::tensor::Distribution;
@@ -551,33 +551,14 @@ mod tests {
         let x_ours = input.clone().detach().require_grad();
         let bias = conv.bias.as_ref().expect("bias");
         let ours = tracked_on_cpu(&x_ours, &conv.weight.val(), &bias.val()).expect("the CPU path");
-        let ours_grads = (ours.clone() * weights.clone()).sum().backward();
         let x_burn = input.detach().require_grad();
         let burns = relu(conv.forward(x_burn.clone()));
-        let burn_grads = (burns.clone() * weights).sum().backward();
-        let what = format!("{batch} x {inputs} -> {outputs} at {h} x {w}");
-        let cut = burns
-            .clone()
-            .equal_elem(0.0)
-            .int()
-            .sum()
-            .into_scalar::<i64>();
-        assert!(cut > 0, "{what}: the ReLU must cut some outputs");
-        assert_close(ours, burns, &format!("outputs, {what}"));
-        assert_close(
-            x_ours.grad(&ours_grads).expect("gradient"),
-            x_burn.grad(&burn_grads).expect("gradient"),
-            &format!("input gradients, {what}"),
-        );
-        assert_close(
-            conv.weight.grad(&ours_grads).expect("gradient"),
-            conv.weight.grad(&burn_grads).expect("gradient"),
-            &format!("weight gradients, {what}"),
-        );
-        assert_close(
-            bias.grad(&ours_grads).expect("gradient"),
-            bias.grad(&burn_grads).expect("gradient"),
-            &format!("bias gradients, {what}"),
+        assert_same_values_and_gradients(
+            (ours, &x_ours),
+            (burns, &x_burn),
+            weights,
+            &[("the", &conv)],
+            &format!("{batch} x {inputs} -> {outputs} at {h} x {w}"),
         );
     }
 

@@ -130,7 +130,7 @@ impl Backward<LibTorch, 3> for ConvRelu {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::test_support::assert_close;
+    use crate::test_support::assert_same_values_and_gradients;
     use burn::nn::conv::Conv2dConfig;
     use burn::nn::PaddingConfig2d;
     use burn::tensor::activation::relu;
@@ -161,37 +161,15 @@ mod tests {
         let x_ours = input.clone().detach().require_grad();
         let ours = |l: &Conv2d, x: &Tensor<4>| conv3x3_relu(l, x).expect("the libtorch path");
         let ours = ours(&second, &ours(&first, &x_ours));
-        let ours_grads = (ours.clone() * weights.clone()).sum().backward();
         let x_burn = input.detach().require_grad();
         let burns = relu(second.forward(relu(first.forward(x_burn.clone()))));
-        let burn_grads = (burns.clone() * weights).sum().backward();
-        let what = format!("{batch} x {inputs} -> {outputs} at {side} px");
-        let cut = burns
-            .clone()
-            .equal_elem(0.0)
-            .int()
-            .sum()
-            .into_scalar::<i64>();
-        assert!(cut > 0, "{what}: the ReLU must cut some outputs");
-        assert_close(ours, burns, &format!("outputs, {what}"));
-        assert_close(
-            x_ours.grad(&ours_grads).expect("gradient"),
-            x_burn.grad(&burn_grads).expect("gradient"),
-            &format!("input gradients, {what}"),
+        assert_same_values_and_gradients(
+            (ours, &x_ours),
+            (burns, &x_burn),
+            weights,
+            &[("first", &first), ("second", &second)],
+            &format!("{batch} x {inputs} -> {outputs} at {side} px"),
         );
-        for (name, l) in [("first", &first), ("second", &second)] {
-            assert_close(
-                l.weight.grad(&ours_grads).expect("gradient"),
-                l.weight.grad(&burn_grads).expect("gradient"),
-                &format!("{name} layer's weight gradients, {what}"),
-            );
-            let bias = l.bias.as_ref().expect("bias");
-            assert_close(
-                bias.grad(&ours_grads).expect("gradient"),
-                bias.grad(&burn_grads).expect("gradient"),
-                &format!("{name} layer's bias gradients, {what}"),
-            );
-        }
     }
 
     #[test]
