@@ -36,7 +36,7 @@
 //! `AFX_ENVS_INFERENCE=batched` runs the second table as on a GPU (the
 //! U-Net's frames in batches) with the U-Net on the CPU.
 
-use std::sync::RwLock;
+use std::sync::{Arc, RwLock};
 use std::time::{Duration, Instant};
 
 use actor::env::actions::random_allowed_action;
@@ -44,7 +44,7 @@ use actor::env::actions::ActionSpace;
 use actor::env::affordance_model::AffordanceModel;
 use actor::env::lockstep::{self, reset_all, step_all, Inference};
 use actor::env::sim_env::{SimEnv, SimEnvConfig, StepTimings};
-use actor::env::threads::{Done, EnvThreads, Task};
+use actor::env::threads::{Done, EnvThreads, PolicyPass, Task};
 use actor::env::unet_batcher::{batch_times, BatchTimes};
 use actor::env::{Environment, FlatSimEnv, Observation};
 use burn::prelude::*;
@@ -305,7 +305,7 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
             let space = envs[0].inner().action_space().clone();
             let net = PolicyNet::new(&layout, device);
             // As the actor: the CPU's own pass on every device.
-            let cpu = CpuPolicy::from_network(&net, &layout);
+            let cpu = CpuPolicy::from_network(&net, &layout).map(Arc::new);
             let policy = (net, cpu);
             let bench = SeveralEnvs {
                 layout: &layout,
@@ -342,8 +342,17 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
                 )
             };
             row("lock-step", times, phases);
-            if n > 1 {
-                let (stepping, end, batches) = bench.free_running(new_envs());
+            // Free-running as the actor runs it (the policy's passes on the
+            // environments' threads), and with the passes on this thread as
+            // before 2026-11-27's second change, for comparison.
+            for (passes_on_threads, stepped) in [
+                (true, "free-running"),
+                (false, "free-running, policy on the loop's thread"),
+            ] {
+                if n == 1 {
+                    break;
+                }
+                let (stepping, end, batches) = bench.free_running(new_envs(), passes_on_threads);
                 let unet = if batches.batches == 0 {
                     "—".to_string() // the U-Net on each environment's thread
                 } else {
@@ -354,7 +363,7 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
                         batches.busy.as_secs_f64() * 1e3 / batches.batches as f64
                     )
                 };
-                row("free-running", (stepping, end), unet);
+                row(stepped, (stepping, end), unet);
             }
         }
     }
@@ -364,7 +373,7 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
 struct SeveralEnvs<'a> {
     layout: &'a PolicyLayout,
     space: &'a ActionSpace,
-    policy: &'a (PolicyNet, Option<CpuPolicy>),
+    policy: &'a (PolicyNet, Option<Arc<CpuPolicy>>),
     model: &'a RwLock<Option<AffordanceModel>>,
     device: &'a Device,
     inference: Inference,
@@ -419,11 +428,16 @@ impl SeveralEnvs<'_> {
     }
 
     /// One episode of each of `envs`, free-running as the actor runs them:
-    /// the policy on this thread over every observation that came in since
-    /// its last pass (on the CPU one at a time); on a GPU the U-Net in the
-    /// batching thread's batches.
+    /// the policy's CPU pass on the environments' threads when
+    /// `passes_on_threads` (and the policy has one), else on this thread over
+    /// every observation that came in since its last pass (on the CPU one
+    /// at a time); on a GPU the U-Net in the batching thread's batches.
     /// The stepping, the episode's end, and what the batching thread did.
-    fn free_running(&self, envs: Vec<FlatSimEnv>) -> (Duration, Duration, BatchTimes) {
+    fn free_running(
+        &self,
+        envs: Vec<FlatSimEnv>,
+        passes_on_threads: bool,
+    ) -> (Duration, Duration, BatchTimes) {
         let n = envs.len();
         std::thread::scope(|scope| {
             let boxed = envs
@@ -431,23 +445,31 @@ impl SeveralEnvs<'_> {
                 .map(|env| Box::new(env) as Box<dyn Environment>)
                 .collect();
             let threads = EnvThreads::start(scope, boxed, self.model, self.inference);
+            if let (true, Some(cpu)) = (passes_on_threads, &self.policy.1) {
+                threads.set_policy(1, cpu).expect("the policy");
+            }
             for index in 0..n {
                 threads
                     .send(index, Task::Reset(index as u64 + 1))
                     .expect("reset");
             }
             let mut rng = StdRng::seed_from_u64(1);
-            let mut act = |ready: &[(usize, Observation)]| {
-                // As the actor: one pass at a time on the CPU, else all at once.
-                let observations: Vec<Observation> = ready.iter().map(|(_, o)| o.clone()).collect();
+            let mut act = |ready: &[(usize, Observation, Option<PolicyPass>)]| {
+                // As the actor: the passes not made on the environments'
+                // threads one at a time on the CPU, else all at once.
+                let observations: Vec<Observation> = ready
+                    .iter()
+                    .filter(|(_, _, pass)| pass.is_none())
+                    .map(|(_, o, _)| o.clone())
+                    .collect();
                 let batches: Vec<&[Observation]> = match self.inference {
                     Inference::PerEnvironment => observations.chunks(1).collect(),
                     Inference::Batched => vec![&observations],
                 };
-                for batch in batches {
+                for batch in batches.into_iter().filter(|b| !b.is_empty()) {
                     policy_pass(self.policy, self.layout, batch, self.device, self.inference);
                 }
-                for (index, observation) in ready {
+                for (index, observation, _) in ready {
                     let action =
                         random_allowed_action(self.space, &observation.action_mask, 0.5, &mut rng);
                     threads
@@ -458,7 +480,9 @@ impl SeveralEnvs<'_> {
             let mut first = Vec::new();
             for _ in 0..n {
                 match threads.next().expect("reset") {
-                    (index, Done::Reset(observation)) => first.push((index, observation)),
+                    (index, Done::Reset(observation, pass)) => {
+                        first.push((index, observation, pass))
+                    }
                     _ => panic!("a reset answered"),
                 }
             }
@@ -472,12 +496,12 @@ impl SeveralEnvs<'_> {
                 finished.extend(threads.finished().expect("steps"));
                 let mut ready = Vec::new();
                 for (index, done) in finished {
-                    let Done::Step(_, observation) = done else {
+                    let Done::Step(_, observation, pass) = done else {
                         panic!("a step answered");
                     };
                     stepped[index] += 1;
                     if stepped[index] < episode_steps() {
-                        ready.push((index, observation));
+                        ready.push((index, observation, pass));
                     } else {
                         running -= 1;
                     }
@@ -507,7 +531,7 @@ impl SeveralEnvs<'_> {
 /// on the CPU (its own pass where it has one, burn's otherwise). A fresh
 /// episode's recurrent state (zeros) for GRU policies.
 fn policy_pass(
-    (policy, cpu): &(PolicyNet, Option<CpuPolicy>),
+    (policy, cpu): &(PolicyNet, Option<Arc<CpuPolicy>>),
     layout: &PolicyLayout,
     observations: &[Observation],
     device: &Device,

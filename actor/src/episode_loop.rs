@@ -16,6 +16,7 @@ use transport::{ActorPorts, Delivery, TransportConfig};
 use rayon::prelude::*;
 
 use crate::env::affordance_model::AffordanceModel;
+use crate::env::threads::PolicyPass;
 use crate::env::{lockstep, Environment, EpisodeEnd, Observation, StepOutcome};
 
 mod chunks;
@@ -24,7 +25,10 @@ mod policy;
 mod rejected_weights;
 
 use chunks::{new_chunk, push_obs, split_frames};
-use policy::{act_batch, forward_batch, hidden_values, load_weights, Acted, Policy};
+use policy::{
+    act_batch, choose, forward_batch, hidden_values, load_weights, step_of_thread_pass, Acted,
+    Policy,
+};
 use rejected_weights::RejectedWeights;
 
 /// Settings of one actor's loop.
@@ -171,6 +175,51 @@ impl<'a> Actor<'a> {
     fn act(&mut self, inputs: &[(&Observation, Option<&[f32]>)]) -> anyhow::Result<Vec<Acted>> {
         let uniforms: Vec<f32> = inputs.iter().map(|_| self.rng.random::<f32>()).collect();
         act_batch(&self.policy, inputs, &uniforms, self.device, self.inference)
+    }
+
+    /// As [`Self::act`] (the same draws), taking the policy's pass over an
+    /// observation from `passes` where its environment's thread made one
+    /// with the current policy; the others run here, one at a time on the
+    /// CPU (passes spread over rayon's threads would compete with the
+    /// environments' own), else in one batch.
+    fn act_with_passes(
+        &mut self,
+        inputs: &[(&Observation, Option<&[f32]>)],
+        passes: Vec<Option<PolicyPass>>,
+    ) -> anyhow::Result<Vec<Acted>> {
+        ensure!(inputs.len() == passes.len(), "one pass or none per input");
+        let uniforms: Vec<f32> = inputs.iter().map(|_| self.rng.random::<f32>()).collect();
+        let mut steps: Vec<_> = inputs
+            .iter()
+            .zip(passes)
+            .map(|((observation, _), pass)| {
+                pass.and_then(|pass| step_of_thread_pass(&self.policy, observation, pass))
+            })
+            .collect();
+        let missing: Vec<usize> = (0..steps.len()).filter(|&i| steps[i].is_none()).collect();
+        let wanted: Vec<_> = missing.iter().map(|&i| inputs[i]).collect();
+        let computed = if self.inference == lockstep::Inference::PerEnvironment {
+            let mut computed = Vec::with_capacity(wanted.len());
+            for input in &wanted {
+                computed.extend(forward_batch(
+                    &self.policy,
+                    std::slice::from_ref(input),
+                    self.device,
+                    self.inference,
+                )?);
+            }
+            computed
+        } else {
+            forward_batch(&self.policy, &wanted, self.device, self.inference)?
+        };
+        ensure!(
+            computed.len() == missing.len(),
+            "the policy passed over each"
+        );
+        for (i, step) in missing.into_iter().zip(computed) {
+            steps[i] = Some(step);
+        }
+        choose(steps.into_iter().flatten().collect(), &uniforms)
     }
 
     fn count(&mut self, delivery: Delivery) {

@@ -19,13 +19,21 @@
 //! ([`Inference::PerEnvironment`], the CPU) or in the batches of one thread
 //! that all environments hand their frames to ([`Inference::Batched`], a
 //! GPU: [`super::unet_batcher`]).
+//!
+//! Once given a policy ([`EnvThreads::set_policy`]), each thread also runs
+//! the policy's CPU pass on every observation it makes, so the caller finds
+//! it done ([`PolicyPass`]) and only draws the action: the passes run in
+//! parallel on the environments' own threads instead of one after another
+//! on the caller's, which at 128 px (a pass of 2–5 ms) made the caller the
+//! wall (docs/notebook/2026-11-27-free-running-gpu-actor.md).
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::mpsc::{channel, Receiver, Sender};
-use std::sync::{PoisonError, RwLock};
+use std::sync::{Arc, PoisonError, RwLock};
 use std::thread::Scope;
 
 use anyhow::{anyhow, Context};
+use nets::policy::{CpuPolicy, CpuPolicyStep};
 
 use super::affordance_model::AffordanceModel;
 use super::lockstep::Inference;
@@ -43,13 +51,26 @@ pub enum Task {
     Finish(u64),
 }
 
+/// The policy's CPU pass over an observation, made on its environment's
+/// thread with the policy of `version` (see [`EnvThreads::set_policy`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PolicyPass {
+    /// The version of the policy that made it.
+    pub version: u64,
+    /// What the policy said (no recurrent state: policies with a GRU keep
+    /// theirs with the caller).
+    pub step: CpuPolicyStep,
+}
+
 /// What an environment did for its [`Task`].
 #[derive(Debug)]
 pub enum Done {
-    /// The first observation of the episode.
-    Reset(Observation),
-    /// The step's outcome and the next observation.
-    Step(StepOutcome, Observation),
+    /// The first observation of the episode, and the policy's pass over it
+    /// once the threads have a policy.
+    Reset(Observation, Option<PolicyPass>),
+    /// The step's outcome and the next observation, with the policy's pass
+    /// as for a reset.
+    Step(StepOutcome, Observation, Option<PolicyPass>),
     /// The episode's labelled frames and metrics, and the scene it ran in.
     Finish {
         /// What the episode left behind.
@@ -63,6 +84,7 @@ pub enum Done {
 enum Job {
     Do(Task),
     GlobalSteps(u64),
+    Policy(u64, Arc<CpuPolicy>),
 }
 
 /// The environments' threads, within a [`std::thread::scope`]; they end
@@ -120,6 +142,13 @@ impl EnvThreads {
     /// Tells every environment the run's environment steps (before its next task).
     pub fn set_global_steps(&self, steps: u64) -> anyhow::Result<()> {
         (0..self.len()).try_for_each(|index| self.job(index, Job::GlobalSteps(steps)))
+    }
+
+    /// From each environment's next task on, its observations come with
+    /// the pass of `policy` (of `version`; a policy without a GRU) over them.
+    pub fn set_policy(&self, version: u64, policy: &Arc<CpuPolicy>) -> anyhow::Result<()> {
+        (0..self.len())
+            .try_for_each(|index| self.job(index, Job::Policy(version, Arc::clone(policy))))
     }
 
     /// Waits for the next task to finish: which environment, and what it did.
@@ -191,14 +220,21 @@ fn serve(
         }
     };
     pool.install(move || {
+        let mut policy = None;
         for job in jobs.iter() {
             let result = match job {
                 Job::GlobalSteps(steps) => {
                     env.set_global_steps(steps);
                     continue;
                 }
-                Job::Do(task) => catch_unwind(AssertUnwindSafe(|| work(env.as_mut(), task, &unet)))
-                    .unwrap_or_else(|_| Err(anyhow!("the environment panicked"))),
+                Job::Policy(version, net) => {
+                    policy = Some((version, net));
+                    continue;
+                }
+                Job::Do(task) => catch_unwind(AssertUnwindSafe(|| {
+                    work(env.as_mut(), task, &unet, policy.as_ref())
+                }))
+                .unwrap_or_else(|_| Err(anyhow!("the environment panicked"))),
             };
             if done.send((index, result)).is_err() {
                 return;
@@ -207,18 +243,33 @@ fn serve(
     });
 }
 
-/// One task of an environment.
-fn work(env: &mut dyn Environment, task: Task, unet: &Unet<'_>) -> anyhow::Result<Done> {
+/// One task of an environment, with `policy`'s pass over its observation.
+fn work(
+    env: &mut dyn Environment,
+    task: Task,
+    unet: &Unet<'_>,
+    policy: Option<&(u64, Arc<CpuPolicy>)>,
+) -> anyhow::Result<Done> {
+    let pass = |observation: &Observation| {
+        policy.map(|(version, net)| PolicyPass {
+            version: *version,
+            step: net.forward(&observation.features, &observation.action_mask, None),
+        })
+    };
     Ok(match task {
         Task::Reset(seed) => {
             env.begin_reset(seed)?;
             let planes = unet.planes_for(env)?;
-            Done::Reset(env.observe(planes)?)
+            let observation = env.observe(planes)?;
+            let pass = pass(&observation);
+            Done::Reset(observation, pass)
         }
         Task::Step(action) => {
             let outcome = env.begin_step(action)?;
             let planes = unet.planes_for(env)?;
-            Done::Step(outcome, env.observe(planes)?)
+            let observation = env.observe(planes)?;
+            let pass = pass(&observation);
+            Done::Step(outcome, observation, pass)
         }
         Task::Finish(id) => {
             let scene = env.scene_index();
@@ -273,13 +324,13 @@ mod tests {
                 let (index, done) = threads.next().unwrap();
                 let steps = seen[index].len() as u32;
                 match done {
-                    Done::Reset(observation) => {
+                    Done::Reset(observation, None) => {
                         seen[index].push((RESET, observation));
                         threads
                             .send(index, Task::Step(action(seeds[index], 0)))
                             .unwrap();
                     }
-                    Done::Step(outcome, observation) => {
+                    Done::Step(outcome, observation, None) => {
                         seen[index].push((outcome, observation));
                         let task = if outcome.done {
                             Task::Finish(index as u64)
@@ -293,6 +344,7 @@ mod tests {
                         ends[index] = Some(end);
                         finished += 1;
                     }
+                    _ => panic!("a pass without a policy"),
                 }
             }
         });
@@ -430,7 +482,7 @@ mod tests {
                     threads.send(index, Task::Reset(seed)).unwrap();
                 }
                 for _ in 0..seeds.len() {
-                    let (index, Done::Reset(observation)) = threads.next().unwrap() else {
+                    let (index, Done::Reset(observation, None)) = threads.next().unwrap() else {
                         panic!("a reset answered");
                     };
                     got[index] = observation.features;
@@ -449,6 +501,59 @@ mod tests {
     }
 
     #[test]
+    fn with_a_policy_each_observation_comes_with_that_policys_pass() {
+        let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).unwrap();
+        let layout = BanditFixture::new().layout().clone();
+        let policy = || {
+            let net = nets::policy::PolicyNet::new(&layout, &device);
+            Arc::new(CpuPolicy::from_network(&net, &layout).expect("a CPU pass"))
+        };
+        let (first, second) = (policy(), policy());
+        let seeds = [3u64, 5];
+        let model = &NO_MODEL;
+        std::thread::scope(|scope| {
+            let envs = seeds
+                .iter()
+                .map(|_| Box::new(BanditFixture::new()) as Box<dyn Environment>)
+                .collect();
+            let threads = EnvThreads::start(scope, envs, model, Inference::PerEnvironment);
+            threads.set_policy(1, &first).unwrap();
+            for (index, &seed) in seeds.iter().enumerate() {
+                threads.send(index, Task::Reset(seed)).unwrap();
+            }
+            for _ in 0..seeds.len() {
+                let (index, Done::Reset(observation, Some(pass))) = threads.next().unwrap() else {
+                    panic!("a reset with its pass answered");
+                };
+                let by = |p: &CpuPolicy| {
+                    p.forward(&observation.features, &observation.action_mask, None)
+                };
+                assert_eq!(
+                    pass,
+                    PolicyPass {
+                        version: 1,
+                        step: by(&first)
+                    },
+                    "environment {index}"
+                );
+                assert_ne!(by(&first), by(&second), "the two policies tell apart");
+            }
+            threads.set_policy(2, &second).unwrap();
+            for index in 0..seeds.len() {
+                threads.send(index, Task::Step(0)).unwrap();
+            }
+            for _ in 0..seeds.len() {
+                let (index, Done::Step(_, observation, Some(pass))) = threads.next().unwrap()
+                else {
+                    panic!("a step with its pass answered");
+                };
+                let step = second.forward(&observation.features, &observation.action_mask, None);
+                assert_eq!(pass, PolicyPass { version: 2, step }, "environment {index}");
+            }
+        });
+    }
+
+    #[test]
     fn a_panicking_environment_is_an_error_for_the_caller_not_a_hang() {
         let model = &NO_MODEL;
         std::thread::scope(|scope| {
@@ -458,7 +563,7 @@ mod tests {
             ];
             let threads = EnvThreads::start(scope, envs, model, Inference::PerEnvironment);
             threads.send(1, Task::Reset(1)).unwrap();
-            assert!(matches!(threads.next().unwrap(), (1, Done::Reset(_))));
+            assert!(matches!(threads.next().unwrap(), (1, Done::Reset(..))));
             threads.send(1, Task::Step(0)).unwrap();
             let error = threads.next().unwrap_err();
             assert!(

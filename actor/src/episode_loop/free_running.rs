@@ -9,8 +9,8 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use super::{Acted, Actor, RunningEpisode};
-use crate::env::threads::{Done, EnvThreads, Task};
-use crate::env::{lockstep, Environment};
+use crate::env::threads::{Done, EnvThreads, PolicyPass, Task};
+use crate::env::Environment;
 
 /// Where an environment is, as the loop sees it.
 enum Phase {
@@ -60,14 +60,21 @@ pub(super) fn run(
 enum Next {
     /// This phase.
     Phase(Phase),
-    /// An action for this episode, chosen with the others that need one.
-    Act(RunningEpisode),
+    /// An action for this episode, chosen with the others that need one
+    /// (from the policy's pass its thread made, if any).
+    Act(RunningEpisode, Option<PolicyPass>),
 }
 
 /// Hands out tasks and books what comes back: every task finished by the
-/// time the last one is booked, then the policy for those that need an
-/// action (on a GPU machine in one call, whose CPU passes run in parallel).
+/// time the last one is booked, then the actions of those that need one,
+/// from the policy's passes the environments' threads made (this thread
+/// runs only those whose policy new weights replaced meanwhile).
 fn drive(actor: &mut Actor<'_>, threads: &EnvThreads, stop: &AtomicBool) -> anyhow::Result<()> {
+    let share_policy = |actor: &Actor<'_>| match &actor.policy.cpu {
+        Some(cpu) => threads.set_policy(actor.policy.policy_version, cpu),
+        None => Ok(()),
+    };
+    share_policy(actor)?;
     let start = |actor: &mut Actor<'_>, index: usize| -> anyhow::Result<Phase> {
         if stop.load(Ordering::Relaxed) {
             return Ok(Phase::Idle);
@@ -87,18 +94,22 @@ fn drive(actor: &mut Actor<'_>, threads: &EnvThreads, stop: &AtomicBool) -> anyh
     while phases.iter().any(|p| !matches!(p, Phase::Idle)) {
         let mut finished = vec![threads.next()?];
         finished.extend(threads.finished()?);
+        let version = actor.policy.policy_version;
         if let Some(steps) = actor.refresh_weights()? {
             threads.set_global_steps(steps)?;
+        }
+        if actor.policy.policy_version != version {
+            share_policy(actor)?;
         }
         let stopping = stop.load(Ordering::Relaxed);
         let mut acting = Vec::new();
         for (index, done) in finished {
             let phase = std::mem::replace(&mut phases[index], Phase::Idle);
             let next = match (phase, done) {
-                (Phase::Resetting(id), Done::Reset(observation)) => {
-                    Next::Act(actor.begin_episode(id, observation))
+                (Phase::Resetting(id), Done::Reset(observation, pass)) => {
+                    Next::Act(actor.begin_episode(id, observation), pass)
                 }
-                (Phase::Stepping(mut episode, acted), Done::Step(outcome, observation)) => {
+                (Phase::Stepping(mut episode, acted), Done::Step(outcome, observation, pass)) => {
                     let closing =
                         actor.record_step(&mut episode, acted, &outcome, observation, stopping);
                     if let Some(ended) = closing {
@@ -108,7 +119,7 @@ fn drive(actor: &mut Actor<'_>, threads: &EnvThreads, stop: &AtomicBool) -> anyh
                         threads.send(index, Task::Finish(episode.id))?;
                         Next::Phase(Phase::Finishing(episode))
                     } else {
-                        Next::Act(episode)
+                        Next::Act(episode, pass)
                     }
                 }
                 (Phase::Finishing(episode), Done::Finish { end, scene }) => {
@@ -119,31 +130,20 @@ fn drive(actor: &mut Actor<'_>, threads: &EnvThreads, stop: &AtomicBool) -> anyh
             };
             match next {
                 Next::Phase(phase) => phases[index] = phase,
-                Next::Act(episode) => acting.push((index, episode)),
+                Next::Act(episode, pass) => acting.push((index, episode, pass)),
             }
         }
         if acting.is_empty() {
             continue;
         }
+        let passes = acting.iter_mut().map(|(_, _, pass)| pass.take()).collect();
         let inputs: Vec<_> = acting
             .iter()
-            .map(|(_, e)| (&e.observation, e.hidden.as_deref()))
+            .map(|(_, e, _)| (&e.observation, e.hidden.as_deref()))
             .collect();
-        let acted = if actor.inference == lockstep::Inference::PerEnvironment {
-            // On the CPU one pass at a time on this thread: passes spread
-            // over rayon's threads compete with the environments' own
-            // (2 environments of `ours` on 2 cores, env bench: 118–142
-            // steps/s over three runs, one at a time 121–182 over seven).
-            let mut acted = Vec::with_capacity(inputs.len());
-            for input in &inputs {
-                acted.extend(actor.act(std::slice::from_ref(input))?);
-            }
-            acted
-        } else {
-            actor.act(&inputs)?
-        };
+        let acted = actor.act_with_passes(&inputs, passes)?;
         anyhow::ensure!(acted.len() == acting.len(), "the policy acted for each");
-        for ((index, episode), acted) in acting.into_iter().zip(acted) {
+        for ((index, episode, _), acted) in acting.into_iter().zip(acted) {
             threads.send(index, Task::Step(acted.action))?;
             phases[index] = Phase::Stepping(episode, acted);
         }

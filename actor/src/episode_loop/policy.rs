@@ -2,9 +2,11 @@
 //! weights message, and the forward passes that pick each environment's
 //! action (the CPU's own pass, or burn's, batched or one per environment).
 
+use std::sync::Arc;
+
 use anyhow::Context;
 use burn::prelude::*;
-use nets::policy::{CpuPolicy, PolicyInput, PolicyLayout, PolicyNet};
+use nets::policy::{CpuPolicy, CpuPolicyStep, PolicyInput, PolicyLayout, PolicyNet};
 use nets::sample;
 use nets::weights::{load_safetensors, unbundle};
 use proto::{
@@ -14,14 +16,16 @@ use rayon::prelude::*;
 use transport::{ActorPorts, ReceivedMessage};
 
 use crate::env::affordance_model::AffordanceModel;
+use crate::env::threads::PolicyPass;
 use crate::env::{lockstep, Observation};
 
 /// The broadcast policy the actor acts with.
 pub(super) struct Policy {
     pub(super) net: PolicyNet,
     /// The same weights for the CPU's own pass (`nets::policy::CpuPolicy`),
-    /// used on every device where the policy has one.
-    pub(super) cpu: Option<CpuPolicy>,
+    /// used on every device where the policy has one (shared with the
+    /// free-running environments' threads, which run it too).
+    pub(super) cpu: Option<Arc<CpuPolicy>>,
     pub(super) layout: PolicyLayout,
     pub(super) policy_version: u64,
     pub(super) unet_version: u64,
@@ -73,7 +77,7 @@ pub(super) fn load_weights(
     // The policy is small (about 15 MFLOP a pass at 64 px): on a GPU, burn's
     // pass is bound by its per-operation overhead, so the CPU's own pass
     // serves every device (docs/decisions/0007-policy-pass-on-the-cpu.md).
-    let cpu = CpuPolicy::from_network(&net, layout);
+    let cpu = CpuPolicy::from_network(&net, layout).map(Arc::new);
     Ok(Policy {
         net,
         cpu,
@@ -136,11 +140,7 @@ fn forward(
             .iter()
             .map(|(observation, hidden)| {
                 let step = cpu.forward(&observation.features, &observation.action_mask, *hidden);
-                PolicyStep {
-                    log_probs: masked(step.log_probs, &observation.action_mask),
-                    value: step.value,
-                    hidden: step.hidden,
-                }
+                step_of_cpu_pass(step, observation)
             })
             .collect());
     }
@@ -192,6 +192,26 @@ fn forward(
         .collect())
 }
 
+/// The step the CPU's pass gave for `observation`.
+fn step_of_cpu_pass(step: CpuPolicyStep, observation: &Observation) -> PolicyStep {
+    PolicyStep {
+        log_probs: masked(step.log_probs, &observation.action_mask),
+        value: step.value,
+        hidden: step.hidden,
+    }
+}
+
+/// The step an environment's thread found for `observation` with its
+/// `pass`, if that pass was made by `policy` (not one that new weights
+/// have replaced since).
+pub(super) fn step_of_thread_pass(
+    policy: &Policy,
+    observation: &Observation,
+    pass: PolicyPass,
+) -> Option<PolicyStep> {
+    (pass.version == policy.policy_version).then(|| step_of_cpu_pass(pass.step, observation))
+}
+
 /// `log_probs` with −∞ for the actions `mask` forbids.
 fn masked(mut log_probs: Vec<f32>, mask: &[u8]) -> Vec<f32> {
     for (lp, &allowed) in log_probs.iter_mut().zip(mask) {
@@ -211,7 +231,18 @@ pub(super) fn act_batch(
     device: &Device,
     inference: lockstep::Inference,
 ) -> anyhow::Result<Vec<Acted>> {
-    forward_batch(policy, inputs, device, inference)?
+    choose(forward_batch(policy, inputs, device, inference)?, uniforms)
+}
+
+/// One action per policy step, sampled as the `uniforms` decide.
+pub(super) fn choose(steps: Vec<PolicyStep>, uniforms: &[f32]) -> anyhow::Result<Vec<Acted>> {
+    anyhow::ensure!(
+        steps.len() == uniforms.len(),
+        "{} policy steps for {} draws",
+        steps.len(),
+        uniforms.len()
+    );
+    steps
         .into_iter()
         .zip(uniforms)
         .map(|(step, &uniform)| {
@@ -336,12 +367,12 @@ mod tests {
                 gru_hidden,
             };
             let net = PolicyNet::new(&layout, &device);
-            let cpu = CpuPolicy::from_network(&net, &layout);
+            let cpu = CpuPolicy::from_network(&net, &layout).map(Arc::new);
             assert!(
                 cpu.is_some(),
                 "{gru_hidden:?}: the policy gets the CPU pass"
             );
-            let policy = |cpu: Option<CpuPolicy>| Policy {
+            let policy = |cpu: Option<Arc<CpuPolicy>>| Policy {
                 net: net.clone(),
                 cpu,
                 layout: layout.clone(),
