@@ -17,10 +17,11 @@ Runs, one after the other, each under a time limit (about 7 minutes in all):
      at 64 px (100-step episodes; PPO batches of 128 and 1024 steps) and
      128 px (600-step episodes, 1024-step batches);
   4. one actor process's environments at 128 px with the GPU renderer
-     (DIR/env_steps, its several-environments table for 1 and 16
+     (DIR/env_steps, its several-environments table for 1, 16 and 32
      environments), when DIR has env_steps;
   5. deploy/throughput.sh: the whole system, `ours`, 1x16 and 2x8 at 64 px with
-     the CPU renderer and 1x16 at 128 px with the GPU renderer;
+     the CPU renderer and 1x32 at 128 px with the GPU renderer, PPO on
+     1024-step batches (what the README advises on a GPU);
   6. the gateway pair against loopback TCP (`gateway bench`, issue 41's
      figure, which the 2-core VM cannot reach), when DIR has gateway.
 and writes every result into one Markdown report.
@@ -143,24 +144,26 @@ fi
 
 if ! skipped actor && [[ -x "$BIN/env_steps" ]]; then
   section "One actor process at 128 px, GPU renderer (env_steps)"
-  # 16 environments in lock-step and free-running (the actor's way since
-  # issue 40's free-running GPU actor), 1 for scale.
-  AFX_DEVICE=gpu AFX_DATA="$DATA" AFX_CASES=none AFX_ENVS=1,16 AFX_ENVS_PX=128 AFX_ENVS_RENDERER=gpu \
+  # 16 and 32 environments in lock-step and free-running (the actor's way
+  # since issue 40's free-running GPU actor; at 128 px more environments
+  # than cores pay), 1 for scale; 60-step episodes.
+  AFX_DEVICE=gpu AFX_DATA="$DATA" AFX_CASES=none AFX_ENVS=1,16,32 AFX_STEPS=60 AFX_ENVS_PX=128 AFX_ENVS_RENDERER=gpu \
     limited 240 "$LOGS/actor.log" "$BIN/env_steps"
   add "$(grep -E '^\||^Several' "$LOGS/actor.log" || echo "FAILED: $(tail -n 5 "$LOGS/actor.log" | tr '\n' ' ')")"
 fi
 
 if ! skipped throughput; then
   section "Whole system, ours (deploy/throughput.sh)"
-  for setting in "1x16,2x8 64 100 cpu" "1x16 128 600 gpu"; do
+  for setting in "1x16,2x8 64 100 cpu" "1x32 128 600 gpu"; do
     read -r pairs side steps renderer <<<"$setting"
     log="$LOGS/throughput-${side}px.log"
     n=$(tr ',' '\n' <<<"$pairs" | wc -l)
     limited $(( n * (TP_WARMUP + TP_SECONDS + 60) )) "$log" "$REPO/deploy/throughput.sh" \
       --settings "$pairs" --warmup "$TP_WARMUP" --seconds "$TP_SECONDS" \
       --runs-dir "$LOGS/runs-${side}px" -- --bin-dir "$BIN" --device gpu --data "$DATA" \
-      --image-size "$side" --episode-steps "$steps" --renderer "$renderer"
-    add "${side} px, ${steps}-step episodes, ${renderer} renderer:" ""
+      --image-size "$side" --episode-steps "$steps" --renderer "$renderer" \
+      -- --set policy.batch_steps=1024
+    add "${side} px, ${steps}-step episodes, ${renderer} renderer, 1024-step PPO batches:" ""
     if grep -q '^| actors' "$log"; then
       add "$(grep -A20 '^| actors' "$log")" ""
     else

@@ -469,11 +469,13 @@ impl SeveralEnvs<'_> {
                 for batch in batches.into_iter().filter(|b| !b.is_empty()) {
                     policy_pass(self.policy, self.layout, batch, self.device, self.inference);
                 }
-                for (index, observation, _) in ready {
+                for (index, observation, pass) in ready {
                     let action =
                         random_allowed_action(self.space, &observation.action_mask, 0.5, &mut rng);
+                    // The recurrent state on, as the actor sends it.
+                    let hidden = pass.as_ref().and_then(|p| p.step.hidden.clone());
                     threads
-                        .send(*index, Task::Step(action as u32))
+                        .send(*index, Task::Step(action as u32, hidden))
                         .expect("step");
                 }
             };

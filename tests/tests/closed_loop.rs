@@ -1,7 +1,8 @@
 //! The closed loop, CI-sized: a learner and two simulator actors (64 × 64
 //! images, short episodes), the second running two environments (`--envs
-//! 2`: free-running for method `ours`, in lock-step for `nomap-seg`, whose
-//! GRU policy makes recurrent rollouts), for `ours` and then `nomap-seg`. Labelled frames reach the learner, the
+//! 2`, free-running: for `nomap-seg`, whose GRU policy makes recurrent
+//! rollouts, each step's task carries the recurrent state on), for `ours`
+//! and then `nomap-seg`. Labelled frames reach the learner, the
 //! U-Net trains on them and passes its validation gate, the policy updates,
 //! and both networks' new weights reach the actors.
 

@@ -114,7 +114,7 @@ fn learner_serves_three_actors_and_survives_a_killed_one() {
         dir.join("learner.log"),
     );
     let config = run_dir.join("config.toml").display().to_string();
-    // Actor 2 runs three environments in lock-step.
+    // Actor 2 runs three environments (free-running).
     let mut actors: Vec<_> = (0..3)
         .map(|id| {
             let envs = if id == 2 { "3" } else { "1" };

@@ -41,12 +41,15 @@ use super::unet_batcher::{self, UnetClient};
 use super::{Environment, EpisodeEnd, Observation, StepOutcome};
 
 /// Work for an environment.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum Task {
-    /// Start an episode with this reset seed.
+    /// Start an episode with this reset seed (the policy's pass over its
+    /// first observation, if any, starts from a recurrent state of zeros).
     Reset(u64),
-    /// Take this action.
-    Step(u32),
+    /// Take this action; the policy's pass over the next observation, if
+    /// any, starts from this recurrent state (`None`: zeros, or a policy
+    /// without a GRU).
+    Step(u32, Option<Vec<f32>>),
     /// End the episode with this id.
     Finish(u64),
 }
@@ -57,8 +60,8 @@ pub enum Task {
 pub struct PolicyPass {
     /// The version of the policy that made it.
     pub version: u64,
-    /// What the policy said (no recurrent state: policies with a GRU keep
-    /// theirs with the caller).
+    /// What the policy said, with the recurrent state after it (policies
+    /// with a GRU).
     pub step: CpuPolicyStep,
 }
 
@@ -145,7 +148,7 @@ impl EnvThreads {
     }
 
     /// From each environment's next task on, its observations come with
-    /// the pass of `policy` (of `version`; a policy without a GRU) over them.
+    /// the pass of `policy` (of `version`) over them.
     pub fn set_policy(&self, version: u64, policy: &Arc<CpuPolicy>) -> anyhow::Result<()> {
         (0..self.len())
             .try_for_each(|index| self.job(index, Job::Policy(version, Arc::clone(policy))))
@@ -250,10 +253,10 @@ fn work(
     unet: &Unet<'_>,
     policy: Option<&(u64, Arc<CpuPolicy>)>,
 ) -> anyhow::Result<Done> {
-    let pass = |observation: &Observation| {
+    let pass = |observation: &Observation, hidden: Option<&[f32]>| {
         policy.map(|(version, net)| PolicyPass {
             version: *version,
-            step: net.forward(&observation.features, &observation.action_mask, None),
+            step: net.forward(&observation.features, &observation.action_mask, hidden),
         })
     };
     Ok(match task {
@@ -261,14 +264,14 @@ fn work(
             env.begin_reset(seed)?;
             let planes = unet.planes_for(env)?;
             let observation = env.observe(planes)?;
-            let pass = pass(&observation);
+            let pass = pass(&observation, None);
             Done::Reset(observation, pass)
         }
-        Task::Step(action) => {
+        Task::Step(action, hidden) => {
             let outcome = env.begin_step(action)?;
             let planes = unet.planes_for(env)?;
             let observation = env.observe(planes)?;
-            let pass = pass(&observation);
+            let pass = pass(&observation, hidden.as_deref());
             Done::Step(outcome, observation, pass)
         }
         Task::Finish(id) => {
@@ -327,7 +330,7 @@ mod tests {
                     Done::Reset(observation, None) => {
                         seen[index].push((RESET, observation));
                         threads
-                            .send(index, Task::Step(action(seeds[index], 0)))
+                            .send(index, Task::Step(action(seeds[index], 0), None))
                             .unwrap();
                     }
                     Done::Step(outcome, observation, None) => {
@@ -335,7 +338,7 @@ mod tests {
                         let task = if outcome.done {
                             Task::Finish(index as u64)
                         } else {
-                            Task::Step(action(seeds[index], steps))
+                            Task::Step(action(seeds[index], steps), None)
                         };
                         threads.send(index, task).unwrap();
                     }
@@ -501,9 +504,13 @@ mod tests {
     }
 
     #[test]
-    fn with_a_policy_each_observation_comes_with_that_policys_pass() {
+    fn with_a_policy_each_observation_comes_with_that_policys_pass_from_the_state_given() {
         let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).unwrap();
-        let layout = BanditFixture::new().layout().clone();
+        // A GRU, so that the recurrent state the caller sends matters.
+        let layout = PolicyLayout {
+            gru_hidden: Some(8),
+            ..BanditFixture::new().layout().clone()
+        };
         let policy = || {
             let net = nets::policy::PolicyNet::new(&layout, &device);
             Arc::new(CpuPolicy::from_network(&net, &layout).expect("a CPU pass"))
@@ -539,15 +546,24 @@ mod tests {
                 assert_ne!(by(&first), by(&second), "the two policies tell apart");
             }
             threads.set_policy(2, &second).unwrap();
+            let state = |index: usize| -> Vec<f32> {
+                (0..8).map(|i| (i + index) as f32 / 8.0 - 0.5).collect()
+            };
             for index in 0..seeds.len() {
-                threads.send(index, Task::Step(0)).unwrap();
+                threads
+                    .send(index, Task::Step(0, Some(state(index))))
+                    .unwrap();
             }
             for _ in 0..seeds.len() {
                 let (index, Done::Step(_, observation, Some(pass))) = threads.next().unwrap()
                 else {
                     panic!("a step with its pass answered");
                 };
-                let step = second.forward(&observation.features, &observation.action_mask, None);
+                let from = |h: Option<&[f32]>| {
+                    second.forward(&observation.features, &observation.action_mask, h)
+                };
+                let step = from(Some(&state(index)));
+                assert_ne!(step, from(None), "the state tells apart");
                 assert_eq!(pass, PolicyPass { version: 2, step }, "environment {index}");
             }
         });
@@ -564,13 +580,16 @@ mod tests {
             let threads = EnvThreads::start(scope, envs, model, Inference::PerEnvironment);
             threads.send(1, Task::Reset(1)).unwrap();
             assert!(matches!(threads.next().unwrap(), (1, Done::Reset(..))));
-            threads.send(1, Task::Step(0)).unwrap();
+            threads.send(1, Task::Step(0, None)).unwrap();
             let error = threads.next().unwrap_err();
             assert!(
                 format!("{error:#}").contains("environment 1: the environment panicked"),
                 "{error:#}"
             );
-            assert!(threads.send(7, Task::Step(0)).is_err(), "no environment 7");
+            assert!(
+                threads.send(7, Task::Step(0, None)).is_err(),
+                "no environment 7"
+            );
         });
     }
 }

@@ -24,22 +24,20 @@ enum Phase {
     Finishing(RunningEpisode),
 }
 
-/// Whether `envs` environments should run free: several of them, a policy
-/// pass cheap enough for this thread to run (the CPU's own,
-/// `nets::policy::CpuPolicy`), and steps long and uneven enough that waiting
-/// at a barrier costs more than this thread's competing with the
-/// environments for the cores. That is the methods with a map, whose
-/// policies have no GRU (the GRU stands in for the map). Measured on the CPU
-/// with 2 environments, 64 px (env bench, both with the CPU pass): `ours`
-/// 95–107 steps/s in lock-step, 109–135 free-running on 2026-11-23, 152–158
-/// and 144–182 on 2026-11-27; `nomap-seg`, whose short, even steps lose
-/// little at the barrier, 202–203 and 184 on 2026-11-23, 226–243 and
-/// 225–227 on 2026-11-27. On a GPU the U-Net's frames go to one batching thread
-/// (`crate::env::unet_batcher`) instead of a lock-step batch, whose barrier
-/// at 16 environments made `ours`' rounds wait for the slowest of them
-/// (docs/notebook/2026-11-27-free-running-gpu-actor.md).
+/// Whether `envs` environments should run free: several of them, and a
+/// policy with the CPU's own pass (`nets::policy::CpuPolicy`), which the
+/// environments' threads run on their observations (a GRU's state goes
+/// with each step's task). Free-running, nobody waits for the slowest
+/// environment at a barrier. Measured (env bench, policy included):
+/// on the VM's CPU, 2 environments at 64 px, `ours` 121–149 steps/s in
+/// lock-step against 115–145 free-running, `nomap-seg` (a GRU) 151–208
+/// against 167–235 (five runs each, 2026-11-27); on an H200 at 128 px
+/// with 16 environments, the U-Net's frames batched by one thread
+/// (`crate::env::unet_batcher`), `ours` 217 against 353 and `nomap-seg`
+/// 712 against 970, with 32 environments 287 / 469 and 888 / 1 049
+/// (docs/notebook/2026-11-27-gpu-check-free-running.md).
 pub(super) fn suits(actor: &Actor<'_>, envs: usize) -> bool {
-    envs > 1 && actor.policy.cpu.is_some() && actor.policy.layout.gru_hidden.is_none()
+    envs > 1 && actor.policy.cpu.is_some()
 }
 
 /// Runs `envs` free-running until `stop` is set or `max_episodes` are done.
@@ -144,7 +142,7 @@ fn drive(actor: &mut Actor<'_>, threads: &EnvThreads, stop: &AtomicBool) -> anyh
         let acted = actor.act_with_passes(&inputs, passes)?;
         anyhow::ensure!(acted.len() == acting.len(), "the policy acted for each");
         for ((index, episode, _), acted) in acting.into_iter().zip(acted) {
-            threads.send(index, Task::Step(acted.action))?;
+            threads.send(index, Task::Step(acted.action, acted.hidden.clone()))?;
             phases[index] = Phase::Stepping(episode, acted);
         }
     }

@@ -413,4 +413,54 @@ mod tests {
             }
         }
     }
+
+    #[test]
+    fn a_threads_pass_counts_only_when_made_by_the_current_policy() {
+        let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).unwrap();
+        let layout = PolicyLayout {
+            image_channels: vec![2],
+            image_size: 64,
+            vector_dims: vec![5],
+            n_actions: 4,
+            obs_dtype: ObsDtype::F32,
+            gru_hidden: Some(8),
+        };
+        let net = PolicyNet::new(&layout, &device);
+        let policy = Policy {
+            cpu: CpuPolicy::from_network(&net, &layout).map(Arc::new),
+            net,
+            layout: layout.clone(),
+            policy_version: 3,
+            unet_version: 0,
+            env_steps: None,
+        };
+        let observation = Observation {
+            features: (0..layout.obs_len())
+                .map(|i| (i % 7) as f32 / 7.0)
+                .collect(),
+            action_mask: vec![1, 0, 1, 1],
+        };
+        let state: Vec<f32> = (0..8).map(|i| i as f32 / 10.0).collect();
+        let cpu = policy.cpu.as_ref().unwrap();
+        let pass = |version| PolicyPass {
+            version,
+            step: cpu.forward(
+                &observation.features,
+                &observation.action_mask,
+                Some(&state),
+            ),
+        };
+        let here = forward(&policy, &[(&observation, Some(&state))], &device).unwrap();
+        let taken = step_of_thread_pass(&policy, &observation, pass(3)).expect("current policy");
+        assert_eq!(taken.log_probs, here[0].log_probs);
+        assert_eq!(taken.log_probs[1], f32::NEG_INFINITY, "masked as here");
+        assert_eq!(
+            (taken.value, &taken.hidden),
+            (here[0].value, &here[0].hidden)
+        );
+        assert!(
+            step_of_thread_pass(&policy, &observation, pass(2)).is_none(),
+            "stale"
+        );
+    }
 }
