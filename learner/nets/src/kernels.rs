@@ -62,7 +62,6 @@ pub(crate) fn max_pool_2x2(source: &[f32], pooled: &mut [f32], h: usize, w: usiz
 /// `dst[i][j] (+)= Σ_k lhs[i][k] · rhs[k][j]` for `i < m`, `j < n`, `k < k`:
 /// `lhs` is row-major `m × k`; row `i` of `dst` starts at `i · dst_rows`,
 /// row `k` of `rhs` at `k · rhs_rows`; columns are contiguous.
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn matmul(
     dst: &mut [f32],
     dst_rows: usize,
@@ -72,10 +71,35 @@ pub(crate) fn matmul(
     (m, n, k): (usize, usize, usize),
     accumulate: bool,
 ) {
+    matmul_lhs_rows(
+        dst,
+        dst_rows,
+        (lhs, k),
+        rhs,
+        rhs_rows,
+        (m, n, k),
+        accumulate,
+    );
+}
+
+/// As [`matmul`], with row `i` of `lhs` starting at `i · lhs_rows` (`lhs`
+/// given as the slice and that stride): `k` columns of a wider matrix.
+pub(crate) fn matmul_lhs_rows(
+    dst: &mut [f32],
+    dst_rows: usize,
+    (lhs, lhs_rows): (&[f32], usize),
+    rhs: &[f32],
+    rhs_rows: usize,
+    (m, n, k): (usize, usize, usize),
+    accumulate: bool,
+) {
     if m == 0 || n == 0 {
         return;
     }
-    assert!(lhs.len() >= m * k, "matmul: lhs too short");
+    assert!(
+        k == 0 || lhs.len() >= (m - 1) * lhs_rows + k,
+        "matmul: lhs too short"
+    );
     assert!(
         dst.len() >= (m - 1) * dst_rows + n,
         "matmul: destination too short"
@@ -85,8 +109,8 @@ pub(crate) fn matmul(
         "matmul: rhs too short"
     );
     // SAFETY: the asserts above keep every element gemm touches
-    // (dst[i · dst_rows + j], lhs[i · k + kk], rhs[kk · rhs_rows + j]) inside
-    // its slice; `dst` is borrowed mutably, so nothing else aliases it.
+    // (dst[i · dst_rows + j], lhs[i · lhs_rows + kk], rhs[kk · rhs_rows + j])
+    // inside its slice; `dst` is borrowed mutably, so nothing else aliases it.
     unsafe {
         gemm::gemm(
             m,
@@ -98,7 +122,7 @@ pub(crate) fn matmul(
             accumulate,
             lhs.as_ptr(),
             1,
-            k as isize,
+            lhs_rows as isize,
             rhs.as_ptr(),
             1,
             rhs_rows as isize,
