@@ -93,10 +93,20 @@ pub fn is_wgpu(device: &Device) -> bool {
 /// libtorch on the first CUDA device. libtorch is linked, not loaded, so a
 /// missing library stops the program before this runs (the loader names
 /// it); a libtorch without CUDA or a machine without a GPU fails the probe.
+///
+/// `AFX_CUDNN_BENCHMARK=1` has cuDNN time its algorithms for each new
+/// shape and keep the fastest (PyTorch's `torch.backends.cudnn.benchmark`),
+/// for measuring whether the U-Net's inference gains from it
+/// (docs/notebook/2026-11-27-gpu-check-free-running.md); off by default.
 #[cfg(feature = "gpu-torch")]
 #[allow(deprecated)] // burn 0.22 marks libtorch deprecated; chosen all the same (decision 0010)
 fn open_gpu() -> Result<Device, DeviceError> {
-    probe(|| Device::libtorch_cuda(0), "libtorch could not use CUDA")
+    let device = probe(|| Device::libtorch_cuda(0), "libtorch could not use CUDA")?;
+    if std::env::var("AFX_CUDNN_BENCHMARK").is_ok_and(|v| v == "1") {
+        tch::Cuda::cudnn_set_benchmark(true);
+        eprintln!("cuDNN benchmark mode on (AFX_CUDNN_BENCHMARK=1)");
+    }
+    Ok(device)
 }
 
 #[cfg(all(feature = "gpu", not(feature = "gpu-torch")))]
