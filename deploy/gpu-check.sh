@@ -8,7 +8,7 @@ usage() {
   cat <<'USAGE'
 Usage: deploy/gpu-check.sh --bin-dir DIR [options]
 
-Runs, one after the other, each under a time limit (about 7 minutes in all):
+Runs, one after the other, each under a time limit (about 8 minutes in all):
   1. the CPU/GPU agreement test (DIR/gpu_matches_cpu, TF32 off);
   2. the training benchmark beside PyTorch on the same GPU (DIR/learning with
      AFX_BENCH_ONLY=gpu-check: PPO update of 1024 steps at 64 and 128 px, U-Net
