@@ -179,9 +179,10 @@ impl<'a> Actor<'a> {
 
     /// As [`Self::act`] (the same draws), taking the policy's pass over an
     /// observation from `passes` where its environment's thread made one
-    /// with the current policy; the others run here, one at a time on the
-    /// CPU (passes spread over rayon's threads would compete with the
-    /// environments' own), else in one batch.
+    /// with the current policy; the others (passes of a policy that new
+    /// weights replaced meanwhile, a few per update) run here, one at a
+    /// time: spread over rayon's threads they would compete with the
+    /// environments' own.
     fn act_with_passes(
         &mut self,
         inputs: &[(&Observation, Option<&[f32]>)],
@@ -189,37 +190,19 @@ impl<'a> Actor<'a> {
     ) -> anyhow::Result<Vec<Acted>> {
         ensure!(inputs.len() == passes.len(), "one pass or none per input");
         let uniforms: Vec<f32> = inputs.iter().map(|_| self.rng.random::<f32>()).collect();
-        let mut steps: Vec<_> = inputs
-            .iter()
-            .zip(passes)
-            .map(|((observation, _), pass)| {
-                pass.and_then(|pass| step_of_thread_pass(&self.policy, observation, pass))
-            })
-            .collect();
-        let missing: Vec<usize> = (0..steps.len()).filter(|&i| steps[i].is_none()).collect();
-        let wanted: Vec<_> = missing.iter().map(|&i| inputs[i]).collect();
-        let computed = if self.inference == lockstep::Inference::PerEnvironment {
-            let mut computed = Vec::with_capacity(wanted.len());
-            for input in &wanted {
-                computed.extend(forward_batch(
+        let mut steps = Vec::with_capacity(inputs.len());
+        for (input, pass) in inputs.iter().zip(passes) {
+            match pass.and_then(|pass| step_of_thread_pass(&self.policy, input.0, pass)) {
+                Some(step) => steps.push(step),
+                None => steps.extend(forward_batch(
                     &self.policy,
                     std::slice::from_ref(input),
                     self.device,
                     self.inference,
-                )?);
+                )?),
             }
-            computed
-        } else {
-            forward_batch(&self.policy, &wanted, self.device, self.inference)?
-        };
-        ensure!(
-            computed.len() == missing.len(),
-            "the policy passed over each"
-        );
-        for (i, step) in missing.into_iter().zip(computed) {
-            steps[i] = Some(step);
         }
-        choose(steps.into_iter().flatten().collect(), &uniforms)
+        choose(steps, &uniforms)
     }
 
     fn count(&mut self, delivery: Delivery) {

@@ -236,10 +236,13 @@ fn camera_planes(config: &StateConfig, input: &StateInputs<'_>, map: Option<&Map
         // per run of equal ids along the rows: a lookup per pixel and plane
         // was ~1 ms of a 128-px step.
         let label_of = |id: u32| {
+            if id == 0 {
+                return None; // no object
+            }
             // A frame's id may be of an object merged into another
             // since (`Map::current_id`), in this very frame even.
             map.object(map.current_id(ObjectId(id)))
-                .filter(|o| id != 0 && o.labels.interacted(affordance))
+                .filter(|o| o.labels.interacted(affordance))
                 .and_then(|o| o.labels.label(affordance))
         };
         let mut last: Option<(u32, Option<bool>)> = None;

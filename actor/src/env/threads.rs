@@ -294,6 +294,13 @@ mod tests {
     /// Bandits have no camera, so no U-Net.
     static NO_MODEL: RwLock<Option<AffordanceModel>> = RwLock::new(None);
 
+    /// `n` bandit environments.
+    fn bandits(n: usize) -> Vec<Box<dyn Environment>> {
+        (0..n)
+            .map(|_| Box::new(BanditFixture::new()) as Box<dyn Environment>)
+            .collect()
+    }
+
     /// Stands for a reset in the lists of outcomes.
     const RESET: StepOutcome = StepOutcome {
         reward: 0.0,
@@ -313,10 +320,7 @@ mod tests {
         let mut seen: Vec<Vec<(StepOutcome, Observation)>> = vec![Vec::new(); seeds.len()];
         let mut ends = vec![None; seeds.len()];
         std::thread::scope(|scope| {
-            let envs = seeds
-                .iter()
-                .map(|_| Box::new(BanditFixture::new()) as Box<dyn Environment>)
-                .collect();
+            let envs = bandits(seeds.len());
             let threads = EnvThreads::start(scope, envs, model, Inference::PerEnvironment);
             assert_eq!(threads.len(), 3);
             for (index, &seed) in seeds.iter().enumerate() {
@@ -519,10 +523,7 @@ mod tests {
         let seeds = [3u64, 5];
         let model = &NO_MODEL;
         std::thread::scope(|scope| {
-            let envs = seeds
-                .iter()
-                .map(|_| Box::new(BanditFixture::new()) as Box<dyn Environment>)
-                .collect();
+            let envs = bandits(seeds.len());
             let threads = EnvThreads::start(scope, envs, model, Inference::PerEnvironment);
             threads.set_policy(1, &first).unwrap();
             for (index, &seed) in seeds.iter().enumerate() {

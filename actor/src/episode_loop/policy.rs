@@ -273,17 +273,23 @@ mod tests {
     use super::*;
     use proto::ObsDtype;
 
-    #[test]
-    fn one_batched_forward_equals_a_forward_per_environment() {
-        let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).unwrap();
-        let layout = PolicyLayout {
+    /// A small policy with a GRU of 8: one 2-channel image of 64 px, a
+    /// vector of 5, 4 actions.
+    fn small_gru_layout() -> PolicyLayout {
+        PolicyLayout {
             image_channels: vec![2],
             image_size: 64,
             vector_dims: vec![5],
             n_actions: 4,
             obs_dtype: ObsDtype::F32,
             gru_hidden: Some(8),
-        };
+        }
+    }
+
+    #[test]
+    fn one_batched_forward_equals_a_forward_per_environment() {
+        let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).unwrap();
+        let layout = small_gru_layout();
         let policy = Policy {
             net: PolicyNet::new(&layout, &device),
             cpu: None,
@@ -417,14 +423,7 @@ mod tests {
     #[test]
     fn a_threads_pass_counts_only_when_made_by_the_current_policy() {
         let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).unwrap();
-        let layout = PolicyLayout {
-            image_channels: vec![2],
-            image_size: 64,
-            vector_dims: vec![5],
-            n_actions: 4,
-            obs_dtype: ObsDtype::F32,
-            gru_hidden: Some(8),
-        };
+        let layout = small_gru_layout();
         let net = PolicyNet::new(&layout, &device);
         let policy = Policy {
             cpu: CpuPolicy::from_network(&net, &layout).map(Arc::new),
