@@ -15,7 +15,9 @@
 //!   burn's copies, with Winograd convolutions (the actor's per-frame pass);
 //! - `unet_conv_cpu`: the U-Net's 3 × 3 convolutions with their ReLU as
 //!   one differentiable operation on the CPU (its training step);
-//! - [`unet_inference`]: which of the two a device gets;
+//! - `unet_torch` (`gpu-torch`): the U-Net's inference pass straight on
+//!   libtorch, in full or half precision;
+//! - [`unet_inference`]: which of these a device gets;
 //! - [`weights`]: either network to and from safetensors bytes;
 //! - [`device`]: `--device cpu|gpu` at run time;
 //! - [`sample`]: the masked categorical draw the actor acts with.
@@ -32,6 +34,8 @@ mod unet_conv_cpu;
 mod unet_conv_torch;
 pub mod unet_cpu;
 pub mod unet_inference;
+#[cfg(feature = "gpu-torch")]
+pub mod unet_torch;
 pub mod weights;
 
 pub use masked_categorical::sample;
