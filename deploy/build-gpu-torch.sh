@@ -67,7 +67,7 @@ echo "building against $LIBTORCH_DIR"
 # torch-sys 0.22 is written for PyTorch 2.9; its C wrapper compiles against 2.11.
 export LIBTORCH="$LIBTORCH_DIR" LIBTORCH_BYPASS_VERSION_CHECK=1
 targets=(-p learner -p actor --bins)
-[[ $CHECKS -eq 0 ]] || targets+=(-p training -p nets -p gateway --bench learning --bench env_steps --test gpu_matches_cpu)
+[[ $CHECKS -eq 0 ]] || targets+=(-p training -p nets -p gateway --bench learning --bench env_steps --bench unet_inference --test gpu_matches_cpu)
 mkdir -p "$OUT"
 # Every executable cargo builds, with its target's name (a bench's or test's is hashed).
 cargo build --release --features nets/gpu-torch "${targets[@]}" --message-format=json-render-diagnostics \

@@ -16,6 +16,7 @@
 // (docs/decisions/0010-libtorch-on-a-gpu.md).
 #![allow(deprecated)]
 
+use burn::backend::libtorch::TchTensor;
 use burn::backend::LibTorch;
 use burn::nn::conv::{Conv2d, ConvTranspose2d};
 use burn::prelude::*;
@@ -43,11 +44,23 @@ impl TorchPrecision {
     }
 }
 
-/// A convolution's weight and bias as libtorch tensors.
+/// A convolution's weight and bias as libtorch tensors, in burn's wrapper,
+/// which lets threads share them (actors' environments share one U-Net; a
+/// pass only reads its weights).
 #[derive(Debug)]
 struct Layer {
-    weight: tch::Tensor,
-    bias: Option<tch::Tensor>,
+    weight: TchTensor,
+    bias: Option<TchTensor>,
+}
+
+impl Layer {
+    fn weight(&self) -> &tch::Tensor {
+        &self.weight.tensor
+    }
+
+    fn bias(&self) -> Option<&tch::Tensor> {
+        self.bias.as_ref().map(|b| &b.tensor)
+    }
 }
 
 /// The U-Net's layers on libtorch.
@@ -69,7 +82,7 @@ impl TorchUnet {
     /// device they live on; `None` when `net` is not on libtorch.
     pub fn from_network(net: &AffordanceUnet, precision: TorchPrecision) -> Option<Self> {
         let head = Layer::from_conv(&net.head, precision)?;
-        let device = head.weight.device();
+        let device = head.weight().device();
         let down = net
             .down
             .iter()
@@ -114,21 +127,14 @@ impl TorchUnet {
             }
             for (up, convs) in &self.up {
                 let skip = skips.pop().expect("one skip per decoder level");
-                let upsampled = x.conv_transpose2d(
-                    &up.weight,
-                    up.bias.as_ref(),
-                    [2, 2],
-                    [0, 0],
-                    [0, 0],
-                    1,
-                    [1, 1],
-                );
+                let upsampled =
+                    x.conv_transpose2d(up.weight(), up.bias(), [2, 2], [0, 0], [0, 0], 1, [1, 1]);
                 x = double_conv(convs, &tch::Tensor::cat(&[upsampled, skip], 1));
             }
             let logits = x
                 .conv2d(
-                    &self.head.weight,
-                    self.head.bias.as_ref(),
+                    self.head.weight(),
+                    self.head.bias(),
                     [1, 1],
                     [0, 0],
                     [1, 1],
@@ -160,15 +166,8 @@ fn channels_last(x: &tch::Tensor) -> tch::Tensor {
 /// Two 3 × 3 same-padded convolutions, each with its ReLU.
 fn double_conv(layers: &[Layer; 2], x: &tch::Tensor) -> tch::Tensor {
     let conv = |layer: &Layer, x: &tch::Tensor| {
-        x.conv2d(
-            &layer.weight,
-            layer.bias.as_ref(),
-            [1, 1],
-            [1, 1],
-            [1, 1],
-            1,
-        )
-        .relu()
+        x.conv2d(layer.weight(), layer.bias(), [1, 1], [1, 1], [1, 1], 1)
+            .relu()
     };
     conv(&layers[1], &conv(&layers[0], x))
 }
@@ -212,7 +211,10 @@ impl Layer {
             Some(bias) => Some(torch_copy(bias, precision)?),
             None => None,
         };
-        Some(Self { weight, bias })
+        Some(Self {
+            weight: TchTensor::new(weight),
+            bias: bias.map(TchTensor::new),
+        })
     }
 }
 
