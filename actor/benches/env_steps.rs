@@ -15,11 +15,10 @@
 //! a GPU the U-Net over all their frames in one batch, on the CPU each
 //! environment's U-Net pass on its own thread) and free-running as the
 //! actor runs them (`actor::env::threads`: each environment on its own
-//! thread at a lowered priority, running the policy's pass on its own
-//! observations; on a GPU the U-Net in one batching thread's batches,
-//! `actor::env::unet_batcher`), and for comparison free-running with the
-//! threads at the default priority and with the policy's passes on the
-//! caller's thread. It reports
+//! thread, running the policy's pass on its own observations; on a GPU the
+//! U-Net in one batching thread's batches, `actor::env::unet_batcher`), and
+//! for comparison free-running with the policy's passes on the caller's
+//! thread. It reports
 //! steps/s per process and per environment, then the episode's end
 //! (labelling, in parallel) and steps/s per process with that end included.
 //!
@@ -46,7 +45,7 @@ use actor::env::actions::ActionSpace;
 use actor::env::affordance_model::AffordanceModel;
 use actor::env::lockstep::{self, reset_all, step_all, Inference};
 use actor::env::sim_env::{SimEnv, SimEnvConfig, StepTimings};
-use actor::env::threads::{Done, EnvThreads, PolicyPass, Task, ENVIRONMENT_NICENESS};
+use actor::env::threads::{Done, EnvThreads, PolicyPass, Task};
 use actor::env::unet_batcher::{batch_times, BatchTimes};
 use actor::env::{Environment, FlatSimEnv, Observation};
 use burn::prelude::*;
@@ -345,24 +344,16 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
             };
             row("lock-step", times, phases);
             // Free-running as the actor runs it (the policy's passes on the
-            // environments' threads, which run at a lowered priority), then
-            // for comparison with the threads at the default priority (as
-            // before 2026-11-28), and with the passes on this thread (as
-            // before 2026-11-27's second change).
-            for (passes_on_threads, lowered, stepped) in [
-                (true, true, "free-running"),
-                (
-                    true,
-                    false,
-                    "free-running, environments at the default priority",
-                ),
-                (false, true, "free-running, policy on the loop's thread"),
+            // environments' threads), and with the passes on this thread as
+            // before 2026-11-27's second change, for comparison.
+            for (passes_on_threads, stepped) in [
+                (true, "free-running"),
+                (false, "free-running, policy on the loop's thread"),
             ] {
                 if n == 1 {
                     break;
                 }
-                let (stepping, end, batches) =
-                    bench.free_running(new_envs(), passes_on_threads, lowered);
+                let (stepping, end, batches) = bench.free_running(new_envs(), passes_on_threads);
                 let unet = if batches.batches == 0 {
                     "—".to_string() // the U-Net on each environment's thread
                 } else {
@@ -442,14 +433,11 @@ impl SeveralEnvs<'_> {
     /// `passes_on_threads` (and the policy has one), else on this thread over
     /// every observation that came in since its last pass (on the CPU one
     /// at a time); on a GPU the U-Net in the batching thread's batches.
-    /// The environments' threads at the actor's lowered priority when
-    /// `lowered`, else at the default.
     /// The stepping, the episode's end, and what the batching thread did.
     fn free_running(
         &self,
         envs: Vec<FlatSimEnv>,
         passes_on_threads: bool,
-        lowered: bool,
     ) -> (Duration, Duration, BatchTimes) {
         let n = envs.len();
         std::thread::scope(|scope| {
@@ -458,11 +446,6 @@ impl SeveralEnvs<'_> {
                 .map(|env| Box::new(env) as Box<dyn Environment>)
                 .collect();
             let threads = EnvThreads::start(scope, boxed, self.model, self.inference);
-            if lowered {
-                threads
-                    .lower_priority(ENVIRONMENT_NICENESS)
-                    .expect("the threads' priority");
-            }
             if let (true, Some(cpu)) = (passes_on_threads, &self.policy.1) {
                 threads.set_policy(1, cpu).expect("the policy");
             }

@@ -3,45 +3,25 @@
 
 use burn::prelude::*;
 use nets::unet::AffordanceUnet;
-use nets::unet_inference::{Precision, UnetInference};
+use nets::unet_inference::UnetInference;
 use rayon::prelude::*;
-
-/// The precision of the actor's U-Net passes on libtorch:
-/// `AFX_UNET_PRECISION=half` for 16-bit floats inside the network, else
-/// full (being measured: docs/notebook/2026-11-28-unet-inference-on-libtorch.md).
-/// Other devices have one precision.
-pub fn inference_precision() -> Precision {
-    match std::env::var("AFX_UNET_PRECISION").as_deref() {
-        Ok("half") => Precision::Half,
-        Err(_) | Ok("full") => Precision::Full,
-        Ok(other) => {
-            tracing::warn!("AFX_UNET_PRECISION takes full or half, not {other:?}; using full");
-            Precision::Full
-        }
-    }
-}
 
 /// The U-Net the actor infers with, and its calibration.
 #[derive(Debug)]
 pub struct AffordanceModel {
     net: UnetInference,
     device: Device,
-    precision: Precision,
     affordances: usize,
     /// Temperature from the learner's calibration (1 = plain sigmoid).
     pub temperature: f32,
 }
 
 impl AffordanceModel {
-    /// A freshly initialised network (before the learner's first weights),
-    /// in the precision `AFX_UNET_PRECISION` names ([`inference_precision`]).
+    /// A freshly initialised network (before the learner's first weights).
     pub fn new(affordances: usize, device: &Device) -> Self {
-        let precision = inference_precision();
-        let net = AffordanceUnet::new(4, affordances, device);
         Self {
-            net: UnetInference::with_precision(net, device, precision),
+            net: UnetInference::new(AffordanceUnet::new(4, affordances, device), device),
             device: device.clone(),
-            precision,
             affordances,
             temperature: 1.0,
         }
@@ -52,7 +32,7 @@ impl AffordanceModel {
     pub fn load_weights(&mut self, bytes: Vec<u8>) -> Result<(), nets::weights::WeightsError> {
         let mut net = AffordanceUnet::new(4, self.affordances, &self.device);
         nets::weights::load_safetensors(&mut net, bytes)?;
-        self.net = UnetInference::with_precision(net, &self.device, self.precision);
+        self.net = UnetInference::new(net, &self.device);
         Ok(())
     }
 
@@ -180,7 +160,6 @@ mod tests {
         let cpu = AffordanceModel {
             net: UnetInference::Cpu(nets::unet_cpu::CpuUnet::from_network(&net)),
             device: device.clone(),
-            precision: Precision::Full,
             affordances: 2,
             temperature: 0.7,
         };
@@ -190,7 +169,6 @@ mod tests {
                 device: device.clone(),
             },
             device: device.clone(),
-            precision: Precision::Full,
             affordances: 2,
             temperature: 0.7,
         };

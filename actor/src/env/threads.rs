@@ -26,12 +26,6 @@
 //! parallel on the environments' own threads instead of one after another
 //! on the caller's, which at 128 px (a pass of 2–5 ms) made the caller the
 //! wall (docs/notebook/2026-11-27-free-running-gpu-actor.md).
-//!
-//! [`EnvThreads::lower_priority`] makes the environments' threads yield to
-//! the process's other threads when there are more runnable threads than
-//! cores: the U-Net's batching thread and the caller's loop each serve every
-//! environment, so each millisecond they wait for a core holds all of them
-//! up (docs/notebook/2026-11-28-env-thread-priority.md).
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::mpsc::{channel, Receiver, Sender};
@@ -45,13 +39,6 @@ use super::affordance_model::AffordanceModel;
 use super::lockstep::Inference;
 use super::unet_batcher::{self, UnetClient};
 use super::{Environment, EpisodeEnd, Observation, StepOutcome};
-
-/// The niceness free-running actors give their environments' threads
-/// ([`EnvThreads::lower_priority`]): on Linux's scale a nice-10 thread
-/// weighs about a ninth of a nice-0 one, so a waking batching or loop
-/// thread gets a core at once, while the environments still share what it
-/// leaves.
-pub const ENVIRONMENT_NICENESS: i32 = 10;
 
 /// Work for an environment.
 #[derive(Debug, Clone, PartialEq)]
@@ -101,7 +88,6 @@ enum Job {
     Do(Task),
     GlobalSteps(u64),
     Policy(u64, Arc<CpuPolicy>),
-    Niceness(i32),
 }
 
 /// The environments' threads, within a [`std::thread::scope`]; they end
@@ -166,15 +152,6 @@ impl EnvThreads {
     pub fn set_policy(&self, version: u64, policy: &Arc<CpuPolicy>) -> anyhow::Result<()> {
         (0..self.len())
             .try_for_each(|index| self.job(index, Job::Policy(version, Arc::clone(policy))))
-    }
-
-    /// From each environment's next task on, its thread runs at `niceness`
-    /// (Linux's scale: 0 is the default, 19 the lowest priority; a thread
-    /// may lower its own priority but not raise it back). Elsewhere, or if
-    /// the system refuses, the threads keep their priority and a warning
-    /// says why.
-    pub fn lower_priority(&self, niceness: i32) -> anyhow::Result<()> {
-        (0..self.len()).try_for_each(|index| self.job(index, Job::Niceness(niceness)))
     }
 
     /// Waits for the next task to finish: which environment, and what it did.
@@ -257,12 +234,6 @@ fn serve(
                     policy = Some((version, net));
                     continue;
                 }
-                Job::Niceness(niceness) => {
-                    if let Err(e) = set_this_threads_niceness(niceness) {
-                        tracing::warn!("environment {index} keeps its thread's priority: {e}");
-                    }
-                    continue;
-                }
                 Job::Do(task) => catch_unwind(AssertUnwindSafe(|| {
                     work(env.as_mut(), task, &unet, policy.as_ref())
                 }))
@@ -273,30 +244,6 @@ fn serve(
             }
         }
     });
-}
-
-/// Sets the calling thread's niceness (on Linux, `setpriority` with a
-/// thread id applies to that thread alone).
-#[cfg(target_os = "linux")]
-fn set_this_threads_niceness(niceness: i32) -> std::io::Result<()> {
-    // SAFETY: gettid has no preconditions; setpriority only reads its arguments.
-    let done = unsafe {
-        let thread = libc::gettid();
-        libc::setpriority(libc::PRIO_PROCESS, thread as libc::id_t, niceness)
-    };
-    if done == 0 {
-        Ok(())
-    } else {
-        Err(std::io::Error::last_os_error())
-    }
-}
-
-/// Elsewhere thread priorities are left alone.
-#[cfg(not(target_os = "linux"))]
-fn set_this_threads_niceness(_niceness: i32) -> std::io::Result<()> {
-    Err(std::io::Error::other(
-        "thread priorities are only set on Linux",
-    ))
 }
 
 /// One task of an environment, with `policy`'s pass over its observation.
@@ -645,75 +592,5 @@ mod tests {
                 "no environment 7"
             );
         });
-    }
-
-    /// A bandit that notes its thread's niceness at every reset.
-    struct NotingNiceness(BanditFixture, std::sync::mpsc::Sender<i32>);
-
-    impl Environment for NotingNiceness {
-        fn layout(&self) -> &PolicyLayout {
-            self.0.layout()
-        }
-        fn scene_index(&self) -> u32 {
-            0
-        }
-        fn begin_reset(&mut self, seed: u64) -> anyhow::Result<()> {
-            // SAFETY: as in `set_this_threads_niceness`.
-            let niceness =
-                unsafe { libc::getpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t) };
-            self.1.send(niceness).unwrap();
-            self.0.begin_reset(seed)
-        }
-        fn begin_step(&mut self, action: u32) -> anyhow::Result<StepOutcome> {
-            self.0.begin_step(action)
-        }
-        fn camera_frame(&self) -> Option<CameraFrame<'_>> {
-            None
-        }
-        fn observe(&mut self, affordances: Vec<Vec<f32>>) -> anyhow::Result<Observation> {
-            self.0.observe(affordances)
-        }
-        fn finish_episode(&mut self, id: u64) -> anyhow::Result<EpisodeEnd> {
-            self.0.finish_episode(id)
-        }
-        fn set_global_steps(&mut self, _steps: u64) {}
-    }
-
-    #[cfg(target_os = "linux")]
-    #[test]
-    fn lowered_priority_holds_for_the_environments_threads_alone() {
-        let model = &NO_MODEL;
-        // SAFETY: as in `set_this_threads_niceness`.
-        let niceness_here =
-            || unsafe { libc::getpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t) };
-        let before = niceness_here();
-        let (noted, niceness) = channel();
-        std::thread::scope(|scope| {
-            let envs: Vec<Box<dyn Environment>> = (0..2)
-                .map(|_| {
-                    Box::new(NotingNiceness(BanditFixture::new(), noted.clone()))
-                        as Box<dyn Environment>
-                })
-                .collect();
-            let threads = EnvThreads::start(scope, envs, model, Inference::PerEnvironment);
-            let reset_both = || {
-                for index in 0..2 {
-                    threads.send(index, Task::Reset(1)).unwrap();
-                }
-                for _ in 0..2 {
-                    assert!(matches!(threads.next().unwrap(), (_, Done::Reset(..))));
-                }
-                [niceness.recv().unwrap(), niceness.recv().unwrap()]
-            };
-            assert_eq!(reset_both(), [before; 2], "untouched until asked");
-            let lower = (before + 3).min(19);
-            threads.lower_priority(lower).unwrap();
-            assert_eq!(reset_both(), [lower; 2]);
-        });
-        assert_eq!(
-            niceness_here(),
-            before,
-            "the caller's thread keeps its priority"
-        );
     }
 }

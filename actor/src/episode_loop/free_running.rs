@@ -9,7 +9,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use super::{Acted, Actor, RunningEpisode};
-use crate::env::threads::{Done, EnvThreads, PolicyPass, Task, ENVIRONMENT_NICENESS};
+use crate::env::threads::{Done, EnvThreads, PolicyPass, Task};
 use crate::env::Environment;
 
 /// Where an environment is, as the loop sees it.
@@ -49,7 +49,6 @@ pub(super) fn run(
     let model = actor.model;
     std::thread::scope(|scope| {
         let threads = EnvThreads::start(scope, envs, model, actor.inference);
-        threads.lower_priority(ENVIRONMENT_NICENESS)?;
         drive(actor, &threads, stop)
         // Dropping `threads` ends them; the scope waits for them.
     })

@@ -3,8 +3,8 @@
 //! thread's call: images in, logits out, copies to and from the device
 //! included) per batch size at 128 px, for every path the device has: on
 //! the CPU the CPU's own pass; on a GPU (`AFX_DEVICE=gpu`, a build with a
-//! GPU feature) burn's pass and, with `gpu-torch`, libtorch's in full and
-//! half precision. Medians of 30 calls after 5 unmeasured ones.
+//! GPU feature) burn's pass and, with `gpu-torch`, libtorch's own
+//! (`nets::unet_torch`). Medians of 30 calls after 5 unmeasured ones.
 //! `AFX_BATCHES` lists the batch sizes (default 1,2,4,8,16; 1,2 on the
 //! CPU), `AFX_SIDE` the image side (default 128).
 
@@ -12,7 +12,7 @@ use std::time::Instant;
 
 use burn::prelude::Device;
 use nets::unet::AffordanceUnet;
-use nets::unet_inference::{Precision, UnetInference};
+use nets::unet_inference::UnetInference;
 
 /// A list of numbers from the variable `name`, else `default`.
 fn numbers(name: &str, default: &[usize]) -> Vec<usize> {
@@ -32,7 +32,7 @@ fn numbers(name: &str, default: &[usize]) -> Vec<usize> {
 enum Path {
     Cpu,
     Burn,
-    Torch(Precision),
+    Torch,
 }
 
 impl Path {
@@ -40,8 +40,7 @@ impl Path {
         match self {
             Self::Cpu => "CPU",
             Self::Burn => "burn",
-            Self::Torch(Precision::Full) => "libtorch, full precision",
-            Self::Torch(Precision::Half) => "libtorch, half precision",
+            Self::Torch => "libtorch",
         }
     }
 
@@ -49,12 +48,11 @@ impl Path {
     fn make(self, device: &Device) -> UnetInference {
         let net = AffordanceUnet::new(4, 2, device);
         match self {
-            Self::Cpu => UnetInference::new(net, device),
+            Self::Cpu | Self::Torch => UnetInference::new(net, device),
             Self::Burn => UnetInference::Burn {
                 net: Box::new(net),
                 device: device.clone(),
             },
-            Self::Torch(precision) => UnetInference::with_precision(net, device, precision),
         }
     }
 }
@@ -76,7 +74,7 @@ fn main() {
     let side = numbers("AFX_SIDE", &[128])[0];
     let mut paths = vec![if on_cpu { Path::Cpu } else { Path::Burn }];
     if !on_cpu && cfg!(feature = "gpu-torch") {
-        paths.extend([Path::Torch(Precision::Full), Path::Torch(Precision::Half)]);
+        paths.push(Path::Torch);
     }
     println!(
         "U-Net inference, {side} px, {} ({})",

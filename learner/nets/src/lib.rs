@@ -16,7 +16,7 @@
 //! - `unet_conv_cpu`: the U-Net's 3 × 3 convolutions with their ReLU as
 //!   one differentiable operation on the CPU (its training step);
 //! - `unet_torch` (`gpu-torch`): the U-Net's inference pass straight on
-//!   libtorch, in full or half precision;
+//!   libtorch;
 //! - [`unet_inference`]: which of these a device gets;
 //! - [`weights`]: either network to and from safetensors bytes;
 //! - [`device`]: `--device cpu|gpu` at run time;

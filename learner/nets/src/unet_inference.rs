@@ -12,7 +12,7 @@ use burn::prelude::*;
 use crate::unet::AffordanceUnet;
 use crate::unet_cpu::CpuUnet;
 #[cfg(feature = "gpu-torch")]
-use crate::unet_torch::{TorchPrecision, TorchUnet};
+use crate::unet_torch::TorchUnet;
 
 /// A U-Net for inference.
 #[derive(Debug)]
@@ -32,24 +32,15 @@ pub enum UnetInference {
 }
 
 impl UnetInference {
-    /// `net` prepared for `device` in full precision: the CPU path when
-    /// `device` is the CPU.
+    /// `net` prepared for `device`: the CPU path when `device` is the CPU.
     pub fn new(net: AffordanceUnet, device: &Device) -> Self {
-        Self::with_precision(net, device, Precision::Full)
-    }
-
-    /// `net` prepared for `device` in `precision`, which only libtorch's
-    /// path can lower.
-    pub fn with_precision(net: AffordanceUnet, device: &Device, precision: Precision) -> Self {
         if crate::device::is_cpu(device) {
             return Self::Cpu(CpuUnet::from_network(&net));
         }
         #[cfg(feature = "gpu-torch")]
-        if let Some(torch) = torch_path(&net, precision) {
+        if let Some(torch) = torch_path(&net) {
             return Self::Torch(torch);
         }
-        #[cfg(not(feature = "gpu-torch"))]
-        let _ = precision; // burn's path has one precision
         Self::Burn {
             net: Box::new(net),
             device: device.clone(),
@@ -69,17 +60,7 @@ impl UnetInference {
                 .map(|image| net.forward(image, height, width))
                 .collect(),
             #[cfg(feature = "gpu-torch")]
-            Self::Torch(net) => {
-                if images.is_empty() {
-                    return Vec::new();
-                }
-                let input: Vec<f32> = images.iter().flat_map(|i| i.iter().copied()).collect();
-                let logits = net.logits(&input, images.len(), height, width);
-                logits
-                    .chunks(logits.len() / images.len())
-                    .map(<[f32]>::to_vec)
-                    .collect()
-            }
+            Self::Torch(net) => net.logits(images, height, width),
             Self::Burn { net, device } => {
                 if images.is_empty() {
                     return Vec::new();
@@ -106,27 +87,12 @@ impl UnetInference {
     }
 }
 
-/// The number precision of a U-Net pass off the CPU.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Precision {
-    /// 32-bit floats throughout.
-    Full,
-    /// 16-bit floats inside the network on libtorch (see
-    /// [`crate::unet_torch::TorchPrecision::Half`]); 32-bit elsewhere.
-    Half,
-}
-
-/// libtorch's own pass of `net` in `precision`, unless
-/// `AFX_UNET_INFERENCE=burn` asks for burn's (for measuring against) or
-/// `net` is not on libtorch.
+/// libtorch's own pass of `net`, unless `AFX_UNET_INFERENCE=burn` asks for
+/// burn's (for measuring against) or `net` is not on libtorch.
 #[cfg(feature = "gpu-torch")]
-fn torch_path(net: &AffordanceUnet, precision: Precision) -> Option<TorchUnet> {
+fn torch_path(net: &AffordanceUnet) -> Option<TorchUnet> {
     if std::env::var("AFX_UNET_INFERENCE").is_ok_and(|v| v == "burn") {
         return None;
     }
-    let precision = match precision {
-        Precision::Full => TorchPrecision::Full,
-        Precision::Half => TorchPrecision::Half,
-    };
-    TorchUnet::from_network(net, precision)
+    TorchUnet::from_network(net)
 }

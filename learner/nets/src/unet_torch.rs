@@ -1,16 +1,17 @@
 //! The U-Net's forward pass for inference straight on libtorch, without
-//! burn between the layers: its weights copied once into libtorch tensors
-//! of the precision and memory layout chosen ([`TorchPrecision`]).
+//! burn between the layers: its weights copied once into libtorch tensors,
+//! each image copied from the caller's buffer to the device and each
+//! image's logits from the device into the buffer returned, with no copy
+//! in between.
 //!
 //! Why it exists: an actor on a GPU sends every camera frame through the
-//! U-Net, in batches of one thread (`actor::env::unet_batcher`); through
-//! burn a 128-px batch cost about 1.0 ms + 0.85 ms a frame on an H200,
-//! which capped a process near 1 100 frames a second
-//! (docs/notebook/2026-11-27-gpu-check-free-running.md). Here the layers
-//! are libtorch's own calls, and the pass can run in half precision with
-//! channels-last tensors (cuDNN's tensor-core convolutions), which burn's
-//! float type and layout rule out; which is faster is measured in
-//! docs/notebook/2026-11-28-unet-inference-on-libtorch.md.
+//! U-Net, in batches of one thread (`actor::env::unet_batcher`), which
+//! bounds the process's steps per second. On an H200 at 128 px a call
+//! through libtorch's own calls took 0.98 / 1.71 / 2.95 ms for 1 / 4 / 8
+//! frames against burn's 1.28 / 2.05 / 4.75 ms (`cargo bench -p nets
+//! --bench unet_inference`, before the copies were cut); half precision
+//! with channels-last tensors was tried and made actors slower
+//! (docs/notebook/2026-11-27-actor-unet-on-libtorch.md).
 
 // burn 0.22 marks libtorch deprecated; chosen all the same
 // (docs/decisions/0010-libtorch-on-a-gpu.md).
@@ -24,26 +25,6 @@ use tch::Kind;
 
 use crate::unet::{AffordanceUnet, DoubleConv};
 
-/// The number type and memory layout of a libtorch pass.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum TorchPrecision {
-    /// 32-bit floats, channels-first: the numbers burn's pass gives.
-    Full,
-    /// 16-bit floats, channels-last (inputs and outputs stay 32-bit):
-    /// tensor-core convolutions on CUDA; logits differ from the full
-    /// pass's by about 1e-3 of their scale.
-    Half,
-}
-
-impl TorchPrecision {
-    fn kind(self) -> Kind {
-        match self {
-            Self::Full => Kind::Float,
-            Self::Half => Kind::Half,
-        }
-    }
-}
-
 /// A convolution's weight and bias as libtorch tensors, in burn's wrapper,
 /// which lets threads share them (actors' environments share one U-Net; a
 /// pass only reads its weights).
@@ -51,16 +32,6 @@ impl TorchPrecision {
 struct Layer {
     weight: TchTensor,
     bias: Option<TchTensor>,
-}
-
-impl Layer {
-    fn weight(&self) -> &tch::Tensor {
-        &self.weight.tensor
-    }
-
-    fn bias(&self) -> Option<&tch::Tensor> {
-        self.bias.as_ref().map(|b| &b.tensor)
-    }
 }
 
 /// The U-Net's layers on libtorch.
@@ -74,27 +45,22 @@ pub struct TorchUnet {
     /// The 1 × 1 output convolution.
     head: Layer,
     device: tch::Device,
-    precision: TorchPrecision,
 }
 
 impl TorchUnet {
-    /// `net`'s weights copied into libtorch tensors of `precision`, on the
-    /// device they live on; `None` when `net` is not on libtorch.
-    pub fn from_network(net: &AffordanceUnet, precision: TorchPrecision) -> Option<Self> {
-        let head = Layer::from_conv(&net.head, precision)?;
+    /// `net`'s weights copied into libtorch tensors on the device they live
+    /// on; `None` when `net` is not on libtorch.
+    pub fn from_network(net: &AffordanceUnet) -> Option<Self> {
+        let head = Layer::from_conv(&net.head)?;
         let device = head.weight().device();
-        let down = net
-            .down
-            .iter()
-            .map(|level| Layer::double(level, precision))
-            .collect::<Option<_>>()?;
+        let down = net.down.iter().map(Layer::double).collect::<Option<_>>()?;
         let up = net
             .up
             .iter()
             .map(|level| {
                 Some((
-                    Layer::from_transposed(&level.up, precision)?,
-                    Layer::double(&level.conv, precision)?,
+                    Layer::from_transposed(&level.up)?,
+                    Layer::double(&level.conv)?,
                 ))
             })
             .collect::<Option<_>>()?;
@@ -103,64 +69,98 @@ impl TorchUnet {
             up,
             head,
             device,
-            precision,
         })
     }
 
-    /// Logits `[images, outputs, height, width]`, 32-bit and channels-first,
-    /// for `input` holding `images` images `[channels, height, width]` one
-    /// after another.
-    pub fn logits(&self, input: &[f32], images: usize, height: usize, width: usize) -> Vec<f32> {
-        let channels = input.len() / (images * height * width);
-        let dims = [images, channels, height, width].map(|d| d as i64);
+    /// Logits `[outputs, height, width]` per image; every image is
+    /// `[channels, height, width]`, channels-first, all of one size.
+    ///
+    /// # Panics
+    /// If the images differ in length or do not fit the size (the caller's
+    /// frames come from a validated task).
+    pub fn logits(&self, images: &[&[f32]], height: usize, width: usize) -> Vec<Vec<f32>> {
+        let Some(first) = images.first() else {
+            return Vec::new();
+        };
+        let channels = first.len() / (height * width);
+        assert!(
+            channels > 0 && images.iter().all(|i| i.len() == channels * height * width),
+            "U-Net images of {channels} × {height} × {width} floats"
+        );
+        let image_dims = [channels, height, width].map(|d| d as i64);
         tch::no_grad(|| {
-            let x = tch::Tensor::from_slice(input)
-                .view(dims)
-                .to_device(self.device);
-            let x = self.layout(x.to_kind(self.precision.kind()));
-            let mut skips = Vec::with_capacity(self.down.len());
-            let mut x = double_conv(&self.down[0], &x);
-            for level in &self.down[1..] {
-                let pooled = x.max_pool2d([2, 2], [2, 2], [0, 0], [1, 1], false);
-                skips.push(x);
-                x = double_conv(level, &pooled);
+            let x = tch::Tensor::empty(
+                [
+                    images.len() as i64,
+                    image_dims[0],
+                    image_dims[1],
+                    image_dims[2],
+                ],
+                (Kind::Float, self.device),
+            );
+            for (k, image) in images.iter().enumerate() {
+                // SAFETY: `host` views `image`'s floats, which outlive it, in
+                // their own layout; nothing writes through it, and a blocking
+                // copy from the host has read it whole when `copy_` returns.
+                let host = unsafe {
+                    tch::Tensor::from_blob(
+                        image.as_ptr().cast(),
+                        &image_dims,
+                        &[],
+                        Kind::Float,
+                        tch::Device::Cpu,
+                    )
+                };
+                x.get(k as i64).copy_(&host);
             }
-            for (up, convs) in &self.up {
-                let skip = skips.pop().expect("one skip per decoder level");
-                let upsampled =
-                    x.conv_transpose2d(up.weight(), up.bias(), [2, 2], [0, 0], [0, 0], 1, [1, 1]);
-                x = double_conv(convs, &tch::Tensor::cat(&[upsampled, skip], 1));
-            }
-            let logits = x
-                .conv2d(
-                    self.head.weight(),
-                    self.head.bias(),
-                    [1, 1],
-                    [0, 0],
-                    [1, 1],
-                    1,
-                )
-                .to_kind(Kind::Float)
-                .contiguous()
-                .to_device(tch::Device::Cpu);
-            Vec::<f32>::try_from(logits.view([-1])).expect("32-bit logits")
+            let logits = self.forward(&x).contiguous();
+            let per_image = logits.numel() / images.len();
+            (0..images.len())
+                .map(|k| {
+                    let mut out = vec![0f32; per_image];
+                    // SAFETY: `host` views `out`, which outlives it, as
+                    // `per_image` floats; a blocking copy to the host has
+                    // written them all when `copy_` returns.
+                    let mut host = unsafe {
+                        tch::Tensor::from_blob(
+                            out.as_mut_ptr().cast::<u8>(),
+                            &[per_image as i64],
+                            &[],
+                            Kind::Float,
+                            tch::Device::Cpu,
+                        )
+                    };
+                    host.copy_(&logits.get(k as i64).view([-1]));
+                    out
+                })
+                .collect()
         })
     }
 
-    /// `x` in the pass's memory layout: channels-last for half precision
-    /// (same shape, NHWC strides, which libtorch's convolutions keep).
-    fn layout(&self, x: tch::Tensor) -> tch::Tensor {
-        match self.precision {
-            TorchPrecision::Full => x,
-            TorchPrecision::Half => channels_last(&x),
+    /// `[n, channels, h, w]` → logits `[n, outputs, h, w]` on the device.
+    fn forward(&self, x: &tch::Tensor) -> tch::Tensor {
+        let mut skips = Vec::with_capacity(self.down.len());
+        let mut x = double_conv(&self.down[0], x);
+        for level in &self.down[1..] {
+            let pooled = x.max_pool2d([2, 2], [2, 2], [0, 0], [1, 1], false);
+            skips.push(x);
+            x = double_conv(level, &pooled);
         }
+        for (up, convs) in &self.up {
+            let skip = skips.pop().expect("one skip per decoder level");
+            let upsampled =
+                x.conv_transpose2d(up.weight(), up.bias(), [2, 2], [0, 0], [0, 0], 1, [1, 1]);
+            x = double_conv(convs, &tch::Tensor::cat(&[upsampled, skip], 1));
+        }
+        x.conv2d(
+            self.head.weight(),
+            self.head.bias(),
+            [1, 1],
+            [0, 0],
+            [1, 1],
+            1,
+        )
     }
-}
-
-/// `x` `[n, c, h, w]` with channels-last strides (PyTorch's
-/// `memory_format=torch.channels_last`, which tch does not name).
-fn channels_last(x: &tch::Tensor) -> tch::Tensor {
-    x.permute([0, 2, 3, 1]).contiguous().permute([0, 3, 1, 2])
 }
 
 /// Two 3 × 3 same-padded convolutions, each with its ReLU.
@@ -173,58 +173,44 @@ fn double_conv(layers: &[Layer; 2], x: &tch::Tensor) -> tch::Tensor {
 }
 
 impl Layer {
-    fn double(level: &DoubleConv, precision: TorchPrecision) -> Option<[Self; 2]> {
+    fn weight(&self) -> &tch::Tensor {
+        &self.weight.tensor
+    }
+
+    fn bias(&self) -> Option<&tch::Tensor> {
+        self.bias.as_ref().map(|b| &b.tensor)
+    }
+
+    fn double(level: &DoubleConv) -> Option<[Self; 2]> {
         Some([
-            Self::from_conv(&level.first, precision)?,
-            Self::from_conv(&level.second, precision)?,
+            Self::from_conv(&level.first)?,
+            Self::from_conv(&level.second)?,
         ])
     }
 
-    fn from_conv(layer: &Conv2d, precision: TorchPrecision) -> Option<Self> {
-        Self::from_params(
-            layer.weight.val(),
-            layer.bias.as_ref().map(|b| b.val()),
-            precision,
-        )
+    fn from_conv(layer: &Conv2d) -> Option<Self> {
+        Self::from_params(layer.weight.val(), layer.bias.as_ref().map(|b| b.val()))
     }
 
-    fn from_transposed(layer: &ConvTranspose2d, precision: TorchPrecision) -> Option<Self> {
-        Self::from_params(
-            layer.weight.val(),
-            layer.bias.as_ref().map(|b| b.val()),
-            precision,
-        )
+    fn from_transposed(layer: &ConvTranspose2d) -> Option<Self> {
+        Self::from_params(layer.weight.val(), layer.bias.as_ref().map(|b| b.val()))
     }
 
-    /// Copies of `weight` and `bias` in `precision` (weights in its layout).
-    fn from_params(
-        weight: Tensor<4>,
-        bias: Option<Tensor<1>>,
-        precision: TorchPrecision,
-    ) -> Option<Self> {
-        let weight = torch_copy(weight, precision)?;
-        let weight = match precision {
-            TorchPrecision::Full => weight,
-            TorchPrecision::Half => channels_last(&weight),
-        };
+    fn from_params(weight: Tensor<4>, bias: Option<Tensor<1>>) -> Option<Self> {
+        let weight = torch_copy(weight)?;
         let bias = match bias {
-            Some(bias) => Some(torch_copy(bias, precision)?),
+            Some(bias) => Some(torch_copy(bias)?),
             None => None,
         };
-        Some(Self {
-            weight: TchTensor::new(weight),
-            bias: bias.map(TchTensor::new),
-        })
+        Some(Self { weight, bias })
     }
 }
 
-/// A libtorch copy of `tensor` in `precision`'s number type, detached from
-/// burn's; `None` when `tensor` is not on libtorch.
-fn torch_copy<const D: usize>(tensor: Tensor<D>, precision: TorchPrecision) -> Option<tch::Tensor> {
+/// A libtorch copy of `tensor`, detached from burn's; `None` when `tensor`
+/// is not on libtorch.
+fn torch_copy<const D: usize>(tensor: Tensor<D>) -> Option<TchTensor> {
     let primitive = tensor.try_into_primitive::<LibTorch>().ok()?;
-    Some(tch::no_grad(|| {
-        primitive.tensor.to_kind(precision.kind()).copy()
-    }))
+    Some(TchTensor::new(tch::no_grad(|| primitive.tensor.copy())))
 }
 
 #[cfg(test)]
@@ -232,37 +218,38 @@ mod tests {
     use super::*;
     use burn::tensor::Distribution;
 
-    /// The libtorch pass against burn's on libtorch's CPU device: the same
-    /// numbers in full precision, for several batch sizes and image sizes.
+    /// The libtorch pass against burn's on libtorch's CPU device: each
+    /// image of a batch gets the logits burn's batch gives it, for several
+    /// batch sizes and image sizes.
     #[test]
-    fn full_precision_gives_burns_logits() {
+    fn each_image_gets_burns_logits() {
         let device = Device::libtorch();
         let net = AffordanceUnet::new(4, 2, &device);
-        let ours = TorchUnet::from_network(&net, TorchPrecision::Full).expect("on libtorch");
-        for (images, h, w) in [(1, 16, 16), (3, 32, 24)] {
-            let x =
-                Tensor::<4>::random([images, 4, h, w], Distribution::Uniform(0.0, 3.0), &device);
+        let ours = TorchUnet::from_network(&net).expect("on libtorch");
+        for (n, h, w) in [(1, 16, 16), (3, 32, 24)] {
+            let x = Tensor::<4>::random([n, 4, h, w], Distribution::Uniform(0.0, 3.0), &device);
             let input: Vec<f32> = x.clone().into_data().try_to_vec().unwrap();
             let expected: Vec<f32> = net.forward(x).into_data().try_to_vec().unwrap();
-            let got = ours.logits(&input, images, h, w);
-            assert_eq!(got.len(), expected.len());
+            let images: Vec<&[f32]> = input.chunks(input.len() / n).collect();
+            let got = ours.logits(&images, h, w);
+            assert_eq!(got.len(), n);
             let scale = expected.iter().fold(0.0f32, |m, v| m.max(v.abs()));
             assert!(scale > 0.01, "a fresh network gives logits up to {scale}");
-            let diff = got
-                .iter()
-                .zip(&expected)
-                .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
-            // The same libtorch kernels in the same order.
-            assert!(
-                diff <= 1e-6 * scale.max(1.0),
-                "{images} × {h} × {w}: {diff}"
-            );
+            for (k, (got, expected)) in got.iter().zip(expected.chunks(2 * h * w)).enumerate() {
+                assert_eq!(got.len(), expected.len());
+                let diff = got
+                    .iter()
+                    .zip(expected)
+                    .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+                // The same libtorch kernels in the same order.
+                assert!(diff <= 1e-6 * scale, "{n} × {h} × {w}, image {k}: {diff}");
+            }
         }
     }
 
     #[test]
     fn a_network_off_libtorch_has_no_libtorch_pass() {
         let net = AffordanceUnet::new(4, 2, &Device::flex());
-        assert!(TorchUnet::from_network(&net, TorchPrecision::Full).is_none());
+        assert!(TorchUnet::from_network(&net).is_none());
     }
 }
