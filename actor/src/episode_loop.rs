@@ -307,7 +307,7 @@ impl<'a> Actor<'a> {
         episode.steps += 1;
         episode.episode_return += outcome.reward;
         let chunk = &mut episode.chunk;
-        push_obs(chunk, &episode.observation.features);
+        push_obs(chunk, &episode.observation);
         chunk
             .masks
             .extend_from_slice(&episode.observation.action_mask);

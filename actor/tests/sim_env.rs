@@ -379,6 +379,13 @@ fn methods_without_a_map_fit_their_layout_and_label_from_interaction_points() {
         let mut interactions = 0;
         for _ in 0..steps {
             assert_eq!(observation.features.len(), layout.obs_len(), "{method:?}");
+            // The bytes the rollout carries are the features' own.
+            let bytes: Vec<u8> = observation
+                .features
+                .iter()
+                .map(|&v| proto::unit_to_byte(v))
+                .collect();
+            assert_eq!(observation.bytes.as_ref(), Some(&bytes), "{method:?}");
             let space = env.inner().action_space();
             let action = random_allowed_action(space, &observation.action_mask, 0.5, &mut rng);
             let is_interaction = matches!(

@@ -56,6 +56,7 @@ impl BanditFixture {
         Observation {
             features,
             action_mask,
+            bytes: None,
         }
     }
 }

@@ -19,11 +19,6 @@ pub struct FlatSimEnv {
     layout: PolicyLayout,
 }
 
-/// Rounds a value in 0..1 to the nearest of the 256 byte levels.
-fn quantise(v: f32) -> f32 {
-    proto::byte_to_unit(proto::unit_to_byte(v))
-}
-
 impl FlatSimEnv {
     /// Wraps `env`, which must produce `task`'s layout.
     pub fn new(env: SimEnv, task: &TaskSpec) -> anyhow::Result<Self> {
@@ -50,9 +45,11 @@ impl FlatSimEnv {
         &self.env
     }
 
+    /// The state flattened and rounded to the nearest of the 256 byte
+    /// levels, with those bytes.
     fn observation(&self, o: SimObservation) -> Observation {
         let s = o.state;
-        let mut features = Vec::with_capacity(self.layout.obs_len());
+        let mut bytes = Vec::with_capacity(self.layout.obs_len());
         for part in [
             &s.camera,
             &s.global_map,
@@ -60,11 +57,12 @@ impl FlatSimEnv {
             &s.history,
             &s.inventory,
         ] {
-            features.extend(part.iter().map(|&v| quantise(v)));
+            bytes.extend(part.iter().map(|&v| proto::unit_to_byte(v)));
         }
         Observation {
-            features,
+            features: bytes.iter().map(|&b| proto::byte_to_unit(b)).collect(),
             action_mask: o.mask,
+            bytes: Some(bytes),
         }
     }
 }

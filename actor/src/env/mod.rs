@@ -31,6 +31,12 @@ pub struct Observation {
     pub features: Vec<f32>,
     /// One byte per action, 1 = allowed; at least one is allowed.
     pub action_mask: Vec<u8>,
+    /// The features as bytes (`proto::unit_to_byte`), when the environment
+    /// made them while rounding its features to byte levels: the loop's
+    /// thread, which every environment waits for between its steps, then
+    /// copies them into a byte layout's rollout instead of converting 426 k
+    /// values a step at 128 px. `None`: the loop converts.
+    pub bytes: Option<Vec<u8>>,
 }
 
 /// What an action did, known before the next observation.

@@ -4,6 +4,8 @@
 use nets::policy::PolicyLayout;
 use proto::{FrameBatch, ObsDtype, RolloutChunk};
 
+use crate::env::Observation;
+
 /// An empty chunk in `layout`, starting from recurrent state `start_hidden`.
 pub(super) fn new_chunk(
     episode_id: u64,
@@ -29,15 +31,17 @@ pub(super) fn new_chunk(
     }
 }
 
-/// Appends an observation in the chunk's element type.
-pub(super) fn push_obs(chunk: &mut RolloutChunk, features: &[f32]) {
-    match chunk.obs_dtype {
-        ObsDtype::U8 => chunk
+/// Appends an observation in the chunk's element type (for bytes, those
+/// the environment made, if it did).
+pub(super) fn push_obs(chunk: &mut RolloutChunk, observation: &Observation) {
+    match (chunk.obs_dtype, &observation.bytes) {
+        (ObsDtype::U8, Some(bytes)) => chunk.obs.extend_from_slice(bytes),
+        (ObsDtype::U8, None) => chunk
             .obs
-            .extend(features.iter().map(|&v| proto::unit_to_byte(v))),
-        ObsDtype::F32 => chunk
+            .extend(observation.features.iter().map(|&v| proto::unit_to_byte(v))),
+        (ObsDtype::F32, _) => chunk
             .obs
-            .extend(features.iter().flat_map(|v| v.to_le_bytes())),
+            .extend(observation.features.iter().flat_map(|v| v.to_le_bytes())),
     }
 }
 
@@ -68,6 +72,40 @@ pub(super) fn split_frames(batch: FrameBatch, max_bytes: usize) -> Vec<FrameBatc
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_byte_chunk_takes_the_environments_bytes_else_converts_the_features() {
+        let layout = PolicyLayout {
+            image_channels: vec![],
+            image_size: 8,
+            vector_dims: vec![3],
+            n_actions: 2,
+            obs_dtype: ObsDtype::U8,
+            gru_hidden: None,
+        };
+        let features = vec![0.0, 0.5, 1.0];
+        let mut chunk = new_chunk(1, 0, &layout, Vec::new());
+        let converted = Observation {
+            features: features.clone(),
+            action_mask: vec![1, 1],
+            bytes: None,
+        };
+        push_obs(&mut chunk, &converted);
+        assert_eq!(chunk.obs, [0, 128, 255]);
+        // Bytes from the environment go in as they are (these differ from
+        // the features, so a chunk that converted would tell).
+        let made = Observation {
+            bytes: Some(vec![7, 8, 9]),
+            ..converted
+        };
+        push_obs(&mut chunk, &made);
+        assert_eq!(chunk.obs, [0, 128, 255, 7, 8, 9]);
+        // A float layout carries the features whatever the bytes.
+        chunk.obs_dtype = ObsDtype::F32;
+        chunk.obs.clear();
+        push_obs(&mut chunk, &made);
+        assert_eq!(chunk.obs, proto::obs_bytes_from_f32(&features));
+    }
 
     #[test]
     fn frames_split_into_messages_that_fit_and_lose_nothing() {

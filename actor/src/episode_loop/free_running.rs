@@ -7,6 +7,7 @@
 //! still its id's.
 
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
 
 use super::{Acted, Actor, RunningEpisode};
 use crate::env::threads::{Done, EnvThreads, PolicyPass, Task};
@@ -47,11 +48,22 @@ pub(super) fn run(
     stop: &AtomicBool,
 ) -> anyhow::Result<()> {
     let model = actor.model;
-    std::thread::scope(|scope| {
+    let started = Instant::now();
+    let waited = std::thread::scope(|scope| {
         let threads = EnvThreads::start(scope, envs, model, actor.inference);
         drive(actor, &threads, stop)
         // Dropping `threads` ends them; the scope waits for them.
-    })
+    })?;
+    // Every environment waits for this thread between its steps, so a
+    // loop busy nearly all the time is what holds a process back.
+    let all = started.elapsed();
+    eprintln!(
+        "actor {}: the loop's thread was busy {:.0} % of {:.0} s (waiting for its environments the rest)",
+        actor.settings.actor_id,
+        100.0 * (1.0 - waited.as_secs_f64() / all.as_secs_f64().max(1e-9)),
+        all.as_secs_f64()
+    );
+    Ok(())
 }
 
 /// What comes after an environment's finished task.
@@ -66,8 +78,14 @@ enum Next {
 /// Hands out tasks and books what comes back: every task finished by the
 /// time the last one is booked, then the actions of those that need one,
 /// from the policy's passes the environments' threads made (this thread
-/// runs only those whose policy new weights replaced meanwhile).
-fn drive(actor: &mut Actor<'_>, threads: &EnvThreads, stop: &AtomicBool) -> anyhow::Result<()> {
+/// runs only those whose policy new weights replaced meanwhile). Returns
+/// how long it waited for its environments.
+fn drive(
+    actor: &mut Actor<'_>,
+    threads: &EnvThreads,
+    stop: &AtomicBool,
+) -> anyhow::Result<Duration> {
+    let mut waited = Duration::ZERO;
     let share_policy = |actor: &Actor<'_>| match &actor.policy.cpu {
         Some(cpu) => threads.set_policy(actor.policy.policy_version, cpu),
         None => Ok(()),
@@ -90,7 +108,9 @@ fn drive(actor: &mut Actor<'_>, threads: &EnvThreads, stop: &AtomicBool) -> anyh
         phases.push(start(actor, index)?);
     }
     while phases.iter().any(|p| !matches!(p, Phase::Idle)) {
+        let waiting = Instant::now();
         let mut finished = vec![threads.next()?];
+        waited += waiting.elapsed();
         finished.extend(threads.finished()?);
         let version = actor.policy.policy_version;
         if let Some(steps) = actor.refresh_weights()? {
@@ -146,5 +166,5 @@ fn drive(actor: &mut Actor<'_>, threads: &EnvThreads, stop: &AtomicBool) -> anyh
             phases[index] = Phase::Stepping(episode, acted);
         }
     }
-    Ok(())
+    Ok(waited)
 }

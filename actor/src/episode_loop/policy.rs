@@ -304,6 +304,7 @@ mod tests {
                     .map(|i| ((i * 7 + k * 13) % 17) as f32 / 17.0)
                     .collect(),
                 action_mask: (0..4).map(|a| u8::from(a != k)).collect(),
+                bytes: None,
             })
             .collect();
         // An episode's start (zeros) beside two running recurrent states.
@@ -393,6 +394,7 @@ mod tests {
                         .map(|i| ((i * 11 + k * 5) % 19) as f32 / 19.0)
                         .collect(),
                     action_mask: (0..6).map(|a| u8::from(a != 2 * k + 1)).collect(),
+                    bytes: None,
                 })
                 .collect();
             // An episode's start beside a running recurrent state.
@@ -438,6 +440,7 @@ mod tests {
                 .map(|i| (i % 7) as f32 / 7.0)
                 .collect(),
             action_mask: vec![1, 0, 1, 1],
+            bytes: None,
         };
         let state: Vec<f32> = (0..8).map(|i| i as f32 / 10.0).collect();
         let cpu = policy.cpu.as_ref().unwrap();
