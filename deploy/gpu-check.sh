@@ -8,18 +8,20 @@ usage() {
   cat <<'USAGE'
 Usage: deploy/gpu-check.sh --bin-dir DIR [options]
 
-Runs, one after the other, each under a time limit (about 8 minutes in all):
+Runs, one after the other, each under a time limit (about 9 minutes in all):
   1. the CPU/GPU agreement test (DIR/gpu_matches_cpu, TF32 off);
   2. the training benchmark beside PyTorch on the same GPU (DIR/learning with
      AFX_BENCH_ONLY=gpu-check: PPO update of 1024 steps at 64 and 128 px, U-Net
-     training step; needs python3 with torch for the PyTorch column);
+     training step; needs python3 with torch for the PyTorch column), then one
+     U-Net inference call per batch size beside PyTorch's (DIR/unet_inference,
+     when DIR has it, and learner/training/benches/torch_unet_inference.py);
   3. the learner's capacity with synthetic actors (`learner bench-capacity`)
      at 64 px (100-step episodes; PPO batches of 128 and 1024 steps) and
      128 px (600-step episodes, 1024-step batches);
   4. one actor process's environments at 128 px with the GPU renderer
      (DIR/env_steps, its several-environments table for 1, 16 and 32
      environments), when DIR has env_steps;
-  5. deploy/throughput.sh: the whole system, `ours`, 1x16 and 2x8 at 64 px with
+  5. deploy/throughput.sh: the whole system, `ours`, 1x32 and 2x16 at 64 px with
      the CPU renderer and 1x32 at 128 px with the GPU renderer, PPO on
      1024-step batches (what the README advises on a GPU);
   6. the gateway pair against loopback TCP (`gateway bench`, issue 41's
@@ -33,9 +35,11 @@ build time, see docs/decisions/0010-libtorch-on-a-gpu.md):
   cargo build --release -p training --bench learning --features FEATURE
   cargo build --release -p nets --test gpu_matches_cpu --features FEATURE
   cargo build --release -p actor --bench env_steps --features FEATURE
+  cargo build --release -p nets --bench unet_inference --features FEATURE
   cargo build --release -p gateway
 (copy target/release/{learner,actor,gateway} and the deps/learning-*, deps/gpu_matches_cpu-*,
-deps/env_steps-* executables into DIR as learning, gpu_matches_cpu, env_steps). Binaries linked to
+deps/env_steps-*, deps/unet_inference-* executables into DIR as learning, gpu_matches_cpu,
+env_steps, unet_inference). Binaries linked to
 libtorch find it through LD_LIBRARY_PATH, which this script points at the
 libtorch of python3's torch when the loader cannot find it otherwise.
 
@@ -120,6 +124,13 @@ if ! skipped training; then
     AFX_TORCH_REFERENCE="$REPO/learner/training/benches/torch_reference.py" \
     limited 150 "$LOGS/training.log" "$BIN/learning"
   add '```' "$(grep -vE '^\s*$' "$LOGS/training.log" | grep -E 'burn|pytorch|median|ours /|skipped|stopped|error|panic' | tail -n 20)" '```'
+  if [[ -x "$BIN/unet_inference" ]]; then
+    add "" "One U-Net inference call at 128 px (an actor's batching thread's), ours then PyTorch's:" ""
+    AFX_DEVICE=gpu limited 60 "$LOGS/unet-inference.log" "$BIN/unet_inference"
+    add "$(grep -E '^\|' "$LOGS/unet-inference.log" || echo "FAILED: $(tail -n 3 "$LOGS/unet-inference.log" | tr '\n' ' ')")" ""
+    limited 90 "$LOGS/torch-unet-inference.log" python3 "$REPO/learner/training/benches/torch_unet_inference.py" --device cuda --quick
+    add "$(grep -E '^\|' "$LOGS/torch-unet-inference.log" || echo "PyTorch's: not run: $(tail -n 1 "$LOGS/torch-unet-inference.log")")"
+  fi
 fi
 
 if ! skipped capacity; then
@@ -154,7 +165,7 @@ fi
 
 if ! skipped throughput; then
   section "Whole system, ours (deploy/throughput.sh)"
-  for setting in "1x16,2x8 64 100 cpu" "1x32 128 600 gpu"; do
+  for setting in "1x32,2x16 64 100 cpu" "1x32 128 600 gpu"; do
     read -r pairs side steps renderer <<<"$setting"
     log="$LOGS/throughput-${side}px.log"
     n=$(tr ',' '\n' <<<"$pairs" | wc -l)

@@ -7,7 +7,8 @@ does), at 128 px for batches of 1, 2, 4, 8 and 16, in full precision and in
 half precision with channels-last tensors, each with cuDNN's benchmark mode off
 and on. Medians of 30 calls after 5 unmeasured ones. Prints a Markdown table.
 
-Usage: python3 learner/training/benches/torch_unet_inference.py [--device cuda] [--side 128]
+Usage: python3 learner/training/benches/torch_unet_inference.py [--device cuda] [--side 128] [--quick]
+(--quick: full precision with benchmark mode off only, what the actors run.)
 """
 
 import argparse
@@ -30,14 +31,16 @@ def main():
     parser.add_argument("--device", default="cuda")
     parser.add_argument("--side", type=int, default=128)
     parser.add_argument("--batches", default="1,2,4,8,16")
+    parser.add_argument("--quick", action="store_true",
+                        help="full precision, cuDNN benchmark mode off only")
     args = parser.parse_args()
     dev = torch.device(args.device)
     batches = [int(b) for b in args.batches.split(",")]
     print(f"PyTorch {torch.__version__} U-Net inference, {args.side} px, {dev}")
     print("| precision | cuDNN benchmark | images | call, median | per image |")
     print("|---|---|---|---|---|")
-    for half in (False, True):
-        for benchmark in (False, True):
+    for half in (False,) if args.quick else (False, True):
+        for benchmark in (False,) if args.quick else (False, True):
             torch.backends.cudnn.benchmark = benchmark
             net = AffordanceUnet(4, 2).to(dev).eval()
             if half:
