@@ -104,6 +104,28 @@ impl AffordanceUnet {
         }
     }
 
+    /// Calls `visit` with each layer's weight and bias, in the order the
+    /// forward pass uses them: the encoder's convolutions shallow to deep
+    /// (two per level), then per decoder level, deep to shallow, the
+    /// transposed convolution and its two convolutions, then the head.
+    #[cfg(feature = "gpu-torch")]
+    pub(crate) fn each_layer(&self, mut visit: impl FnMut(Tensor<4>, Option<Tensor<1>>)) {
+        let params = |layer: &Conv2d| (layer.weight.val(), layer.bias.as_ref().map(|b| b.val()));
+        let mut convs: Vec<(Tensor<4>, Option<Tensor<1>>)> = Vec::new();
+        for level in &self.down {
+            convs.extend([params(&level.first), params(&level.second)]);
+        }
+        for level in &self.up {
+            let up = &level.up;
+            convs.push((up.weight.val(), up.bias.as_ref().map(|b| b.val())));
+            convs.extend([params(&level.conv.first), params(&level.conv.second)]);
+        }
+        convs.push(params(&self.head));
+        for (weight, bias) in convs {
+            visit(weight, bias);
+        }
+    }
+
     /// `[batch, channels, h, w]` → logits `[batch, affordances, h, w]`
     /// (apply a sigmoid, after the learner's temperature scaling, for probabilities).
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {

@@ -17,33 +17,22 @@
 // (docs/decisions/0010-libtorch-on-a-gpu.md).
 #![allow(deprecated)]
 
+use std::borrow::Borrow;
+
 use burn::backend::libtorch::TchTensor;
 use burn::backend::LibTorch;
-use burn::nn::conv::{Conv2d, ConvTranspose2d};
 use burn::prelude::*;
 use tch::Kind;
 
-use crate::unet::{AffordanceUnet, DoubleConv};
-
-/// A convolution's weight and bias as libtorch tensors, in burn's wrapper,
-/// which lets threads share them (actors' environments share one U-Net; a
-/// pass only reads its weights).
-#[derive(Debug)]
-struct Layer {
-    weight: TchTensor,
-    bias: Option<TchTensor>,
-}
+use crate::unet::AffordanceUnet;
 
 /// The U-Net's layers on libtorch.
 #[derive(Debug)]
 pub struct TorchUnet {
-    /// Encoder levels, shallow to deep: two 3 × 3 convolutions each.
-    down: Vec<[Layer; 2]>,
-    /// Decoder levels, deep to shallow: the transposed convolution up, then
-    /// two 3 × 3 convolutions.
-    up: Vec<(Layer, [Layer; 2])>,
-    /// The 1 × 1 output convolution.
-    head: Layer,
+    /// Each layer's weight and bias in [`forward`]'s order, in burn's
+    /// wrapper, which lets threads share them (actors' environments share
+    /// one U-Net; a pass only reads its weights).
+    layers: Vec<TchTensor>,
     device: tch::Device,
 }
 
@@ -51,25 +40,16 @@ impl TorchUnet {
     /// `net`'s weights copied into libtorch tensors on the device they live
     /// on; `None` when `net` is not on libtorch.
     pub fn from_network(net: &AffordanceUnet) -> Option<Self> {
-        let head = Layer::from_conv(&net.head)?;
-        let device = head.weight().device();
-        let down = net.down.iter().map(Layer::double).collect::<Option<_>>()?;
-        let up = net
-            .up
-            .iter()
-            .map(|level| {
-                Some((
-                    Layer::from_transposed(&level.up)?,
-                    Layer::double(&level.conv)?,
-                ))
-            })
-            .collect::<Option<_>>()?;
-        Some(Self {
-            down,
-            up,
-            head,
-            device,
-        })
+        let mut layers = Vec::with_capacity(LAYER_TENSORS);
+        let mut on_libtorch = true;
+        net.each_layer(|weight, bias| {
+            match (torch_copy(weight), bias.and_then(torch_copy)) {
+                (Some(weight), Some(bias)) => layers.extend([weight, bias]),
+                _ => on_libtorch = false,
+            };
+        });
+        let device = layers.first()?.tensor.device();
+        (on_libtorch && layers.len() == LAYER_TENSORS).then_some(Self { layers, device })
     }
 
     /// Logits `[outputs, height, width]` per image; every image is
@@ -113,7 +93,8 @@ impl TorchUnet {
                 };
                 x.get(k as i64).copy_(&host);
             }
-            let logits = self.forward(&x).contiguous();
+            let layers: Vec<&tch::Tensor> = self.layers.iter().map(|t| &t.tensor).collect();
+            let logits = forward(&layers, &x).contiguous();
             let per_image = logits.numel() / images.len();
             (0..images.len())
                 .map(|k| {
@@ -136,74 +117,51 @@ impl TorchUnet {
                 .collect()
         })
     }
-
-    /// `[n, channels, h, w]` → logits `[n, outputs, h, w]` on the device.
-    fn forward(&self, x: &tch::Tensor) -> tch::Tensor {
-        let mut skips = Vec::with_capacity(self.down.len());
-        let mut x = double_conv(&self.down[0], x);
-        for level in &self.down[1..] {
-            let pooled = x.max_pool2d([2, 2], [2, 2], [0, 0], [1, 1], false);
-            skips.push(x);
-            x = double_conv(level, &pooled);
-        }
-        for (up, convs) in &self.up {
-            let skip = skips.pop().expect("one skip per decoder level");
-            let upsampled =
-                x.conv_transpose2d(up.weight(), up.bias(), [2, 2], [0, 0], [0, 0], 1, [1, 1]);
-            x = double_conv(convs, &tch::Tensor::cat(&[upsampled, skip], 1));
-        }
-        x.conv2d(
-            self.head.weight(),
-            self.head.bias(),
-            [1, 1],
-            [0, 0],
-            [1, 1],
-            1,
-        )
-    }
 }
 
-/// Two 3 × 3 same-padded convolutions, each with its ReLU.
-fn double_conv(layers: &[Layer; 2], x: &tch::Tensor) -> tch::Tensor {
-    let conv = |layer: &Layer, x: &tch::Tensor| {
-        x.conv2d(layer.weight(), layer.bias(), [1, 1], [1, 1], [1, 1], 1)
+/// How many tensors [`forward`] takes for the U-Net's layers: a weight and
+/// a bias for each of its 8 encoder and 6 decoder 3 × 3 convolutions, 3
+/// transposed convolutions and the 1 × 1 head.
+pub(crate) const LAYER_TENSORS: usize = 2 * (8 + 6 + 3 + 1);
+
+/// The U-Net's forward pass on libtorch, `[n, channels, h, w]` → logits
+/// `[n, outputs, h, w]`, from its layers' weights and biases in
+/// `AffordanceUnet::each_layer`'s order, each weight followed by its bias.
+///
+/// # Panics
+/// If `layers` is not [`LAYER_TENSORS`] long.
+pub(crate) fn forward<T: Borrow<tch::Tensor>>(layers: &[T], x: &tch::Tensor) -> tch::Tensor {
+    assert_eq!(layers.len(), LAYER_TENSORS, "the U-Net's layer tensors");
+    let mut next = 0;
+    let mut layer = || {
+        next += 2;
+        (layers[next - 2].borrow(), layers[next - 1].borrow())
+    };
+    let conv_relu = |x: &tch::Tensor, (weight, bias): (&tch::Tensor, &tch::Tensor)| {
+        x.conv2d(weight, Some(bias), [1, 1], [1, 1], [1, 1], 1)
             .relu()
     };
-    conv(&layers[1], &conv(&layers[0], x))
-}
-
-impl Layer {
-    fn weight(&self) -> &tch::Tensor {
-        &self.weight.tensor
+    let mut skips = Vec::with_capacity(3);
+    let mut x = x.shallow_clone();
+    for level in 0..4 {
+        if level > 0 {
+            let pooled = x.max_pool2d([2, 2], [2, 2], [0, 0], [1, 1], false);
+            skips.push(std::mem::replace(&mut x, pooled));
+        }
+        for _ in 0..2 {
+            x = conv_relu(&x, layer());
+        }
     }
-
-    fn bias(&self) -> Option<&tch::Tensor> {
-        self.bias.as_ref().map(|b| &b.tensor)
+    while let Some(skip) = skips.pop() {
+        let (weight, bias) = layer();
+        let upsampled = x.conv_transpose2d(weight, Some(bias), [2, 2], [0, 0], [0, 0], 1, [1, 1]);
+        x = tch::Tensor::cat(&[upsampled, skip], 1);
+        for _ in 0..2 {
+            x = conv_relu(&x, layer());
+        }
     }
-
-    fn double(level: &DoubleConv) -> Option<[Self; 2]> {
-        Some([
-            Self::from_conv(&level.first)?,
-            Self::from_conv(&level.second)?,
-        ])
-    }
-
-    fn from_conv(layer: &Conv2d) -> Option<Self> {
-        Self::from_params(layer.weight.val(), layer.bias.as_ref().map(|b| b.val()))
-    }
-
-    fn from_transposed(layer: &ConvTranspose2d) -> Option<Self> {
-        Self::from_params(layer.weight.val(), layer.bias.as_ref().map(|b| b.val()))
-    }
-
-    fn from_params(weight: Tensor<4>, bias: Option<Tensor<1>>) -> Option<Self> {
-        let weight = torch_copy(weight)?;
-        let bias = match bias {
-            Some(bias) => Some(torch_copy(bias)?),
-            None => None,
-        };
-        Some(Self { weight, bias })
-    }
+    let (weight, bias) = layer();
+    x.conv2d(weight, Some(bias), [1, 1], [0, 0], [1, 1], 1)
 }
 
 /// A libtorch copy of `tensor`, detached from burn's; `None` when `tensor`
