@@ -17,6 +17,8 @@
 //!   one differentiable operation on the CPU (its training step);
 //! - `unet_torch` (`gpu-torch`): the U-Net's inference pass straight on
 //!   libtorch;
+//! - `unet_train_torch` (`gpu-torch`): the same pass as one differentiable
+//!   operation whose backward step is libtorch's (the U-Net's training step);
 //! - [`unet_inference`]: which of these a device gets;
 //! - [`weights`]: either network to and from safetensors bytes;
 //! - [`device`]: `--device cpu|gpu` at run time;
@@ -30,12 +32,12 @@ mod masked_categorical;
 pub mod policy;
 pub mod unet;
 mod unet_conv_cpu;
-#[cfg(feature = "gpu-torch")]
-mod unet_conv_torch;
 pub mod unet_cpu;
 pub mod unet_inference;
 #[cfg(feature = "gpu-torch")]
 pub mod unet_torch;
+#[cfg(feature = "gpu-torch")]
+mod unet_train_torch;
 pub mod weights;
 
 pub use masked_categorical::sample;

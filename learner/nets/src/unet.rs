@@ -36,18 +36,8 @@ impl DoubleConv {
     }
 
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        conv_relu(&self.second, conv_relu(&self.first, x))
+        conv3x3_relu(&self.second, conv3x3_relu(&self.first, x))
     }
-}
-
-/// `relu(layer(x))` by the backend's best way: libtorch's own backward
-/// step there (`unet_conv_torch`), the CPU's kernels on the CPU, else burn.
-fn conv_relu(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
-    #[cfg(feature = "gpu-torch")]
-    if let Some(out) = crate::unet_conv_torch::conv3x3_relu(layer, &x) {
-        return out;
-    }
-    conv3x3_relu(layer, x)
 }
 
 /// One decoder level: upsample, concatenate the skip, two convolutions.
@@ -128,7 +118,19 @@ impl AffordanceUnet {
 
     /// `[batch, channels, h, w]` → logits `[batch, affordances, h, w]`
     /// (apply a sigmoid, after the learner's temperature scaling, for probabilities).
+    /// Training on libtorch, the whole pass is one operation with
+    /// libtorch's own backward step (`unet_train_torch`).
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        #[cfg(feature = "gpu-torch")]
+        if let Some(out) = crate::unet_train_torch::forward(self, &x) {
+            return out;
+        }
+        self.forward_layer_by_layer(x)
+    }
+
+    /// [`AffordanceUnet::forward`] one layer after another, each the
+    /// backend's operations.
+    pub(crate) fn forward_layer_by_layer(&self, x: Tensor<4>) -> Tensor<4> {
         let mut skips = Vec::with_capacity(3);
         let mut x = self.down[0].forward(x);
         for level in &self.down[1..] {
