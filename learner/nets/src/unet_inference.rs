@@ -3,7 +3,7 @@
 //!
 //! On the CPU that is [`CpuUnet`] (less than half the time of burn's CPU backend, same
 //! results); on libtorch (`gpu-torch`) it is libtorch's own calls
-//! ([`crate::unet_torch`]) unless `AFX_UNET_INFERENCE=burn`; elsewhere it is
+//! (`nets::unet_torch`) unless `AFX_UNET_INFERENCE=burn`; elsewhere it is
 //! burn. Off the CPU several images go in one pass (batches are what keep a
 //! GPU busy).
 
