@@ -94,26 +94,24 @@ impl AffordanceUnet {
         }
     }
 
-    /// Calls `visit` with each layer's weight and bias, in the order the
-    /// forward pass uses them: the encoder's convolutions shallow to deep
-    /// (two per level), then per decoder level, deep to shallow, the
-    /// transposed convolution and its two convolutions, then the head.
+    /// Each layer's weight and bias, in the order the forward pass uses
+    /// them: the encoder's convolutions shallow to deep (two per level),
+    /// then per decoder level, deep to shallow, the transposed convolution
+    /// and its two convolutions, then the head.
     #[cfg(feature = "gpu-torch")]
-    pub(crate) fn each_layer(&self, mut visit: impl FnMut(Tensor<4>, Option<Tensor<1>>)) {
+    pub(crate) fn layers(&self) -> Vec<(Tensor<4>, Option<Tensor<1>>)> {
         let params = |layer: &Conv2d| (layer.weight.val(), layer.bias.as_ref().map(|b| b.val()));
-        let mut convs: Vec<(Tensor<4>, Option<Tensor<1>>)> = Vec::new();
+        let mut layers = Vec::new();
         for level in &self.down {
-            convs.extend([params(&level.first), params(&level.second)]);
+            layers.extend([params(&level.first), params(&level.second)]);
         }
         for level in &self.up {
             let up = &level.up;
-            convs.push((up.weight.val(), up.bias.as_ref().map(|b| b.val())));
-            convs.extend([params(&level.conv.first), params(&level.conv.second)]);
+            layers.push((up.weight.val(), up.bias.as_ref().map(|b| b.val())));
+            layers.extend([params(&level.conv.first), params(&level.conv.second)]);
         }
-        convs.push(params(&self.head));
-        for (weight, bias) in convs {
-            visit(weight, bias);
-        }
+        layers.push(params(&self.head));
+        layers
     }
 
     /// `[batch, channels, h, w]` → logits `[batch, affordances, h, w]`
@@ -122,7 +120,7 @@ impl AffordanceUnet {
     /// libtorch's own backward step (`unet_train_torch`).
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         #[cfg(feature = "gpu-torch")]
-        if let Some(out) = crate::unet_train_torch::forward(self, &x) {
+        if let Some(out) = crate::unet_train_torch::forward(self.layers(), &x) {
             return out;
         }
         self.forward_layer_by_layer(x)

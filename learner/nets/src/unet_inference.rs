@@ -94,5 +94,5 @@ fn torch_path(net: &AffordanceUnet) -> Option<TorchUnet> {
     if std::env::var("AFX_UNET_INFERENCE").is_ok_and(|v| v == "burn") {
         return None;
     }
-    TorchUnet::from_network(net)
+    TorchUnet::from_layers(net.layers())
 }

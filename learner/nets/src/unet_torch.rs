@@ -24,8 +24,6 @@ use burn::backend::LibTorch;
 use burn::prelude::*;
 use tch::Kind;
 
-use crate::unet::AffordanceUnet;
-
 /// The U-Net's layers on libtorch.
 #[derive(Debug)]
 pub struct TorchUnet {
@@ -37,19 +35,19 @@ pub struct TorchUnet {
 }
 
 impl TorchUnet {
-    /// `net`'s weights copied into libtorch tensors on the device they live
-    /// on; `None` when `net` is not on libtorch.
-    pub fn from_network(net: &AffordanceUnet) -> Option<Self> {
-        let mut layers = Vec::with_capacity(LAYER_TENSORS);
-        let mut on_libtorch = true;
-        net.each_layer(|weight, bias| {
-            match (torch_copy(weight), bias.and_then(torch_copy)) {
-                (Some(weight), Some(bias)) => layers.extend([weight, bias]),
-                _ => on_libtorch = false,
-            };
-        });
-        let device = layers.first()?.tensor.device();
-        (on_libtorch && layers.len() == LAYER_TENSORS).then_some(Self { layers, device })
+    /// The U-Net whose layers' weights and biases are `layers` (in
+    /// `AffordanceUnet::layers`' order), copied into libtorch tensors on the
+    /// device they live on; `None` when they are not on libtorch.
+    pub fn from_layers(layers: Vec<(Tensor<4>, Option<Tensor<1>>)>) -> Option<Self> {
+        let mut copies = Vec::with_capacity(LAYER_TENSORS);
+        for (weight, bias) in layers {
+            copies.extend([torch_copy(weight)?, torch_copy(bias?)?]);
+        }
+        let device = copies.first()?.tensor.device();
+        (copies.len() == LAYER_TENSORS).then_some(Self {
+            layers: copies,
+            device,
+        })
     }
 
     /// Logits `[outputs, height, width]` per image; every image is
@@ -126,7 +124,7 @@ pub(crate) const LAYER_TENSORS: usize = 2 * (8 + 6 + 3 + 1);
 
 /// The U-Net's forward pass on libtorch, `[n, channels, h, w]` → logits
 /// `[n, outputs, h, w]`, from its layers' weights and biases in
-/// `AffordanceUnet::each_layer`'s order, each weight followed by its bias.
+/// `AffordanceUnet::layers`' order, each weight followed by its bias.
 ///
 /// # Panics
 /// If `layers` is not [`LAYER_TENSORS`] long.
@@ -174,6 +172,7 @@ fn torch_copy<const D: usize>(tensor: Tensor<D>) -> Option<TchTensor> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::unet::AffordanceUnet;
     use burn::tensor::Distribution;
 
     /// The libtorch pass against burn's on libtorch's CPU device: each
@@ -183,7 +182,7 @@ mod tests {
     fn each_image_gets_burns_logits() {
         let device = Device::libtorch();
         let net = AffordanceUnet::new(4, 2, &device);
-        let ours = TorchUnet::from_network(&net).expect("on libtorch");
+        let ours = TorchUnet::from_layers(net.layers()).expect("on libtorch");
         for (n, h, w) in [(1, 16, 16), (3, 32, 24)] {
             let x = Tensor::<4>::random([n, 4, h, w], Distribution::Uniform(0.0, 3.0), &device);
             let input: Vec<f32> = x.clone().into_data().try_to_vec().unwrap();
@@ -208,6 +207,6 @@ mod tests {
     #[test]
     fn a_network_off_libtorch_has_no_libtorch_pass() {
         let net = AffordanceUnet::new(4, 2, &Device::flex());
-        assert!(TorchUnet::from_network(&net).is_none());
+        assert!(TorchUnet::from_layers(net.layers()).is_none());
     }
 }

@@ -29,7 +29,6 @@ use burn_autodiff::checkpoint::strategy::NoCheckpointing;
 use burn_autodiff::grads::Gradients;
 use burn_autodiff::ops::{Backward, Ops, OpsKind};
 
-use crate::unet::AffordanceUnet;
 use crate::unet_torch::{forward as unet_forward, LAYER_TENSORS};
 
 /// The autodiff backend a training step's tensors live on with libtorch.
@@ -52,24 +51,20 @@ fn chosen() -> bool {
     })
 }
 
-/// `net`'s logits for `x` as one operation, when `x` and the network are
+/// The U-Net's logits for `x` as one operation, from its `layers`' weights
+/// and biases (`AffordanceUnet::layers`), when `x` and the layers are
 /// tracked on libtorch; `None` otherwise.
-pub(crate) fn forward(net: &AffordanceUnet, x: &Tensor<4>) -> Option<Tensor<4>> {
+pub(crate) fn forward(
+    layers: Vec<(Tensor<4>, Option<Tensor<1>>)>,
+    x: &Tensor<4>,
+) -> Option<Tensor<4>> {
     if !chosen() {
         return None;
     }
     let mut inputs = vec![x.clone().try_into_primitive::<Tracked>().ok()?];
-    let mut tracked = true;
-    net.each_layer(|weight, bias| {
-        let weight = weight.try_into_primitive::<Tracked>().ok();
-        let bias = bias.and_then(|b| b.try_into_primitive::<Tracked>().ok());
-        match (weight, bias) {
-            (Some(weight), Some(bias)) => inputs.extend([weight, bias]),
-            _ => tracked = false,
-        }
-    });
-    if !tracked {
-        return None;
+    for (weight, bias) in layers {
+        inputs.push(weight.try_into_primitive::<Tracked>().ok()?);
+        inputs.push(bias?.try_into_primitive::<Tracked>().ok()?);
     }
     let nodes: [_; INPUTS] = inputs
         .iter()
@@ -143,6 +138,7 @@ impl Backward<LibTorch, INPUTS> for WholeUnet {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::unet::AffordanceUnet;
     use burn::tensor::Distribution;
 
     /// The largest difference between two tensors, and the larger's scale.
@@ -168,7 +164,7 @@ mod tests {
         let input = Tensor::<4>::random([2, 4, 16, 24], Distribution::Uniform(0.0, 1.0), &device);
         let weights = Tensor::<4>::random([2, 2, 16, 24], Distribution::Normal(0.0, 1.0), &device);
         let x_ours = input.clone().detach().require_grad();
-        let ours = forward(&net, &x_ours).expect("tracked on libtorch");
+        let ours = forward(net.layers(), &x_ours).expect("tracked on libtorch");
         let x_burn = input.detach().require_grad();
         let burns = net.forward_layer_by_layer(x_burn.clone());
         let (diff, scale) = difference(ours.clone(), burns.clone());
@@ -187,7 +183,7 @@ mod tests {
             "images: {diff} of {scale}"
         );
         let mut compared = 0;
-        net.each_layer(|weight, bias| {
+        for (weight, bias) in net.layers() {
             let (diff, scale) = difference(
                 weight.grad(&ours_grads).expect("a weight's gradient"),
                 weight.grad(&burn_grads).expect("burn's"),
@@ -206,7 +202,7 @@ mod tests {
                 "bias {compared}: {diff} of {scale}"
             );
             compared += 1;
-        });
+        }
         assert_eq!(compared, LAYER_TENSORS / 2);
     }
 
@@ -214,6 +210,6 @@ mod tests {
     fn without_autodiff_it_leaves_the_pass_to_the_layers() {
         let net = AffordanceUnet::new(4, 2, &Device::libtorch());
         let x = Tensor::<4>::zeros([1, 4, 8, 8], &Device::libtorch());
-        assert!(forward(&net, &x).is_none());
+        assert!(forward(net.layers(), &x).is_none());
     }
 }
