@@ -177,6 +177,12 @@ if ! skipped throughput; then
     add "${side} px, ${steps}-step episodes, ${renderer} renderer, 1024-step PPO batches:" ""
     if grep -q '^| actors' "$log"; then
       add "$(grep -A20 '^| actors' "$log")" ""
+      # Whether each actor's loop thread (which all its environments wait
+      # for) was the wall: its last line says how busy it was.
+      for run in "$LOGS/runs-${side}px"/*/; do
+        busy=$(grep -h "loop's thread was busy" "$run"logs/actor-*.log 2>/dev/null)
+        [[ -z "$busy" ]] || add "$(basename "$run"), the actors' loops:" "" "$busy" ""
+      done
     else
       add "FAILED: $(tail -n 5 "$log" | tr '\n' ' ')" ""
     fi
