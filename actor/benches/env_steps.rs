@@ -35,7 +35,9 @@
 //! (image side) and `AFX_ENVS_RENDERER` (`cpu` or `gpu`) say otherwise: the
 //! paper's 128 px on a GPU machine is `AFX_ENVS_PX=128 AFX_ENVS_RENDERER=gpu`.
 //! `AFX_ENVS_INFERENCE=batched` runs the second table as on a GPU (the
-//! U-Net's frames in batches) with the U-Net on the CPU.
+//! U-Net's frames in batches) with the U-Net on the CPU; `AFX_UNET_BATCHERS=2`
+//! gives the free-running rows two batching threads (their "busy" share is
+//! then the two threads' time added up).
 
 use std::sync::{Arc, RwLock};
 use std::time::{Duration, Instant};

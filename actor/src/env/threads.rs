@@ -109,7 +109,8 @@ impl EnvThreads {
         inference: Inference,
     ) -> Self {
         let (done_tx, done) = channel();
-        let batcher = (inference == Inference::Batched).then(|| unet_batcher::start(scope, model));
+        let batcher = (inference == Inference::Batched)
+            .then(|| unet_batcher::start(scope, model, unet_batcher::batching_threads()));
         let jobs = envs
             .into_iter()
             .enumerate()

@@ -11,11 +11,17 @@
 //! runs, the frames of the environments that finish their first halves
 //! meanwhile queue up for the next, so the busier the U-Net, the larger its
 //! batches.
+//!
+//! `AFX_UNET_BATCHERS=2` (up to 4) starts that many batching threads on one
+//! queue, each taking every frame waiting when it is free: one batch's
+//! copies and launches then overlap another's wait for the GPU. One by
+//! default; whether two pay is for the next GPU run to measure
+//! (docs/notebook/2026-11-27-actor-unet-on-libtorch.md).
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{channel, Receiver, Sender};
-use std::sync::{PoisonError, RwLock};
+use std::sync::{Arc, Mutex, PoisonError, RwLock};
 use std::thread::Scope;
 use std::time::{Duration, Instant};
 
@@ -72,15 +78,35 @@ impl UnetClient {
     }
 }
 
-/// Starts the batching thread in `scope`, running `model` (which the caller
-/// may replace between batches); returns a maker of clients. The thread
-/// ends once the maker and every client are dropped.
+/// How many batching threads an actor starts: `AFX_UNET_BATCHERS` (1 to
+/// 4), else 1.
+pub(crate) fn batching_threads() -> usize {
+    match std::env::var("AFX_UNET_BATCHERS") {
+        Err(_) => 1,
+        Ok(v) => match v.trim().parse() {
+            Ok(n @ 1..=4) => n,
+            _ => {
+                tracing::warn!("AFX_UNET_BATCHERS takes 1 to 4, not {v:?}; using 1");
+                1
+            }
+        },
+    }
+}
+
+/// Starts `threads` batching threads in `scope` on one queue, running
+/// `model` (which the caller may replace between batches); returns a maker
+/// of clients. The threads end once the maker and every client are dropped.
 pub(crate) fn start<'scope, 'env>(
     scope: &'scope Scope<'scope, 'env>,
     model: &'env RwLock<Option<AffordanceModel>>,
+    threads: usize,
 ) -> Clients {
     let (requests, queue) = channel();
-    scope.spawn(move || serve(model, queue));
+    let queue = Arc::new(Mutex::new(queue));
+    for _ in 0..threads.max(1) {
+        let queue = Arc::clone(&queue);
+        scope.spawn(move || serve(model, &queue));
+    }
     Clients { requests }
 }
 
@@ -96,11 +122,20 @@ impl Clients {
     }
 }
 
-/// Runs every waiting frame in one batch, until no client is left.
-fn serve(model: &RwLock<Option<AffordanceModel>>, queue: Receiver<Request>) {
-    while let Ok(first) = queue.recv() {
-        let mut batch = vec![first];
-        batch.extend(queue.try_iter());
+/// Runs every waiting frame in one batch, until no client is left; with
+/// other batching threads on the same queue, each takes what is waiting
+/// when it is free.
+fn serve(model: &RwLock<Option<AffordanceModel>>, queue: &Mutex<Receiver<Request>>) {
+    loop {
+        let batch = {
+            let queue = queue.lock().unwrap_or_else(PoisonError::into_inner);
+            let Ok(first) = queue.recv() else {
+                return;
+            };
+            let mut batch = vec![first];
+            batch.extend(queue.try_iter());
+            batch
+        };
         let started = Instant::now();
         // A panic in the network (a backend's) is every frame's error, not
         // a thread gone while environments wait for it.
@@ -196,6 +231,14 @@ mod tests {
 
     #[test]
     fn every_thread_gets_the_planes_of_its_own_frame_as_the_model_alone_gives_them() {
+        for batching_threads in [1, 2] {
+            planes_of_each_frame_as_alone(batching_threads);
+        }
+    }
+
+    /// Six environments' threads hand their frames to `batching_threads`
+    /// batching threads; each gets its own frame's planes.
+    fn planes_of_each_frame_as_alone(batching_threads: usize) {
         let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).unwrap();
         let model = RwLock::new(Some(AffordanceModel::new(2, &device)));
         let frames: Vec<(Vec<u8>, Vec<f32>)> = (1..=6).map(|k| frame_bytes(16, k)).collect();
@@ -209,7 +252,7 @@ mod tests {
         }
         let before = batch_times();
         let got: Vec<Vec<Vec<f32>>> = std::thread::scope(|scope| {
-            let clients = start(scope, &model);
+            let clients = start(scope, &model, batching_threads);
             let handles: Vec<_> = frames
                 .iter()
                 .map(|f| {
@@ -242,7 +285,7 @@ mod tests {
         let model = RwLock::new(None);
         let (rgb, depth) = frame_bytes(8, 1);
         let error = std::thread::scope(|scope| {
-            let client = start(scope, &model).client();
+            let client = start(scope, &model, 1).client();
             client
                 .predict(&CameraFrame {
                     rgb: &rgb,
