@@ -302,6 +302,8 @@ fn an_actor_with_several_environments_stops_after_max_episodes() {
     assert!(exit.success(), "actor exit {exit}:\n{log}");
     // The bandit's episodes are 64 steps long.
     assert!(log.contains("stopped after 5 episodes, 320 steps"), "{log}");
+    // Its environments ran free, and it says how busy its loop was.
+    assert!(log.contains("the loop's thread was busy"), "{log}");
     // What reached the learner: all of it unless the actor reports drops
     // (the learner's queue was full), which a quiet machine never sees.
     let complete = log.contains(", 0 dropped");
