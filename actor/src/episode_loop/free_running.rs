@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use super::{Acted, Actor, RunningEpisode};
 use crate::env::threads::{Done, EnvThreads, PolicyPass, Task};
-use crate::env::Environment;
+use crate::env::{Environment, Observation, StepOutcome};
 
 /// Where an environment is, as the loop sees it.
 enum Phase {
@@ -66,20 +66,35 @@ pub(super) fn run(
     Ok(())
 }
 
-/// What comes after an environment's finished task.
-enum Next {
-    /// This phase.
-    Phase(Phase),
-    /// An action for this episode, chosen with the others that need one
-    /// (from the policy's pass its thread made, if any).
-    Act(RunningEpisode, Option<PolicyPass>),
+/// An environment waiting for its next action, chosen with the others
+/// that need one (from the policy's pass its thread made, if any).
+struct Waiting {
+    index: usize,
+    episode: RunningEpisode,
+    pass: Option<PolicyPass>,
+    /// After a step: the action taken, its outcome and the observation it
+    /// led to, booked into the episode once every action has gone out.
+    unbooked: Option<(Acted, StepOutcome, Observation)>,
 }
 
-/// Hands out tasks and books what comes back: every task finished by the
-/// time the last one is booked, then the actions of those that need one,
-/// from the policy's passes the environments' threads made (this thread
-/// runs only those whose policy new weights replaced meanwhile). Returns
-/// how long it waited for its environments.
+impl Waiting {
+    /// What the policy acts on: the newest observation and the recurrent
+    /// state after the last action.
+    fn input(&self) -> (&Observation, Option<&[f32]>) {
+        match &self.unbooked {
+            Some((acted, _, observation)) => (observation, acted.hidden.as_deref()),
+            None => (&self.episode.observation, self.episode.hidden.as_deref()),
+        }
+    }
+}
+
+/// Hands out tasks and books what comes back: of every task finished by the
+/// time it looks, the episodes' ends and the resets that follow go out
+/// first, then the actions of those that need one, from the policy's
+/// passes the environments' threads made (this thread runs only those
+/// whose policy new weights replaced meanwhile); what the steps and ends
+/// leave to book (rollout chunks, labelled frames) it does after, while
+/// the environments work. Returns how long it waited for its environments.
 fn drive(
     actor: &mut Actor<'_>,
     threads: &EnvThreads,
@@ -120,50 +135,63 @@ fn drive(
             share_policy(actor)?;
         }
         let stopping = stop.load(Ordering::Relaxed);
-        let mut acting = Vec::new();
+        let mut waiting = Vec::new();
+        let mut ended = Vec::new();
         for (index, done) in finished {
             let phase = std::mem::replace(&mut phases[index], Phase::Idle);
-            let next = match (phase, done) {
-                (Phase::Resetting(id), Done::Reset(observation, pass)) => {
-                    Next::Act(actor.begin_episode(id, observation), pass)
-                }
+            match (phase, done) {
+                (Phase::Resetting(id), Done::Reset(observation, pass)) => waiting.push(Waiting {
+                    index,
+                    episode: actor.begin_episode(id, observation),
+                    pass,
+                    unbooked: None,
+                }),
                 (Phase::Stepping(mut episode, acted), Done::Step(outcome, observation, pass)) => {
-                    let closing =
-                        actor.record_step(&mut episode, acted, &outcome, observation, stopping);
-                    if let Some(ended) = closing {
-                        actor.close_chunks(vec![(&mut episode, ended)])?;
-                    }
                     if outcome.done || stopping {
+                        let closing =
+                            actor.record_step(&mut episode, acted, &outcome, observation, stopping);
+                        if let Some(ended) = closing {
+                            actor.close_chunks(vec![(&mut episode, ended)])?;
+                        }
                         threads.send(index, Task::Finish(episode.id))?;
-                        Next::Phase(Phase::Finishing(episode))
+                        phases[index] = Phase::Finishing(episode);
                     } else {
-                        Next::Act(episode, pass)
+                        waiting.push(Waiting {
+                            index,
+                            episode,
+                            pass,
+                            unbooked: Some((acted, outcome, observation)),
+                        });
                     }
                 }
                 (Phase::Finishing(episode), Done::Finish { end, scene }) => {
-                    actor.publish_end(&episode, end, scene)?;
-                    Next::Phase(start(actor, index)?)
+                    phases[index] = start(actor, index)?;
+                    ended.push((episode, end, scene));
                 }
                 _ => anyhow::bail!("environment {index} answered a task it was not given"),
-            };
-            match next {
-                Next::Phase(phase) => phases[index] = phase,
-                Next::Act(episode, pass) => acting.push((index, episode, pass)),
             }
         }
-        if acting.is_empty() {
-            continue;
+        if !waiting.is_empty() {
+            let passes = waiting.iter_mut().map(|w| w.pass.take()).collect();
+            let inputs: Vec<_> = waiting.iter().map(Waiting::input).collect();
+            let acted = actor.act_with_passes(&inputs, passes)?;
+            anyhow::ensure!(acted.len() == waiting.len(), "the policy acted for each");
+            for (w, acted) in waiting.iter().zip(&acted) {
+                threads.send(w.index, Task::Step(acted.action, acted.hidden.clone()))?;
+            }
+            for (mut w, acted) in waiting.into_iter().zip(acted) {
+                if let Some((taken, outcome, observation)) = w.unbooked {
+                    let closing =
+                        actor.record_step(&mut w.episode, taken, &outcome, observation, stopping);
+                    if let Some(ended) = closing {
+                        actor.close_chunks(vec![(&mut w.episode, ended)])?;
+                    }
+                }
+                phases[w.index] = Phase::Stepping(w.episode, acted);
+            }
         }
-        let passes = acting.iter_mut().map(|(_, _, pass)| pass.take()).collect();
-        let inputs: Vec<_> = acting
-            .iter()
-            .map(|(_, e, _)| (&e.observation, e.hidden.as_deref()))
-            .collect();
-        let acted = actor.act_with_passes(&inputs, passes)?;
-        anyhow::ensure!(acted.len() == acting.len(), "the policy acted for each");
-        for ((index, episode, _), acted) in acting.into_iter().zip(acted) {
-            threads.send(index, Task::Step(acted.action, acted.hidden.clone()))?;
-            phases[index] = Phase::Stepping(episode, acted);
+        for (episode, end, scene) in ended {
+            actor.publish_end(&episode, end, scene)?;
         }
     }
     Ok(waited)
