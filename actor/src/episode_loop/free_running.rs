@@ -123,9 +123,9 @@ fn drive(
         phases.push(start(actor, index)?);
     }
     while phases.iter().any(|p| !matches!(p, Phase::Idle)) {
-        let waiting = Instant::now();
+        let asleep = Instant::now();
         let mut finished = vec![threads.next()?];
-        waited += waiting.elapsed();
+        waited += asleep.elapsed();
         finished.extend(threads.finished()?);
         let version = actor.policy.policy_version;
         if let Some(steps) = actor.refresh_weights()? {
@@ -148,11 +148,7 @@ fn drive(
                 }),
                 (Phase::Stepping(mut episode, acted), Done::Step(outcome, observation, pass)) => {
                     if outcome.done || stopping {
-                        let closing =
-                            actor.record_step(&mut episode, acted, &outcome, observation, stopping);
-                        if let Some(ended) = closing {
-                            actor.close_chunks(vec![(&mut episode, ended)])?;
-                        }
+                        book_step(actor, &mut episode, acted, &outcome, observation, stopping)?;
                         threads.send(index, Task::Finish(episode.id))?;
                         phases[index] = Phase::Finishing(episode);
                     } else {
@@ -181,11 +177,14 @@ fn drive(
             }
             for (mut w, acted) in waiting.into_iter().zip(acted) {
                 if let Some((taken, outcome, observation)) = w.unbooked {
-                    let closing =
-                        actor.record_step(&mut w.episode, taken, &outcome, observation, stopping);
-                    if let Some(ended) = closing {
-                        actor.close_chunks(vec![(&mut w.episode, ended)])?;
-                    }
+                    book_step(
+                        actor,
+                        &mut w.episode,
+                        taken,
+                        &outcome,
+                        observation,
+                        stopping,
+                    )?;
                 }
                 phases[w.index] = Phase::Stepping(w.episode, acted);
             }
@@ -195,4 +194,20 @@ fn drive(
         }
     }
     Ok(waited)
+}
+
+/// Books a step into `episode` (`Actor::record_step`) and sends its chunk
+/// to the learner if that closed it.
+fn book_step(
+    actor: &mut Actor<'_>,
+    episode: &mut RunningEpisode,
+    acted: Acted,
+    outcome: &StepOutcome,
+    observation: Observation,
+    stopping: bool,
+) -> anyhow::Result<()> {
+    if let Some(ended) = actor.record_step(episode, acted, outcome, observation, stopping) {
+        actor.close_chunks(vec![(episode, ended)])?;
+    }
+    Ok(())
 }

@@ -48,6 +48,15 @@ mod test_support {
     use burn::nn::conv::Conv2d;
     use burn::prelude::*;
 
+    /// The largest absolute difference between two equally long runs of values.
+    pub(crate) fn largest_difference(a: &[f32], b: &[f32]) -> f32 {
+        assert_eq!(a.len(), b.len());
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max)
+    }
+
     /// Asserts that two computations of the same convolution layers (each
     /// with its ReLU) from the same input agree: their outputs `ours` and
     /// `burns`, and, from losses weighing the outputs by `weights`, the

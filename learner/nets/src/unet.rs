@@ -120,7 +120,7 @@ impl AffordanceUnet {
     /// libtorch's own backward step (`unet_train_torch`).
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         #[cfg(feature = "gpu-torch")]
-        if let Some(out) = crate::unet_train_torch::forward(self.layers(), &x) {
+        if let Some(out) = crate::unet_train_torch::forward(|| self.layers(), &x) {
             return out;
         }
         self.forward_layer_by_layer(x)

@@ -91,8 +91,12 @@ impl UnetInference {
 /// burn's (for measuring against) or `net` is not on libtorch.
 #[cfg(feature = "gpu-torch")]
 fn torch_path(net: &AffordanceUnet) -> Option<TorchUnet> {
-    if std::env::var("AFX_UNET_INFERENCE").is_ok_and(|v| v == "burn") {
-        return None;
+    match std::env::var("AFX_UNET_INFERENCE").as_deref() {
+        Ok("burn") => return None,
+        Err(_) | Ok("torch") => {}
+        Ok(other) => {
+            eprintln!("AFX_UNET_INFERENCE takes torch or burn, not {other:?}; using torch")
+        }
     }
     TorchUnet::from_layers(net.layers())
 }

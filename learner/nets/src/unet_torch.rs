@@ -172,6 +172,7 @@ fn torch_copy<const D: usize>(tensor: Tensor<D>) -> Option<TchTensor> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::largest_difference;
     use crate::unet::AffordanceUnet;
     use burn::tensor::Distribution;
 
@@ -193,11 +194,7 @@ mod tests {
             let scale = expected.iter().fold(0.0f32, |m, v| m.max(v.abs()));
             assert!(scale > 0.01, "a fresh network gives logits up to {scale}");
             for (k, (got, expected)) in got.iter().zip(expected.chunks(2 * h * w)).enumerate() {
-                assert_eq!(got.len(), expected.len());
-                let diff = got
-                    .iter()
-                    .zip(expected)
-                    .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+                let diff = largest_difference(got, expected);
                 // The same libtorch kernels in the same order.
                 assert!(diff <= 1e-6 * scale, "{n} × {h} × {w}, image {k}: {diff}");
             }

@@ -51,18 +51,19 @@ fn chosen() -> bool {
     })
 }
 
-/// The U-Net's logits for `x` as one operation, from its `layers`' weights
-/// and biases (`AffordanceUnet::layers`), when `x` and the layers are
+/// The U-Net's logits for `x` as one operation, from its layers' weights
+/// and biases (`layers` gives them, `AffordanceUnet::layers`; asked only
+/// once `x` is known to be tracked on libtorch), when `x` and the layers are
 /// tracked on libtorch; `None` otherwise.
 pub(crate) fn forward(
-    layers: Vec<(Tensor<4>, Option<Tensor<1>>)>,
+    layers: impl FnOnce() -> Vec<(Tensor<4>, Option<Tensor<1>>)>,
     x: &Tensor<4>,
 ) -> Option<Tensor<4>> {
     if !chosen() {
         return None;
     }
     let mut inputs = vec![x.clone().try_into_primitive::<Tracked>().ok()?];
-    for (weight, bias) in layers {
+    for (weight, bias) in layers() {
         inputs.push(weight.try_into_primitive::<Tracked>().ok()?);
         inputs.push(bias?.try_into_primitive::<Tracked>().ok()?);
     }
@@ -138,20 +139,16 @@ impl Backward<LibTorch, INPUTS> for WholeUnet {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::largest_difference;
     use crate::unet::AffordanceUnet;
     use burn::tensor::Distribution;
 
-    /// The largest difference between two tensors, and the larger's scale.
+    /// The largest difference between two tensors, and the second's scale.
     fn difference<const D: usize>(a: Tensor<D>, b: Tensor<D>) -> (f32, f32) {
         let a: Vec<f32> = a.into_data().try_to_vec().unwrap();
         let b: Vec<f32> = b.into_data().try_to_vec().unwrap();
-        assert_eq!(a.len(), b.len());
-        let diff = a
-            .iter()
-            .zip(&b)
-            .fold(0f32, |m, (x, y)| m.max((x - y).abs()));
         let scale = b.iter().fold(0f32, |m, v| m.max(v.abs()));
-        (diff, scale)
+        (largest_difference(&a, &b), scale)
     }
 
     /// Values, and the gradients of the images and of every layer's weight
@@ -164,7 +161,7 @@ mod tests {
         let input = Tensor::<4>::random([2, 4, 16, 24], Distribution::Uniform(0.0, 1.0), &device);
         let weights = Tensor::<4>::random([2, 2, 16, 24], Distribution::Normal(0.0, 1.0), &device);
         let x_ours = input.clone().detach().require_grad();
-        let ours = forward(net.layers(), &x_ours).expect("tracked on libtorch");
+        let ours = forward(|| net.layers(), &x_ours).expect("tracked on libtorch");
         let x_burn = input.detach().require_grad();
         let burns = net.forward_layer_by_layer(x_burn.clone());
         let (diff, scale) = difference(ours.clone(), burns.clone());
@@ -210,6 +207,6 @@ mod tests {
     fn without_autodiff_it_leaves_the_pass_to_the_layers() {
         let net = AffordanceUnet::new(4, 2, &Device::libtorch());
         let x = Tensor::<4>::zeros([1, 4, 8, 8], &Device::libtorch());
-        assert!(forward(net.layers(), &x).is_none());
+        assert!(forward(|| net.layers(), &x).is_none());
     }
 }

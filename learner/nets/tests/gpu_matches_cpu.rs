@@ -69,6 +69,14 @@ fn relative_step_difference(before: &[u8], cpu_after: &[u8], gpu_after: &[u8]) -
     largest_difference / largest_change
 }
 
+/// A fresh U-Net on the CPU and the same weights on `gpu`.
+fn unet_on_both(gpu: &Device) -> (AffordanceUnet, AffordanceUnet) {
+    let unet_cpu = AffordanceUnet::new(4, 2, &Device::flex());
+    let mut unet_gpu = AffordanceUnet::new(4, 2, gpu);
+    load_safetensors(&mut unet_gpu, to_safetensors(&unet_cpu).unwrap()).unwrap();
+    (unet_cpu, unet_gpu)
+}
+
 #[test]
 fn cpu_and_gpu_agree_on_the_same_weights() {
     let Some(gpu) = gpu_or_skip() else {
@@ -76,9 +84,7 @@ fn cpu_and_gpu_agree_on_the_same_weights() {
     };
     let cpu = Device::flex();
 
-    let unet_cpu = AffordanceUnet::new(4, 2, &cpu);
-    let mut unet_gpu = AffordanceUnet::new(4, 2, &gpu);
-    load_safetensors(&mut unet_gpu, to_safetensors(&unet_cpu).unwrap()).unwrap();
+    let (unet_cpu, unet_gpu) = unet_on_both(&gpu);
     let x: Vec<f32> = (0..4 * 128 * 128)
         .map(|i| ((i * 7919) % 1000) as f32 / 1000.0)
         .collect();
@@ -128,9 +134,7 @@ fn the_gpus_inference_pass_agrees_with_the_cpus() {
         return;
     };
     let cpu = Device::flex();
-    let unet_cpu = AffordanceUnet::new(4, 2, &cpu);
-    let mut unet_gpu = AffordanceUnet::new(4, 2, &gpu);
-    load_safetensors(&mut unet_gpu, to_safetensors(&unet_cpu).unwrap()).unwrap();
+    let (unet_cpu, unet_gpu) = unet_on_both(&gpu);
     let side = 128;
     let images: Vec<Vec<f32>> = (0..3)
         .map(|k| {
