@@ -49,21 +49,93 @@ pub(super) fn run(
 ) -> anyhow::Result<()> {
     let model = actor.model;
     let started = Instant::now();
-    let waited = std::thread::scope(|scope| {
+    let steps_before = actor.summary.steps;
+    let clock = std::thread::scope(|scope| {
         let threads = EnvThreads::start(scope, envs, model, actor.inference);
         drive(actor, &threads, stop)
         // Dropping `threads` ends them; the scope waits for them.
     })?;
-    // Every environment waits for this thread between its steps, so a
-    // loop busy nearly all the time is what holds a process back.
-    let all = started.elapsed();
     eprintln!(
-        "actor {}: the loop's thread was busy {:.0} % of {:.0} s (waiting for its environments the rest)",
+        "actor {}: {}",
         actor.settings.actor_id,
-        100.0 * (1.0 - waited.as_secs_f64() / all.as_secs_f64().max(1e-9)),
-        all.as_secs_f64()
+        clock.report(started.elapsed(), actor.summary.steps - steps_before)
     );
     Ok(())
+}
+
+/// What the loop's thread spends its time on besides waiting.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Chore {
+    /// Loading the learner's new weights.
+    Weights,
+    /// Choosing actions and sending the tasks.
+    Actions,
+    /// Adding steps to their episodes' rollout chunks.
+    Booking,
+    /// Closing full chunks and sending them to the learner.
+    Chunks,
+    /// Sending ended episodes' labelled frames and stats.
+    Ends,
+}
+
+impl Chore {
+    const ALL: [Chore; 5] = [
+        Chore::Weights,
+        Chore::Actions,
+        Chore::Booking,
+        Chore::Chunks,
+        Chore::Ends,
+    ];
+
+    fn name(self) -> &'static str {
+        match self {
+            Chore::Weights => "new weights",
+            Chore::Actions => "actions",
+            Chore::Booking => "booking steps",
+            Chore::Chunks => "sending chunks",
+            Chore::Ends => "sending episode ends",
+        }
+    }
+}
+
+/// Where the loop's thread spent its time. Every environment waits for
+/// this thread between its steps, so a loop busy nearly all the time is
+/// what holds a process back, and the split says which chore to move or
+/// cut.
+#[derive(Debug, Default)]
+struct LoopClock {
+    waited: Duration,
+    chores: [Duration; Chore::ALL.len()],
+}
+
+impl LoopClock {
+    /// Runs `chore`, adding its time to its account.
+    fn time<T>(&mut self, chore: Chore, f: impl FnOnce() -> T) -> T {
+        let started = Instant::now();
+        let result = f();
+        self.chores[chore as usize] += started.elapsed();
+        result
+    }
+
+    /// One line: the busy share of `all` and, per step of `steps`, the
+    /// time of each chore.
+    fn report(&self, all: Duration, steps: u64) -> String {
+        let all_s = all.as_secs_f64().max(1e-9);
+        let busy = (all_s - self.waited.as_secs_f64()).max(0.0);
+        let per_step_ms = |d: Duration| 1e3 * d.as_secs_f64() / steps.max(1) as f64;
+        let split: Vec<String> = Chore::ALL
+            .iter()
+            .map(|&c| format!("{} {:.3}", c.name(), per_step_ms(self.chores[c as usize])))
+            .collect();
+        format!(
+            "the loop's thread was busy {:.0} % of {:.0} s (waiting for its environments the rest): \
+             {:.3} ms a step over {steps} steps ({} ms)",
+            100.0 * busy / all_s,
+            all_s,
+            1e3 * busy / steps.max(1) as f64,
+            split.join(", ")
+        )
+    }
 }
 
 /// An environment waiting for its next action, chosen with the others
@@ -94,13 +166,13 @@ impl Waiting {
 /// passes the environments' threads made (this thread runs only those
 /// whose policy new weights replaced meanwhile); what the steps and ends
 /// leave to book (rollout chunks, labelled frames) it does after, while
-/// the environments work. Returns how long it waited for its environments.
+/// the environments work. Returns where its time went.
 fn drive(
     actor: &mut Actor<'_>,
     threads: &EnvThreads,
     stop: &AtomicBool,
-) -> anyhow::Result<Duration> {
-    let mut waited = Duration::ZERO;
+) -> anyhow::Result<LoopClock> {
+    let mut clock = LoopClock::default();
     let share_policy = |actor: &Actor<'_>| match &actor.policy.cpu {
         Some(cpu) => threads.set_policy(actor.policy.policy_version, cpu),
         None => Ok(()),
@@ -125,10 +197,10 @@ fn drive(
     while phases.iter().any(|p| !matches!(p, Phase::Idle)) {
         let asleep = Instant::now();
         let mut finished = vec![threads.next()?];
-        waited += asleep.elapsed();
+        clock.waited += asleep.elapsed();
         finished.extend(threads.finished()?);
         let version = actor.policy.policy_version;
-        if let Some(steps) = actor.refresh_weights()? {
+        if let Some(steps) = clock.time(Chore::Weights, || actor.refresh_weights())? {
             threads.set_global_steps(steps)?;
         }
         if actor.policy.policy_version != version {
@@ -148,7 +220,8 @@ fn drive(
                 }),
                 (Phase::Stepping(mut episode, acted), Done::Step(outcome, observation, pass)) => {
                     if outcome.done || stopping {
-                        book_step(actor, &mut episode, acted, &outcome, observation, stopping)?;
+                        let booking = (acted, &outcome, observation);
+                        book_step(actor, &mut clock, &mut episode, booking, stopping)?;
                         threads.send(index, Task::Finish(episode.id))?;
                         phases[index] = Phase::Finishing(episode);
                     } else {
@@ -170,44 +243,73 @@ fn drive(
         if !waiting.is_empty() {
             let passes = waiting.iter_mut().map(|w| w.pass.take()).collect();
             let inputs: Vec<_> = waiting.iter().map(Waiting::input).collect();
-            let acted = actor.act_with_passes(&inputs, passes)?;
-            anyhow::ensure!(acted.len() == waiting.len(), "the policy acted for each");
-            for (w, acted) in waiting.iter().zip(&acted) {
-                threads.send(w.index, Task::Step(acted.action, acted.hidden.clone()))?;
-            }
+            let acted = clock.time(Chore::Actions, || -> anyhow::Result<_> {
+                let acted = actor.act_with_passes(&inputs, passes)?;
+                anyhow::ensure!(acted.len() == waiting.len(), "the policy acted for each");
+                for (w, acted) in waiting.iter().zip(&acted) {
+                    threads.send(w.index, Task::Step(acted.action, acted.hidden.clone()))?;
+                }
+                Ok(acted)
+            })?;
             for (mut w, acted) in waiting.into_iter().zip(acted) {
                 if let Some((taken, outcome, observation)) = w.unbooked {
-                    book_step(
-                        actor,
-                        &mut w.episode,
-                        taken,
-                        &outcome,
-                        observation,
-                        stopping,
-                    )?;
+                    let booking = (taken, &outcome, observation);
+                    book_step(actor, &mut clock, &mut w.episode, booking, stopping)?;
                 }
                 phases[w.index] = Phase::Stepping(w.episode, acted);
             }
         }
-        for (episode, end, scene) in ended {
-            actor.publish_end(&episode, end, scene)?;
-        }
+        clock.time(Chore::Ends, || -> anyhow::Result<()> {
+            for (episode, end, scene) in ended {
+                actor.publish_end(&episode, end, scene)?;
+            }
+            Ok(())
+        })?;
     }
-    Ok(waited)
+    Ok(clock)
 }
 
-/// Books a step into `episode` (`Actor::record_step`) and sends its chunk
-/// to the learner if that closed it.
+/// Books a step (the action taken, its outcome and the observation it led
+/// to) into `episode` (`Actor::record_step`) and sends its chunk to the
+/// learner if that closed it.
 fn book_step(
     actor: &mut Actor<'_>,
+    clock: &mut LoopClock,
     episode: &mut RunningEpisode,
-    acted: Acted,
-    outcome: &StepOutcome,
-    observation: Observation,
+    (acted, outcome, observation): (Acted, &StepOutcome, Observation),
     stopping: bool,
 ) -> anyhow::Result<()> {
-    if let Some(ended) = actor.record_step(episode, acted, outcome, observation, stopping) {
-        actor.close_chunks(vec![(episode, ended)])?;
+    let closed = clock.time(Chore::Booking, || {
+        actor.record_step(episode, acted, outcome, observation, stopping)
+    });
+    if let Some(ended) = closed {
+        clock.time(Chore::Chunks, || actor.close_chunks(vec![(episode, ended)]))?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_loops_report_splits_its_busy_time_per_step() {
+        let mut clock = LoopClock {
+            waited: Duration::from_millis(600),
+            ..LoopClock::default()
+        };
+        clock.chores[Chore::Chunks as usize] = Duration::from_millis(300);
+        clock.chores[Chore::Ends as usize] = Duration::from_millis(100);
+        let line = clock.report(Duration::from_secs(1), 200);
+        assert!(
+            line.starts_with("the loop's thread was busy 40 % of 1 s"),
+            "{line}"
+        );
+        assert!(line.contains("2.000 ms a step over 200 steps"), "{line}");
+        assert!(
+            line.contains("sending chunks 1.500, sending episode ends 0.500 ms"),
+            "{line}"
+        );
+        assert!(line.contains("new weights 0.000,"), "{line}");
+    }
 }
