@@ -24,7 +24,7 @@ mod free_running;
 mod policy;
 mod rejected_weights;
 
-use chunks::{new_chunk, push_obs, split_frames};
+use chunks::{new_chunk, push_obs, restart_chunk, split_frames};
 use policy::{
     act_batch, choose, forward_batch, hidden_values, load_weights, step_of_thread_pass, Acted,
     Policy,
@@ -131,6 +131,30 @@ struct RunningEpisode {
     /// The GRU state before the next step; `None` = zeros (episode start).
     hidden: Option<Vec<f32>>,
     chunk: RolloutChunk,
+}
+
+/// How a rollout chunk that goes out now ends.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum ChunkClose {
+    /// With its episode's last step (nothing to bootstrap from).
+    EpisodeEnd,
+    /// Mid-episode: it bootstraps from the critic's value of the episode's
+    /// next observation, given here when the policy's pass that chose the
+    /// next action made it already (otherwise the loop runs the critic).
+    Cut(Option<f32>),
+}
+
+impl ChunkClose {
+    /// How a chunk closes after a step that ended its episode or not
+    /// (`done`); `next_value` is the critic's value of the observation
+    /// that step led to, if known.
+    fn after(done: bool, next_value: Option<f32>) -> Self {
+        if done {
+            ChunkClose::EpisodeEnd
+        } else {
+            ChunkClose::Cut(next_value)
+        }
+    }
 }
 
 /// The environments of `slots`, for [`lockstep`].
@@ -288,7 +312,13 @@ impl<'a> Actor<'a> {
             actor_steps_at_start: self.summary.steps,
             observation,
             hidden: None,
-            chunk: new_chunk(id, 0, layout, hidden_values(layout, None)),
+            chunk: new_chunk(
+                id,
+                0,
+                layout,
+                hidden_values(layout, None),
+                self.settings.chunk_steps,
+            ),
         }
     }
 
@@ -387,7 +417,7 @@ impl<'a> Actor<'a> {
         {
             let episode = slot.episode.as_mut().context("a running episode")?;
             if let Some(done) = self.record_step(episode, acted, outcome, observation, stopping) {
-                closing.push((episode, done));
+                closing.push((episode, ChunkClose::after(done, None)));
             }
         }
         self.close_chunks(closing)?;
@@ -400,17 +430,17 @@ impl<'a> Actor<'a> {
         self.finish_episodes(ended)
     }
 
-    /// Sends the chunks of `episodes` (each with whether it ended): those
-    /// cut mid-episode get the critic's value of their next observation, in
-    /// one batch.
+    /// Sends the chunks of `episodes`, each closed as its [`ChunkClose`]
+    /// says: those cut mid-episode whose bootstrap value is not known yet get
+    /// the critic's value of their next observation, in one batch.
     fn close_chunks(
         &mut self,
-        mut episodes: Vec<(&mut RunningEpisode, bool)>,
+        mut episodes: Vec<(&mut RunningEpisode, ChunkClose)>,
     ) -> anyhow::Result<()> {
         let values = {
             let inputs: Vec<_> = episodes
                 .iter()
-                .filter(|(_, done)| !done)
+                .filter(|(_, close)| matches!(close, ChunkClose::Cut(None)))
                 .map(|(e, _)| (&e.observation, e.hidden.as_deref()))
                 .collect();
             if inputs.is_empty() {
@@ -420,19 +450,15 @@ impl<'a> Actor<'a> {
             }
         };
         let mut values = values.into_iter();
-        let layout = self.policy.layout.clone();
-        for (episode, done) in &mut episodes {
-            if !*done {
-                episode.chunk.bootstrap_value = values.next().map_or(0.0, |step| step.value);
-            }
-            let next = new_chunk(
-                episode.id,
-                episode.steps,
-                &layout,
-                hidden_values(&layout, episode.hidden.as_deref()),
-            );
-            let chunk = std::mem::replace(&mut episode.chunk, next);
-            self.publish_chunk(&chunk)?;
+        for (episode, close) in &mut episodes {
+            episode.chunk.bootstrap_value = match *close {
+                ChunkClose::EpisodeEnd => 0.0,
+                ChunkClose::Cut(Some(value)) => value,
+                ChunkClose::Cut(None) => values.next().map_or(0.0, |step| step.value),
+            };
+            self.publish_chunk(&episode.chunk)?;
+            let start_hidden = hidden_values(&self.policy.layout, episode.hidden.as_deref());
+            restart_chunk(&mut episode.chunk, episode.steps, start_hidden);
         }
         Ok(())
     }
@@ -609,6 +635,125 @@ pub fn run(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::collections::HashMap;
+
+    use crate::env::BanditFixture;
+    use nets::policy::PolicyNet;
+    use proto::{decode, JoinKey, Limits, Message, MessageKind, WEIGHTS_POLICY_PREFIX};
+    use transport::LearnerPorts;
+
+    /// What the learner got of one rollout chunk.
+    struct Received {
+        first_step: u32,
+        values: Vec<f32>,
+        dones: Vec<u8>,
+        bootstrap_value: f32,
+    }
+
+    /// Runs `envs` bandit environments through [`run`] for 4 episodes of
+    /// 64 steps, in chunks of 5 steps, against a learner's ports in this
+    /// process; returns the chunks the learner got, per episode in order.
+    fn chunks_of_a_run(envs: usize) -> HashMap<u64, Vec<Received>> {
+        let config = TransportConfig {
+            service_prefix: format!("afx-loop-test-{}-{envs}", std::process::id()),
+            max_actors: 1,
+            learner_buffer: 256,
+            max_rollout_bytes: 1 << 14,
+            max_frames_bytes: 1 << 14,
+            max_weights_bytes: 1 << 22,
+            ..TransportConfig::default()
+        };
+        let key = JoinKey::from_bytes([5; proto::JOIN_KEY_LEN]);
+        let mut learner = LearnerPorts::open(&config, key.clone()).unwrap();
+        let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).unwrap();
+        let layout = BanditFixture::new().layout().clone();
+        let policy = nets::weights::to_safetensors(&PolicyNet::new(&layout, &device)).unwrap();
+        let blob =
+            nets::weights::bundle(&[(WEIGHTS_POLICY_PREFIX, &policy)], HashMap::new()).unwrap();
+        learner.publish_weights(1, 0, &blob).unwrap();
+        let mut ports = ActorPorts::open(&config, 0, key).unwrap();
+        learner.maintain();
+        let settings = LoopSettings {
+            actor_id: 0,
+            chunk_steps: 5,
+            seed: 3,
+            max_episodes: Some(4),
+            weights_timeout: Duration::from_secs(10),
+        };
+        let environments = (0..envs)
+            .map(|_| Box::new(BanditFixture::new()) as Box<dyn Environment>)
+            .collect();
+        let stop = AtomicBool::new(false);
+        let summary = run(
+            environments,
+            None,
+            &mut ports,
+            &config,
+            &settings,
+            &device,
+            &stop,
+        )
+        .unwrap();
+        assert_eq!((summary.episodes, summary.dropped), (4, 0));
+        let limits = Limits {
+            max_actors: 1,
+            max_payload_len: 1 << 20,
+        };
+        let mut episodes: HashMap<u64, Vec<Received>> = HashMap::new();
+        while let Some(message) = learner.receive(MessageKind::Rollout).unwrap() {
+            let (_, Message::Rollout(view)) = decode(message.bytes(), &limits).unwrap() else {
+                panic!("a rollout service message that is no rollout");
+            };
+            episodes.entry(view.episode_id).or_default().push(Received {
+                first_step: view.first_step,
+                values: view.values.to_vec(),
+                dones: view.dones.to_vec(),
+                bootstrap_value: view.bootstrap_value,
+            });
+        }
+        for chunks in episodes.values_mut() {
+            chunks.sort_by_key(|c| c.first_step);
+        }
+        episodes
+    }
+
+    /// A chunk cut mid-episode bootstraps from the critic's value of the
+    /// episode's next observation, which the next chunk's first step carries
+    /// as its value (one policy version throughout); an episode's last chunk
+    /// bootstraps from nothing. In lock-step (one environment) and
+    /// free-running (two, where the pass that chose the next action gives
+    /// the value).
+    #[test]
+    fn a_cut_chunk_bootstraps_from_the_value_its_next_step_carries() {
+        for envs in [1, 2] {
+            let episodes = chunks_of_a_run(envs);
+            assert_eq!(episodes.len(), 4, "{envs} environment(s)");
+            for (id, chunks) in &episodes {
+                let steps: usize = chunks.iter().map(|c| c.values.len()).sum();
+                assert_eq!(steps, 64, "episode {id}: every step, once");
+                for pair in chunks.windows(2) {
+                    let (cut, next) = (&pair[0], &pair[1]);
+                    assert_eq!(
+                        next.first_step as usize,
+                        cut.first_step as usize + cut.values.len()
+                    );
+                    assert!(
+                        cut.dones.iter().all(|&d| d == 0),
+                        "episode {id}: cut mid-episode"
+                    );
+                    assert_eq!(
+                        cut.bootstrap_value, next.values[0],
+                        "episode {id}, {envs} environment(s): the chunk from step {} bootstraps \
+                         from its next step's value",
+                        cut.first_step
+                    );
+                }
+                let last = chunks.last().unwrap();
+                assert_eq!(last.dones.last(), Some(&1));
+                assert_eq!(last.bootstrap_value, 0.0);
+            }
+        }
+    }
 
     #[test]
     fn a_fresh_run_keeps_its_seeds_and_a_restarted_actor_does_not_replay_them() {

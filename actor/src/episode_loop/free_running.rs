@@ -9,7 +9,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use super::{Acted, Actor, RunningEpisode};
+use super::{Acted, Actor, ChunkClose, RunningEpisode};
 use crate::env::threads::{Done, EnvThreads, PolicyPass, Task};
 use crate::env::{Environment, Observation, StepOutcome};
 
@@ -221,7 +221,7 @@ fn drive(
                 (Phase::Stepping(mut episode, acted), Done::Step(outcome, observation, pass)) => {
                     if outcome.done || stopping {
                         let booking = (acted, &outcome, observation);
-                        book_step(actor, &mut clock, &mut episode, booking, stopping)?;
+                        book_step(actor, &mut clock, &mut episode, booking, stopping, None)?;
                         threads.send(index, Task::Finish(episode.id))?;
                         phases[index] = Phase::Finishing(episode);
                     } else {
@@ -253,8 +253,19 @@ fn drive(
             })?;
             for (mut w, acted) in waiting.into_iter().zip(acted) {
                 if let Some((taken, outcome, observation)) = w.unbooked {
+                    // The pass that chose the next action valued the
+                    // observation this step led to: the bootstrap value of
+                    // a chunk this step fills.
                     let booking = (taken, &outcome, observation);
-                    book_step(actor, &mut clock, &mut w.episode, booking, stopping)?;
+                    let next_value = Some(acted.value);
+                    book_step(
+                        actor,
+                        &mut clock,
+                        &mut w.episode,
+                        booking,
+                        stopping,
+                        next_value,
+                    )?;
                 }
                 phases[w.index] = Phase::Stepping(w.episode, acted);
             }
@@ -271,19 +282,22 @@ fn drive(
 
 /// Books a step (the action taken, its outcome and the observation it led
 /// to) into `episode` (`Actor::record_step`) and sends its chunk to the
-/// learner if that closed it.
+/// learner if that closed it (`next_value`: the critic's value of that
+/// observation, if known).
 fn book_step(
     actor: &mut Actor<'_>,
     clock: &mut LoopClock,
     episode: &mut RunningEpisode,
     (acted, outcome, observation): (Acted, &StepOutcome, Observation),
     stopping: bool,
+    next_value: Option<f32>,
 ) -> anyhow::Result<()> {
     let closed = clock.time(Chore::Booking, || {
         actor.record_step(episode, acted, outcome, observation, stopping)
     });
-    if let Some(ended) = closed {
-        clock.time(Chore::Chunks, || actor.close_chunks(vec![(episode, ended)]))?;
+    if let Some(done) = closed {
+        let close = ChunkClose::after(done, next_value);
+        clock.time(Chore::Chunks, || actor.close_chunks(vec![(episode, close)]))?;
     }
     Ok(())
 }
