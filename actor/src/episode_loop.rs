@@ -497,7 +497,7 @@ impl<'a> Actor<'a> {
     ) -> anyhow::Result<()> {
         let (version, unet) = (self.policy.policy_version, self.policy.unet_version);
         if let Some(frames) = end.frames.filter(|f| f.n_frames() > 0) {
-            for part in split_frames(frames, self.transport.max_frames_bytes) {
+            for part in split_frames(&frames, self.transport.max_frames_bytes) {
                 let delivery = self.ports.publish(&part, version, unet)?;
                 self.count(delivery);
             }

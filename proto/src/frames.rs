@@ -50,9 +50,70 @@ impl FrameBatch {
         let pixels = (self.height * self.width) as usize;
         self.depth_m.len().checked_div(pixels).unwrap_or(0)
     }
+
+    /// The whole batch, borrowed.
+    fn whole(&self) -> FrameSlices<'_> {
+        FrameSlices {
+            episode_id: self.episode_id,
+            height: self.height,
+            width: self.width,
+            n_affordances: self.n_affordances,
+            depth_m: &self.depth_m,
+            rgb: &self.rgb,
+            labels: &self.labels,
+        }
+    }
+
+    /// Frames `range` of the batch, borrowed: a message of its own without
+    /// copying them first (an episode's frames at 128 px are tens of MB,
+    /// sent in parts that fit the transport).
+    ///
+    /// # Panics
+    /// If `range` reaches past the last frame.
+    pub fn frames(&self, range: std::ops::Range<usize>) -> FrameSlices<'_> {
+        let pixels = (self.height * self.width) as usize;
+        let planes = self.n_affordances as usize;
+        FrameSlices {
+            episode_id: self.episode_id,
+            height: self.height,
+            width: self.width,
+            n_affordances: self.n_affordances,
+            depth_m: &self.depth_m[range.start * pixels..range.end * pixels],
+            rgb: &self.rgb[3 * range.start * pixels..3 * range.end * pixels],
+            labels: &self.labels[planes * range.start * pixels..planes * range.end * pixels],
+        }
+    }
 }
 
-impl Payload for FrameBatch {
+/// Labelled frames borrowed from a [`FrameBatch`] ([`FrameBatch::frames`]):
+/// the same message, written straight from the batch's buffers.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameSlices<'a> {
+    /// Episode the frames come from.
+    pub episode_id: u64,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Image width in pixels.
+    pub width: u32,
+    /// Affordance planes per frame.
+    pub n_affordances: u32,
+    /// `n · h · w` depths in metres.
+    pub depth_m: &'a [f32],
+    /// `n · h · w · 3` RGB bytes.
+    pub rgb: &'a [u8],
+    /// `n · a · h · w` labels, frame-major then affordance-major.
+    pub labels: &'a [u8],
+}
+
+impl FrameSlices<'_> {
+    /// Number of frames.
+    pub fn n_frames(&self) -> usize {
+        let pixels = (self.height * self.width) as usize;
+        self.depth_m.len().checked_div(pixels).unwrap_or(0)
+    }
+}
+
+impl Payload for FrameSlices<'_> {
     const KIND: MessageKind = MessageKind::Frames;
 
     fn payload_len(&self) -> usize {
@@ -67,9 +128,21 @@ impl Payload for FrameBatch {
         head[12..16].copy_from_slice(&self.height.to_le_bytes());
         head[16..20].copy_from_slice(&self.width.to_le_bytes());
         head[20..24].copy_from_slice(&self.n_affordances.to_le_bytes());
-        put_f32s(w.take(4 * self.depth_m.len()), &self.depth_m);
-        w.take(self.rgb.len()).copy_from_slice(&self.rgb);
-        w.take(self.labels.len()).copy_from_slice(&self.labels);
+        put_f32s(w.take(4 * self.depth_m.len()), self.depth_m);
+        w.take(self.rgb.len()).copy_from_slice(self.rgb);
+        w.take(self.labels.len()).copy_from_slice(self.labels);
+    }
+}
+
+impl Payload for FrameBatch {
+    const KIND: MessageKind = MessageKind::Frames;
+
+    fn payload_len(&self) -> usize {
+        self.whole().payload_len()
+    }
+
+    fn write_payload(&self, out: &mut [u8]) {
+        self.whole().write_payload(out);
     }
 }
 

@@ -30,7 +30,9 @@ mod weights;
 pub use actors::{ActorSettings, ActorSettingsError, ACTOR_DEVICES, RENDERERS, TRAINING_SCENES};
 pub use arrays::{F32Array, U32Array};
 pub use error::ProtoError;
-pub use frames::{FrameBatch, FrameBatchView, LABEL_NEGATIVE, LABEL_POSITIVE, LABEL_UNKNOWN};
+pub use frames::{
+    FrameBatch, FrameBatchView, FrameSlices, LABEL_NEGATIVE, LABEL_POSITIVE, LABEL_UNKNOWN,
+};
 pub use header::{MessageHeader, MessageKind, HEADER_LEN, LEARNER_ID, MAGIC, SCHEMA_VERSION};
 pub use join::{Join, JoinKey, JoinKeyError, JOIN_KEY_LEN, JOIN_PAYLOAD_LEN};
 pub use message::{

@@ -177,6 +177,25 @@ proptest! {
     }
 
     #[test]
+    fn a_range_of_frames_decodes_to_those_frames(batch in frames_strategy(), cut in 0usize..4) {
+        let n = batch.n_frames();
+        let (start, end) = (cut.min(n - 1), n);
+        let bytes = encode(&batch.frames(start..end), header(0, 1));
+        let pixels = (batch.height * batch.width) as usize;
+        let planes = batch.n_affordances as usize;
+        let expected = FrameBatch {
+            depth_m: batch.depth_m[start * pixels..].to_vec(),
+            rgb: batch.rgb[3 * start * pixels..].to_vec(),
+            labels: batch.labels[planes * start * pixels..].to_vec(),
+            ..batch.clone()
+        };
+        match decode(&bytes, &LIMITS).unwrap().1 {
+            Message::Frames(view) => prop_assert_eq!(view.to_owned(), expected),
+            other => prop_assert!(false, "wrong kind {:?}", other.kind()),
+        }
+    }
+
+    #[test]
     fn stats_round_trip(stats in stats_strategy()) {
         let bytes = encode(&stats, header(0, 1));
         match decode(&bytes, &LIMITS).unwrap().1 {

@@ -2,7 +2,7 @@
 //! an episode's labelled frames split into messages that fit the transport.
 
 use nets::policy::PolicyLayout;
-use proto::{FrameBatch, ObsDtype, RolloutChunk};
+use proto::{FrameBatch, FrameSlices, ObsDtype, RolloutChunk};
 
 use crate::env::Observation;
 
@@ -65,8 +65,9 @@ pub(super) fn push_obs(chunk: &mut RolloutChunk, observation: &Observation) {
     }
 }
 
-/// Splits an episode's frames into messages of at most `max_bytes` payload.
-pub(super) fn split_frames(batch: FrameBatch, max_bytes: usize) -> Vec<FrameBatch> {
+/// Splits an episode's frames into messages of at most `max_bytes` payload,
+/// each borrowing its frames from `batch`.
+pub(super) fn split_frames(batch: &FrameBatch, max_bytes: usize) -> Vec<FrameSlices<'_>> {
     let pixels = (batch.height * batch.width) as usize;
     let planes = batch.n_affordances as usize;
     let per_frame = pixels * (4 + 3 + planes);
@@ -74,18 +75,7 @@ pub(super) fn split_frames(batch: FrameBatch, max_bytes: usize) -> Vec<FrameBatc
     let n = batch.n_frames();
     (0..n)
         .step_by(per_message)
-        .map(|start| {
-            let end = (start + per_message).min(n);
-            FrameBatch {
-                episode_id: batch.episode_id,
-                height: batch.height,
-                width: batch.width,
-                n_affordances: batch.n_affordances,
-                depth_m: batch.depth_m[start * pixels..end * pixels].to_vec(),
-                rgb: batch.rgb[3 * start * pixels..3 * end * pixels].to_vec(),
-                labels: batch.labels[planes * start * pixels..planes * end * pixels].to_vec(),
-            }
-        })
+        .map(|start| batch.frames(start..(start + per_message).min(n)))
         .collect()
 }
 
@@ -141,16 +131,18 @@ mod tests {
             labels: (0..2 * n * pixels).map(|i| (i % 2) as u8).collect(),
         };
         let per_frame = pixels * 9;
-        let parts = split_frames(batch.clone(), 64 + 3 * per_frame);
+        let parts = split_frames(&batch, 64 + 3 * per_frame);
         assert_eq!(parts.len(), 3);
         assert_eq!(
             parts.iter().map(|p| p.n_frames()).collect::<Vec<_>>(),
             [3, 3, 1]
         );
-        let joined: Vec<f32> = parts.iter().flat_map(|p| p.depth_m.clone()).collect();
+        let joined: Vec<f32> = parts.iter().flat_map(|p| p.depth_m.to_vec()).collect();
         assert_eq!(joined, batch.depth_m);
-        let labels: Vec<u8> = parts.iter().flat_map(|p| p.labels.clone()).collect();
+        let labels: Vec<u8> = parts.iter().flat_map(|p| p.labels.to_vec()).collect();
         assert_eq!(labels, batch.labels);
+        let rgb: Vec<u8> = parts.iter().flat_map(|p| p.rgb.to_vec()).collect();
+        assert_eq!(rgb, batch.rgb);
         assert!(parts.iter().all(|p| p.episode_id == 3));
     }
 }
