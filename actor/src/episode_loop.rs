@@ -27,7 +27,7 @@ mod rejected_weights;
 use chunks::{new_chunk, push_obs, restart_chunk, split_frames};
 use policy::{
     act_batch, choose, forward_batch, hidden_values, load_weights, step_of_thread_pass, Acted,
-    Policy,
+    LoadedWeights, Policy,
 };
 use rejected_weights::RejectedWeights;
 
@@ -259,16 +259,21 @@ impl<'a> Actor<'a> {
             return Ok(None);
         };
         let layout = self.policy.layout.clone();
-        let mut model = self.model.write().unwrap_or_else(PoisonError::into_inner);
-        match load_weights(
+        // The environments go on with the current U-Net while this loads
+        // (a read lock, as theirs); they wait only for the swap below.
+        let loaded = load_weights(
             self.ports,
             &message,
             &layout,
-            model.as_mut(),
+            self.read_model().as_ref(),
             self.device,
             Some(&self.policy),
-        ) {
-            Ok(policy) => {
+        );
+        match loaded {
+            Ok(LoadedWeights { policy, unet }) => {
+                if let Some(unet) = unet {
+                    *self.model.write().unwrap_or_else(PoisonError::into_inner) = Some(unet);
+                }
                 self.policy = policy;
                 Ok(self.policy.env_steps)
             }
@@ -565,8 +570,13 @@ pub fn run(
                 settings.weights_timeout.as_secs_f64()
             );
         };
-        match load_weights(ports, &first, &layout, model.as_mut(), device, None) {
-            Ok(policy) => break policy,
+        match load_weights(ports, &first, &layout, model.as_ref(), device, None) {
+            Ok(LoadedWeights { policy, unet }) => {
+                if unet.is_some() {
+                    model = unet;
+                }
+                break policy;
+            }
             Err(error) => {
                 rejected_weights.reject(settings.actor_id, &error, None);
             }

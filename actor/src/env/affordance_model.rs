@@ -30,10 +30,27 @@ impl AffordanceModel {
     /// Loads safetensors weights from the learner; on error the current
     /// network stays.
     pub fn load_weights(&mut self, bytes: Vec<u8>) -> Result<(), nets::weights::WeightsError> {
+        *self = self.with_weights(bytes, self.temperature)?;
+        Ok(())
+    }
+
+    /// A model like this one with the learner's safetensors weights and
+    /// calibration `temperature`, built without touching this one: the
+    /// environments go on inferring with it while the new one loads, and
+    /// wait only for the swap.
+    pub fn with_weights(
+        &self,
+        bytes: Vec<u8>,
+        temperature: f32,
+    ) -> Result<Self, nets::weights::WeightsError> {
         let mut net = AffordanceUnet::new(4, self.affordances, &self.device);
         nets::weights::load_safetensors(&mut net, bytes)?;
-        self.net = UnetInference::new(net, &self.device);
-        Ok(())
+        Ok(Self {
+            net: UnetInference::new(net, &self.device),
+            device: self.device.clone(),
+            affordances: self.affordances,
+            temperature,
+        })
     }
 
     /// Per affordance, the `h · w` probability plane of one frame.
@@ -214,5 +231,37 @@ mod tests {
             }
         }
         assert!(one_pass[0] != one_pass[1]);
+    }
+
+    #[test]
+    fn a_model_with_new_weights_leaves_the_one_in_use_as_it_was() {
+        let device = nets::device::open_device(nets::device::DeviceChoice::Cpu).unwrap();
+        let (h, w) = (16, 16);
+        let rgb: Vec<u8> = (0..h * w * 3).map(|i| ((i * 37) % 256) as u8).collect();
+        let depth: Vec<f32> = (0..h * w).map(|i| 0.5 + (i % 11) as f32 * 0.1).collect();
+        let frame = CameraFrame {
+            rgb: &rgb,
+            depth_m: &depth,
+            height: h,
+            width: w,
+        };
+        let in_use = AffordanceModel::new(2, &device);
+        let before = in_use.predict(&frame);
+        let learners = AffordanceUnet::new(4, 2, &device);
+        let bytes = nets::weights::to_safetensors(&learners).unwrap();
+        let fresh = in_use.with_weights(bytes.clone(), 0.5).unwrap();
+        assert_eq!(
+            in_use.predict(&frame),
+            before,
+            "the model in use is untouched"
+        );
+        assert_eq!(fresh.temperature, 0.5);
+        // The new model infers with the learner's weights: as a model that
+        // loaded them in place does.
+        let mut loaded = AffordanceModel::new(2, &device);
+        loaded.load_weights(bytes).unwrap();
+        loaded.temperature = 0.5;
+        assert_eq!(fresh.predict(&frame), loaded.predict(&frame));
+        assert_ne!(fresh.predict(&frame), before);
     }
 }

@@ -34,17 +34,27 @@ pub(super) struct Policy {
     pub(super) env_steps: Option<u64>,
 }
 
+/// What one weights message holds for the actor: the policy, and the
+/// U-Net when the message carries one of another version than the
+/// current policy's.
+pub(super) struct LoadedWeights {
+    pub(super) policy: Policy,
+    /// The new U-Net (calibration included), for the caller to swap in.
+    pub(super) unet: Option<AffordanceModel>,
+}
+
 /// Loads a weights message once `ports` has checked it (layout, size, the
-/// run key's signature): the policy always, the U-Net (into `model`) when
-/// the message carries one of another version than `current`'s.
+/// run key's signature): the policy always, a new U-Net (built like `model`,
+/// which stays untouched) when the message carries one of another version
+/// than `current`'s.
 pub(super) fn load_weights(
     ports: &ActorPorts,
     message: &ReceivedMessage,
     layout: &PolicyLayout,
-    model: Option<&mut AffordanceModel>,
+    model: Option<&AffordanceModel>,
     device: &Device,
     current: Option<&Policy>,
-) -> anyhow::Result<Policy> {
+) -> anyhow::Result<LoadedWeights> {
     let (header, weights) = ports
         .check_weights(message)
         .context("invalid weights on the weights service")?;
@@ -63,12 +73,15 @@ pub(super) fn load_weights(
         .iter()
         .any(|n| n.starts_with(WEIGHTS_UNET_PREFIX));
     let unet_changed = current.is_none_or(|p| p.unet_version != header.unet_version);
+    let mut unet = None;
     if let (true, true, Some(model)) = (has_unet, unet_changed, model) {
         let temperature = number(WEIGHTS_META_TEMPERATURE).unwrap_or(1.0) as f32;
-        model
-            .load_weights(unbundle(weights.bytes(), WEIGHTS_UNET_PREFIX)?)
-            .context("loading the learner's U-Net")?;
-        model.temperature = temperature;
+        let bytes = unbundle(weights.bytes(), WEIGHTS_UNET_PREFIX)?;
+        unet = Some(
+            model
+                .with_weights(bytes, temperature)
+                .context("loading the learner's U-Net")?,
+        );
         eprintln!(
             "actor: loaded U-Net version {} (temperature {temperature:.3})",
             header.unet_version
@@ -78,14 +91,15 @@ pub(super) fn load_weights(
     // pass is bound by its per-operation overhead, so the CPU's own pass
     // serves every device (docs/decisions/0007-policy-pass-on-the-cpu.md).
     let cpu = CpuPolicy::from_network(&net, layout).map(Arc::new);
-    Ok(Policy {
+    let policy = Policy {
         net,
         cpu,
         layout: layout.clone(),
         policy_version: header.policy_version,
         unet_version: header.unet_version,
         env_steps,
-    })
+    };
+    Ok(LoadedWeights { policy, unet })
 }
 
 /// What the policy chose for one environment at one step.
