@@ -21,6 +21,7 @@ use crate::env::{lockstep, Environment, EpisodeEnd, Observation, StepOutcome};
 
 mod chunks;
 mod free_running;
+mod loop_clock;
 mod policy;
 mod rejected_weights;
 
