@@ -19,8 +19,8 @@ Runs, one after the other, each under a time limit (about 9 minutes in all):
      at 64 px (100-step episodes; PPO batches of 128 and 1024 steps) and
      128 px (600-step episodes, 1024-step batches);
   4. one actor process's environments at 128 px with the GPU renderer
-     (DIR/env_steps, its several-environments table for 1, 16 and 32
-     environments), when DIR has env_steps;
+     (DIR/env_steps, its several-environments table for 1 and 32
+     environments, 600-step episodes), when DIR has env_steps;
   5. deploy/throughput.sh: the whole system, `ours`, 1x32 at 64 px with the CPU
      renderer and with the GPU renderer, and 1x32 at 128 px with the GPU
      renderer, PPO on 1024-step batches (what the README advises on a GPU),
@@ -156,10 +156,12 @@ fi
 
 if ! skipped actor && [[ -x "$BIN/env_steps" ]]; then
   section "One actor process at 128 px, GPU renderer (env_steps)"
-  # 16 and 32 environments in lock-step and free-running (the actor's way
-  # since issue 40's free-running GPU actor; at 128 px more environments
-  # than cores pay), 1 for scale; 60-step episodes.
-  AFX_DEVICE=gpu AFX_DATA="$DATA" AFX_CASES=none AFX_ENVS=1,16,32 AFX_STEPS=60 AFX_ENVS_PX=128 AFX_ENVS_RENDERER=gpu \
+  # 32 environments in lock-step and free-running (the actor's way since
+  # issue 40's free-running GPU actor; at 128 px more environments than
+  # cores pay), 1 for scale; the paper's 600-step episodes, over which the
+  # map fills the room and its and the state's cost per step grows (2.8x
+  # and 2x from 60 steps, docs/notebook/2026-11-27-actor-loop-chores.md).
+  AFX_DEVICE=gpu AFX_DATA="$DATA" AFX_CASES=none AFX_ENVS=1,32 AFX_STEPS=600 AFX_ENVS_PX=128 AFX_ENVS_RENDERER=gpu \
     limited 240 "$LOGS/actor.log" "$BIN/env_steps"
   add "$(grep -E '^\||^Several' "$LOGS/actor.log" || echo "FAILED: $(tail -n 5 "$LOGS/actor.log" | tr '\n' ' ')")"
 fi
