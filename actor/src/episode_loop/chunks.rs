@@ -6,8 +6,14 @@ use proto::{FrameBatch, FrameSlices, ObsDtype, RolloutChunk};
 
 use crate::env::Observation;
 
+/// Most steps a new chunk reserves room for: chunks may be set to thousands
+/// of steps (`proto::MAX_STEPS`), which at 128 px would reserve gigabytes
+/// per environment up front, for episodes that may end far sooner.
+const MAX_RESERVED_STEPS: usize = 64;
+
 /// An empty chunk in `layout`, starting from recurrent state `start_hidden`,
-/// with room for `steps` steps (so booking a step never reallocates).
+/// with room for `steps` steps (up to [`MAX_RESERVED_STEPS`]), so that
+/// booking a step does not reallocate.
 pub(super) fn new_chunk(
     episode_id: u64,
     first_step: u32,
@@ -15,6 +21,7 @@ pub(super) fn new_chunk(
     start_hidden: Vec<f32>,
     steps: usize,
 ) -> RolloutChunk {
+    let steps = steps.min(MAX_RESERVED_STEPS);
     let obs_bytes = layout.obs_len() * layout.obs_dtype.size();
     RolloutChunk {
         episode_id,
