@@ -184,6 +184,39 @@ fn surface_points_follow_the_map_as_it_changes() {
 }
 
 #[test]
+fn surface_points_follow_an_object_moved_held_and_put_back() {
+    // The map keeps each object's world-frame points until its volume or
+    // pose changes: ask once (filling that), then move one object, hold
+    // another (no longer placed), release it, and compare with the scan.
+    let mut map = labelled_map();
+    let requests = requests();
+    let check = |map: &Map, when: &str| {
+        let planes = map.surface_points().project_all(&requests);
+        for ((kind, grid), plane) in requests.iter().zip(&planes) {
+            assert_eq!(
+                plane,
+                &reference(map, *kind, grid),
+                "{when}: {kind:?} on {grid:?}"
+            );
+        }
+        planes
+    };
+    let before = check(&map, "as mapped");
+    let ids: Vec<mapper::ObjectId> = map.objects().keys().copied().collect();
+    let (moved, held) = (ids[0], ids[1]);
+    let pose = map.objects()[&moved].t_world_object;
+    map.set_object_pose(moved, Isometry3::translation(0.6, -0.4, 0.0) * pose)
+        .unwrap();
+    let after_move = check(&map, "one object moved");
+    assert_ne!(after_move, before, "the move shows in the planes");
+    map.hold(held).unwrap();
+    check(&map, "another held");
+    map.release(held, Isometry3::translation(-0.5, 0.0, 0.0))
+        .unwrap();
+    check(&map, "released elsewhere");
+}
+
+#[test]
 fn label_planes_show_each_object_where_it_stands_and_occupancy_respects_heights() {
     let map = labelled_map();
     let grid = GridSpec {
