@@ -3,7 +3,6 @@
 //! Voxel `(i, j, k)` covers `[i·s, (i+1)·s)` along each axis (its centre is at
 //! `(i + ½)·s`); negative indices use floor division, so there is no seam at 0.
 
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::OnceLock;
 
 use nalgebra::{Point3, Vector3};
@@ -221,16 +220,6 @@ pub struct Layer {
     /// Voxel edge length in metres.
     pub voxel_size_m: f32,
     blocks: FxHashMap<BlockIndex, Block>,
-    /// See [`Layer::revision`].
-    revision: u64,
-}
-
-/// The source of [`Layer::revision`]s: one count over every layer, so no
-/// two layers' contents share a revision unless one is a copy of the other.
-static REVISIONS: AtomicU64 = AtomicU64::new(0);
-
-fn next_revision() -> u64 {
-    REVISIONS.fetch_add(1, Ordering::Relaxed) + 1
 }
 
 impl Layer {
@@ -239,17 +228,7 @@ impl Layer {
         Self {
             voxel_size_m,
             blocks: FxHashMap::default(),
-            revision: next_revision(),
         }
-    }
-
-    /// A number that changes whenever the blocks may change (a block
-    /// handed out for writing, or removed) and that no other layer has
-    /// unless it is a copy of this one: two equal revisions mean equal
-    /// voxels, so what is worked out from a layer can be kept until its
-    /// revision moves (the map's world-frame surface points).
-    pub fn revision(&self) -> u64 {
-        self.revision
     }
 
     /// Block edge length in metres.
@@ -285,7 +264,6 @@ impl Layer {
 
     /// The block at `b`, allocated if missing.
     pub fn block_mut_or_insert(&mut self, b: BlockIndex) -> &mut Block {
-        self.revision = next_revision();
         self.blocks.entry(b).or_default()
     }
 
@@ -306,7 +284,6 @@ impl Layer {
 
     /// Frees the block at `b` (a no-op if it is not allocated).
     pub fn remove_block(&mut self, b: BlockIndex) {
-        self.revision = next_revision();
         self.blocks.remove(&b);
     }
 

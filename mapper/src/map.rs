@@ -8,10 +8,8 @@ mod object;
 mod reidentify;
 mod track;
 mod views;
-pub(crate) mod world_points;
 
 pub use object::{MapObject, ObjectId, Whereabouts};
-use world_points::WorldPointsCache;
 
 use std::collections::{BTreeMap, BTreeSet};
 
@@ -176,8 +174,6 @@ pub struct Map {
     merged_into: BTreeMap<ObjectId, ObjectId>,
     /// The labels of deleted objects that had any.
     retired: BTreeMap<ObjectId, ObjectLabels>,
-    /// Placed objects' world-frame surface points ([`Map::surface_points`]).
-    pub(crate) world_points: WorldPointsCache,
 }
 
 fn check_len(what: &'static str, got: usize, k: &Intrinsics) -> Result<(), MapError> {
@@ -208,7 +204,6 @@ impl Map {
             frame_pixels: FramePixels::default(),
             merged_into: BTreeMap::new(),
             retired: BTreeMap::new(),
-            world_points: WorldPointsCache::default(),
         }
     }
 

@@ -1,13 +1,12 @@
 //! 2-D projections of the map onto the floor plane (world z is up), at any
 //! extent and resolution, world-aligned or egocentric.
 
-use std::sync::Arc;
+use std::borrow::Cow;
 
 use nalgebra::{Point2, Point3};
 
 use crate::labels::Affordance;
 use crate::layer::floor_to_i32;
-use crate::map::world_points::floor_box;
 use crate::map::{Map, MapObject};
 
 /// A square grid on the floor plane.
@@ -113,44 +112,28 @@ impl Map {
     /// World-frame surface points of the background and of every placed
     /// object ([`crate::MapObject::is_placed`]; observed voxels within one
     /// voxel of the surface). Each block's points are kept by the block
-    /// until its voxels change, each object's world-frame points by the map
-    /// until its volume or pose changes, and the background's (whose frame
-    /// is the world's) are borrowed, not copied.
+    /// until its voxels change, and the background's (whose frame is the
+    /// world's) are borrowed, not copied.
     pub fn surface_points(&self) -> SurfacePoints<'_> {
         let mut groups = Vec::new();
         let background = self.background();
         for b in background.block_indices() {
             if let Some(points) = background.surface_points(b) {
-                groups.push(PointGroup::new(None, GroupPoints::Borrowed(points)));
+                groups.push(PointGroup::new(None, Cow::Borrowed(points)));
             }
         }
-        for (object, points) in self.world_points.of_placed(self.objects()) {
-            groups.push(PointGroup {
-                object: Some(object),
-                lo: points.lo,
-                hi: points.hi,
-                points: GroupPoints::Shared(points.points),
-            });
+        for object in self.objects().values().filter(|o| o.is_placed()) {
+            let volume = &object.volume;
+            let mut points = Vec::new();
+            for b in volume.block_indices() {
+                if let Some(block_points) = volume.surface_points(b) {
+                    points.extend(block_points.iter().map(|p| object.t_world_object * p));
+                }
+            }
+            groups.push(PointGroup::new(Some(object), Cow::Owned(points)));
         }
-        groups.retain(|g| !g.points.as_slice().is_empty());
+        groups.retain(|g| !g.points.is_empty());
         SurfacePoints { groups }
-    }
-}
-
-/// The points of a [`PointGroup`]: borrowed from a block, or an object's
-/// kept world-frame points.
-#[derive(Debug, Clone)]
-enum GroupPoints<'a> {
-    Borrowed(&'a [Point3<f32>]),
-    Shared(Arc<[Point3<f32>]>),
-}
-
-impl GroupPoints<'_> {
-    fn as_slice(&self) -> &[Point3<f32>] {
-        match self {
-            GroupPoints::Borrowed(points) => points,
-            GroupPoints::Shared(points) => points,
-        }
     }
 }
 
@@ -161,14 +144,18 @@ impl GroupPoints<'_> {
 struct PointGroup<'a> {
     /// `None` for the background.
     object: Option<&'a MapObject>,
-    points: GroupPoints<'a>,
+    points: Cow<'a, [Point3<f32>]>,
     lo: [f32; 2],
     hi: [f32; 2],
 }
 
 impl<'a> PointGroup<'a> {
-    fn new(object: Option<&'a MapObject>, points: GroupPoints<'a>) -> Self {
-        let (lo, hi) = floor_box(points.as_slice());
+    fn new(object: Option<&'a MapObject>, points: Cow<'a, [Point3<f32>]>) -> Self {
+        let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
+        for p in points.iter() {
+            lo = [lo[0].min(p.x), lo[1].min(p.y)];
+            hi = [hi[0].max(p.x), hi[1].max(p.y)];
+        }
         Self {
             object,
             points,
@@ -280,7 +267,7 @@ impl Raster {
             if always == 0 && by_height.is_empty() {
                 continue;
             }
-            for p in group.points.as_slice() {
+            for p in group.points.iter() {
                 let mut mask = always;
                 for (bit, heights) in &by_height {
                     if heights.contains(&p.z) {

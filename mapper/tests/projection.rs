@@ -185,9 +185,9 @@ fn surface_points_follow_the_map_as_it_changes() {
 
 #[test]
 fn surface_points_follow_an_object_moved_held_and_put_back() {
-    // The map keeps each object's world-frame points until its volume or
-    // pose changes: ask once (filling that), then move one object, hold
-    // another (no longer placed), release it, and compare with the scan.
+    // Ask once (filling the blocks' kept points), then move one object,
+    // hold another (no longer placed, so not shown), release it elsewhere,
+    // and compare each time with the plain scan.
     let mut map = labelled_map();
     let requests = requests();
     let check = |map: &Map, when: &str| {
