@@ -47,8 +47,7 @@ pub struct FrameBatch {
 impl FrameBatch {
     /// Number of frames.
     pub fn n_frames(&self) -> usize {
-        let pixels = (self.height * self.width) as usize;
-        self.depth_m.len().checked_div(pixels).unwrap_or(0)
+        self.whole().n_frames()
     }
 
     /// The whole batch, borrowed.
