@@ -24,7 +24,8 @@ Runs, one after the other, each under a time limit (about 9 minutes in all):
   5. deploy/throughput.sh: the whole system, `ours`, 1x32 at 64 px with the CPU
      renderer and with the GPU renderer, and 1x32 at 128 px with the GPU
      renderer, PPO on 1024-step batches (what the README advises on a GPU),
-     with each actor's loop thread's chores per step;
+     with each actor's loop thread's chores per step and its U-Net
+     batching threads' share;
   6. the gateway pair against loopback TCP (`gateway bench`, issue 41's
      figure, which the 2-core VM cannot reach), when DIR has gateway.
 and writes every result into one Markdown report.
@@ -182,11 +183,12 @@ if ! skipped throughput; then
     add "${side} px, ${steps}-step episodes, ${renderer} renderer, 1024-step PPO batches:" ""
     if grep -q '^| actors' "$log"; then
       add "$(grep -A20 '^| actors' "$log")" ""
-      # Whether each actor's loop thread (which all its environments wait
-      # for) was the wall: its last line says how busy it was.
+      # Whether each actor's loop thread or U-Net batching threads (which
+      # all its environments wait for) were the wall: its last lines say
+      # how busy they were.
       for run in "$LOGS/runs-${side}px-${renderer}"/*/; do
-        busy=$(grep -h "loop's thread was busy" "$run"logs/actor-*.log 2>/dev/null)
-        [[ -z "$busy" ]] || add "$(basename "$run"), the actors' loops:" "" "$busy" ""
+        busy=$(grep -hE "loop's thread was busy|U-Net batches of" "$run"logs/actor-*.log 2>/dev/null)
+        [[ -z "$busy" ]] || add "$(basename "$run"), the actors' loops and U-Net batches:" "" "$busy" ""
       done
     else
       add "FAILED: $(tail -n 5 "$log" | tr '\n' ' ')" ""

@@ -356,16 +356,10 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
                     break;
                 }
                 let (stepping, end, batches) = bench.free_running(new_envs(), passes_on_threads);
-                let unet = if batches.batches == 0 {
-                    "—".to_string() // the U-Net on each environment's thread
-                } else {
-                    format!(
-                        "U-Net batches of {:.1} frames, busy {:.0} % of the time ({:.1} ms each)",
-                        batches.frames as f64 / batches.batches as f64,
-                        100.0 * batches.busy.as_secs_f64() / stepping.as_secs_f64(),
-                        batches.busy.as_secs_f64() * 1e3 / batches.batches as f64
-                    )
-                };
+                // "—": the U-Net on each environment's thread.
+                let unet = batches
+                    .describe(stepping)
+                    .unwrap_or_else(|| "—".to_string());
                 row(stepped, (stepping, end), unet);
             }
         }

@@ -193,6 +193,20 @@ impl BatchTimes {
             busy: self.busy - earlier.busy,
         }
     }
+
+    /// One phrase: the batches' mean size and how busy the U-Net was over
+    /// `over` (the time the batches were run in); `None` when no batch
+    /// ran (the U-Net on each environment's thread).
+    pub fn describe(&self, over: Duration) -> Option<String> {
+        (self.batches > 0).then(|| {
+            format!(
+                "U-Net batches of {:.1} frames, busy {:.0} % of the time ({:.1} ms each)",
+                self.frames as f64 / self.batches as f64,
+                100.0 * self.busy.as_secs_f64() / over.as_secs_f64().max(1e-9),
+                self.busy.as_secs_f64() * 1e3 / self.batches as f64
+            )
+        })
+    }
 }
 
 static BATCHES: AtomicU64 = AtomicU64::new(0);
@@ -227,6 +241,29 @@ mod tests {
             .map(|i| 0.5 + (i % 7) as f32 * 0.1 + f32::from(shade) * 0.01)
             .collect();
         (rgb, depth)
+    }
+
+    #[test]
+    fn batch_times_describe_the_mean_batch_and_the_busy_share() {
+        let earlier = BatchTimes {
+            batches: 10,
+            frames: 20,
+            busy: Duration::from_millis(100),
+        };
+        let now = BatchTimes {
+            batches: 40,
+            frames: 140,
+            busy: Duration::from_millis(250),
+        };
+        let between = now.since(&earlier);
+        assert_eq!(
+            between.describe(Duration::from_millis(600)).as_deref(),
+            Some("U-Net batches of 4.0 frames, busy 25 % of the time (5.0 ms each)")
+        );
+        assert_eq!(
+            earlier.since(&earlier).describe(Duration::from_secs(1)),
+            None
+        );
     }
 
     #[test]

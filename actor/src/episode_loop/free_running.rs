@@ -12,6 +12,7 @@ use std::time::Instant;
 use super::loop_clock::{Chore, LoopClock};
 use super::{Acted, Actor, ChunkClose, RunningEpisode};
 use crate::env::threads::{Done, EnvThreads, PolicyPass, Task};
+use crate::env::unet_batcher::batch_times;
 use crate::env::{Environment, Observation, StepOutcome};
 
 /// Where an environment is, as the loop sees it.
@@ -51,6 +52,7 @@ pub(super) fn run(
     let model = actor.model;
     let started = Instant::now();
     let steps_before = actor.summary.steps;
+    let batches_before = batch_times();
     let clock = std::thread::scope(|scope| {
         let threads = EnvThreads::start(scope, envs, model, actor.inference);
         drive(actor, &threads, stop)
@@ -61,6 +63,14 @@ pub(super) fn run(
         actor.settings.actor_id,
         clock.report(started.elapsed(), actor.summary.steps - steps_before)
     );
+    // Whether the U-Net's batching threads, which every environment also
+    // waits for, were the wall instead.
+    if let Some(unet) = batch_times()
+        .since(&batches_before)
+        .describe(started.elapsed())
+    {
+        eprintln!("actor {}: {unet}", actor.settings.actor_id);
+    }
     Ok(())
 }
 
