@@ -220,6 +220,19 @@ pub struct Layer {
     /// Voxel edge length in metres.
     pub voxel_size_m: f32,
     blocks: FxHashMap<BlockIndex, Block>,
+    /// [`Layer::block_bounds`] and [`Layer::crossing_bounds`], worked out
+    /// on first use and forgotten whenever a block may change: the map
+    /// asks for them several times a frame for every object it renders,
+    /// and most objects are not touched in a frame.
+    bounds: OnceLock<Bounds>,
+}
+
+/// A layer's two boxes, as [`Layer::block_bounds`] and
+/// [`Layer::crossing_bounds`] give them.
+#[derive(Debug, Clone, Copy)]
+struct Bounds {
+    blocks: Option<(Point3<f32>, Point3<f32>)>,
+    crossings: Option<(Point3<f32>, Point3<f32>)>,
 }
 
 impl Layer {
@@ -228,6 +241,7 @@ impl Layer {
         Self {
             voxel_size_m,
             blocks: FxHashMap::default(),
+            bounds: OnceLock::new(),
         }
     }
 
@@ -264,6 +278,7 @@ impl Layer {
 
     /// The block at `b`, allocated if missing.
     pub fn block_mut_or_insert(&mut self, b: BlockIndex) -> &mut Block {
+        self.bounds.take();
         self.blocks.entry(b).or_default()
     }
 
@@ -284,6 +299,7 @@ impl Layer {
 
     /// Frees the block at `b` (a no-op if it is not allocated).
     pub fn remove_block(&mut self, b: BlockIndex) {
+        self.bounds.take();
         self.blocks.remove(&b);
     }
 
@@ -401,6 +417,23 @@ impl Layer {
     /// every side. Rays that miss this box, and the parts of rays beyond
     /// it, need no marching.
     pub fn crossing_bounds(&self) -> Option<(Point3<f32>, Point3<f32>)> {
+        self.bounds().crossings
+    }
+
+    /// Axis-aligned bounds (layer frame) of all allocated blocks, or `None` when empty.
+    pub fn block_bounds(&self) -> Option<(Point3<f32>, Point3<f32>)> {
+        self.bounds().blocks
+    }
+
+    fn bounds(&self) -> Bounds {
+        *self.bounds.get_or_init(|| Bounds {
+            blocks: self.scan_block_bounds(),
+            crossings: self.scan_crossing_bounds(),
+        })
+    }
+
+    /// [`Layer::crossing_bounds`] from the blocks.
+    fn scan_crossing_bounds(&self) -> Option<(Point3<f32>, Point3<f32>)> {
         let mut bounds: Option<[[i32; 3]; 2]> = None;
         for (b, block) in &self.blocks {
             let Some([lo, hi]) = block.behind_offsets() else {
@@ -431,8 +464,8 @@ impl Layer {
         ))
     }
 
-    /// Axis-aligned bounds (layer frame) of all allocated blocks, or `None` when empty.
-    pub fn block_bounds(&self) -> Option<(Point3<f32>, Point3<f32>)> {
+    /// [`Layer::block_bounds`] from the blocks.
+    fn scan_block_bounds(&self) -> Option<(Point3<f32>, Point3<f32>)> {
         let s = self.block_size_m();
         let mut it = self.blocks.keys();
         let first = it.next()?;
@@ -520,6 +553,36 @@ mod tests {
         set(&mut layer, [3, 4, 5], 0.02);
         set(&mut layer, [-9, 4, 20], 0.02);
         assert_eq!(layer.crossing_bounds(), None);
+    }
+
+    #[test]
+    fn block_bounds_follow_blocks_added_and_removed() {
+        let mut layer = Layer::new(0.04);
+        assert_eq!(layer.block_bounds(), None);
+        let edge = layer.block_size_m();
+        layer.block_mut_or_insert(BlockIndex([0, 0, 0]));
+        assert_eq!(
+            layer.block_bounds(),
+            Some((Point3::origin(), Point3::new(edge, edge, edge)))
+        );
+        layer.block_mut_or_insert(BlockIndex([-2, 1, 0]));
+        assert_eq!(
+            layer.block_bounds(),
+            Some((
+                Point3::new(-2.0 * edge, 0.0, 0.0),
+                Point3::new(edge, 2.0 * edge, edge)
+            ))
+        );
+        layer.remove_block(BlockIndex([0, 0, 0]));
+        assert_eq!(
+            layer.block_bounds(),
+            Some((
+                Point3::new(-2.0 * edge, edge, 0.0),
+                Point3::new(-edge, 2.0 * edge, edge)
+            ))
+        );
+        layer.remove_block(BlockIndex([-2, 1, 0]));
+        assert_eq!(layer.block_bounds(), None);
     }
 
     #[test]
