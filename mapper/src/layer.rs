@@ -288,11 +288,15 @@ impl Layer {
     pub fn surface_points(&self, b: BlockIndex) -> Option<&[Point3<f32>]> {
         let block = self.blocks.get(&b)?;
         let points = block.data.surface.get_or_init(|| {
-            let mut points = Vec::new();
+            // Gathered on the stack and kept in one allocation of the
+            // right size (growing a vector by doubling cost more).
+            let mut points = [Point3::origin(); BLOCK_VOXELS];
+            let mut count = 0;
             block.for_each_near_surface(self.voxel_size_m, |o, _| {
-                points.push(self.voxel_center(VoxelIndex::join(b, o)));
+                points[count] = self.voxel_center(VoxelIndex::join(b, o));
+                count += 1;
             });
-            points
+            points[..count].to_vec()
         });
         Some(points)
     }

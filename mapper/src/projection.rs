@@ -124,11 +124,15 @@ impl Map {
         }
         for object in self.objects().values().filter(|o| o.is_placed()) {
             let volume = &object.volume;
-            let mut points = Vec::new();
-            for b in volume.block_indices() {
-                if let Some(block_points) = volume.surface_points(b) {
-                    points.extend(block_points.iter().map(|p| object.t_world_object * p));
-                }
+            let blocks: Vec<&[Point3<f32>]> = volume
+                .block_indices()
+                .into_iter()
+                .filter_map(|b| volume.surface_points(b))
+                .collect();
+            // One allocation of the right size, not one per doubling.
+            let mut points = Vec::with_capacity(blocks.iter().map(|b| b.len()).sum());
+            for block_points in blocks {
+                points.extend(block_points.iter().map(|p| object.t_world_object * p));
             }
             groups.push(PointGroup::new(Some(object), Cow::Owned(points)));
         }
