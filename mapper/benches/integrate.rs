@@ -245,29 +245,50 @@ fn compare_renderers(map: &Map, frames: &[OwnedFrame]) {
     for size in [128, 64] {
         let k = mapper::Intrinsics::from_fov(size, size, 90.0);
         let (mut quarter, mut every) = (Vec::new(), Vec::new());
-        for _ in 0..5 {
+        // How far the quarter-ray render strays from a ray per pixel.
+        let (mut other_id, mut depth_errors) = (0, Vec::new());
+        for round in 0..5 {
             for f in frames {
                 let layers = map.objects_in_camera(&f.pose);
                 let started = std::time::Instant::now();
-                std::hint::black_box(render_layers(&layers, &k, 0.1, 0.04, None));
+                let fast = std::hint::black_box(render_layers(&layers, &k, 0.1, 0.04, None));
                 quarter.push(started.elapsed().as_secs_f64());
                 let started = std::time::Instant::now();
                 let mut target = RenderTarget::new(&k);
                 for l in &layers {
                     l.raycast(&k, 0.1, &mut target, Pixels::All);
                 }
-                std::hint::black_box(target);
+                let exact = std::hint::black_box(target);
                 every.push(started.elapsed().as_secs_f64());
+                if round > 0 {
+                    continue;
+                }
+                for px in 0..k.pixels() {
+                    if fast.ids[px] != exact.ids[px] {
+                        other_id += 1;
+                    } else if exact.ids[px] != 0 {
+                        depth_errors.push((fast.depth_m[px] - exact.depth_m[px]).abs());
+                    }
+                }
             }
         }
+        depth_errors.sort_by(f32::total_cmp);
+        let p99 = depth_errors[depth_errors.len() * 99 / 100];
+        let max = depth_errors.last().copied().unwrap_or(0.0);
         let median = |mut v: Vec<f64>| {
             v.sort_by(f64::total_cmp);
             v[v.len() / 2] * 1e3
         };
         let (q, e) = (median(quarter), median(every));
         eprintln!(
-            "render objects at {size} px: quarter rays {q:.3} ms, a ray per pixel {e:.3} ms (ratio {:.2})",
-            q / e
+            "render objects at {size} px: quarter rays {q:.3} ms, a ray per pixel {e:.3} ms (ratio {:.2}); \
+             the quarter-ray render against a ray per pixel: {other_id} of {} pixels with another id, \
+             depth error p99 {:.1} mm, max {:.1} mm over {} object pixels",
+            q / e,
+            frames.len() * k.pixels(),
+            p99 * 1e3,
+            max * 1e3,
+            depth_errors.len()
         );
     }
 }
