@@ -529,10 +529,10 @@ impl PlacedLayer<'_> {
 /// depth changes by more than `max_spread_m` between sampled pixels), is
 /// filled from them (the mean of their inverse depths, exact on a plane).
 /// The others (silhouettes, depth edges) get rays of their own, into the
-/// layers their neighbours show only, so ids and depths there are exact; pixels of the
-/// last row and column, which lack neighbours on one side, get rays into
-/// every layer. What this can miss: a layer narrower than two pixels, which
-/// association ignores anyway.
+/// layers their neighbours show only, so ids and depths there are exact;
+/// pixels of the last row and column, which lack neighbours on one side,
+/// get rays into every layer. What this can miss: a layer narrower than two
+/// pixels, which association ignores anyway.
 ///
 /// With `far_m` (a z-depth per pixel), a pixel shows only surfaces nearer
 /// than its `far_m`: rays stop there, and layers wholly beyond it are not
