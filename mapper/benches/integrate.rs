@@ -246,7 +246,7 @@ fn compare_renderers(map: &Map, frames: &[OwnedFrame]) {
         let k = mapper::Intrinsics::from_fov(size, size, 90.0);
         let (mut quarter, mut every) = (Vec::new(), Vec::new());
         // How far the quarter-ray render strays from a ray per pixel.
-        let (mut other_id, mut depth_errors) = (0, Vec::new());
+        let mut agreement = common::RenderAgreement::default();
         for round in 0..5 {
             for f in frames {
                 let layers = map.objects_in_camera(&f.pose);
@@ -260,21 +260,12 @@ fn compare_renderers(map: &Map, frames: &[OwnedFrame]) {
                 }
                 let exact = std::hint::black_box(target);
                 every.push(started.elapsed().as_secs_f64());
-                if round > 0 {
-                    continue;
-                }
-                for px in 0..k.pixels() {
-                    if fast.ids[px] != exact.ids[px] {
-                        other_id += 1;
-                    } else if exact.ids[px] != 0 {
-                        depth_errors.push((fast.depth_m[px] - exact.depth_m[px]).abs());
-                    }
+                if round == 0 {
+                    agreement.add(&fast, &exact);
                 }
             }
         }
-        depth_errors.sort_by(f32::total_cmp);
-        let p99 = depth_errors[depth_errors.len() * 99 / 100];
-        let max = depth_errors.last().copied().unwrap_or(0.0);
+        let (p99, max) = agreement.depth_p99_and_max();
         let median = |mut v: Vec<f64>| {
             v.sort_by(f64::total_cmp);
             v[v.len() / 2] * 1e3
@@ -282,13 +273,14 @@ fn compare_renderers(map: &Map, frames: &[OwnedFrame]) {
         let (q, e) = (median(quarter), median(every));
         eprintln!(
             "render objects at {size} px: quarter rays {q:.3} ms, a ray per pixel {e:.3} ms (ratio {:.2}); \
-             the quarter-ray render against a ray per pixel: {other_id} of {} pixels with another id, \
+             the quarter-ray render against a ray per pixel: {} of {} pixels with another id, \
              depth error p99 {:.1} mm, max {:.1} mm over {} object pixels",
             q / e,
-            frames.len() * k.pixels(),
+            agreement.other_id,
+            agreement.compared,
             p99 * 1e3,
             max * 1e3,
-            depth_errors.len()
+            agreement.depth_errors.len()
         );
     }
 }

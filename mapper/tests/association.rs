@@ -226,7 +226,7 @@ fn quarter_ray_rendering_matches_a_ray_through_every_pixel() {
 
     let map = mapped_scene();
     let k = k128();
-    let (mut compared, mut id_mismatch, mut depth_errors) = (0, 0, Vec::new());
+    let mut agreement = common::RenderAgreement::default();
     for pose in [
         look_at(Point3::new(-1.6, -1.7, 1.2), Point3::new(0.0, 0.3, 0.3)),
         look_at(Point3::new(2.0, -0.5, 0.9), Point3::new(0.2, 0.4, 0.3)),
@@ -238,18 +238,14 @@ fn quarter_ray_rendering_matches_a_ray_through_every_pixel() {
         for l in &layers {
             l.raycast(&k, 0.1, &mut exact, Pixels::All);
         }
-        for px in 0..k.pixels() {
-            compared += 1;
-            if fast.ids[px] != exact.ids[px] {
-                id_mismatch += 1;
-            } else if exact.ids[px] != 0 {
-                depth_errors.push((fast.depth_m[px] - exact.depth_m[px]).abs());
-            }
-        }
+        agreement.add(&fast, &exact);
     }
-    depth_errors.sort_by(f32::total_cmp);
-    let p99 = depth_errors[depth_errors.len() * 99 / 100];
-    let max = depth_errors.last().copied().unwrap_or(0.0);
+    let (p99, max) = agreement.depth_p99_and_max();
+    let common::RenderAgreement {
+        compared,
+        other_id: id_mismatch,
+        depth_errors,
+    } = agreement;
     eprintln!(
         "quarter-ray render: {id_mismatch} of {compared} pixels with another id; depth error p99 {p99:.4} m, max {max:.4} m over {} object pixels",
         depth_errors.len()

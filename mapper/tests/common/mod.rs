@@ -174,3 +174,42 @@ impl OwnedFrame {
 pub fn k128() -> Intrinsics {
     Intrinsics::from_fov(128, 128, 90.0)
 }
+
+/// How far a render strays from a reference render of the same camera:
+/// pixels showing another id, and the depth differences where both show
+/// the same object.
+#[derive(Debug, Default)]
+pub struct RenderAgreement {
+    /// Pixels compared.
+    pub compared: usize,
+    /// Pixels whose ids differ.
+    pub other_id: usize,
+    /// Absolute depth differences (metres) on pixels where both show one object.
+    pub depth_errors: Vec<f32>,
+}
+
+impl RenderAgreement {
+    /// Adds one pair of renders.
+    pub fn add(
+        &mut self,
+        render: &mapper::render::RenderTarget,
+        reference: &mapper::render::RenderTarget,
+    ) {
+        for (px, (&id, &reference_id)) in render.ids.iter().zip(&reference.ids).enumerate() {
+            self.compared += 1;
+            if id != reference_id {
+                self.other_id += 1;
+            } else if reference_id != 0 {
+                self.depth_errors
+                    .push((render.depth_m[px] - reference.depth_m[px]).abs());
+            }
+        }
+    }
+
+    /// The 99th percentile and the largest of the depth errors.
+    pub fn depth_p99_and_max(&mut self) -> (f32, f32) {
+        self.depth_errors.sort_by(f32::total_cmp);
+        let p99 = self.depth_errors[self.depth_errors.len() * 99 / 100];
+        (p99, self.depth_errors.last().copied().unwrap_or(0.0))
+    }
+}
