@@ -6,7 +6,7 @@
 //! inside one surface from their neighbours, and marches the rest
 //! (silhouettes, depth edges) exactly. mapper.md allows ray marching or
 //! projection; this keeps marching's exact silhouettes, which splatting
-//! voxels would dilate, at 0.72–0.74 of its cost in `cargo bench -p mapper`'s
+//! voxels would dilate, at 0.72–0.80 of its cost in `cargo bench -p mapper`'s
 //! room (silhouettes' rays, grazing their surfaces, cost more than most).
 //!
 //! Each ray is marched only near where its layer can show a surface: from
@@ -593,27 +593,29 @@ pub fn render_layers(
             if one_layer && ids[0] == 0 {
                 continue; // nothing around, nothing here
             }
-            // Inverse depth is affine in the pixel coordinates on a plane,
-            // so its mean over the neighbours (symmetric about this pixel)
-            // is exact there.
-            let depth = 4.0 / depths.iter().map(|d| d.recip()).sum::<f32>();
-            let smooth = || {
-                hi - lo <= max_spread_m || {
-                    let tolerance = SMOOTH_TOLERANCE * max_spread_m;
-                    let along = |du: isize, dv: isize| {
-                        smooth_across(&target, k, (u, v), (du, dv), ids[0], tolerance)
-                    };
-                    match (u % 2 == 1, v % 2 == 1) {
-                        (true, false) => along(1, 0),
-                        (false, true) => along(0, 1),
-                        _ => along(1, 1) && along(1, -1),
+            if one_layer {
+                // Inverse depth is affine in the pixel coordinates on a
+                // plane, so its mean over the neighbours (symmetric about
+                // this pixel) is exact there.
+                let depth = 4.0 / depths.iter().map(|d| d.recip()).sum::<f32>();
+                let smooth = || {
+                    hi - lo <= max_spread_m || {
+                        let tolerance = SMOOTH_TOLERANCE * max_spread_m;
+                        let along = |du: isize, dv: isize| {
+                            smooth_across(&target, k, (u, v), (du, dv), ids[0], tolerance)
+                        };
+                        match (u % 2 == 1, v % 2 == 1) {
+                            (true, false) => along(1, 0),
+                            (false, true) => along(0, 1),
+                            _ => along(1, 1) && along(1, -1),
+                        }
                     }
+                };
+                if depth < target.depth_m[px] && smooth() {
+                    target.depth_m[px] = depth;
+                    target.ids[px] = ids[0];
+                    continue;
                 }
-            };
-            if one_layer && depth < target.depth_m[px] && smooth() {
-                target.depth_m[px] = depth;
-                target.ids[px] = ids[0];
-                continue;
             }
             for (i, &id) in ids.iter().enumerate() {
                 if id != 0 && !ids[..i].contains(&id) {
