@@ -14,7 +14,10 @@ over the measuring window (its /api/status), stops the run, and prints a
 Markdown table: steps/s the learner took from all actors and per actor
 process, PPO updates/s, labelled frames the U-Net trainer took and skipped,
 rollout steps PPO discarded (it was behind), and messages lost in transit
-(with their share of all messages sent in the window).
+(with their share of all messages sent in the window), and how many CPU cores
+the learner process and the actor processes kept busy over the window (their
+CPU time from /proc over its length; the machine's core count beside them),
+which tells a run bound by the CPU from one bound by something else.
 
 Options:
   --settings LIST   comma-separated AxK pairs (default 2x1,1x2)
@@ -58,15 +61,33 @@ command -v python3 >/dev/null || { echo "throughput.sh: needs python3" >&2; exit
 [[ -n "$RUNS" ]] || RUNS="runs/throughput-$(date -u +%Y%m%dT%H%M%SZ)"
 mkdir -p "$RUNS"
 
-# The counters of /api/status the table is made of, as one JSON line.
+# The counters of /api/status the table is made of, and the CPU seconds of
+# each learner and actor process under the run (pid -> [name, seconds]), as
+# one JSON line.
 counters() {
   curl -fsS "http://127.0.0.1:$PORT/api/status" | python3 -c '
-import json, sys, time
+import json, os, sys, time
 s = json.load(sys.stdin)
+procs = {}
+for d in filter(str.isdigit, os.listdir("/proc")):
+    try:
+        stat = open(f"/proc/{d}/stat").read()
+    except OSError:
+        continue  # gone since the listing
+    name = stat[stat.index("(") + 1:stat.rindex(")")]
+    f = stat[stat.rindex(")") + 2:].split()
+    procs[d] = (f[1], name, (int(f[11]) + int(f[12])) / os.sysconf("SC_CLK_TCK"))
+under, grew = {sys.argv[1]}, True
+while grew:
+    more = {d for d, (ppid, _, _) in procs.items() if ppid in under} - under
+    under |= more
+    grew = bool(more)
+cpu = {d: [procs[d][1], procs[d][2]] for d in under
+       if d in procs and procs[d][1] in ("learner", "actor")}
 print(json.dumps({"t": time.time(), "steps": s["env_steps"], "updates": s["updates"],
   "frames": s["frames_received"], "skipped": s["frames_skipped"],
   "discarded": s.get("rollout_steps_discarded", 0), "dropped": s["dropped"],
-  "messages": sum(s["received"].values())}))'
+  "messages": sum(s["received"].values()), "cpu": cpu}))' "$RUN_PID"
 }
 
 RUN_PID=""
@@ -108,15 +129,21 @@ for pair in "${PAIRS[@]}"; do
   stop_run
   ROWS+=("$(python3 -c "
 import json
+import json, os
 a, b = json.loads('$c0'), json.loads('$c1')
-d = {k: b[k] - a[k] for k in a}
+d = {k: b[k] - a[k] for k in a if k != 'cpu'}
 s = d['t']
 sent = d['messages'] + d['dropped']
-print('| $actors | $envs | %.1f | %.1f | %.2f | %d / %d | %d | %d (%.2f %%) |' % (
+# A process started within the window (a restarted actor) counts in full.
+busy = {'learner': 0.0, 'actor': 0.0}
+for pid, (name, secs) in b['cpu'].items():
+    busy[name] += secs - a['cpu'].get(pid, [name, 0.0])[1]
+print('| $actors | $envs | %.1f | %.1f | %.2f | %d / %d | %d | %d (%.2f %%) | %.1f / %.1f of %d |' % (
     d['steps'] / s, d['steps'] / s / $actors, d['updates'] / s, d['frames'], d['skipped'],
-    d['discarded'], d['dropped'], 100.0 * d['dropped'] / max(sent, 1)))")")
+    d['discarded'], d['dropped'], 100.0 * d['dropped'] / max(sent, 1),
+    busy['learner'] / s, busy['actor'] / s, os.cpu_count()))")")
 done
 
-echo "| actors | environments each | steps/s taken, all actors | per actor process | PPO updates/s | U-Net frames taken / skipped | rollout steps discarded | messages lost in transit |"
-echo "|---|---|---|---|---|---|---|---|"
+echo "| actors | environments each | steps/s taken, all actors | per actor process | PPO updates/s | U-Net frames taken / skipped | rollout steps discarded | messages lost in transit | CPU cores busy: learner / actors |"
+echo "|---|---|---|---|---|---|---|---|---|"
 printf '%s\n' "${ROWS[@]}"

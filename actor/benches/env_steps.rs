@@ -20,7 +20,10 @@
 //! for comparison free-running with the policy's passes on the caller's
 //! thread. It reports
 //! steps/s per process and per environment, then the episode's end
-//! (labelling, in parallel) and steps/s per process with that end included.
+//! (labelling, in parallel) and steps/s per process with that end included,
+//! and how many cores the process kept busy while stepping (its CPU time
+//! over the wall time): near the machine's count, the run is bound by the
+//! CPU and only less work per step makes it faster.
 //!
 //! `AFX_DEVICE=gpu` runs the U-Net on the GPU (a build with
 //! `--features nets/gpu`); `AFX_DATA` points at the shared data directory
@@ -283,8 +286,8 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
     let inference = several_envs_inference(device);
     println!();
     println!("Several environments per process, {renderer_choice:?} renderer, U-Net inference {inference:?}:");
-    println!("| method | px | environments | stepped | steps/s per process | steps/s per environment | episode end | steps/s per process, end included | lock-step, per round: policy / first halves (slowest environment's, mean) / U-Net / second halves; free-running on a GPU: the U-Net's batches |");
-    println!("|---|---|---|---|---|---|---|---|---|");
+    println!("| method | px | environments | stepped | steps/s per process | steps/s per environment | episode end | steps/s per process, end included | CPU cores busy (of {}) | lock-step, per round: policy / first halves (slowest environment's, mean) / U-Net / second halves; free-running on a GPU: the U-Net's batches |", cores());
+    println!("|---|---|---|---|---|---|---|---|---|---|");
     for method in [Method::Ours, Method::NomapSeg] {
         for &n in &counts {
             let task = TaskSpec {
@@ -318,15 +321,18 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
                 device,
                 inference,
             };
-            let row = |stepped: &str, (stepping, end): (Duration, Duration), phases: String| {
+            let row = |stepped: &str, timed: Timed, phases: String| {
                 let steps = episode_steps();
-                let per_process = (n * steps) as f64 / stepping.as_secs_f64();
+                let per_process = (n * steps) as f64 / timed.stepping.as_secs_f64();
+                let busy = timed.cpu.map_or("—".to_string(), |cpu| {
+                    format!("{:.1}", cpu.as_secs_f64() / timed.stepping.as_secs_f64())
+                });
                 println!(
-                    "| {} | {side} | {n} | {stepped} | {per_process:.1} | {:.1} | {:.0} ms | {:.1} | {phases} |",
+                    "| {} | {side} | {n} | {stepped} | {per_process:.1} | {:.1} | {:.0} ms | {:.1} | {busy} | {phases} |",
                     method.as_str(),
                     per_process / n as f64,
-                    end.as_secs_f64() * 1e3,
-                    (n * steps) as f64 / (stepping + end).as_secs_f64(),
+                    timed.end.as_secs_f64() * 1e3,
+                    (n * steps) as f64 / (timed.stepping + timed.end).as_secs_f64(),
                 );
             };
             let (times, policy, phases) = bench.lockstep(envs);
@@ -355,12 +361,12 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
                 if n == 1 {
                     break;
                 }
-                let (stepping, end, batches) = bench.free_running(new_envs(), passes_on_threads);
+                let (timed, batches) = bench.free_running(new_envs(), passes_on_threads);
                 // "—": the U-Net on each environment's thread.
                 let unet = batches
-                    .describe(stepping)
+                    .describe(timed.stepping)
                     .unwrap_or_else(|| "—".to_string());
-                row(stepped, (stepping, end), unet);
+                row(stepped, timed, unet);
             }
         }
     }
@@ -377,13 +383,10 @@ struct SeveralEnvs<'a> {
 }
 
 impl SeveralEnvs<'_> {
-    /// One episode of `envs` in lock-step: the time of its steps, and of its end.
-    /// The stepping and the episode's end; the policy's passes in all; the
-    /// steps' phases (resets not included).
-    fn lockstep(
-        &self,
-        mut envs: Vec<FlatSimEnv>,
-    ) -> ((Duration, Duration), Duration, lockstep::PhaseTimes) {
+    /// One episode of `envs` in lock-step: the stepping and the episode's
+    /// end; the policy's passes in all; the steps' phases (resets not
+    /// included).
+    fn lockstep(&self, mut envs: Vec<FlatSimEnv>) -> (Timed, Duration, lockstep::PhaseTimes) {
         let model = self.model.read().unwrap();
         let mut refs: Vec<&mut FlatSimEnv> = envs.iter_mut().collect();
         let seeds: Vec<u64> = (1..=refs.len() as u64).collect();
@@ -391,6 +394,7 @@ impl SeveralEnvs<'_> {
             reset_all(&mut refs, &seeds, model.as_ref(), self.inference).expect("reset");
         let mut rng = StdRng::seed_from_u64(1);
         let start = Instant::now();
+        let cpu_before = process_cpu_time();
         let before = lockstep::phase_times();
         let mut policy = Duration::ZERO;
         for _ in 0..episode_steps() {
@@ -414,6 +418,7 @@ impl SeveralEnvs<'_> {
                 .collect();
         }
         let stepping = start.elapsed();
+        let cpu = cpu_since(cpu_before);
         let phases = lockstep::phase_times().since(&before);
         let end_started = Instant::now();
         refs.par_iter_mut()
@@ -421,7 +426,8 @@ impl SeveralEnvs<'_> {
             .map(|(i, env)| env.finish_episode(i as u64))
             .collect::<anyhow::Result<Vec<_>>>()
             .expect("the episode's end");
-        ((stepping, end_started.elapsed()), policy, phases)
+        let end = end_started.elapsed();
+        (Timed { stepping, cpu, end }, policy, phases)
     }
 
     /// One episode of each of `envs`, free-running as the actor runs them:
@@ -430,11 +436,7 @@ impl SeveralEnvs<'_> {
     /// every observation that came in since its last pass (on the CPU one
     /// at a time); on a GPU the U-Net in the batching thread's batches.
     /// The stepping, the episode's end, and what the batching thread did.
-    fn free_running(
-        &self,
-        envs: Vec<FlatSimEnv>,
-        passes_on_threads: bool,
-    ) -> (Duration, Duration, BatchTimes) {
+    fn free_running(&self, envs: Vec<FlatSimEnv>, passes_on_threads: bool) -> (Timed, BatchTimes) {
         let n = envs.len();
         std::thread::scope(|scope| {
             let boxed = envs
@@ -486,6 +488,7 @@ impl SeveralEnvs<'_> {
                 }
             }
             let start = Instant::now();
+            let cpu_before = process_cpu_time();
             let before = batch_times();
             act(&first);
             let mut stepped = vec![0; n];
@@ -510,6 +513,7 @@ impl SeveralEnvs<'_> {
                 }
             }
             let stepping = start.elapsed();
+            let cpu = cpu_since(cpu_before);
             let batches = batch_times().since(&before);
             let end_started = Instant::now();
             for index in 0..n {
@@ -520,9 +524,46 @@ impl SeveralEnvs<'_> {
             for _ in 0..n {
                 threads.next().expect("the episode's end");
             }
-            (stepping, end_started.elapsed(), batches)
+            let end = end_started.elapsed();
+            (Timed { stepping, cpu, end }, batches)
         })
     }
+}
+
+/// One episode of several environments: its stepping (wall and the
+/// process's CPU time) and its end.
+struct Timed {
+    stepping: Duration,
+    /// CPU time of every thread of the process while stepping: over the
+    /// wall time, how many cores the environments kept busy (so whether a
+    /// run is bound by the CPU). `None` where it could not be read.
+    cpu: Option<Duration>,
+    end: Duration,
+}
+
+/// This process's CPU time so far, all threads, user and system.
+fn process_cpu_time() -> Option<Duration> {
+    // SAFETY: getrusage only writes the `rusage` it is given, which is
+    // ours, and all-zero bytes are a valid `rusage`.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: as above; RUSAGE_SELF names this process.
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) } != 0 {
+        return None;
+    }
+    let time = |t: libc::timeval| {
+        Duration::from_secs(t.tv_sec.max(0) as u64) + Duration::from_micros(t.tv_usec.max(0) as u64)
+    };
+    Some(time(usage.ru_utime) + time(usage.ru_stime))
+}
+
+/// The CPU time this process used since `before` ([`process_cpu_time`]).
+fn cpu_since(before: Option<Duration>) -> Option<Duration> {
+    Some(process_cpu_time()?.saturating_sub(before?))
+}
+
+/// Cores this process may run on (for the CPU column's heading).
+fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
 /// The policy's forward pass over `observations`, as the actor runs it each

@@ -322,11 +322,31 @@ fn throughput_sh_measures_each_setting_and_stops_its_runs() {
     assert_eq!(rows.len(), 2, "{table}");
     for (row, (actors, envs)) in rows.iter().zip([(1.0, 1.0), (1.0, 2.0)]) {
         // actors, environments, steps/s, per process, updates/s, steps discarded
-        // (frames "taken / skipped" and messages lost "n (x %)" are not plain numbers).
+        // (frames "taken / skipped", messages lost "n (x %)" and CPU cores
+        // busy "learner / actors of cores" are not plain numbers).
         assert_eq!(row.len(), 6, "{table}");
         assert_eq!((row[0], row[1]), (actors, envs), "{table}");
         assert!(row[2] > 0.0 && row[3] > 0.0, "no steps counted:\n{table}");
         assert!(row[4] >= 0.0 && row[5] >= 0.0, "{table}");
+    }
+    // The actors stepped, so their processes kept some of a core busy; the
+    // learner's figure is a share of the machine too.
+    for line in table.lines().skip(2) {
+        let cell = line
+            .trim_end_matches(['|', ' '])
+            .rsplit('|')
+            .next()
+            .unwrap_or("");
+        let numbers: Vec<f64> = cell
+            .split(|c: char| c == '/' || c.is_whitespace())
+            .filter_map(|w| w.parse().ok())
+            .collect();
+        let [learner, actors, cores] = numbers[..] else {
+            panic!("no 'learner / actors of cores' cell in {line:?}:\n{table}");
+        };
+        assert!(cores >= 1.0, "{table}");
+        assert!(actors > 0.0 && actors <= cores + 0.5, "{table}");
+        assert!(learner >= 0.0 && learner <= cores + 0.5, "{table}");
     }
     // Each run was stopped cleanly: a final checkpoint, nothing left running.
     for setting in ["1x1", "1x2"] {
