@@ -14,7 +14,7 @@ over the measuring window (its /api/status), stops the run, and prints a
 Markdown table: steps/s the learner took from all actors and per actor
 process, PPO updates/s, labelled frames the U-Net trainer took and skipped,
 rollout steps PPO discarded (it was behind), and messages lost in transit
-(with their share of all messages sent in the window), and how many CPU cores
+(with their share of all messages sent in the window, and which kinds), and how many CPU cores
 the learner process and the actor processes kept busy over the window (their
 CPU time from /proc over its length; the machine's core count beside them),
 which tells a run bound by the CPU from one bound by something else.
@@ -87,7 +87,8 @@ cpu = {d: [procs[d][1], procs[d][2]] for d in under
 print(json.dumps({"t": time.time(), "steps": s["env_steps"], "updates": s["updates"],
   "frames": s["frames_received"], "skipped": s["frames_skipped"],
   "discarded": s.get("rollout_steps_discarded", 0), "dropped": s["dropped"],
-  "messages": sum(s["received"].values()), "cpu": cpu}))' "$RUN_PID"
+  "messages": sum(s["received"].values()), "cpu": cpu,
+  "lost": s.get("dropped_by_kind", {})}))' "$RUN_PID"
 }
 
 RUN_PID=""
@@ -131,16 +132,18 @@ for pair in "${PAIRS[@]}"; do
 import json
 import json, os
 a, b = json.loads('$c0'), json.loads('$c1')
-d = {k: b[k] - a[k] for k in a if k != 'cpu'}
+d = {k: b[k] - a[k] for k in a if k not in ('cpu', 'lost')}
 s = d['t']
 sent = d['messages'] + d['dropped']
 # A process started within the window (a restarted actor) counts in full.
+lost = ', '.join('%s %d' % (k, n - a['lost'].get(k, 0))
+                 for k, n in sorted(b['lost'].items()) if n > a['lost'].get(k, 0))
 busy = {'learner': 0.0, 'actor': 0.0}
 for pid, (name, secs) in b['cpu'].items():
     busy[name] += secs - a['cpu'].get(pid, [name, 0.0])[1]
-print('| $actors | $envs | %.1f | %.1f | %.2f | %d / %d | %d | %d (%.2f %%) | %.1f / %.1f of %d |' % (
+print('| $actors | $envs | %.1f | %.1f | %.2f | %d / %d | %d | %d (%.2f %%%s) | %.1f / %.1f of %d |' % (
     d['steps'] / s, d['steps'] / s / $actors, d['updates'] / s, d['frames'], d['skipped'],
-    d['discarded'], d['dropped'], 100.0 * d['dropped'] / max(sent, 1),
+    d['discarded'], d['dropped'], 100.0 * d['dropped'] / max(sent, 1), lost and ': ' + lost,
     busy['learner'] / s, busy['actor'] / s, os.cpu_count()))")")
 done
 

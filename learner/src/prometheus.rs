@@ -200,6 +200,18 @@ pub fn render(s: &StatusSnapshot, timings: &Timings) -> String {
         received,
     );
 
+    let dropped = Family::<KindLabel, Counter>::default();
+    for (kind, &n) in &s.dropped_by_kind {
+        dropped
+            .get_or_create(&KindLabel { kind: kind.clone() })
+            .inc_by(n);
+    }
+    r.register(
+        "messages_dropped_by_kind",
+        "Actor messages lost in transit (sequence gaps), per kind: which buffer overflowed",
+        dropped,
+    );
+
     let publishers = Family::<ServiceLabel, Gauge<f64, AtomicU64>>::default();
     for (service, &n) in &s.publishers {
         publishers

@@ -22,6 +22,9 @@ pub struct ActorState {
     pub received: BTreeMap<&'static str, u64>,
     /// Messages this actor sent that never arrived (gaps in its sequence numbers).
     pub dropped: u64,
+    /// [`ActorState::dropped`] per kind: which of the learner's buffers
+    /// overflowed (or which of its services a gateway lost messages on).
+    pub dropped_by_kind: BTreeMap<&'static str, u64>,
     /// Environment steps in accepted rollout chunks.
     pub env_steps: u64,
     /// Current policy version minus the version its newest chunk was produced with.
@@ -151,8 +154,10 @@ pub(crate) struct StatusSnapshot {
     pub received: BTreeMap<String, u64>,
     /// Rejected messages per service and reason.
     pub rejected: Vec<RejectedCount>,
-    /// Messages lost in transit per kind (sequence gaps), all actors.
+    /// Messages lost in transit (sequence gaps), all actors.
     pub dropped: u64,
+    /// [`StatusSnapshot::dropped`] per kind (`rollout`, `frames`, `stats`).
+    pub dropped_by_kind: BTreeMap<String, u64>,
     /// Valid chunks that did not fit the policy's shapes.
     pub untrainable_chunks: u64,
     /// Environment steps that went into policy updates.
@@ -277,6 +282,7 @@ impl LearnerStatus {
             last_seen: now,
             received: BTreeMap::new(),
             dropped: 0,
+            dropped_by_kind: BTreeMap::new(),
             env_steps: 0,
             policy_lag: 0,
             policy_version: 0,
@@ -293,6 +299,9 @@ impl LearnerStatus {
             .unwrap_or(sequence);
         let lost = sequence.saturating_sub(expected);
         actor.dropped += lost;
+        if lost > 0 {
+            *actor.dropped_by_kind.entry(kind.as_str()).or_default() += lost;
+        }
         actor.next_sequence.insert(kind.as_str(), sequence + 1);
         if kind == MessageKind::Rollout {
             actor.policy_version = policy_version;
@@ -380,6 +389,12 @@ impl LearnerStatus {
                 })
                 .collect(),
             dropped: actors.iter().map(|a| a.dropped).sum(),
+            dropped_by_kind: self.actors.values().fold(BTreeMap::new(), |mut all, a| {
+                for (&kind, &n) in &a.dropped_by_kind {
+                    *all.entry(kind.to_string()).or_default() += n;
+                }
+                all
+            }),
             untrainable_chunks: self.untrainable_chunks,
             trained_steps: self.trained_steps,
             ppo_batch_seconds: self.ppo_batch_seconds,
@@ -442,6 +457,32 @@ mod tests {
             status.accept(1, kind, 10_000_000, 0),
             Some(0),
             "a first message sets where an actor starts"
+        );
+    }
+
+    #[test]
+    fn losses_are_counted_per_kind_and_summed_over_actors() {
+        let mut status = LearnerStatus::new("run".into());
+        for (actor, kind, sequences) in [
+            (0, MessageKind::Rollout, [1, 2, 4]),
+            (0, MessageKind::Frames, [1, 5, 6]),
+            (1, MessageKind::Frames, [1, 3, 4]),
+            (1, MessageKind::Stats, [1, 2, 3]),
+        ] {
+            for sequence in sequences {
+                status.accept(actor, kind, sequence, 0);
+            }
+        }
+        assert_eq!(
+            status.actors[&0].dropped_by_kind,
+            BTreeMap::from([("frames", 3), ("rollout", 1)])
+        );
+        let snapshot = status.snapshot(60.0);
+        assert_eq!(snapshot.dropped, 5);
+        assert_eq!(
+            snapshot.dropped_by_kind,
+            BTreeMap::from([("frames".to_string(), 4), ("rollout".to_string(), 1)]),
+            "no entry for a kind that lost nothing"
         );
     }
 }

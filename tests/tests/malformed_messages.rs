@@ -120,6 +120,32 @@ fn malformed_messages_are_counted_and_the_learner_carries_on() {
         1,
         "the forged episode is not counted"
     );
+
+    // A gap in the sequence numbers is a loss, counted under its kind.
+    let after_a_gap = encode(
+        &EpisodeStats::new(3, 10, 0).with(StatField::EpisodeReturn, 3.0),
+        MessageHeader {
+            actor_id: 0,
+            sequence: 4,
+            ..Default::default()
+        },
+    );
+    ports
+        .publish_raw(MessageKind::Stats, &after_a_gap)
+        .expect("send");
+    let metrics = wait_for(Duration::from_secs(10), "the loss counted", || {
+        let m = learner.metrics();
+        (metric_value(&m, "afx_messages_dropped_total") == Some(2.0)).then_some(m)
+    });
+    assert_eq!(
+        metric_value(
+            &metrics,
+            "afx_messages_dropped_by_kind_total{kind=\"stats\"}"
+        ),
+        Some(2.0),
+        "sequences 2 and 3 of the stats were lost"
+    );
+    assert_eq!(learner.status()["dropped_by_kind"]["stats"], 2);
     assert_eq!(
         system_tests::http_get(&learner.addr, "/healthz").map(|r| r.0),
         Some(200)
