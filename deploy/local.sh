@@ -63,6 +63,12 @@ Options:
   --zenoh-config FILE
                     the gateway's Zenoh config (JSON5): TLS certificates,
                     mutual TLS, access control; deploy/make-certs.sh writes one
+  --actor-nice N    run the actors, and the learner's training threads, at
+                    niceness N, 0..19 (default 10): where the actors fill every
+                    core, the learner's receive loop still runs at once and
+                    takes every message before its buffer overflows, while
+                    training and actors share the CPU as at one priority;
+                    0 runs everything at the script's own
   --debug           use debug builds (faster to build, slower to run)
   --bin-dir DIR     use the learner and actor binaries in DIR; build nothing
   -h, --help        this help
@@ -83,7 +89,7 @@ ACTORS="" ENVS="" RUN_DIR="" RESUME=0 PORT=9464 PROFILE=release BIN="" SEED=0 MA
 # learner and read from there by every actor; RECORD_ARGS: this start's
 # recording, given to the actors directly.
 TASK_ARGS=() SETTINGS=() RECORD_ARGS=() LEARNER_DEVICE=() METHOD=ours ENV_KIND=sim
-LISTEN="" REMOTE=0 ZENOH_CONFIG=()
+LISTEN="" REMOTE=0 ZENOH_CONFIG=() ACTOR_NICE=10
 EXTRA=()
 while [[ $# -gt 0 ]]; do
   case "$1" in
@@ -108,6 +114,7 @@ while [[ $# -gt 0 ]]; do
     --listen) LISTEN="${2:?--listen needs an endpoint, e.g. tls/10.0.0.5:7447}"; shift 2 ;;
     --remote-actors) REMOTE="${2:?--remote-actors needs a number}"; shift 2 ;;
     --zenoh-config) ZENOH_CONFIG=(--zenoh-config "$(cd "$(dirname "${2:?--zenoh-config needs a file}")" && pwd)/$(basename "$2")"); shift 2 ;;
+    --actor-nice) ACTOR_NICE="${2:?--actor-nice needs a number}"; shift 2 ;;
     --debug) PROFILE=debug; shift ;;
     --bin-dir) BIN="$(cd "${2:?--bin-dir needs a directory}" && pwd)"; shift 2 ;;
     -h|--help) usage; exit 0 ;;
@@ -127,6 +134,7 @@ fi
 ALL_ACTORS=$((ACTORS + REMOTE))
 [[ -z "$ENVS" || ( "$ENVS" =~ ^[1-9][0-9]*$ && "$ENVS" -le 256 ) ]] || { echo "local.sh: --envs-per-actor needs an integer in 1..256, got '$ENVS'" >&2; exit 2; }
 [[ -z "$MAX_STEPS" || "$MAX_STEPS" =~ ^[1-9][0-9]*$ ]] || { echo "local.sh: --max-steps needs a positive integer, got '$MAX_STEPS'" >&2; exit 2; }
+[[ "$ACTOR_NICE" =~ ^[0-9]+$ && "$ACTOR_NICE" -le 19 ]] || { echo "local.sh: --actor-nice needs an integer in 0..19, got '$ACTOR_NICE'" >&2; exit 2; }
 [[ "$SEED" =~ ^[0-9]+$ ]] || { echo "local.sh: --seed needs a non-negative integer, got '$SEED'" >&2; exit 2; }
 [[ "$PROGRESS_EVERY" =~ ^[0-9]+$ ]] || { echo "local.sh: --progress-every needs a whole number of seconds, got '$PROGRESS_EVERY'" >&2; exit 2; }
 if [[ $RESUME -eq 1 && -z "$RUN_DIR" ]]; then
@@ -178,7 +186,9 @@ PREFIX="afx-$(basename "$RUN_DIR" | tr -cd 'A-Za-z0-9_-')"
 STOP_FILE="$LOGS/.stopping"
 rm -f "$STOP_FILE" "$RUN_DIR/http.addr"
 
-LEARNER_ARGS=(serve --service-prefix "$PREFIX" --max-actors "$ALL_ACTORS" --http-addr "127.0.0.1:$PORT" "${LEARNER_DEVICE[@]}" "${SETTINGS[@]}")
+# The learner's training threads at the actors' niceness: only its receive
+# loop runs before the actors (learner/src/thread_priority.rs).
+LEARNER_ARGS=(serve --service-prefix "$PREFIX" --max-actors "$ALL_ACTORS" --http-addr "127.0.0.1:$PORT" "${LEARNER_DEVICE[@]}" "${SETTINGS[@]}" --set "training_nice=$ACTOR_NICE")
 if [[ $RESUME -eq 1 ]]; then
   [[ ${#TASK_ARGS[@]} -eq 0 ]] || echo "local.sh: resuming: the run's saved task is used; ignoring ${TASK_ARGS[*]}" >&2
   LEARNER_ARGS+=(--resume "$RUN_DIR")
@@ -212,7 +222,7 @@ rm -f "$SETUP_FAILED"
 SUPERVISORS=()
 for ((i = 0; i < ACTORS; i++)); do
   supervise "actor-$i" "actor $i" "got policy version" "before it received its first weights" \
-    "$BIN/actor" --actor-id "$i" --learner "$PREFIX" --config "$RUN_DIR/config.toml" "${RECORD_ARGS[@]}" &
+    nice -n "$ACTOR_NICE" "$BIN/actor" --actor-id "$i" --learner "$PREFIX" --config "$RUN_DIR/config.toml" "${RECORD_ARGS[@]}" &
   SUPERVISORS+=($!)
 done
 # The gateway for other hosts' actors, restarted like an actor; one that

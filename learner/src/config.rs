@@ -24,6 +24,12 @@ pub struct LearnerConfig {
     pub task: proto::TaskSpec,
     /// Where the networks train: `cpu` (burn's flex backend) or `gpu` (needs a build with `nets/gpu`).
     pub device: String,
+    /// Niceness added to the training threads (PPO, U-Net), 0..=19: with
+    /// the actors on this host at the same niceness (`deploy/local.sh
+    /// --actor-nice` sets both), training and actors share the CPU as
+    /// before while the receive loop runs first and takes every message in
+    /// time (src/thread_priority.rs). 0 runs every thread at the process's.
+    pub training_nice: i32,
     /// PPO settings.
     pub policy: PolicyConfig,
     /// U-Net settings.
@@ -121,6 +127,7 @@ impl Default for LearnerConfig {
             keep_checkpoints: 3,
             task: proto::TaskSpec::default(),
             device: "cpu".into(),
+            training_nice: 0,
             policy: PolicyConfig::default(),
             unet: UnetConfig::default(),
             transport: TransportConfig::default(),
@@ -304,6 +311,10 @@ impl LearnerConfig {
             "transport.max_actors must be >= 1"
         );
         anyhow::ensure!(self.actor_timeout_s > 0.0, "actor_timeout_s must be > 0");
+        anyhow::ensure!(
+            (0..=19).contains(&self.training_nice),
+            "training_nice must be in 0..=19 (0: training at the receive loop's priority)"
+        );
         Ok(())
     }
 }

@@ -23,6 +23,7 @@ pub mod service;
 pub mod shared;
 pub mod status;
 pub(crate) mod tensorboard;
+pub(crate) mod thread_priority;
 pub mod tools;
 pub(crate) mod train;
 pub(crate) mod unet_worker;

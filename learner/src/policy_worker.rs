@@ -147,6 +147,7 @@ impl PolicyWorker {
         let thread = std::thread::Builder::new()
             .name("ppo-training".into())
             .spawn(move || {
+                crate::thread_priority::lower_this_thread(thread_shared.config.training_nice);
                 run(
                     &mut trainer,
                     &thread_inbox,

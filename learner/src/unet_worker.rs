@@ -82,9 +82,11 @@ impl UnetWorker {
         let training = Arc::new(Mutex::new(None));
         capture(&learner, &training);
         let slot = training.clone();
+        let nice = shared.config.training_nice;
         let thread = std::thread::Builder::new()
             .name("unet-training".into())
             .spawn(move || -> anyhow::Result<()> {
+                crate::thread_priority::lower_this_thread(nice);
                 // Ends when the loop drops its sender.
                 while let Ok((episode, batch)) = inbox.recv() {
                     taken.fetch_sub(batch.len(), Ordering::Relaxed);

@@ -100,6 +100,18 @@ fn parent_of(pid: u32) -> Option<u32> {
         .ok()
 }
 
+/// Niceness of `pid`, from /proc.
+fn niceness(pid: u32) -> Option<i32> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // Field 19 of stat(5); the 17th after the command name's parenthesis.
+    stat.rsplit_once(')')?
+        .1
+        .split_whitespace()
+        .nth(16)?
+        .parse()
+        .ok()
+}
+
 fn cmdline(pid: u32) -> String {
     std::fs::read(format!("/proc/{pid}/cmdline"))
         .map(|b| String::from_utf8_lossy(&b).replace('\0', " "))
@@ -186,6 +198,23 @@ fn sigterm_to_the_script_stops_actors_then_the_learner() {
         "one learner, with --device cpu: {processes:?}"
     );
     assert_eq!(actors.len(), 2, "two actors: {actors:?}");
+    // The actors yield the CPU to the learner (`--actor-nice`, 10 unless
+    // given), which runs as the script does.
+    let own = niceness(std::process::id()).expect("this test's niceness");
+    let nice_of = |is_actor: bool| -> Vec<Option<i32>> {
+        all_pids()
+            .into_iter()
+            .filter(|&pid| {
+                let c = cmdline(pid);
+                c.contains(&launch.prefix)
+                    && !c.contains("local.sh")
+                    && c.contains("--actor-id") == is_actor
+            })
+            .map(niceness)
+            .collect()
+    };
+    assert_eq!(nice_of(true), vec![Some((own + 10).min(19)); 2]);
+    assert_eq!(nice_of(false), vec![Some(own)]);
     assert!(
         actors
             .iter()
