@@ -22,9 +22,10 @@ Runs, one after the other, each under a time limit (about 9 minutes in all):
      (DIR/env_steps, its several-environments table for 1 and 32
      environments, 600-step episodes), when DIR has env_steps;
   5. deploy/throughput.sh: the whole system, `ours`, 1x32 at 64 px with the CPU
-     renderer and with the GPU renderer, and 1x32 at 128 px with the GPU
+     renderer, and 1x32 at 128 px with the GPU renderer and with the CPU
      renderer, PPO on 1024-step batches (what the README advises on a GPU),
-     with each actor's loop thread's chores per step and its U-Net
+     with the CPU cores the learner and the actors kept busy, the messages
+     lost by kind, each actor's loop thread's chores per step and its U-Net
      batching threads' share;
   6. the gateway pair against loopback TCP (`gateway bench`, issue 41's
      figure, which the 2-core VM cannot reach), when DIR has gateway.
@@ -169,9 +170,13 @@ fi
 
 if ! skipped throughput; then
   section "Whole system, ours (deploy/throughput.sh)"
-  # 64 px on both renderers (the CPU's ray casting costs every step CPU,
-  # and 64 px is bound by the CPU); one process of 32 (2x16 was no faster).
-  for setting in "1x32 64 100 cpu" "1x32 64 100 gpu" "1x32 128 600 gpu"; do
+  # 64 px with the CPU renderer (bound by the CPU: 85-90 % busy); 128 px on
+  # both renderers: at f489cff the machine was 36-43 % idle there, and the
+  # GPU renderer's Vulkan work may wait for its turn on a GPU the learner's
+  # and the actor's CUDA contexts share (MPS cannot merge a Vulkan context),
+  # which the CPU renderer, at a cost in CPU, would not. One process of 32
+  # (2x16 was no faster).
+  for setting in "1x32 64 100 cpu" "1x32 128 600 gpu" "1x32 128 600 cpu"; do
     read -r pairs side steps renderer <<<"$setting"
     log="$LOGS/throughput-${side}px-${renderer}.log"
     n=$(tr ',' '\n' <<<"$pairs" | wc -l)
@@ -185,10 +190,10 @@ if ! skipped throughput; then
       add "$(grep -A20 '^| actors' "$log")" ""
       # Whether each actor's loop thread or U-Net batching threads (which
       # all its environments wait for) were the wall: its last lines say
-      # how busy they were.
+      # how busy they were, and what its environments' steps were made of.
       for run in "$LOGS/runs-${side}px-${renderer}"/*/; do
-        busy=$(grep -hE "loop's thread was busy|U-Net batches of" "$run"logs/actor-*.log 2>/dev/null)
-        [[ -z "$busy" ]] || add "$(basename "$run"), the actors' loops and U-Net batches:" "" "$busy" ""
+        busy=$(grep -hE "loop's thread was busy|U-Net batches of|environments' steps took" "$run"logs/actor-*.log 2>/dev/null)
+        [[ -z "$busy" ]] || add "$(basename "$run"), the actors' loops, U-Net batches and steps:" "" "$busy" ""
       done
     else
       add "FAILED: $(tail -n 5 "$log" | tr '\n' ' ')" ""

@@ -6,6 +6,8 @@
 //! bytes, which is exactly what the policy acts on and what the learner
 //! trains on.
 
+use std::time::Duration;
+
 use anyhow::ensure;
 use proto::{PolicyLayout, TaskSpec};
 
@@ -108,5 +110,9 @@ impl Environment for FlatSimEnv {
 
     fn set_global_steps(&mut self, steps: u64) {
         self.env.set_global_steps(steps);
+    }
+
+    fn last_render_time(&self) -> Duration {
+        self.env.last_timings().render
     }
 }

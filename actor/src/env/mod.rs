@@ -10,6 +10,7 @@ pub(crate) mod object_memory;
 pub mod reward;
 pub mod sim_env;
 pub mod state;
+pub mod step_phases;
 pub mod threads;
 mod training_rooms;
 pub mod unet_batcher;
@@ -17,6 +18,8 @@ pub mod unet_batcher;
 pub use bandit_fixture::BanditFixture;
 pub use flat_sim_env::FlatSimEnv;
 pub use training_rooms::training_rooms;
+
+use std::time::Duration;
 
 use anyhow::Context;
 use proto::{FrameBatch, PolicyLayout, StatKey};
@@ -86,6 +89,12 @@ pub trait Environment: Send {
     fn finish_episode(&mut self, episode_id: u64) -> anyhow::Result<EpisodeEnd>;
     /// The run's environment steps over all actors, as the learner last reported them.
     fn set_global_steps(&mut self, steps: u64);
+    /// How long the last reset's or step's camera frame took to render
+    /// (zero without a camera): for where a step's time goes
+    /// ([`step_phases`]).
+    fn last_render_time(&self) -> Duration {
+        Duration::ZERO
+    }
 
     /// Both halves of a reset, `model` seeing the camera frame (an
     /// environment with a camera needs one).

@@ -31,12 +31,14 @@ use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::{Arc, PoisonError, RwLock};
 use std::thread::Scope;
+use std::time::Instant;
 
 use anyhow::{anyhow, Context};
 use nets::policy::{CpuPolicy, CpuPolicyStep};
 
 use super::affordance_model::AffordanceModel;
 use super::lockstep::Inference;
+use super::step_phases::{self, StepPhases};
 use super::unet_batcher::{self, UnetClient};
 use super::{Environment, EpisodeEnd, Observation, StepOutcome};
 
@@ -269,10 +271,22 @@ fn work(
             Done::Reset(observation, pass)
         }
         Task::Step(action, hidden) => {
+            let started = Instant::now();
             let outcome = env.begin_step(action)?;
+            let acted = Instant::now();
             let planes = unet.planes_for(env)?;
+            let planned = Instant::now();
             let observation = env.observe(planes)?;
+            let observed = Instant::now();
             let pass = pass(&observation, hidden.as_deref());
+            step_phases::record(&StepPhases {
+                steps: 1,
+                acting: acted - started,
+                rendering: env.last_render_time(),
+                unet: planned - acted,
+                state: observed - planned,
+                policy: observed.elapsed(),
+            });
             Done::Step(outcome, observation, pass)
         }
         Task::Finish(id) => {

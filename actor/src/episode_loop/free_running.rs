@@ -11,6 +11,7 @@ use std::time::Instant;
 
 use super::loop_clock::{Chore, LoopClock};
 use super::{Acted, Actor, ChunkClose, RunningEpisode};
+use crate::env::step_phases::step_phases;
 use crate::env::threads::{Done, EnvThreads, PolicyPass, Task};
 use crate::env::unet_batcher::batch_times;
 use crate::env::{Environment, Observation, StepOutcome};
@@ -53,6 +54,7 @@ pub(super) fn run(
     let started = Instant::now();
     let steps_before = actor.summary.steps;
     let batches_before = batch_times();
+    let phases_before = step_phases();
     let clock = std::thread::scope(|scope| {
         let threads = EnvThreads::start(scope, envs, model, actor.inference);
         drive(actor, &threads, stop)
@@ -70,6 +72,11 @@ pub(super) fn run(
         .describe(started.elapsed())
     {
         eprintln!("actor {}: {unet}", actor.settings.actor_id);
+    }
+    // And what its environments' steps were made of: their own work, or
+    // waiting (for a render's read-back, for their frame's U-Net batch).
+    if let Some(phases) = step_phases().since(&phases_before).describe() {
+        eprintln!("actor {}: {phases}", actor.settings.actor_id);
     }
     Ok(())
 }
