@@ -113,12 +113,16 @@ impl UnetTrainer {
     pub fn step(&mut self, frames: &[&LabelledFrame]) -> f32 {
         let (x, y, known) = batch_tensors(frames, &self.device);
         let loss = masked_bce_dice(self.net.forward(x), y, known);
-        let value = loss.clone().into_scalar::<f32>();
+        let value = loss.clone();
         let grads = GradientsParams::from_grads(loss.backward(), &self.net);
         self.net = self
             .optimizer
             .step(self.config.learning_rate, self.net.clone(), grads);
-        value
+        // Read back last: on a GPU, reading the loss before the backward
+        // pass made this thread wait for the forward pass before it could
+        // queue a single backward or optimiser kernel (as PPO's update
+        // reads its statistics once, after its minibatches).
+        value.into_scalar::<f32>()
     }
 
     /// The network without autodiff, for inference on `device`.

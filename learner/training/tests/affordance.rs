@@ -97,6 +97,36 @@ fn the_unet_overfits_sixteen_labelled_frames() {
     assert!(after.loss < before.loss);
 }
 
+#[test]
+fn a_step_returns_the_loss_of_the_weights_before_it() {
+    let device = Device::flex();
+    let mut rng = StdRng::seed_from_u64(5);
+    let frames: Vec<LabelledFrame> = (0..4).map(|_| synthetic_frame(&mut rng)).collect();
+    let refs: Vec<&LabelledFrame> = frames.iter().collect();
+    let net = AffordanceUnet::new(4, 1, &device);
+    let loss_of = |net: &AffordanceUnet| {
+        let (x, y, known) = batch_tensors(&refs, &device);
+        masked_bce_dice(net.forward(x), y, known).into_scalar::<f32>()
+    };
+    let before = loss_of(&net);
+    let mut trainer = UnetTrainer::new(net, UnetTrainingConfig::default(), &device);
+    let returned = trainer.step(&refs);
+    assert!(
+        (returned - before).abs() <= 1e-5 * before.abs(),
+        "{returned} against {before}"
+    );
+    let after = loss_of(&trainer.inference_net(&device));
+    assert!(
+        (after - before).abs() > 1e-4 * before.abs(),
+        "the step changed nothing: {after} against {before}"
+    );
+    let next = trainer.step(&refs);
+    assert!(
+        (next - after).abs() <= 1e-5 * after.abs(),
+        "the next step's: {next} against {after}"
+    );
+}
+
 /// Every parameter's gradient, flattened, in module order.
 fn gradients(net: &AffordanceUnet, grads: &GradientsParams) -> Vec<f32> {
     struct Collect<'a> {
