@@ -14,7 +14,8 @@ over the measuring window (its /api/status), stops the run, and prints a
 Markdown table: steps/s the learner took from all actors and per actor
 process, PPO updates/s, labelled frames the U-Net trainer took and skipped,
 rollout steps PPO discarded (it was behind), and messages lost in transit
-(with their share of all messages sent in the window, and which kinds), and how many CPU cores
+(with their share of all messages sent in the window, and which kinds), the
+share of the window the learner's receive loop was busy (not waiting), and how many CPU cores
 the learner process and the actor processes kept busy over the window (their
 CPU time from /proc over its length; the machine's core count beside them),
 which tells a run bound by the CPU from one bound by something else.
@@ -88,6 +89,7 @@ print(json.dumps({"t": time.time(), "steps": s["env_steps"], "updates": s["updat
   "frames": s["frames_received"], "skipped": s["frames_skipped"],
   "discarded": s.get("rollout_steps_discarded", 0), "dropped": s["dropped"],
   "messages": sum(s["received"].values()), "cpu": cpu,
+  "receiving": s.get("receive_loop_seconds", 0.0),
   "lost": s.get("dropped_by_kind", {})}))' "$RUN_PID"
 }
 
@@ -141,12 +143,13 @@ lost = ', '.join('%s %d' % (k, n - a['lost'].get(k, 0))
 busy = {'learner': 0.0, 'actor': 0.0}
 for pid, (name, secs) in b['cpu'].items():
     busy[name] += secs - a['cpu'].get(pid, [name, 0.0])[1]
-print('| $actors | $envs | %.1f | %.1f | %.2f | %d / %d | %d | %d (%.2f %%%s) | %.1f / %.1f of %d |' % (
+print('| $actors | $envs | %.1f | %.1f | %.2f | %d / %d | %d | %d (%.2f %%%s) | %.0f %% | %.1f / %.1f of %d |' % (
     d['steps'] / s, d['steps'] / s / $actors, d['updates'] / s, d['frames'], d['skipped'],
     d['discarded'], d['dropped'], 100.0 * d['dropped'] / max(sent, 1), lost and ': ' + lost,
+    100.0 * d['receiving'] / s,
     busy['learner'] / s, busy['actor'] / s, os.cpu_count()))")")
 done
 
-echo "| actors | environments each | steps/s taken, all actors | per actor process | PPO updates/s | U-Net frames taken / skipped | rollout steps discarded | messages lost in transit | CPU cores busy: learner / actors |"
-echo "|---|---|---|---|---|---|---|---|---|"
+echo "| actors | environments each | steps/s taken, all actors | per actor process | PPO updates/s | U-Net frames taken / skipped | rollout steps discarded | messages lost in transit | learner's receive loop busy | CPU cores busy: learner / actors |"
+echo "|---|---|---|---|---|---|---|---|---|---|"
 printf '%s\n' "${ROWS[@]}"

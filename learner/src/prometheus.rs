@@ -127,6 +127,12 @@ pub fn render(s: &StatusSnapshot, timings: &Timings) -> String {
         "Time the PPO thread spent in updates",
         s.ppo_update_seconds,
     );
+    seconds_counter(
+        &mut r,
+        "receive_loop_busy",
+        "Time the receive loop spent on its passes, not waiting for messages",
+        s.receive_loop_seconds,
+    );
     counter(
         &mut r,
         "rollout_steps_discarded",

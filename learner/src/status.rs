@@ -69,6 +69,12 @@ pub struct LearnerStatus {
     pub ppo_batch_seconds: f64,
     /// Seconds the PPO thread spent in updates, in all.
     pub ppo_update_seconds: f64,
+    /// Seconds the receive loop spent on its passes (taking, checking and
+    /// handing on messages, publishing weights, checkpoints), not waiting
+    /// for messages: near the wall time, the loop itself is why an
+    /// actor's messages are lost; far below it, the loop was kept from
+    /// running (a busy host) or the messages came in bursts.
+    pub receive_loop_seconds: f64,
     /// Environment steps received but discarded, oldest first, because the
     /// PPO thread's queue was full (the learner could not keep up).
     pub rollout_steps_discarded: u64,
@@ -166,6 +172,8 @@ pub(crate) struct StatusSnapshot {
     pub ppo_batch_seconds: f64,
     /// Seconds the PPO thread spent in updates, in all.
     pub ppo_update_seconds: f64,
+    /// Seconds the receive loop spent on its passes, not waiting.
+    pub receive_loop_seconds: f64,
     /// Environment steps discarded because the PPO thread's queue was full.
     pub rollout_steps_discarded: u64,
     /// Environment steps waiting for the PPO thread.
@@ -243,6 +251,7 @@ impl LearnerStatus {
             trained_steps: 0,
             ppo_batch_seconds: 0.0,
             ppo_update_seconds: 0.0,
+            receive_loop_seconds: 0.0,
             rollout_steps_discarded: 0,
             rollout_steps_queued: 0,
             last_update: None,
@@ -399,6 +408,7 @@ impl LearnerStatus {
             trained_steps: self.trained_steps,
             ppo_batch_seconds: self.ppo_batch_seconds,
             ppo_update_seconds: self.ppo_update_seconds,
+            receive_loop_seconds: self.receive_loop_seconds,
             rollout_steps_discarded: self.rollout_steps_discarded,
             rollout_steps_queued: self.rollout_steps_queued,
             last_update: self.last_update,

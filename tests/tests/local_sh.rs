@@ -358,6 +358,23 @@ fn throughput_sh_measures_each_setting_and_stops_its_runs() {
         assert!(row[2] > 0.0 && row[3] > 0.0, "no steps counted:\n{table}");
         assert!(row[4] >= 0.0 && row[5] >= 0.0, "{table}");
     }
+    // The learner's receive loop took the messages: busy a share of the
+    // window (the cell before the last).
+    let receiving: Vec<f64> = table
+        .lines()
+        .skip(2)
+        .map(|line| {
+            let cells: Vec<&str> = line.split('|').map(str::trim).collect();
+            let cell = cells[cells.len() - 3];
+            cell.strip_suffix(" %")
+                .and_then(|v| v.parse().ok())
+                .unwrap_or_else(|| panic!("no 'receive loop busy' share in {line:?}"))
+        })
+        .collect();
+    assert!(
+        receiving.iter().all(|&r| (0.0..=100.0).contains(&r)) && receiving.iter().any(|&r| r > 0.0),
+        "{table}"
+    );
     // The actors stepped, so their processes kept some of a core busy; the
     // learner's figure is a share of the machine too.
     for line in table.lines().skip(2) {

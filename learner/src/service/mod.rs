@@ -239,6 +239,7 @@ impl Learner {
         let mut last_maintenance = Instant::now();
         while !self.shared.shutdown.load(Ordering::Relaxed) {
             self.ports.wait(Duration::from_millis(100))?;
+            let pass_started = Instant::now();
             // Per kind, first take what is queued (at most one buffer's worth
             // per sender, so a fast stream cannot starve stats, frames or
             // checkpoints), then handle it. Taking before handling matters:
@@ -343,6 +344,7 @@ impl Learner {
                     .and_then(UnetWorker::training_state);
                 self.write_checkpoint(&policy, unet_training.as_ref())?;
             }
+            self.shared.status().receive_loop_seconds += pass_started.elapsed().as_secs_f64();
         }
         Ok(())
     }
