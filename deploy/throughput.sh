@@ -15,7 +15,8 @@ Markdown table: steps/s the learner took from all actors and per actor
 process, PPO updates/s, labelled frames the U-Net trainer took and skipped,
 rollout steps PPO discarded (it was behind), and messages lost in transit
 (with their share of all messages sent in the window, and which kinds), the
-share of the window the learner's receive loop was busy (not waiting), and how many CPU cores
+share of the window the learner's receive loop was busy (not waiting; with
+its passes over 0.1 s and the longest since the run began), and how many CPU cores
 the learner process and the actor processes kept busy over the window (their
 CPU time from /proc over its length; the machine's core count beside them),
 which tells a run bound by the CPU from one bound by something else.
@@ -90,6 +91,7 @@ print(json.dumps({"t": time.time(), "steps": s["env_steps"], "updates": s["updat
   "discarded": s.get("rollout_steps_discarded", 0), "dropped": s["dropped"],
   "messages": sum(s["received"].values()), "cpu": cpu,
   "receiving": s.get("receive_loop_seconds", 0.0),
+  "long": s.get("receive_loop_long_passes", 0), "longest": s.get("receive_loop_longest_pass_s", 0.0),
   "lost": s.get("dropped_by_kind", {})}))' "$RUN_PID"
 }
 
@@ -134,7 +136,7 @@ for pair in "${PAIRS[@]}"; do
 import json
 import json, os
 a, b = json.loads('$c0'), json.loads('$c1')
-d = {k: b[k] - a[k] for k in a if k not in ('cpu', 'lost')}
+d = {k: b[k] - a[k] for k in a if k not in ('cpu', 'lost', 'longest')}
 s = d['t']
 sent = d['messages'] + d['dropped']
 # A process started within the window (a restarted actor) counts in full.
@@ -143,10 +145,10 @@ lost = ', '.join('%s %d' % (k, n - a['lost'].get(k, 0))
 busy = {'learner': 0.0, 'actor': 0.0}
 for pid, (name, secs) in b['cpu'].items():
     busy[name] += secs - a['cpu'].get(pid, [name, 0.0])[1]
-print('| $actors | $envs | %.1f | %.1f | %.2f | %d / %d | %d | %d (%.2f %%%s) | %.0f %% | %.1f / %.1f of %d |' % (
+print('| $actors | $envs | %.1f | %.1f | %.2f | %d / %d | %d | %d (%.2f %%%s) | %.0f %% (%d over 0.1 s, longest %.2f s) | %.1f / %.1f of %d |' % (
     d['steps'] / s, d['steps'] / s / $actors, d['updates'] / s, d['frames'], d['skipped'],
     d['discarded'], d['dropped'], 100.0 * d['dropped'] / max(sent, 1), lost and ': ' + lost,
-    100.0 * d['receiving'] / s,
+    100.0 * d['receiving'] / s, d['long'], b['longest'],
     busy['learner'] / s, busy['actor'] / s, os.cpu_count()))")")
 done
 

@@ -135,6 +135,18 @@ pub fn render(s: &StatusSnapshot, timings: &Timings) -> String {
     );
     counter(
         &mut r,
+        "receive_loop_long_passes",
+        "Passes of the receive loop longer than 0.1 s (each may lose messages)",
+        s.receive_loop_long_passes,
+    );
+    gauge(
+        &mut r,
+        "receive_loop_longest_pass_seconds",
+        "The receive loop's longest pass so far",
+        s.receive_loop_longest_pass_s,
+    );
+    counter(
+        &mut r,
         "rollout_steps_discarded",
         "Environment steps discarded, oldest first, because the PPO queue was full",
         s.rollout_steps_discarded,

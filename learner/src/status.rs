@@ -75,6 +75,13 @@ pub struct LearnerStatus {
     /// actor's messages are lost; far below it, the loop was kept from
     /// running (a busy host) or the messages came in bursts.
     pub receive_loop_seconds: f64,
+    /// Passes of the receive loop that took longer than
+    /// [`LONG_PASS_S`]: a buffer of 8 messages holds a fraction of a
+    /// second of a fast actor's output, so such a pass can lose messages
+    /// by itself.
+    pub receive_loop_long_passes: u64,
+    /// The longest pass of the receive loop so far, seconds.
+    pub receive_loop_longest_pass_s: f64,
     /// Environment steps received but discarded, oldest first, because the
     /// PPO thread's queue was full (the learner could not keep up).
     pub rollout_steps_discarded: u64,
@@ -106,6 +113,10 @@ pub struct LearnerStatus {
 /// may be: a million lost messages is hours of an actor's output, so a
 /// larger jump is a forged number, refused rather than counted as losses.
 pub(crate) const SEQUENCE_WINDOW: u64 = 1_000_000;
+
+/// A pass of the receive loop longer than this is counted
+/// ([`LearnerStatus::receive_loop_long_passes`]), seconds.
+pub const LONG_PASS_S: f64 = 0.1;
 
 /// Episodes in the means `/metrics` and `/api/status` report.
 pub(crate) const EPISODE_WINDOW: usize = 100;
@@ -174,6 +185,10 @@ pub(crate) struct StatusSnapshot {
     pub ppo_update_seconds: f64,
     /// Seconds the receive loop spent on its passes, not waiting.
     pub receive_loop_seconds: f64,
+    /// Passes of the receive loop longer than 0.1 s.
+    pub receive_loop_long_passes: u64,
+    /// The longest pass of the receive loop so far, seconds.
+    pub receive_loop_longest_pass_s: f64,
     /// Environment steps discarded because the PPO thread's queue was full.
     pub rollout_steps_discarded: u64,
     /// Environment steps waiting for the PPO thread.
@@ -232,6 +247,15 @@ pub(crate) struct ActorSnapshot {
 }
 
 impl LearnerStatus {
+    /// Books one pass of the receive loop that took `seconds`.
+    pub(crate) fn add_receive_pass(&mut self, seconds: f64) {
+        self.receive_loop_seconds += seconds;
+        if seconds > LONG_PASS_S {
+            self.receive_loop_long_passes += 1;
+        }
+        self.receive_loop_longest_pass_s = self.receive_loop_longest_pass_s.max(seconds);
+    }
+
     /// A fresh status for `run_id`.
     pub fn new(run_id: String) -> Self {
         Self {
@@ -252,6 +276,8 @@ impl LearnerStatus {
             ppo_batch_seconds: 0.0,
             ppo_update_seconds: 0.0,
             receive_loop_seconds: 0.0,
+            receive_loop_long_passes: 0,
+            receive_loop_longest_pass_s: 0.0,
             rollout_steps_discarded: 0,
             rollout_steps_queued: 0,
             last_update: None,
@@ -409,6 +435,8 @@ impl LearnerStatus {
             ppo_batch_seconds: self.ppo_batch_seconds,
             ppo_update_seconds: self.ppo_update_seconds,
             receive_loop_seconds: self.receive_loop_seconds,
+            receive_loop_long_passes: self.receive_loop_long_passes,
+            receive_loop_longest_pass_s: self.receive_loop_longest_pass_s,
             rollout_steps_discarded: self.rollout_steps_discarded,
             rollout_steps_queued: self.rollout_steps_queued,
             last_update: self.last_update,
@@ -468,6 +496,17 @@ mod tests {
             Some(0),
             "a first message sets where an actor starts"
         );
+    }
+
+    #[test]
+    fn receive_passes_add_up_and_the_long_ones_are_counted() {
+        let mut status = LearnerStatus::new("run".into());
+        for seconds in [0.01, 0.25, 0.05, LONG_PASS_S, 0.5] {
+            status.add_receive_pass(seconds);
+        }
+        assert!((status.receive_loop_seconds - 0.91).abs() < 1e-9);
+        assert_eq!(status.receive_loop_long_passes, 2, "0.25 and 0.5 s");
+        assert_eq!(status.receive_loop_longest_pass_s, 0.5);
     }
 
     #[test]

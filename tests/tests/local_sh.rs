@@ -366,8 +366,8 @@ fn throughput_sh_measures_each_setting_and_stops_its_runs() {
         .map(|line| {
             let cells: Vec<&str> = line.split('|').map(str::trim).collect();
             let cell = cells[cells.len() - 3];
-            cell.strip_suffix(" %")
-                .and_then(|v| v.parse().ok())
+            cell.split_once(" %")
+                .and_then(|(v, _)| v.parse().ok())
                 .unwrap_or_else(|| panic!("no 'receive loop busy' share in {line:?}"))
         })
         .collect();

@@ -344,7 +344,9 @@ impl Learner {
                     .and_then(UnetWorker::training_state);
                 self.write_checkpoint(&policy, unet_training.as_ref())?;
             }
-            self.shared.status().receive_loop_seconds += pass_started.elapsed().as_secs_f64();
+            self.shared
+                .status()
+                .add_receive_pass(pass_started.elapsed().as_secs_f64());
         }
         Ok(())
     }
