@@ -65,10 +65,10 @@ Options:
                     mutual TLS, access control; deploy/make-certs.sh writes one
   --actor-nice N    run the actors, and the learner's training threads, at
                     niceness N, 0..19 (default 10): where the actors fill every
-                    core, the learner's receive loop still runs at once and
-                    takes every message before its buffer overflows, while
-                    training and actors share the CPU as at one priority;
-                    0 runs everything at the script's own
+                    core, the learner's receive loop still runs first, so its
+                    buffers overflow less, while training and actors share
+                    the CPU as at one priority; 0 runs everything at the
+                    script's own
   --debug           use debug builds (faster to build, slower to run)
   --bin-dir DIR     use the learner and actor binaries in DIR; build nothing
   -h, --help        this help

@@ -27,8 +27,8 @@ pub struct LearnerConfig {
     /// Niceness added to the training threads (PPO, U-Net), 0..=19: with
     /// the actors on this host at the same niceness (`deploy/local.sh
     /// --actor-nice` sets both), training and actors share the CPU as
-    /// before while the receive loop runs first and takes every message in
-    /// time (src/thread_priority.rs). 0 runs every thread at the process's.
+    /// before while the receive loop runs first, so its buffers overflow
+    /// less (src/thread_priority.rs). 0 runs every thread at the process's.
     pub training_nice: i32,
     /// PPO settings.
     pub policy: PolicyConfig,
