@@ -16,9 +16,10 @@ process, PPO updates/s, labelled frames the U-Net trainer took and skipped,
 rollout steps PPO discarded (it was behind), and messages lost in transit
 (with their share of all messages sent in the window, and which kinds), the
 share of the window the learner's receive loop was busy (not waiting; with
-its passes over 0.1 s and the longest since the run began), and how many CPU cores
-the learner process and the actor processes kept busy over the window (their
-CPU time from /proc over its length; the machine's core count beside them),
+its passes over 0.1 s and the longest since the run began), and how many CPU
+cores the learner process and the actor processes kept busy over the window
+(their CPU time from /proc over its length; the cores this script may use
+beside them),
 which tells a run bound by the CPU from one bound by something else.
 
 Options:
@@ -133,15 +134,14 @@ for pair in "${PAIRS[@]}"; do
   c1=$(counters)
   stop_run
   ROWS+=("$(python3 -c "
-import json
 import json, os
 a, b = json.loads('$c0'), json.loads('$c1')
 d = {k: b[k] - a[k] for k in a if k not in ('cpu', 'lost', 'longest')}
 s = d['t']
 sent = d['messages'] + d['dropped']
-# A process started within the window (a restarted actor) counts in full.
 lost = ', '.join('%s %d' % (k, n - a['lost'].get(k, 0))
                  for k, n in sorted(b['lost'].items()) if n > a['lost'].get(k, 0))
+# A process started within the window (a restarted actor) counts in full.
 busy = {'learner': 0.0, 'actor': 0.0}
 for pid, (name, secs) in b['cpu'].items():
     busy[name] += secs - a['cpu'].get(pid, [name, 0.0])[1]
@@ -149,7 +149,7 @@ print('| $actors | $envs | %.1f | %.1f | %.2f | %d / %d | %d | %d (%.2f %%%s) | 
     d['steps'] / s, d['steps'] / s / $actors, d['updates'] / s, d['frames'], d['skipped'],
     d['discarded'], d['dropped'], 100.0 * d['dropped'] / max(sent, 1), lost and ': ' + lost,
     100.0 * d['receiving'] / s, d['long'], b['longest'],
-    busy['learner'] / s, busy['actor'] / s, os.cpu_count()))")")
+    busy['learner'] / s, busy['actor'] / s, len(os.sched_getaffinity(0))))")")
 done
 
 echo "| actors | environments each | steps/s taken, all actors | per actor process | PPO updates/s | U-Net frames taken / skipped | rollout steps discarded | messages lost in transit | learner's receive loop busy | CPU cores busy: learner / actors |"
