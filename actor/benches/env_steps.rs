@@ -23,7 +23,10 @@
 //! (labelling, in parallel) and steps/s per process with that end included,
 //! and how many cores the process kept busy while stepping (its CPU time
 //! over the wall time): near the machine's count, the run is bound by the
-//! CPU and only less work per step makes it faster.
+//! CPU and only less work per step makes it faster. The free-running rows
+//! also say what the environments' steps were made of
+//! (`actor::env::step_phases`), as a free-running actor's last lines do
+//! beside the learner.
 //!
 //! `AFX_DEVICE=gpu` runs the U-Net on the GPU (a build with
 //! `--features nets/gpu`); `AFX_DATA` points at the shared data directory
@@ -50,6 +53,7 @@ use actor::env::actions::ActionSpace;
 use actor::env::affordance_model::AffordanceModel;
 use actor::env::lockstep::{self, reset_all, step_all, Inference};
 use actor::env::sim_env::{SimEnv, SimEnvConfig, StepTimings};
+use actor::env::step_phases::{step_phases, StepPhases};
 use actor::env::threads::{Done, EnvThreads, PolicyPass, Task};
 use actor::env::unet_batcher::{batch_times, BatchTimes};
 use actor::env::{Environment, FlatSimEnv, Observation};
@@ -286,7 +290,7 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
     let inference = several_envs_inference(device);
     println!();
     println!("Several environments per process, {renderer_choice:?} renderer, U-Net inference {inference:?}:");
-    println!("| method | px | environments | stepped | steps/s per process | steps/s per environment | episode end | steps/s per process, end included | CPU cores busy (of {}) | lock-step, per round: policy / first halves (slowest environment's, mean) / U-Net / second halves; free-running on a GPU: the U-Net's batches |", cores());
+    println!("| method | px | environments | stepped | steps/s per process | steps/s per environment | episode end | steps/s per process, end included | CPU cores busy (of {}) | lock-step, per round: policy / first halves (slowest environment's, mean) / U-Net / second halves; free-running: the U-Net's batches (on a GPU), what the steps were made of |", cores());
     println!("|---|---|---|---|---|---|---|---|---|---|");
     for method in [Method::Ours, Method::NomapSeg] {
         for &n in &counts {
@@ -361,12 +365,15 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
                 if n == 1 {
                     break;
                 }
-                let (timed, batches) = bench.free_running(new_envs(), passes_on_threads);
-                // "—": the U-Net on each environment's thread.
+                let (timed, batches, phases) = bench.free_running(new_envs(), passes_on_threads);
+                // The U-Net's batches ("—": on each environment's thread),
+                // then what the steps were made of, as an actor's last
+                // lines say it beside the learner.
                 let unet = batches
                     .describe(timed.stepping)
                     .unwrap_or_else(|| "—".to_string());
-                row(stepped, timed, unet);
+                let phases = phases.describe().unwrap_or_default();
+                row(stepped, timed, format!("{unet}; {phases}"));
             }
         }
     }
@@ -435,8 +442,13 @@ impl SeveralEnvs<'_> {
     /// `passes_on_threads` (and the policy has one), else on this thread over
     /// every observation that came in since its last pass (on the CPU one
     /// at a time); on a GPU the U-Net in the batching thread's batches.
-    /// The stepping, the episode's end, and what the batching thread did.
-    fn free_running(&self, envs: Vec<FlatSimEnv>, passes_on_threads: bool) -> (Timed, BatchTimes) {
+    /// The stepping, the episode's end, what the batching thread did, and
+    /// what the environments' steps were made of.
+    fn free_running(
+        &self,
+        envs: Vec<FlatSimEnv>,
+        passes_on_threads: bool,
+    ) -> (Timed, BatchTimes, StepPhases) {
         let n = envs.len();
         std::thread::scope(|scope| {
             let boxed = envs
@@ -490,6 +502,7 @@ impl SeveralEnvs<'_> {
             let start = Instant::now();
             let cpu_before = process_cpu_time();
             let before = batch_times();
+            let phases_before = step_phases();
             act(&first);
             let mut stepped = vec![0; n];
             let mut running = n;
@@ -515,6 +528,7 @@ impl SeveralEnvs<'_> {
             let stepping = start.elapsed();
             let cpu = cpu_since(cpu_before);
             let batches = batch_times().since(&before);
+            let phases = step_phases().since(&phases_before);
             let end_started = Instant::now();
             for index in 0..n {
                 threads
@@ -525,7 +539,7 @@ impl SeveralEnvs<'_> {
                 threads.next().expect("the episode's end");
             }
             let end = end_started.elapsed();
-            (Timed { stepping, cpu, end }, batches)
+            (Timed { stepping, cpu, end }, batches, phases)
         })
     }
 }
