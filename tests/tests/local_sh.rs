@@ -88,28 +88,27 @@ fn launch(dir: &Path, case: &str) -> Launch {
     launch
 }
 
-/// Parent pid of `pid`, from /proc.
-fn parent_of(pid: u32) -> Option<u32> {
+/// Field `n` of stat(5) for `pid` (1-based, as the manual counts), from
+/// /proc; from field 3 on, since the command name (field 2, in
+/// parentheses) may hold spaces.
+fn stat_field<T: std::str::FromStr>(pid: u32, n: usize) -> Option<T> {
     let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    // The command name is in parentheses and may hold spaces: parse after it.
     stat.rsplit_once(')')?
         .1
         .split_whitespace()
-        .nth(1)?
+        .nth(n.checked_sub(3)?)?
         .parse()
         .ok()
 }
 
-/// Niceness of `pid`, from /proc.
+/// Parent pid of `pid`.
+fn parent_of(pid: u32) -> Option<u32> {
+    stat_field(pid, 4)
+}
+
+/// Niceness of `pid`.
 fn niceness(pid: u32) -> Option<i32> {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    // Field 19 of stat(5); the 17th after the command name's parenthesis.
-    stat.rsplit_once(')')?
-        .1
-        .split_whitespace()
-        .nth(16)?
-        .parse()
-        .ok()
+    stat_field(pid, 19)
 }
 
 fn cmdline(pid: u32) -> String {

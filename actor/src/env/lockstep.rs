@@ -16,6 +16,7 @@ use std::time::{Duration, Instant};
 use rayon::prelude::*;
 
 use super::affordance_model::{AffordanceModel, CameraFrame};
+use super::time_tally::TimeTally;
 use super::{Environment, Observation, StepOutcome};
 
 /// How the networks see several environments' inputs (the U-Net their
@@ -81,37 +82,30 @@ impl PhaseTimes {
     }
 }
 
-/// Nanoseconds of each phase and the rounds, process-wide.
+/// Each phase's time and the rounds, process-wide.
 static ROUNDS: AtomicU64 = AtomicU64::new(0);
-static FIRST_HALVES_NS: AtomicU64 = AtomicU64::new(0);
-static SLOWEST_FIRST_HALVES_NS: AtomicU64 = AtomicU64::new(0);
-static EACH_FIRST_HALF_NS: AtomicU64 = AtomicU64::new(0);
-static UNET_NS: AtomicU64 = AtomicU64::new(0);
-static SECOND_HALVES_NS: AtomicU64 = AtomicU64::new(0);
+static FIRST_HALVES: TimeTally = TimeTally::new();
+static SLOWEST_FIRST_HALVES: TimeTally = TimeTally::new();
+static EACH_FIRST_HALF: TimeTally = TimeTally::new();
+static UNET: TimeTally = TimeTally::new();
+static SECOND_HALVES: TimeTally = TimeTally::new();
 
 /// This process's [`PhaseTimes`] so far.
 pub fn phase_times() -> PhaseTimes {
-    let read = |a: &AtomicU64| Duration::from_nanos(a.load(Ordering::Relaxed));
     PhaseTimes {
         rounds: ROUNDS.load(Ordering::Relaxed),
-        first_halves: read(&FIRST_HALVES_NS),
-        slowest_first_halves: read(&SLOWEST_FIRST_HALVES_NS),
-        each_first_half: read(&EACH_FIRST_HALF_NS),
-        unet: read(&UNET_NS),
-        second_halves: read(&SECOND_HALVES_NS),
+        first_halves: FIRST_HALVES.total(),
+        slowest_first_halves: SLOWEST_FIRST_HALVES.total(),
+        each_first_half: EACH_FIRST_HALF.total(),
+        unet: UNET.total(),
+        second_halves: SECOND_HALVES.total(),
     }
 }
 
-/// Adds `time` to `phase`.
-fn add(phase: &AtomicU64, time: Duration) {
-    let ns = u64::try_from(time.as_nanos()).unwrap_or(u64::MAX);
-    phase.fetch_add(ns, Ordering::Relaxed);
-}
-
 /// Adds the time since `started` to `phase`; the time now.
-fn lap(phase: &AtomicU64, started: Instant) -> Instant {
+fn lap(phase: &TimeTally, started: Instant) -> Instant {
     let now = Instant::now();
-    add(phase, now - started);
+    phase.add(now - started);
     now
 }
 
@@ -132,11 +126,8 @@ fn first_halves<E: Environment + ?Sized, A: Sync, R: Send>(
         })
         .collect::<anyhow::Result<_>>()?;
     let times = timed.iter().map(|(_, t)| *t);
-    add(
-        &SLOWEST_FIRST_HALVES_NS,
-        times.clone().max().unwrap_or_default(),
-    );
-    add(&EACH_FIRST_HALF_NS, times.sum());
+    SLOWEST_FIRST_HALVES.add(times.clone().max().unwrap_or_default());
+    EACH_FIRST_HALF.add(times.sum());
     Ok(timed.into_iter().map(|(r, _)| r).collect())
 }
 
@@ -160,7 +151,7 @@ pub fn reset_all<E: Environment + ?Sized>(
     }
     let started = Instant::now();
     first_halves(envs, seeds, |env, &seed| env.begin_reset(seed))?;
-    observe_batched(envs, model, lap(&FIRST_HALVES_NS, started))
+    observe_batched(envs, model, lap(&FIRST_HALVES, started))
 }
 
 /// Steps every environment of `envs` with its action in `actions`.
@@ -183,7 +174,7 @@ pub fn step_all<E: Environment + ?Sized>(
     }
     let started = Instant::now();
     let outcomes = first_halves(envs, actions, |env, &action| env.begin_step(action))?;
-    let halfway = lap(&FIRST_HALVES_NS, started);
+    let halfway = lap(&FIRST_HALVES, started);
     Ok(outcomes
         .into_iter()
         .zip(observe_batched(envs, model, halfway)?)
@@ -229,13 +220,13 @@ fn observe_batched<E: Environment + ?Sized>(
     halfway: Instant,
 ) -> anyhow::Result<Vec<Observation>> {
     let affordances = predict(envs.iter().map(|e| e.camera_frame()), model)?;
-    let predicted = lap(&UNET_NS, halfway);
+    let predicted = lap(&UNET, halfway);
     let observations = envs
         .par_iter_mut()
         .zip(affordances)
         .map(|(env, a)| env.observe(a))
         .collect();
-    lap(&SECOND_HALVES_NS, predicted);
+    lap(&SECOND_HALVES, predicted);
     ROUNDS.fetch_add(1, Ordering::Relaxed);
     observations
 }

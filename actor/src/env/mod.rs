@@ -12,6 +12,7 @@ pub mod sim_env;
 pub mod state;
 pub mod step_phases;
 pub mod threads;
+mod time_tally;
 mod training_rooms;
 pub mod unet_batcher;
 

@@ -14,6 +14,8 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
+use super::time_tally::TimeTally;
+
 /// Time the environments' threads spent on the parts of their steps.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct StepPhases {
@@ -65,39 +67,32 @@ impl StepPhases {
 }
 
 static STEPS: AtomicU64 = AtomicU64::new(0);
-static ACTING_NS: AtomicU64 = AtomicU64::new(0);
-static RENDERING_NS: AtomicU64 = AtomicU64::new(0);
-static UNET_NS: AtomicU64 = AtomicU64::new(0);
-static STATE_NS: AtomicU64 = AtomicU64::new(0);
-static POLICY_NS: AtomicU64 = AtomicU64::new(0);
+static ACTING: TimeTally = TimeTally::new();
+static RENDERING: TimeTally = TimeTally::new();
+static UNET: TimeTally = TimeTally::new();
+static STATE: TimeTally = TimeTally::new();
+static POLICY: TimeTally = TimeTally::new();
 
 /// This process's [`StepPhases`] so far.
 pub fn step_phases() -> StepPhases {
-    let time = |ns: &AtomicU64| Duration::from_nanos(ns.load(Ordering::Relaxed));
     StepPhases {
         steps: STEPS.load(Ordering::Relaxed),
-        acting: time(&ACTING_NS),
-        rendering: time(&RENDERING_NS),
-        unet: time(&UNET_NS),
-        state: time(&STATE_NS),
-        policy: time(&POLICY_NS),
+        acting: ACTING.total(),
+        rendering: RENDERING.total(),
+        unet: UNET.total(),
+        state: STATE.total(),
+        policy: POLICY.total(),
     }
 }
 
 /// Books one step's parts.
 pub(crate) fn record(step: &StepPhases) {
-    let add = |ns: &AtomicU64, d: Duration| {
-        ns.fetch_add(
-            u64::try_from(d.as_nanos()).unwrap_or(u64::MAX),
-            Ordering::Relaxed,
-        );
-    };
     STEPS.fetch_add(step.steps, Ordering::Relaxed);
-    add(&ACTING_NS, step.acting);
-    add(&RENDERING_NS, step.rendering);
-    add(&UNET_NS, step.unet);
-    add(&STATE_NS, step.state);
-    add(&POLICY_NS, step.policy);
+    ACTING.add(step.acting);
+    RENDERING.add(step.rendering);
+    UNET.add(step.unet);
+    STATE.add(step.state);
+    POLICY.add(step.policy);
 }
 
 #[cfg(test)]

@@ -28,6 +28,7 @@ use std::time::{Duration, Instant};
 use anyhow::{anyhow, Context};
 
 use super::affordance_model::{network_input, AffordanceModel, CameraFrame, Logits};
+use super::time_tally::TimeTally;
 
 /// A frame's logits (or why there are none).
 type Reply = Result<Logits, String>;
@@ -211,22 +212,21 @@ impl BatchTimes {
 
 static BATCHES: AtomicU64 = AtomicU64::new(0);
 static FRAMES: AtomicU64 = AtomicU64::new(0);
-static BUSY_NS: AtomicU64 = AtomicU64::new(0);
+static BUSY: TimeTally = TimeTally::new();
 
 /// This process's [`BatchTimes`] so far.
 pub fn batch_times() -> BatchTimes {
     BatchTimes {
         batches: BATCHES.load(Ordering::Relaxed),
         frames: FRAMES.load(Ordering::Relaxed),
-        busy: Duration::from_nanos(BUSY_NS.load(Ordering::Relaxed)),
+        busy: BUSY.total(),
     }
 }
 
 fn record(frames: usize, busy: Duration) {
     BATCHES.fetch_add(1, Ordering::Relaxed);
     FRAMES.fetch_add(frames as u64, Ordering::Relaxed);
-    let ns = u64::try_from(busy.as_nanos()).unwrap_or(u64::MAX);
-    BUSY_NS.fetch_add(ns, Ordering::Relaxed);
+    BUSY.add(busy);
 }
 
 #[cfg(test)]
