@@ -20,10 +20,9 @@ pub struct ActorState {
     last_seen: Instant,
     /// Messages accepted from this actor, per kind.
     pub received: BTreeMap<&'static str, u64>,
-    /// Messages this actor sent that never arrived (gaps in its sequence numbers).
-    pub dropped: u64,
-    /// [`ActorState::dropped`] per kind: which of the learner's buffers
-    /// overflowed (or which of its services a gateway lost messages on).
+    /// Messages this actor sent that never arrived (gaps in its sequence
+    /// numbers), per kind: which of the learner's buffers overflowed (or
+    /// which of its services a gateway lost messages on).
     pub dropped_by_kind: BTreeMap<&'static str, u64>,
     /// Environment steps in accepted rollout chunks.
     pub env_steps: u64,
@@ -32,6 +31,13 @@ pub struct ActorState {
     /// Policy version of its newest chunk.
     pub policy_version: u64,
     next_sequence: BTreeMap<&'static str, u64>,
+}
+
+impl ActorState {
+    /// Messages this actor sent that never arrived, all kinds.
+    pub fn dropped(&self) -> u64 {
+        self.dropped_by_kind.values().sum()
+    }
 }
 
 /// The learner's live state.
@@ -316,7 +322,6 @@ impl LearnerStatus {
         let actor = self.actors.entry(actor_id).or_insert_with(|| ActorState {
             last_seen: now,
             received: BTreeMap::new(),
-            dropped: 0,
             dropped_by_kind: BTreeMap::new(),
             env_steps: 0,
             policy_lag: 0,
@@ -333,7 +338,6 @@ impl LearnerStatus {
             .copied()
             .unwrap_or(sequence);
         let lost = sequence.saturating_sub(expected);
-        actor.dropped += lost;
         if lost > 0 {
             *actor.dropped_by_kind.entry(kind.as_str()).or_default() += lost;
         }
@@ -390,7 +394,7 @@ impl LearnerStatus {
                         .iter()
                         .map(|(k, v)| (k.to_string(), *v))
                         .collect(),
-                    dropped: a.dropped,
+                    dropped: a.dropped(),
                     env_steps: a.env_steps,
                     policy_lag: a.policy_lag,
                     policy_version: a.policy_version,
@@ -480,7 +484,7 @@ mod tests {
             "2, 3 and 4 were lost"
         );
         assert_eq!(status.accept(0, kind, 10_000_000, 0), None, "forged");
-        assert_eq!(status.actors[&0].dropped, 3, "not counted as losses");
+        assert_eq!(status.actors[&0].dropped(), 3, "not counted as losses");
         assert_eq!(
             status.accept(0, kind, 6, 0),
             Some(0),

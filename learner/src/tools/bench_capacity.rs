@@ -93,7 +93,7 @@ fn read(shared: &Shared) -> Reading {
         rounds: status.unet_rounds,
         skipped: status.frames_skipped,
         discarded: status.rollout_steps_discarded,
-        dropped: status.actors.values().map(|a| a.dropped).sum(),
+        dropped: status.actors.values().map(|a| a.dropped()).sum(),
         batch_seconds: status.ppo_batch_seconds,
         update_seconds: status.ppo_update_seconds,
     }
