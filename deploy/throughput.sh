@@ -20,7 +20,12 @@ its passes over 0.1 s and the longest since the run began), and how many CPU
 cores the learner process and the actor processes kept busy over the window
 (their CPU time from /proc over its length; the cores this script may use
 beside them),
-which tells a run bound by the CPU from one bound by something else.
+which tells a run bound by the CPU from one bound by something else. A second
+table splits those cores by thread name (env-* are an actor's environments,
+unet-batch its U-Net's batching, ppo-training and unet-training the learner's
+trainers with the threads they started, receive-loop its receive loop), which
+tells the work from threads that only spin or wait. The counters of each
+window's ends stay beside the run's log (counters-start.json, counters-end.json).
 
 Options:
   --settings LIST   comma-separated AxK pairs (default 2x1,1x2)
@@ -87,10 +92,25 @@ while grew:
     grew = bool(more)
 cpu = {d: [procs[d][1], procs[d][2]] for d in under
        if d in procs and procs[d][1] in ("learner", "actor")}
+# Per thread of those processes: pid/tid -> [process name, thread name, seconds].
+threads = {}
+for d, (name, _) in cpu.items():
+    try:
+        tids = os.listdir(f"/proc/{d}/task")
+    except OSError:
+        continue
+    for t in tids:
+        try:
+            stat = open(f"/proc/{d}/task/{t}/stat").read()
+        except OSError:
+            continue
+        f = stat[stat.rindex(")") + 2:].split()
+        threads[f"{d}/{t}"] = [name, stat[stat.index("(") + 1:stat.rindex(")")],
+                               (int(f[11]) + int(f[12])) / os.sysconf("SC_CLK_TCK")]
 print(json.dumps({"t": time.time(), "steps": s["env_steps"], "updates": s["updates"],
   "frames": s["frames_received"], "skipped": s["frames_skipped"],
   "discarded": s.get("rollout_steps_discarded", 0), "dropped": s["dropped"],
-  "messages": sum(s["received"].values()), "cpu": cpu,
+  "messages": sum(s["received"].values()), "cpu": cpu, "threads": threads,
   "receiving": s.get("receive_loop_seconds", 0.0),
   "long": s.get("receive_loop_long_passes", 0), "longest": s.get("receive_loop_longest_pass_s", 0.0),
   "lost": s.get("dropped_by_kind", {})}))' "$RUN_PID"
@@ -106,7 +126,7 @@ stop_run() {
 trap 'stop_run' EXIT
 trap 'stop_run; exit 130' INT TERM
 
-ROWS=()
+ROWS=() THREAD_ROWS=()
 IFS=',' read -ra PAIRS <<<"$SETTINGS"
 for pair in "${PAIRS[@]}"; do
   actors=${pair%x*} envs=${pair#*x}
@@ -129,14 +149,14 @@ for pair in "${PAIRS[@]}"; do
     exit 1
   fi
   sleep "$WARMUP"
-  c0=$(counters)
+  counters >"$run.counters-start.json"
   sleep "$SECONDS_COUNTED"
-  c1=$(counters)
+  counters >"$run.counters-end.json"
   stop_run
   ROWS+=("$(python3 -c "
 import json, os
-a, b = json.loads('$c0'), json.loads('$c1')
-d = {k: b[k] - a[k] for k in a if k not in ('cpu', 'lost', 'longest')}
+a, b = (json.load(open('$run.counters-' + end + '.json')) for end in ('start', 'end'))
+d = {k: b[k] - a[k] for k in a if k not in ('cpu', 'threads', 'lost', 'longest')}
 s = d['t']
 sent = d['messages'] + d['dropped']
 lost = ', '.join('%s %d' % (k, n - a['lost'].get(k, 0))
@@ -150,8 +170,29 @@ print('| $actors | $envs | %.1f | %.1f | %.2f | %d / %d | %d | %d (%.2f %%%s) | 
     d['discarded'], d['dropped'], 100.0 * d['dropped'] / max(sent, 1), lost and ': ' + lost,
     100.0 * d['receiving'] / s, d['long'], b['longest'],
     busy['learner'] / s, busy['actor'] / s, len(os.sched_getaffinity(0))))")")
+  THREAD_ROWS+=("$(python3 -c "
+import json, re
+a, b = (json.load(open('$run.counters-' + end + '.json')) for end in ('start', 'end'))
+s = b['t'] - a['t']
+# Threads grouped by process kind and name, numbers stripped (env-3 -> env-*);
+# a thread started within the window counts in full.
+groups = {}
+for key, (kind, name, secs) in b['threads'].items():
+    group = groups.setdefault((kind, re.sub(r'[0-9]+', '*', name)), [0, 0.0])
+    group[0] += 1
+    group[1] += secs - a['threads'].get(key, [kind, name, 0.0])[2]
+for kind in ('learner', 'actor'):
+    busiest = sorted(((v[1] / s, n, v[0]) for (k, n), v in groups.items() if k == kind), reverse=True)
+    shown = ', '.join('%s %.2f (%d)' % (n, c, t) for c, n, t in busiest[:8] if c >= 0.005)
+    print('| $actors | $envs | %s | %s |' % (kind, shown or 'none busy'))")")
 done
 
 echo "| actors | environments each | steps/s taken, all actors | per actor process | PPO updates/s | U-Net frames taken / skipped | rollout steps discarded | messages lost in transit | learner's receive loop busy | CPU cores busy: learner / actors |"
 echo "|---|---|---|---|---|---|---|---|---|---|"
 printf '%s\n' "${ROWS[@]}"
+echo
+echo "Cores each kind of thread kept busy over the window (threads of that name, numbers as *; in brackets: how many):"
+echo
+echo "| actors | environments each | process | busiest threads: cores (threads) |"
+echo "|---|---|---|---|"
+printf '%s\n' "${THREAD_ROWS[@]}"

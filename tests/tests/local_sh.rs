@@ -338,9 +338,14 @@ fn throughput_sh_measures_each_setting_and_stops_its_runs() {
         output.status,
         String::from_utf8_lossy(&output.stderr)
     );
-    let rows: Vec<Vec<f64>> = table
+    // The first table: its header, then a row per setting up to a blank line.
+    let first: Vec<&str> = table
         .lines()
         .skip(2)
+        .take_while(|l| !l.trim().is_empty())
+        .collect();
+    let rows: Vec<Vec<f64>> = first
+        .iter()
         .map(|l| {
             l.split('|')
                 .filter_map(|cell| cell.trim().parse::<f64>().ok())
@@ -359,9 +364,8 @@ fn throughput_sh_measures_each_setting_and_stops_its_runs() {
     }
     // The learner's receive loop took the messages: busy a share of the
     // window (the cell before the last).
-    let receiving: Vec<f64> = table
-        .lines()
-        .skip(2)
+    let receiving: Vec<f64> = first
+        .iter()
         .map(|line| {
             let cells: Vec<&str> = line.split('|').map(str::trim).collect();
             let cell = cells[cells.len() - 3];
@@ -376,7 +380,7 @@ fn throughput_sh_measures_each_setting_and_stops_its_runs() {
     );
     // The actors stepped, so their processes kept some of a core busy; the
     // learner's figure is a share of the machine too.
-    for line in table.lines().skip(2) {
+    for line in &first {
         let cell = line
             .trim_end_matches(['|', ' '])
             .rsplit('|')
@@ -392,6 +396,30 @@ fn throughput_sh_measures_each_setting_and_stops_its_runs() {
         assert!(cores >= 1.0, "{table}");
         assert!(actors > 0.0 && actors <= cores + 0.5, "{table}");
         assert!(learner >= 0.0 && learner <= cores + 0.5, "{table}");
+    }
+    // The second table splits those cores by thread name: a learner and an
+    // actor row per setting, the learner's naming its receive loop (busy
+    // with the fixture's ~40 000 messages a second).
+    let threads: Vec<&str> = table
+        .lines()
+        .skip_while(|l| !l.contains("busiest threads"))
+        .skip(2)
+        .take_while(|l| l.starts_with('|'))
+        .collect();
+    assert_eq!(threads.len(), 4, "{table}");
+    for (line, (setting, kind)) in threads.iter().zip([
+        ("| 1 | 1 |", "learner"),
+        ("| 1 | 1 |", "actor"),
+        ("| 1 | 2 |", "learner"),
+        ("| 1 | 2 |", "actor"),
+    ]) {
+        assert!(
+            line.starts_with(setting) && line.contains(&format!("| {kind} |")),
+            "{table}"
+        );
+        if kind == "learner" {
+            assert!(line.contains("receive-loop "), "{table}");
+        }
     }
     // Each run was stopped cleanly: a final checkpoint, nothing left running.
     for setting in ["1x1", "1x2"] {

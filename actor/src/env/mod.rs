@@ -6,6 +6,7 @@ mod bandit_fixture;
 pub(crate) mod episode_metrics;
 mod flat_sim_env;
 pub mod lockstep;
+mod named_thread;
 pub(crate) mod object_memory;
 pub mod reward;
 pub mod sim_env;

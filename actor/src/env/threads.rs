@@ -38,6 +38,7 @@ use nets::policy::{CpuPolicy, CpuPolicyStep};
 
 use super::affordance_model::AffordanceModel;
 use super::lockstep::Inference;
+use super::named_thread::spawn_named;
 use super::step_phases::{self, StepPhases};
 use super::unet_batcher::{self, UnetClient};
 use super::{Environment, EpisodeEnd, Observation, StepOutcome};
@@ -123,7 +124,9 @@ impl EnvThreads {
                     Some(clients) => Unet::Batched(clients.client()),
                     None => Unet::OnThisThread(model),
                 };
-                scope.spawn(move || serve(index, env, job_rx, done_tx, unet));
+                spawn_named(scope, format!("env-{index}"), move || {
+                    serve(index, env, job_rx, done_tx, unet)
+                });
                 job_tx
             })
             .collect();
@@ -218,7 +221,11 @@ fn serve(
     done: Sender<(usize, anyhow::Result<Done>)>,
     unet: Unet<'_>,
 ) {
-    let pool = match rayon::ThreadPoolBuilder::new().num_threads(1).build() {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .thread_name(move |_| format!("env-{index}"))
+        .build();
+    let pool = match pool {
         Ok(pool) => pool,
         Err(e) => {
             let _ = done.send((index, Err(anyhow!("starting its thread pool: {e}"))));

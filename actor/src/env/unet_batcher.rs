@@ -28,6 +28,7 @@ use std::time::{Duration, Instant};
 use anyhow::{anyhow, Context};
 
 use super::affordance_model::{network_input, AffordanceModel, CameraFrame, Logits};
+use super::named_thread::spawn_named;
 use super::time_tally::TimeTally;
 
 /// A frame's logits (or why there are none).
@@ -106,7 +107,7 @@ pub(crate) fn start<'scope, 'env>(
     let queue = Arc::new(Mutex::new(queue));
     for _ in 0..threads.max(1) {
         let queue = Arc::clone(&queue);
-        scope.spawn(move || serve(model, &queue));
+        spawn_named(scope, "unet-batch".to_owned(), move || serve(model, &queue));
     }
     Clients { requests }
 }

@@ -398,7 +398,7 @@ pub fn spawn(
     )?;
     let (opened_tx, opened_rx) = std::sync::mpsc::channel();
     let thread = std::thread::Builder::new()
-        .name("learner".into())
+        .name("receive-loop".into())
         .spawn(move || {
             let ports = match LearnerPorts::open(&shared.config.transport, join_key.clone()) {
                 Ok(ports) => ports,
