@@ -6,27 +6,37 @@
 //! every one is refused and counted under its reason, the real actor's
 //! counters stay right, no ghost actor appears, and the real actor carries on.
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::*;
 use proto::{encode, EpisodeStats, Join, JoinKey, MessageHeader, StatField};
 use system_tests::{metric_value, scratch_dir, start_actor, wait_for, Learner};
 
-/// The first message on `service` from anyone, as bytes.
+/// The first message on `service` from anyone that is `wanted`, as bytes.
+/// Reads as fast as messages come: the bandit fixture's actor sends
+/// thousands of stats a second, and a subscriber's buffer keeps only the
+/// newest few, so a reader that slept between reads (20 ms once) saw the
+/// actor's join, one message every 2 s, only now and then (14–26 s, or not
+/// within 30 s, in three of five runs).
 fn capture(
     subscriber: &iceoryx2::port::subscriber::Subscriber<ipc::Service, [u8], ()>,
     what: &str,
     wanted: impl Fn(&[u8]) -> bool,
 ) -> Vec<u8> {
-    wait_for(Duration::from_secs(30), what, || {
-        while let Some(sample) = subscriber.receive().expect("receiving") {
-            if wanted(sample.payload()) {
-                return Some(sample.payload().to_vec());
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        match subscriber.receive().expect("receiving") {
+            Some(sample) if wanted(sample.payload()) => return sample.payload().to_vec(),
+            Some(_) => {}
+            None => {
+                assert!(
+                    Instant::now() < deadline,
+                    "timed out after 30 s waiting for {what}"
+                );
+                std::thread::sleep(Duration::from_millis(1));
             }
         }
-        std::thread::sleep(Duration::from_millis(20));
-        None
-    })
+    }
 }
 
 fn kind_of(bytes: &[u8]) -> u16 {
