@@ -60,6 +60,61 @@ pub(crate) fn sdf_at(reader: &mut CachedReader<'_>, p: &Point3<f32>) -> Option<f
     }
 }
 
+/// The trilinear SDF at `p` and its gradient (per metre) inside the cell
+/// of the eight voxel centres around `p`; `None` unless all eight were
+/// observed. One stencil for both: a central difference would read six
+/// more.
+pub(crate) fn sdf_with_gradient(
+    reader: &mut CachedReader<'_>,
+    p: &Point3<f32>,
+) -> Option<(f32, Vector3<f32>)> {
+    let s = reader.layer().voxel_size_m;
+    let q = p.coords * (1.0 / s);
+    let g = [q.x - 0.5, q.y - 0.5, q.z - 0.5];
+    let base = g.map(crate::layer::floor_to_i32);
+    let f = [0, 1, 2].map(|a| g[a] - base[a] as f32);
+    let (block_index, first) = VoxelIndex(base).split();
+    let mut v = [0.0f32; 8];
+    if base
+        .iter()
+        .all(|&i| i.rem_euclid(BLOCK_EDGE) < BLOCK_EDGE - 1)
+    {
+        let voxels = reader.block(block_index)?.voxels();
+        let edge = BLOCK_EDGE as usize;
+        for (corner, sdf) in v.iter_mut().enumerate() {
+            let o = first + (corner & 1) + edge * ((corner >> 1) & 1) + edge * edge * (corner >> 2);
+            let voxel = voxels[o];
+            if voxel.weight <= 0.0 {
+                return None;
+            }
+            *sdf = voxel.sdf;
+        }
+    } else {
+        for (corner, sdf) in v.iter_mut().enumerate() {
+            let index = VoxelIndex([0, 1, 2].map(|a| base[a] + ((corner >> a) & 1) as i32));
+            *sdf = reader.observed_sdf(index)?;
+        }
+    }
+    // Along x between the corner pairs, then y, then z.
+    let [fx, fy, fz] = f;
+    let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+    let x00 = lerp(v[0], v[1], fx);
+    let x10 = lerp(v[2], v[3], fx);
+    let x01 = lerp(v[4], v[5], fx);
+    let x11 = lerp(v[6], v[7], fx);
+    let y0 = lerp(x00, x10, fy);
+    let y1 = lerp(x01, x11, fy);
+    let value = lerp(y0, y1, fz);
+    let dx = lerp(
+        lerp(v[1] - v[0], v[3] - v[2], fy),
+        lerp(v[5] - v[4], v[7] - v[6], fy),
+        fz,
+    );
+    let dy = lerp(x10 - x00, x11 - x01, fz);
+    let dz = y1 - y0;
+    Some((value, Vector3::new(dx, dy, dz) * (1.0 / s)))
+}
+
 /// [`sdf_at`], also telling an unobserved voxel from an unallocated block
 /// (which a ray may leap) from the one voxel lookup.
 fn sample(reader: &mut CachedReader<'_>, p: &Point3<f32>) -> Sample {
@@ -711,6 +766,113 @@ mod tests {
             }
         }
         assert!(checked > 2000, "only {checked} observed samples");
+    }
+
+    #[test]
+    fn the_gradient_is_the_trilinear_cells_own_and_needs_all_eight_voxels() {
+        // A linear SDF over two neighbouring blocks and a half-observed one:
+        // trilinear interpolation reproduces it, gradient and all.
+        let s = 0.04;
+        let mut layer = Layer::new(s);
+        for b in [[0, 0, 0], [1, 0, 0], [0, -1, 0]] {
+            let block_index = crate::layer::BlockIndex(b);
+            layer.block_mut_or_insert(block_index).update(|voxels| {
+                for (o, voxel) in voxels.iter_mut().enumerate() {
+                    if b == [0, -1, 0] && o % 3 == 0 {
+                        continue;
+                    }
+                    let v = VoxelIndex::join(block_index, o);
+                    voxel.weight = 1.0;
+                    voxel.sdf = 0.3 * v.0[0] as f32 - 0.2 * v.0[1] as f32 + 0.1 * v.0[2] as f32;
+                }
+                crate::layer::BLOCK_VOXELS
+            });
+        }
+        let slope = Vector3::new(0.3, -0.2, 0.1) / s;
+        let all_observed = |p: &Point3<f32>| {
+            let base = [p.x, p.y, p.z].map(|c| (c / s - 0.5).floor() as i32);
+            (0..8).all(|corner: i32| {
+                let v = VoxelIndex([0, 1, 2].map(|a| base[a] + ((corner >> a) & 1)));
+                layer.voxel(v).is_some_and(|x| x.weight > 0.0)
+            })
+        };
+        let mut reader = CachedReader::new(&layer);
+        let (mut known, mut unknown) = (0, 0);
+        for i in 0..4000 {
+            let t = i as f32 * 0.618_034;
+            let p = Point3::new(
+                (t * 1.7).fract() * 0.64 - 0.02,
+                (t * 2.3).fract() * 0.64 - 0.33,
+                (t * 3.1).fract() * 0.34 - 0.01,
+            );
+            match sdf_with_gradient(&mut reader, &p) {
+                Some((value, gradient)) => {
+                    assert!(
+                        all_observed(&p),
+                        "{p:?}: a value from an incomplete stencil"
+                    );
+                    let plain = reference_sdf(&layer, &p).expect("observed");
+                    assert!((value - plain).abs() < 1e-5, "{p:?}: {value} vs {plain}");
+                    assert!(
+                        (gradient - slope).norm() < 1e-3 * slope.norm(),
+                        "{p:?}: {gradient:?}"
+                    );
+                    known += 1;
+                }
+                None => {
+                    assert!(!all_observed(&p), "{p:?}: no value from a full stencil");
+                    unknown += 1;
+                }
+            }
+        }
+        assert!(
+            known > 1000 && unknown > 100,
+            "{known} known, {unknown} not"
+        );
+    }
+
+    #[test]
+    fn the_gradient_of_a_curved_sdf_matches_finite_differences_inside_a_cell() {
+        let centre = Point3::new(0.31, -0.12, 0.47);
+        let layer = ball_layer(centre, 0.2, false);
+        let s = layer.voxel_size_m;
+        let mut reader = CachedReader::new(&layer);
+        let h = 1e-3 * s;
+        let mut checked = 0;
+        for i in 0..2000 {
+            let t = i as f32 * 0.618_034;
+            let direction = Vector3::new(
+                (t * 1.7).fract() - 0.5,
+                (t * 2.3).fract() - 0.5,
+                (t * 3.1).fract() - 0.5,
+            )
+            .normalize();
+            let p = centre + direction * (0.2 + ((t * 5.3).fract() - 0.5) * 0.06);
+            let Some((_, gradient)) = sdf_with_gradient(&mut reader, &p) else {
+                continue;
+            };
+            // Central differences that stay inside p's cell.
+            let g = [p.x, p.y, p.z].map(|c| c / s - 0.5);
+            if g.iter()
+                .any(|c| (c - c.floor()) < 0.01 || (c - c.floor()) > 0.99)
+            {
+                continue;
+            }
+            let mut numeric = Vector3::zeros();
+            for a in 0..3 {
+                let mut e = Vector3::zeros();
+                e[a] = h;
+                let hi = reference_sdf(&layer, &(p + e)).expect("observed");
+                let lo = reference_sdf(&layer, &(p - e)).expect("observed");
+                numeric[a] = (hi - lo) / (2.0 * h);
+            }
+            assert!(
+                (gradient - numeric).norm() < 0.02 * numeric.norm().max(0.1),
+                "{p:?}: {gradient:?} vs {numeric:?}"
+            );
+            checked += 1;
+        }
+        assert!(checked > 500, "only {checked} points checked");
     }
 
     /// A ball's TSDF (centre, radius) in blocks reaching well beyond it:
