@@ -24,9 +24,9 @@ Runs, one after the other, each under a time limit (about 9 minutes in all):
   5. deploy/throughput.sh: the whole system, `ours`, 1x32 at 64 px with the CPU
      renderer, and 1x32 at 128 px with the GPU renderer and with the CPU
      renderer, PPO on 1024-step batches (what the README advises on a GPU),
-     with the CPU cores the learner and the actors kept busy, the messages
-     lost by kind, each actor's loop thread's chores per step and its U-Net
-     batching threads' share;
+     with the CPU cores the learner and the actors kept busy (and per thread
+     name), the messages lost by kind, each actor's loop thread's chores per
+     step, its U-Net batching threads' share and its environments' steps;
   6. the gateway pair against loopback TCP (`gateway bench`, issue 41's
      figure, which the 2-core VM cannot reach), when DIR has gateway.
 and writes every result into one Markdown report.
@@ -187,7 +187,7 @@ if ! skipped throughput; then
       -- --set policy.batch_steps=1024
     add "${side} px, ${steps}-step episodes, ${renderer} renderer, 1024-step PPO batches:" ""
     if grep -q '^| actors' "$log"; then
-      add "$(grep -A20 '^| actors' "$log")" ""
+      add "$(sed -n '/^| actors/,$p' "$log")" ""
       # Whether each actor's loop thread or U-Net batching threads (which
       # all its environments wait for) were the wall: its last lines say
       # how busy they were, and what its environments' steps were made of.
