@@ -77,7 +77,7 @@ struct BlockData {
     /// Voxels, x fastest, then y, then z.
     voxels: [Voxel; BLOCK_VOXELS],
     /// The layer-frame centres of the observed voxels within one voxel of
-    /// the surface ([`Layer::all_surface_points`]), worked out on first request
+    /// the surface ([`Layer::surface_points`]), worked out on first request
     /// and forgotten when a voxel changes: the actor's state asks for the
     /// whole map's surface every step, while a step changes only the blocks
     /// in view (about a third of them over an episode).
@@ -282,22 +282,12 @@ impl Layer {
         self.blocks.entry(b).or_default()
     }
 
-    /// Per allocated block that has any, the layer-frame centres of its
-    /// observed voxels within one voxel of the surface (in offset order),
-    /// each block's worked out once and kept until its voxels change. The
-    /// blocks come in no particular order: for gatherers whose result does
-    /// not depend on it (the state's projections mark cells), which spares
-    /// sorting the block indices and looking each one up again.
-    pub fn all_surface_points(&self) -> impl Iterator<Item = &[Point3<f32>]> + '_ {
-        self.blocks
-            .iter()
-            .map(|(&b, block)| self.block_surface_points(b, block))
-            .filter(|points| !points.is_empty())
-    }
-
-    /// The surface points of `block`, at `b` ([`Layer::all_surface_points`]).
-    fn block_surface_points<'a>(&self, b: BlockIndex, block: &'a Block) -> &'a [Point3<f32>] {
-        block.data.surface.get_or_init(|| {
+    /// The layer-frame centres of block `b`'s observed voxels within one
+    /// voxel of the surface, in offset order (`None` if `b` is not
+    /// allocated). Worked out once and kept until the block's voxels change.
+    pub fn surface_points(&self, b: BlockIndex) -> Option<&[Point3<f32>]> {
+        let block = self.blocks.get(&b)?;
+        let points = block.data.surface.get_or_init(|| {
             // Gathered on the stack and kept in one allocation of the
             // right size (growing a vector by doubling cost more).
             let mut points = [Point3::origin(); BLOCK_VOXELS];
@@ -307,7 +297,8 @@ impl Layer {
                 count += 1;
             });
             points[..count].to_vec()
-        })
+        });
+        Some(points)
     }
 
     /// Frees the block at `b` (a no-op if it is not allocated).

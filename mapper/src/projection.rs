@@ -116,11 +116,19 @@ impl Map {
     /// world's) are borrowed, not copied.
     pub fn surface_points(&self) -> SurfacePoints<'_> {
         let mut groups = Vec::new();
-        for points in self.background().all_surface_points() {
-            groups.push(PointGroup::new(None, Cow::Borrowed(points)));
+        let background = self.background();
+        for b in background.block_indices() {
+            if let Some(points) = background.surface_points(b) {
+                groups.push(PointGroup::new(None, Cow::Borrowed(points)));
+            }
         }
         for object in self.objects().values().filter(|o| o.is_placed()) {
-            let blocks: Vec<&[Point3<f32>]> = object.volume.all_surface_points().collect();
+            let volume = &object.volume;
+            let blocks: Vec<&[Point3<f32>]> = volume
+                .block_indices()
+                .into_iter()
+                .filter_map(|b| volume.surface_points(b))
+                .collect();
             // One allocation of the right size, not one per doubling.
             let mut points = Vec::with_capacity(blocks.iter().map(|b| b.len()).sum());
             for block_points in blocks {
