@@ -423,8 +423,9 @@ pub fn align(
 /// re-identification's bursts 2–6× longer
 /// (docs/notebook/2026-11-28-sdf-refinement-audit.md). Points where the SDF
 /// is unknown (any of the cell's eight voxels unobserved), truncated, or
-/// beyond the inlier distance are left out. Converges only from within about the truncation distance,
-/// which is why [`align`] runs first. Stays within `motion`.
+/// beyond the inlier distance are left out. Converges only from within about
+/// the truncation distance, which is why [`align`] runs first. Stays within
+/// `motion`.
 pub fn refine_against_sdf(
     layer: &Layer,
     start: &Pose,
