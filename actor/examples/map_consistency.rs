@@ -73,8 +73,8 @@ fn main() -> anyhow::Result<()> {
     println!("| seed | room | map id consistency | interactions | map, mean | map, longest |");
     println!("|---|---|---|---|---|---|");
     let mut consistencies = Vec::new();
+    let mut env = sim_env(&args)?;
     for seed in seeds {
-        let mut env = sim_env(&args)?;
         let mut rng = StdRng::seed_from_u64(seed);
         let mut observation = env
             .reset(seed, &model)

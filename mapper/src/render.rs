@@ -728,33 +728,48 @@ mod tests {
         Some(sum)
     }
 
-    #[test]
-    fn cached_trilinear_lookup_matches_plain_lookup_across_block_borders() {
-        // Two neighbouring blocks plus one half-observed block, SDF of a plane.
-        let mut layer = Layer::new(0.04);
+    /// A linear SDF in voxel units (slopes 0.3, −0.2, 0.1 per voxel) over
+    /// two neighbouring blocks and a third, below, with every third voxel
+    /// unobserved.
+    fn plane_layer(voxel_size_m: f32) -> Layer {
+        let mut layer = Layer::new(voxel_size_m);
         for b in [[0, 0, 0], [1, 0, 0], [0, -1, 0]] {
             let block_index = crate::layer::BlockIndex(b);
             layer.block_mut_or_insert(block_index).update(|voxels| {
                 for (o, voxel) in voxels.iter_mut().enumerate() {
-                    let v = VoxelIndex::join(block_index, o);
                     if b == [0, -1, 0] && o % 3 == 0 {
-                        continue; // unobserved voxels force the nearest-voxel fallback
+                        continue;
                     }
+                    let v = VoxelIndex::join(block_index, o);
                     voxel.weight = 1.0;
                     voxel.sdf = 0.3 * v.0[0] as f32 - 0.2 * v.0[1] as f32 + 0.1 * v.0[2] as f32;
                 }
                 crate::layer::BLOCK_VOXELS
             });
         }
-        let mut reader = CachedReader::new(&layer);
-        let mut checked = 0;
-        for i in 0..4000 {
+        layer
+    }
+
+    /// 4 000 scattered points over [`plane_layer`]'s blocks (at 4 cm voxels)
+    /// and a little beyond them.
+    fn probe_points() -> impl Iterator<Item = Point3<f32>> {
+        (0..4000).map(|i| {
             let t = i as f32 * 0.618_034;
-            let p = Point3::new(
+            Point3::new(
                 (t * 1.7).fract() * 0.64 - 0.02,
                 (t * 2.3).fract() * 0.64 - 0.33,
                 (t * 3.1).fract() * 0.34 - 0.01,
-            );
+            )
+        })
+    }
+
+    #[test]
+    fn cached_trilinear_lookup_matches_plain_lookup_across_block_borders() {
+        // Unobserved voxels force the nearest-voxel fallback.
+        let layer = plane_layer(0.04);
+        let mut reader = CachedReader::new(&layer);
+        let mut checked = 0;
+        for p in probe_points() {
             let fast = sdf_at(&mut reader, &p);
             let plain = reference_sdf(&layer, &p);
             match (fast, plain) {
@@ -770,24 +785,9 @@ mod tests {
 
     #[test]
     fn the_gradient_is_the_trilinear_cells_own_and_needs_all_eight_voxels() {
-        // A linear SDF over two neighbouring blocks and a half-observed one:
-        // trilinear interpolation reproduces it, gradient and all.
+        // Trilinear interpolation reproduces a linear SDF, gradient and all.
         let s = 0.04;
-        let mut layer = Layer::new(s);
-        for b in [[0, 0, 0], [1, 0, 0], [0, -1, 0]] {
-            let block_index = crate::layer::BlockIndex(b);
-            layer.block_mut_or_insert(block_index).update(|voxels| {
-                for (o, voxel) in voxels.iter_mut().enumerate() {
-                    if b == [0, -1, 0] && o % 3 == 0 {
-                        continue;
-                    }
-                    let v = VoxelIndex::join(block_index, o);
-                    voxel.weight = 1.0;
-                    voxel.sdf = 0.3 * v.0[0] as f32 - 0.2 * v.0[1] as f32 + 0.1 * v.0[2] as f32;
-                }
-                crate::layer::BLOCK_VOXELS
-            });
-        }
+        let layer = plane_layer(s);
         let slope = Vector3::new(0.3, -0.2, 0.1) / s;
         let all_observed = |p: &Point3<f32>| {
             let base = [p.x, p.y, p.z].map(|c| (c / s - 0.5).floor() as i32);
@@ -798,13 +798,7 @@ mod tests {
         };
         let mut reader = CachedReader::new(&layer);
         let (mut known, mut unknown) = (0, 0);
-        for i in 0..4000 {
-            let t = i as f32 * 0.618_034;
-            let p = Point3::new(
-                (t * 1.7).fract() * 0.64 - 0.02,
-                (t * 2.3).fract() * 0.64 - 0.33,
-                (t * 3.1).fract() * 0.34 - 0.01,
-            );
+        for p in probe_points() {
             match sdf_with_gradient(&mut reader, &p) {
                 Some((value, gradient)) => {
                     assert!(
