@@ -76,12 +76,12 @@ pub struct Block {
 struct BlockData {
     /// Voxels, x fastest, then y, then z.
     voxels: [Voxel; BLOCK_VOXELS],
-    /// The layer-frame centres of the observed voxels within one voxel of
-    /// the surface ([`Layer::surface_points`]), worked out on first request
-    /// and forgotten when a voxel changes: the actor's state asks for the
-    /// whole map's surface every step, while a step changes only the blocks
-    /// in view (about a third of them over an episode).
-    surface: OnceLock<Vec<Point3<f32>>>,
+    /// Which voxels are observed and within one voxel of the surface
+    /// ([`Layer::surface_mask`]), worked out on first request and forgotten
+    /// when a voxel changes: the actor's state asks for the whole map's
+    /// surface every step, while a step changes only the blocks in view
+    /// (about a third of them over an episode).
+    surface: OnceLock<SurfaceMask>,
     /// The least and greatest offsets (per axis) of the observed voxels at
     /// or behind the surface (`sdf <= 0`), `None` if there are none: where
     /// rays can find a zero crossing ([`Layer::crossing_bounds`]). Worked
@@ -165,6 +165,45 @@ impl Block {
                 let i = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
                 f(chunk_index * 8 + i, chunk[i].sdf);
+            }
+        }
+    }
+}
+
+/// Voxels per z level of a block (one bit each in a [`SurfaceMask`] level).
+pub const LEVEL_VOXELS: usize = (BLOCK_EDGE * BLOCK_EDGE) as usize;
+
+/// One bit per voxel of a block: a `u64` per z level, bit `x + 8·y`.
+/// Small enough to copy, and a level's bits OR-ed over z give the block's
+/// columns (x, y) that hold any marked voxel in those levels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct SurfaceMask(pub [u64; BLOCK_EDGE as usize]);
+
+impl SurfaceMask {
+    /// How many voxels are marked.
+    pub fn count(&self) -> usize {
+        self.0.iter().map(|level| level.count_ones() as usize).sum()
+    }
+
+    /// The columns (bit `x + 8·y`) with a marked voxel in any of the z
+    /// levels whose bits are set in `levels`.
+    pub fn columns(&self, levels: u8) -> u64 {
+        self.0
+            .iter()
+            .enumerate()
+            .filter(|(z, _)| levels >> z & 1 == 1)
+            .fold(0, |columns, (_, level)| columns | level)
+    }
+
+    /// Calls `f(offset)` for every marked voxel, in offset order (x fastest,
+    /// then y, then z).
+    #[inline]
+    pub fn for_each_offset(&self, mut f: impl FnMut(usize)) {
+        for (z, &level) in self.0.iter().enumerate() {
+            let mut bits = level;
+            while bits != 0 {
+                f(z * LEVEL_VOXELS + bits.trailing_zeros() as usize);
+                bits &= bits - 1;
             }
         }
     }
@@ -282,23 +321,19 @@ impl Layer {
         self.blocks.entry(b).or_default()
     }
 
-    /// The layer-frame centres of block `b`'s observed voxels within one
-    /// voxel of the surface, in offset order (`None` if `b` is not
-    /// allocated). Worked out once and kept until the block's voxels change.
-    pub fn surface_points(&self, b: BlockIndex) -> Option<&[Point3<f32>]> {
+    /// Which of block `b`'s voxels are observed and within one voxel of the
+    /// surface (`None` if `b` is not allocated): the voxels whose centres
+    /// make the map's surface points ([`crate::Map::surface_points`]).
+    /// Worked out once and kept until the block's voxels change.
+    pub fn surface_mask(&self, b: BlockIndex) -> Option<SurfaceMask> {
         let block = self.blocks.get(&b)?;
-        let points = block.data.surface.get_or_init(|| {
-            // Gathered on the stack and kept in one allocation of the
-            // right size (growing a vector by doubling cost more).
-            let mut points = [Point3::origin(); BLOCK_VOXELS];
-            let mut count = 0;
+        Some(*block.data.surface.get_or_init(|| {
+            let mut mask = SurfaceMask::default();
             block.for_each_near_surface(self.voxel_size_m, |o, _| {
-                points[count] = self.voxel_center(VoxelIndex::join(b, o));
-                count += 1;
+                mask.0[o / LEVEL_VOXELS] |= 1 << (o % LEVEL_VOXELS);
             });
-            points[..count].to_vec()
-        });
-        Some(points)
+            mask
+        }))
     }
 
     /// Frees the block at `b` (a no-op if it is not allocated).
@@ -494,6 +529,49 @@ impl Layer {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_surface_mask_marks_the_voxels_near_the_surface_and_forgets_them_on_change() {
+        let mut layer = Layer::new(0.1);
+        let b = BlockIndex([0, -1, 2]);
+        // Observed near the surface: offsets 3 (x 3), 8 + 64 (y 1, z 1) and
+        // 511; observed but far from it: 9; near it but never observed: 10.
+        let near = [3, 72, 511];
+        layer.block_mut_or_insert(b).update(|voxels| {
+            for o in near {
+                voxels[o] = Voxel {
+                    sdf: -0.05,
+                    weight: 1.0,
+                };
+            }
+            voxels[9] = Voxel {
+                sdf: 0.15,
+                weight: 1.0,
+            };
+            voxels[10] = Voxel {
+                sdf: 0.0,
+                weight: 0.0,
+            };
+            5
+        });
+        let mask = layer.surface_mask(b).expect("an allocated block");
+        assert_eq!(mask.count(), 3);
+        let mut offsets = Vec::new();
+        mask.for_each_offset(|o| offsets.push(o));
+        assert_eq!(offsets, near, "in offset order");
+        // Columns: (3, 0) at z 0, (0, 1) at z 1, (7, 7) at z 7.
+        assert_eq!(mask.columns(0b1), 1 << 3);
+        assert_eq!(mask.columns(0b10), 1 << 8);
+        assert_eq!(mask.columns(0xff), 1 << 3 | 1 << 8 | 1 << 63);
+        assert_eq!(mask.columns(0b0111_1100), 0);
+        assert_eq!(layer.surface_mask(BlockIndex([0, 0, 0])), None);
+        // A change forgets the kept mask.
+        layer.block_mut_or_insert(b).update(|voxels| {
+            voxels[3].sdf = 0.5;
+            1
+        });
+        assert_eq!(layer.surface_mask(b).unwrap().count(), 2);
+    }
 
     #[test]
     fn negative_coordinates_and_block_boundaries_index_without_seams() {

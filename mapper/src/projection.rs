@@ -1,12 +1,11 @@
 //! 2-D projections of the map onto the floor plane (world z is up), at any
 //! extent and resolution, world-aligned or egocentric.
 
-use std::borrow::Cow;
-
 use nalgebra::{Point2, Point3};
 
 use crate::labels::Affordance;
-use crate::layer::floor_to_i32;
+use crate::layer::{floor_to_i32, BlockIndex, Layer, SurfaceMask, VoxelIndex};
+use crate::layer::{BLOCK_EDGE, BLOCK_VOXELS, LEVEL_VOXELS};
 use crate::map::{Map, MapObject};
 
 /// A square grid on the floor plane.
@@ -54,15 +53,12 @@ impl CellLocator {
         }
     }
 
-    /// False when `group`'s box lies wholly outside the circle around the
-    /// grid (so outside the grid, whatever its heading).
-    fn may_cover(&self, group: &PointGroup<'_>) -> bool {
+    /// False when the box from `lo` to `hi` (floor plane) lies wholly
+    /// outside the circle around the grid (so outside the grid, whatever
+    /// its heading).
+    fn may_cover(&self, lo: [f32; 2], hi: [f32; 2]) -> bool {
         let centre = [self.center.x, self.center.y];
-        let gap = |a: usize| {
-            (group.lo[a] - centre[a])
-                .max(centre[a] - group.hi[a])
-                .max(0.0)
-        };
+        let gap = |a: usize| (lo[a] - centre[a]).max(centre[a] - hi[a]).max(0.0);
         let reach = self.half_extent_m * std::f32::consts::SQRT_2;
         gap(0).powi(2) + gap(1).powi(2) <= reach * reach
     }
@@ -110,53 +106,63 @@ impl Map {
     }
 
     /// World-frame surface points of the background and of every placed
-    /// object ([`crate::MapObject::is_placed`]; observed voxels within one
-    /// voxel of the surface). Each block's points are kept by the block
-    /// until its voxels change, and the background's (whose frame is the
-    /// world's) are borrowed, not copied.
+    /// object ([`crate::MapObject::is_placed`]; the centres of observed
+    /// voxels within one voxel of the surface). Each block keeps which of
+    /// its voxels those are until its voxels change
+    /// ([`crate::Layer::surface_mask`]); the background's (whose frame is
+    /// the world's) stay as those masks, so that occupancy marks each of a
+    /// block's columns once, however many voxels it holds.
     pub fn surface_points(&self) -> SurfacePoints<'_> {
-        let mut groups = Vec::new();
         let background = self.background();
-        for b in background.block_indices() {
-            if let Some(points) = background.surface_points(b) {
-                groups.push(PointGroup::new(None, Cow::Borrowed(points)));
-            }
-        }
+        let background_blocks = background
+            .block_indices()
+            .into_iter()
+            .filter_map(|b| background.surface_mask(b).map(|m| (b, m)))
+            .filter(|(_, m)| m.count() > 0)
+            .collect();
+        let mut objects = Vec::new();
         for object in self.objects().values().filter(|o| o.is_placed()) {
             let volume = &object.volume;
-            let blocks: Vec<&[Point3<f32>]> = volume
+            let masks: Vec<(BlockIndex, SurfaceMask)> = volume
                 .block_indices()
                 .into_iter()
-                .filter_map(|b| volume.surface_points(b))
+                .filter_map(|b| volume.surface_mask(b).map(|m| (b, m)))
                 .collect();
             // One allocation of the right size, not one per doubling.
-            let mut points = Vec::with_capacity(blocks.iter().map(|b| b.len()).sum());
-            for block_points in blocks {
-                points.extend(block_points.iter().map(|p| object.t_world_object * p));
+            let mut points = Vec::with_capacity(masks.iter().map(|(_, m)| m.count()).sum());
+            for (b, mask) in masks {
+                mask.for_each_offset(|o| {
+                    let centre = volume.voxel_center(VoxelIndex::join(b, o));
+                    points.push(object.t_world_object * centre);
+                });
             }
-            groups.push(PointGroup::new(Some(object), Cow::Owned(points)));
+            if !points.is_empty() {
+                objects.push(PointGroup::new(object, points));
+            }
         }
-        groups.retain(|g| !g.points.is_empty());
-        SurfacePoints { groups }
+        SurfacePoints {
+            background: background_blocks,
+            background_layer: background,
+            objects,
+        }
     }
 }
 
-/// Surface points of one owner (the background's block or an object) and
-/// the box they span on the floor plane, so that a grid can skip the whole
-/// group.
+/// One object's surface points and the box they span on the floor plane,
+/// so that a grid can skip the whole object.
 #[derive(Debug, Clone)]
 struct PointGroup<'a> {
-    /// `None` for the background.
-    object: Option<&'a MapObject>,
-    points: Cow<'a, [Point3<f32>]>,
+    object: &'a MapObject,
+    /// World frame.
+    points: Vec<Point3<f32>>,
     lo: [f32; 2],
     hi: [f32; 2],
 }
 
 impl<'a> PointGroup<'a> {
-    fn new(object: Option<&'a MapObject>, points: Cow<'a, [Point3<f32>]>) -> Self {
+    fn new(object: &'a MapObject, points: Vec<Point3<f32>>) -> Self {
         let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
-        for p in points.iter() {
+        for p in &points {
             lo = [lo[0].min(p.x), lo[1].min(p.y)];
             hi = [hi[0].max(p.x), hi[1].max(p.y)];
         }
@@ -169,12 +175,17 @@ impl<'a> PointGroup<'a> {
     }
 }
 
-/// The map's surface as world-frame points, gathered once (the voxel scan is
-/// the expensive part) and rasterised into any number of projections.
+/// The map's surface, gathered once (the voxel scan is the expensive part)
+/// and rasterised into any number of projections.
 #[derive(Debug, Clone)]
 pub struct SurfacePoints<'a> {
-    /// The background's points a group per block, then each object's.
-    groups: Vec<PointGroup<'a>>,
+    /// The background's blocks that hold surface voxels, in index order,
+    /// with which voxels those are (the background's frame is the world's).
+    background: Vec<(BlockIndex, SurfaceMask)>,
+    /// The background's layer (for its voxels' centres).
+    background_layer: &'a Layer,
+    /// Each placed object's points, world frame.
+    objects: Vec<PointGroup<'a>>,
 }
 
 impl SurfacePoints<'_> {
@@ -190,11 +201,9 @@ impl SurfacePoints<'_> {
     /// grid, however many projections share that grid.
     pub fn project_all(&self, requests: &[(ProjectionKind, GridSpec)]) -> Vec<Vec<f32>> {
         let mut raster = Raster::new(requests);
-        for group in &self.groups {
-            raster.mark(group, |kind| match group.object {
-                Some(object) => shows(object, kind),
-                None => matches!(kind, ProjectionKind::Occupancy { .. }),
-            });
+        raster.mark_background(self.background_layer, &self.background);
+        for group in &self.objects {
+            raster.mark(group, |kind| shows(group.object, kind));
         }
         raster.planes(requests)
     }
@@ -250,10 +259,65 @@ impl Raster {
         Self { slots }
     }
 
+    /// Marks the background's surface voxels in every occupancy projection
+    /// whose heights hold them, a column of a block at a time (a voxel's
+    /// cell depends on its centre's x and y alone): a wall's column of
+    /// eight voxels is one cell lookup, not eight.
+    fn mark_background(&mut self, layer: &Layer, blocks: &[(BlockIndex, SurfaceMask)]) {
+        let mut columns: Vec<(u64, u64)> = Vec::new();
+        for slot in &mut self.slots {
+            let occupancy: Vec<(u64, std::ops::RangeInclusive<f32>)> = (slot.planes.iter())
+                .enumerate()
+                .filter_map(|(bit, (_, kind))| match *kind {
+                    ProjectionKind::Occupancy {
+                        min_height_m,
+                        max_height_m,
+                    } => Some((1 << bit, min_height_m..=max_height_m)),
+                    _ => None,
+                })
+                .collect();
+            if occupancy.is_empty() {
+                continue;
+            }
+            for &(b, mask) in blocks {
+                let first = layer.voxel_center(VoxelIndex::join(b, 0));
+                let last = layer.voxel_center(VoxelIndex::join(b, BLOCK_VOXELS - 1));
+                if !slot.locator.may_cover([first.x, first.y], [last.x, last.y]) {
+                    continue;
+                }
+                // Each projection's bit with the block's columns that hold a
+                // voxel within its heights.
+                columns.clear();
+                columns.extend(occupancy.iter().map(|(bit, heights)| {
+                    let mut levels = 0u8;
+                    for z in 0..BLOCK_EDGE as usize {
+                        let centre = layer.voxel_center(VoxelIndex::join(b, z * LEVEL_VOXELS));
+                        levels |= u8::from(heights.contains(&centre.z)) << z;
+                    }
+                    (*bit, mask.columns(levels))
+                }));
+                let mut any = columns.iter().fold(0, |any, (_, c)| any | c);
+                while any != 0 {
+                    let column = any.trailing_zeros() as usize;
+                    any &= any - 1;
+                    let centre = layer.voxel_center(VoxelIndex::join(b, column));
+                    if let Some(c) = slot.locator.cell_of(centre.x, centre.y) {
+                        for (bit, cols) in &columns {
+                            if cols >> column & 1 == 1 {
+                                slot.bits[c] |= bit;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     /// Marks `points` in every projection whose kind `shows`; occupancy
     /// projections only where a point lies within their heights.
     fn mark(&mut self, group: &PointGroup<'_>, shows: impl Fn(ProjectionKind) -> bool) {
-        for slot in self.slots.iter_mut().filter(|s| s.locator.may_cover(group)) {
+        let covering = |s: &&mut Slot| s.locator.may_cover(group.lo, group.hi);
+        for slot in self.slots.iter_mut().filter(covering) {
             let mut always = 0u64;
             let mut by_height: Vec<(u64, std::ops::RangeInclusive<f32>)> = Vec::new();
             for (bit, (_, kind)) in slot.planes.iter().enumerate() {

@@ -12,12 +12,19 @@ use nalgebra::{Isometry3, Point2, Point3, Vector3};
 const PICKED: u32 = 11;
 const FAILED: u32 = 12;
 
-/// A floor (the background), two labelled objects and one never tried.
+/// A floor and a wall (the background), two labelled objects and one
+/// never tried.
 fn scene() -> Vec<Shape> {
     vec![
         Shape::Box {
             t_world_box: Isometry3::translation(0.0, 0.0, -0.1),
             half: Vector3::new(3.0, 3.0, 0.1),
+            id: 0,
+        },
+        // 2.6 m high: occupancy's heights end inside its blocks' columns.
+        Shape::Box {
+            t_world_box: Isometry3::translation(-2.5, 0.4, 1.3),
+            half: Vector3::new(0.1, 1.2, 1.3),
             id: 0,
         },
         Shape::Box {
@@ -71,8 +78,8 @@ fn labelled_map_watched(mut after_each_view: impl FnMut(&Map)) -> Map {
     map
 }
 
-/// Occupancy and the three label kinds of pick-up, on a world-aligned 10 m
-/// grid and on an egocentric 2 m one turned 40°.
+/// Occupancy at two bands of heights and the three label kinds of pick-up,
+/// on a world-aligned 10 m grid and on an egocentric 2 m one turned 40°.
 fn requests() -> Vec<(ProjectionKind, GridSpec)> {
     let global = GridSpec {
         center: Point2::new(0.0, 0.0),
@@ -90,6 +97,10 @@ fn requests() -> Vec<(ProjectionKind, GridSpec)> {
         ProjectionKind::Occupancy {
             min_height_m: 0.05,
             max_height_m: 1.8,
+        },
+        ProjectionKind::Occupancy {
+            min_height_m: 0.5,
+            max_height_m: 1.3,
         },
         ProjectionKind::InteractedSuccess(Affordance::PickUp),
         ProjectionKind::InteractedFailure(Affordance::PickUp),
