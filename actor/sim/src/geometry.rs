@@ -234,21 +234,42 @@ impl SceneGeometry {
         dir: &Vector3<f32>,
         max_m: f32,
     ) -> Option<(f32, u32, [f32; 3], Vector3<f32>)> {
-        self.cast_among(&self.instances, origin, dir, max_m)
+        let every = self
+            .instances
+            .iter()
+            .enumerate()
+            .map(|(order, instance)| Candidate {
+                order,
+                near_m: 0.0,
+                instance,
+            });
+        self.cast_among(every, origin, dir, max_m)
     }
 
     /// Like [`SceneGeometry::cast`], against `candidates` only (instances a
-    /// renderer has found may lie under the ray).
+    /// renderer has found may lie under the ray), which must come in order
+    /// of [`Candidate::near_m`]: once the nearest hit so far lies before the
+    /// next candidate's box, no later one can beat it. The hit is the same
+    /// whatever their order: the nearest, and of exactly equal distances
+    /// the first instance in scene order (and its first part).
     pub(crate) fn cast_among<'a>(
         &'a self,
-        candidates: impl IntoIterator<Item = &'a Instance>,
+        candidates: impl IntoIterator<Item = Candidate<'a>>,
         origin: &Point3<f32>,
         dir: &Vector3<f32>,
         max_m: f32,
     ) -> Option<(f32, u32, [f32; 3], Vector3<f32>)> {
-        let mut best: Option<(f32, u32, [f32; 3], Vector3<f32>)> = None;
-        for inst in candidates {
-            let limit = best.map_or(max_m, |b| b.0);
+        let mut best: Option<NearestHit> = None;
+        for Candidate {
+            order,
+            near_m,
+            instance: inst,
+        } in candidates
+        {
+            let limit = best.map_or(max_m, |b| b.distance_m);
+            if near_m > limit + NEAR_MARGIN_M {
+                break;
+            }
             let Some(enter) = slab(origin, dir, &inst.aabb_min, &inst.aabb_max) else {
                 continue;
             };
@@ -259,26 +280,66 @@ impl SceneGeometry {
                 let o = part.t_part_world * origin;
                 let d = part.t_part_world.rotation * dir;
                 let ray = Ray::new(PVec::new(o.x, o.y, o.z), PVec::new(d.x, d.y, d.z));
-                let limit = best.map_or(max_m, |b| b.0);
+                let limit = best.map_or(max_m, |b| b.distance_m);
                 let hit = match &part.shape {
                     Convex::Cuboid(s) => s.cast_local_ray_and_get_normal(&ray, limit, true),
                     Convex::Cylinder(s) => s.cast_local_ray_and_get_normal(&ray, limit, true),
                     Convex::Ball(s) => s.cast_local_ray_and_get_normal(&ray, limit, true),
                 };
-                if let Some(hit) = hit {
-                    if best.is_none_or(|b| hit.time_of_impact < b.0) {
-                        let n = Vector3::new(hit.normal.x, hit.normal.y, hit.normal.z);
-                        let world_n = part.t_part_world.rotation.inverse() * n;
-                        let local = o + d * hit.time_of_impact;
-                        let k = shade(part.pattern, [local.x, local.y, local.z]);
-                        let colour = part.colour.map(|c| c * k);
-                        best = Some((hit.time_of_impact, inst.id, colour, world_n));
-                    }
+                let Some(hit) = hit else {
+                    continue;
+                };
+                let toi = hit.time_of_impact;
+                if best
+                    .is_none_or(|b| toi < b.distance_m || (toi == b.distance_m && order < b.order))
+                {
+                    let n = Vector3::new(hit.normal.x, hit.normal.y, hit.normal.z);
+                    let world_n = part.t_part_world.rotation.inverse() * n;
+                    let local = o + d * toi;
+                    let k = shade(part.pattern, [local.x, local.y, local.z]);
+                    let colour = part.colour.map(|c| c * k);
+                    best = Some(NearestHit {
+                        distance_m: toi,
+                        order,
+                        id: inst.id,
+                        colour,
+                        normal: world_n,
+                    });
                 }
             }
         }
-        best
+        best.map(|b| (b.distance_m, b.id, b.colour, b.normal))
     }
+}
+
+/// The nearest hit so far of [`SceneGeometry::cast_among`].
+#[derive(Debug, Clone, Copy)]
+struct NearestHit {
+    /// Along the ray.
+    distance_m: f32,
+    /// The instance's place in scene order.
+    order: usize,
+    id: u32,
+    colour: [f32; 3],
+    /// World frame.
+    normal: Vector3<f32>,
+}
+
+/// How much nearer than its box a candidate of [`SceneGeometry::cast_among`]
+/// may be hit, metres: the box's distance and the ray's entry are worked
+/// out differently, so they may disagree by rounding (far less than this).
+const NEAR_MARGIN_M: f32 = 1e-3;
+
+/// One instance a ray may meet, as [`SceneGeometry::cast_among`] takes it.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Candidate<'a> {
+    /// The instance's place in the scene's order (which wins exact ties).
+    pub(crate) order: usize,
+    /// No ray from the camera meets the instance's box nearer than this,
+    /// metres (0 when unknown).
+    pub(crate) near_m: f32,
+    /// The instance.
+    pub(crate) instance: &'a Instance,
 }
 
 /// The agent's collision body: a vertical capsule standing `clearance_m`

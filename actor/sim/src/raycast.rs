@@ -5,7 +5,7 @@
 
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 
-use crate::geometry::{Instance, SceneGeometry};
+use crate::geometry::{Candidate, SceneGeometry};
 use crate::scene::aabb_corners;
 
 /// A pinhole camera: x right, y down, z forward (the mapper's convention).
@@ -91,12 +91,14 @@ const TILE: usize = 16;
 const NEAR_M: f32 = 0.01;
 
 /// For each tile (row-major, `TILE` pixels square) the instances whose
-/// world box projects onto it, in scene order.
+/// world box projects onto it, nearest box first: a ray then meets the
+/// surface it shows early, and stops once the boxes left lie beyond it
+/// (the walls, last in scene order, were tried by every ray before).
 fn bin_instances<'a>(
     geometry: &'a SceneGeometry,
     camera: &Camera,
     max_depth_m: f32,
-) -> (usize, Vec<Vec<&'a Instance>>) {
+) -> (usize, Vec<Vec<Candidate<'a>>>) {
     let (tiles_x, tiles_y) = (camera.width.div_ceil(TILE), camera.height.div_ceil(TILE));
     let mut tiles = vec![Vec::new(); tiles_x * tiles_y];
     let t_camera_world = camera.t_world_camera.inverse();
@@ -105,7 +107,8 @@ fn bin_instances<'a>(
         (camera.width as f32 - 1.0) / 2.0,
         (camera.height as f32 - 1.0) / 2.0,
     );
-    for instance in &geometry.instances {
+    let origin = camera.t_world_camera * Point3::origin();
+    for (order, instance) in geometry.instances.iter().enumerate() {
         let (lo, hi) = instance.world_box();
         let corners = aabb_corners(&lo, &hi).map(|c| t_camera_world * c);
         if corners.iter().all(|p| p.z < NEAR_M) || corners.iter().all(|p| p.z > max_depth_m) {
@@ -129,11 +132,24 @@ fn bin_instances<'a>(
         if u1 < 0.0 || v1 < 0.0 || u0 >= camera.width as f32 || v0 >= camera.height as f32 {
             continue;
         }
+        // The box's point nearest the camera.
+        let nearest =
+            Point3::from(
+                (origin.coords).zip_zip_map(&lo.coords, &hi.coords, |o, l, h| o.max(l).min(h)),
+            );
+        let candidate = Candidate {
+            order,
+            near_m: (nearest - origin).norm(),
+            instance,
+        };
         for ty in tile_range(v0, v1, tiles_y) {
             for tx in tile_range(u0, u1, tiles_x) {
-                tiles[ty * tiles_x + tx].push(instance);
+                tiles[ty * tiles_x + tx].push(candidate);
             }
         }
+    }
+    for tile in &mut tiles {
+        tile.sort_by(|a, b| a.near_m.total_cmp(&b.near_m).then(a.order.cmp(&b.order)));
     }
     (tiles_x, tiles)
 }

@@ -174,7 +174,7 @@ fn an_imported_room_renders_with_many_objects_in_view() {
 }
 
 #[test]
-fn tile_binning_changes_no_pixel() {
+fn tiles_and_nearest_first_candidates_change_no_pixel() {
     let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../../../shared/data/ithor-livingrooms");
     let scene = load_scene(&dir.join("FloorPlan229.json")).unwrap();
@@ -192,12 +192,14 @@ fn tile_binning_changes_no_pixel() {
         for v in 0..camera.height {
             for u in 0..camera.width {
                 let ray = camera.ray(u as f32, v as f32);
+                let z_per_metre = 1.0 / ray.norm();
                 let dir = camera.t_world_camera.rotation * ray.normalize();
-                let max = 20.0 * ray.norm();
-                let expected = geometry.cast(&origin, &dir, max).map_or(0, |h| h.1);
+                // Every instance in scene order, no tiles, no nearest-first.
+                let expected = geometry.cast(&origin, &dir, 20.0 / z_per_metre);
+                let px = v * camera.width + u;
                 assert_eq!(
-                    frame.ids[v * camera.width + u],
-                    expected,
+                    (frame.ids[px], frame.depth_m[px]),
+                    expected.map_or((0, 0.0), |h| (h.1, h.0 * z_per_metre)),
                     "pixel ({u}, {v})"
                 );
             }
