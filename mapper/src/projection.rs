@@ -203,7 +203,7 @@ impl SurfacePoints<'_> {
         let mut raster = Raster::new(requests);
         raster.mark_background(self.background_layer, &self.background);
         for group in &self.objects {
-            raster.mark(group, |kind| shows(group.object, kind));
+            raster.mark_object(group);
         }
         raster.planes(requests)
     }
@@ -231,6 +231,21 @@ struct Slot {
     /// `(request index, kind)` of each bit.
     planes: Vec<(usize, ProjectionKind)>,
     bits: Vec<u64>,
+}
+
+impl Slot {
+    /// The bit and the heights of each occupancy projection on this grid.
+    fn height_bands(&self) -> Vec<(u64, std::ops::RangeInclusive<f32>)> {
+        (self.planes.iter().enumerate())
+            .filter_map(|(bit, (_, kind))| match *kind {
+                ProjectionKind::Occupancy {
+                    min_height_m,
+                    max_height_m,
+                } => Some((1 << bit, min_height_m..=max_height_m)),
+                _ => None,
+            })
+            .collect()
+    }
 }
 
 /// Projections being rasterised together, grouped by grid.
@@ -266,16 +281,7 @@ impl Raster {
     fn mark_background(&mut self, layer: &Layer, blocks: &[(BlockIndex, SurfaceMask)]) {
         let mut columns: Vec<(u64, u64)> = Vec::new();
         for slot in &mut self.slots {
-            let occupancy: Vec<(u64, std::ops::RangeInclusive<f32>)> = (slot.planes.iter())
-                .enumerate()
-                .filter_map(|(bit, (_, kind))| match *kind {
-                    ProjectionKind::Occupancy {
-                        min_height_m,
-                        max_height_m,
-                    } => Some((1 << bit, min_height_m..=max_height_m)),
-                    _ => None,
-                })
-                .collect();
+            let occupancy = slot.height_bands();
             if occupancy.is_empty() {
                 continue;
             }
@@ -313,25 +319,17 @@ impl Raster {
         }
     }
 
-    /// Marks `points` in every projection whose kind `shows`; occupancy
-    /// projections only where a point lies within their heights.
-    fn mark(&mut self, group: &PointGroup<'_>, shows: impl Fn(ProjectionKind) -> bool) {
+    /// Marks an object's points in every projection that [`shows`] it:
+    /// occupancy (which shows every object) only where a point lies within
+    /// its heights, the label kinds wherever it stands.
+    fn mark_object(&mut self, group: &PointGroup<'_>) {
         let covering = |s: &&mut Slot| s.locator.may_cover(group.lo, group.hi);
         for slot in self.slots.iter_mut().filter(covering) {
-            let mut always = 0u64;
-            let mut by_height: Vec<(u64, std::ops::RangeInclusive<f32>)> = Vec::new();
-            for (bit, (_, kind)) in slot.planes.iter().enumerate() {
-                if !shows(*kind) {
-                    continue;
-                }
-                match *kind {
-                    ProjectionKind::Occupancy {
-                        min_height_m,
-                        max_height_m,
-                    } => by_height.push((1 << bit, min_height_m..=max_height_m)),
-                    _ => always |= 1 << bit,
-                }
-            }
+            let by_height = slot.height_bands();
+            let always = (slot.planes.iter().enumerate())
+                .filter(|(_, (_, kind))| !matches!(kind, ProjectionKind::Occupancy { .. }))
+                .filter(|(_, (_, kind))| shows(group.object, *kind))
+                .fold(0u64, |always, (bit, _)| always | 1 << bit);
             if always == 0 && by_height.is_empty() {
                 continue;
             }
