@@ -22,8 +22,8 @@ cores the learner process and the actor processes kept busy over the window
 beside them),
 which tells a run bound by the CPU from one bound by something else. A second
 table splits those cores by thread name (env-* are an actor's environments,
-unet-batch its U-Net's batching, ppo-training and unet-training the learner's
-trainers with the threads they started, receive-loop its receive loop), which
+unet-batch its U-Net's batching, ppo-batching the learner's PPO batches,
+ppo-training and unet-training its trainers with the threads they started, receive-loop its receive loop), which
 tells the work from threads that only spin or wait. The counters of each
 window's ends stay beside the run's log (counters-start.json, counters-end.json).
 

@@ -25,5 +25,5 @@ pub mod status;
 pub(crate) mod tensorboard;
 pub(crate) mod thread_priority;
 pub mod tools;
-pub(crate) mod train;
+pub mod train;
 pub(crate) mod unet_worker;

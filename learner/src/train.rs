@@ -45,7 +45,10 @@ pub enum TrainError {
     },
 }
 
-/// Steps gathered for the next update.
+/// Steps gathered for the next update. The buffers keep their capacity
+/// from batch to batch: at 128 px a batch's observations are 436 MB, and
+/// growing a fresh vector to that size again for every batch copied it
+/// about twice more and touched twice as many new pages.
 #[derive(Debug, Default)]
 struct Gathered {
     /// Observations as they arrived (bytes of the chunk's dtype), turned
@@ -123,44 +126,26 @@ fn decode(bytes: &[u8], dtype: ObsDtype, out: &mut [f32]) {
     }
 }
 
-/// The policy network, its optimiser, and the batch being gathered.
-pub struct PolicyTrainer {
+/// Gathers rollout chunks into PPO batches for [`PolicyTrainer::update`]:
+/// advantages per chunk, and when a batch is full its observations built
+/// for the device. Separate from the trainer so that the next batch is
+/// gathered and built while an update runs.
+pub struct BatchBuilder {
     layout: PolicyLayout,
     settings: PolicyConfig,
-    ppo: Ppo,
     device: Device,
-    rng: StdRng,
     gathered: Gathered,
 }
 
-impl PolicyTrainer {
-    /// A freshly initialised policy for `task`, trained on `device`.
-    pub fn new(task: &TaskSpec, settings: &PolicyConfig, device: &Device) -> Self {
-        let layout = task.layout();
-        let net = PolicyNet::new(&layout, device);
-        let ppo_config = settings.ppo();
-        Self {
-            layout,
-            settings: settings.clone(),
-            ppo: Ppo::new(net, ppo_config, device),
-            device: device.clone(),
-            rng: StdRng::seed_from_u64(settings.seed),
-            gathered: Gathered::default(),
-        }
-    }
-
-    /// The version of the current weights.
-    pub fn version(&self) -> u64 {
-        self.ppo.version()
-    }
-
+impl BatchBuilder {
     /// Steps waiting for the next update.
     pub fn pending_steps(&self) -> usize {
         self.gathered.actions.len()
     }
 
     /// Adds a chunk; when the batch is full, returns it built for the
-    /// device (observations decoded and handed over), for [`Self::update`].
+    /// device (observations decoded and handed over), for
+    /// [`PolicyTrainer::update`].
     pub fn add_chunk(
         &mut self,
         chunk: &RolloutView<'_>,
@@ -188,7 +173,16 @@ impl PolicyTrainer {
             });
         }
         let steps = chunk.n_steps();
+        let batch_steps = self.settings.batch_steps;
         let g = &mut self.gathered;
+        if g.actions.is_empty() {
+            // The whole batch at once (a batch ends with the chunk that
+            // fills it, so it may hold one chunk's steps more).
+            let row_bytes = obs_len * self.layout.obs_dtype.size();
+            let rows = batch_steps + steps;
+            g.obs.reserve(rows * row_bytes);
+            g.masks.reserve(rows * self.layout.n_actions);
+        }
         g.lengths.push(steps);
         g.start_hidden.extend(chunk.start_hidden.iter());
         for i in 0..steps {
@@ -212,15 +206,14 @@ impl PolicyTrainer {
         g.returns.extend(returns);
         g.versions
             .extend(std::iter::repeat_n(policy_version, steps));
-        if g.actions.len() < self.settings.batch_steps {
+        if g.actions.len() < batch_steps {
             return Ok(None);
         }
-        let g = std::mem::take(&mut self.gathered);
         let rows = g.actions.len();
         // Chunks never span episodes: each replays from its start state.
         let sequences = self.layout.gru_hidden.map(|hidden| Sequences {
-            lengths: g.lengths,
-            start_hidden: g.start_hidden,
+            lengths: std::mem::take(&mut g.lengths),
+            start_hidden: std::mem::take(&mut g.start_hidden),
             hidden,
             episode_starts: vec![0.0; rows],
         });
@@ -232,19 +225,65 @@ impl PolicyTrainer {
                     let columns = decode_columns(&g.obs, self.layout.obs_dtype, &self.layout, rows);
                     PolicyInput::from_columns(&self.layout, columns, &g.masks, rows, &self.device)
                 });
+        // The observations' buffers stay for the next batch; the rest moves
+        // into this one.
+        g.obs.clear();
+        g.masks.clear();
+        g.lengths.clear();
+        g.start_hidden.clear();
         Ok(Some(PpoBatch {
             input,
-            actions: g.actions,
-            behaviour_log_probs: g.log_probs,
-            values: g.values,
-            advantages: g.advantages,
-            returns: g.returns,
-            policy_versions: g.versions,
+            actions: std::mem::take(&mut g.actions),
+            behaviour_log_probs: std::mem::take(&mut g.log_probs),
+            values: std::mem::take(&mut g.values),
+            advantages: std::mem::take(&mut g.advantages),
+            returns: std::mem::take(&mut g.returns),
+            policy_versions: std::mem::take(&mut g.versions),
             sequences,
         }))
     }
+}
 
-    /// One PPO update on a batch from [`Self::add_chunk`]; its statistics
+/// The policy network and its optimiser.
+pub struct PolicyTrainer {
+    layout: PolicyLayout,
+    settings: PolicyConfig,
+    ppo: Ppo,
+    device: Device,
+    rng: StdRng,
+}
+
+impl PolicyTrainer {
+    /// A freshly initialised policy for `task`, trained on `device`.
+    pub fn new(task: &TaskSpec, settings: &PolicyConfig, device: &Device) -> Self {
+        let layout = task.layout();
+        let net = PolicyNet::new(&layout, device);
+        let ppo_config = settings.ppo();
+        Self {
+            layout,
+            settings: settings.clone(),
+            ppo: Ppo::new(net, ppo_config, device),
+            device: device.clone(),
+            rng: StdRng::seed_from_u64(settings.seed),
+        }
+    }
+
+    /// An empty batch for this policy's layout, settings and device.
+    pub fn batch_builder(&self) -> BatchBuilder {
+        BatchBuilder {
+            layout: self.layout.clone(),
+            settings: self.settings.clone(),
+            device: self.device.clone(),
+            gathered: Gathered::default(),
+        }
+    }
+
+    /// The version of the current weights.
+    pub fn version(&self) -> u64 {
+        self.ppo.version()
+    }
+
+    /// One PPO update on a batch from [`BatchBuilder::add_chunk`]; its statistics
     /// (the version then goes up by one).
     pub fn update(&mut self, batch: &PpoBatch) -> PpoStats {
         self.ppo.update(batch, &mut self.rng)
@@ -288,6 +327,110 @@ impl PolicyTrainer {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proto::{decode, Limits, Message, MessageHeader, RolloutChunk};
+
+    /// A valid rollout message of `steps` steps of `task`, its byte
+    /// observations, actions and rewards varying with `seed`.
+    fn rollout(task: &TaskSpec, steps: usize, seed: usize) -> Vec<u8> {
+        let layout = task.layout();
+        let n = layout.n_actions;
+        let chunk = RolloutChunk {
+            episode_id: seed as u64,
+            first_step: 0,
+            n_actions: n as u32,
+            obs_dtype: layout.obs_dtype,
+            obs_elems: layout.obs_len() as u32,
+            obs: (0..steps * layout.obs_len())
+                .map(|i| ((i * 31 + seed * 101) % 256) as u8)
+                .collect(),
+            actions: (0..steps).map(|i| ((i + seed) % n) as u32).collect(),
+            masks: vec![1; steps * n],
+            log_probs: vec![-(n as f32).ln(); steps],
+            values: (0..steps).map(|i| (i + seed) as f32 * 0.1).collect(),
+            rewards: (0..steps).map(|i| ((i * seed) % 3) as f32).collect(),
+            dones: (0..steps).map(|i| u8::from(i == 2)).collect(),
+            bootstrap_value: 0.5,
+            start_hidden: Vec::new(),
+        };
+        proto::encode(&chunk, MessageHeader::default())
+    }
+
+    /// Feeds each message to `builder`; the batches it completes.
+    fn batches(builder: &mut BatchBuilder, messages: &[Vec<u8>]) -> Vec<PpoBatch> {
+        let limits = Limits {
+            max_actors: 4,
+            max_payload_len: 1 << 30,
+        };
+        let mut out = Vec::new();
+        for bytes in messages {
+            let Ok((_, Message::Rollout(view))) = decode(bytes, &limits) else {
+                panic!("a valid rollout message");
+            };
+            out.extend(builder.add_chunk(&view, 7).unwrap());
+        }
+        out
+    }
+
+    fn floats<const D: usize>(tensors: &[Tensor<D>]) -> Vec<Vec<f32>> {
+        (tensors.iter())
+            .map(|t| t.clone().into_data().try_into_vec::<f32>().unwrap())
+            .collect()
+    }
+
+    #[test]
+    fn a_builder_keeps_its_buffers_and_builds_the_next_batch_as_a_fresh_one_would() {
+        let task = TaskSpec {
+            image_size: 64,
+            ..TaskSpec::default()
+        };
+        let settings = PolicyConfig {
+            batch_steps: 8,
+            ..PolicyConfig::default()
+        };
+        let device = Device::flex();
+        let trainer = PolicyTrainer::new(&task, &settings, &device);
+        // 5 + 5 steps fill the first batch (10 rows, one chunk beyond 8);
+        // 3 + 6 the second.
+        let first = [rollout(&task, 5, 1), rollout(&task, 5, 2)];
+        let second = [rollout(&task, 3, 3), rollout(&task, 6, 4)];
+        let mut reused = trainer.batch_builder();
+        let built = batches(&mut reused, &first);
+        assert_eq!(built.len(), 1);
+        assert_eq!(built[0].len(), 10);
+        let capacity = reused.gathered.obs.capacity();
+        assert!(
+            capacity >= 10 * task.layout().obs_len(),
+            "reserved for the batch"
+        );
+        let again = batches(&mut reused, &second).pop().expect("a second batch");
+        assert_eq!(reused.gathered.obs.capacity(), capacity, "the same buffer");
+        let fresh = batches(&mut trainer.batch_builder(), &second)
+            .pop()
+            .expect("the same batch");
+        assert_eq!(again.len(), 9);
+        assert_eq!(floats(&again.input.images), floats(&fresh.input.images));
+        assert_eq!(floats(&again.input.vectors), floats(&fresh.input.vectors));
+        assert_eq!(
+            (again.actions, again.advantages, again.returns),
+            (fresh.actions, fresh.advantages, fresh.returns)
+        );
+        // And both are the chunks' own bytes, not the first batch's.
+        let wire = &second[0];
+        let limits = Limits {
+            max_actors: 4,
+            max_payload_len: 1 << 30,
+        };
+        let Ok((_, Message::Rollout(view))) = decode(wire, &limits) else {
+            panic!("a valid rollout message");
+        };
+        let first_image = floats(&fresh.input.images).remove(0);
+        let first_width = task.layout().input_widths().next().unwrap();
+        let expected: Vec<f32> = view.obs(0).unwrap()[..first_width]
+            .iter()
+            .map(|&b| proto::byte_to_unit(b))
+            .collect();
+        assert_eq!(&first_image[..first_width], &expected[..]);
+    }
 
     #[test]
     fn observation_bytes_become_each_inputs_floats_across_task_boundaries() {
