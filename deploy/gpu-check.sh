@@ -17,7 +17,9 @@ Runs, one after the other, each under a time limit (about 9 minutes in all):
      when DIR has it, and learner/training/benches/torch_unet_inference.py);
   3. the learner's capacity with synthetic actors (`learner bench-capacity`)
      at 64 px (100-step episodes; PPO batches of 128 and 1024 steps) and
-     128 px (600-step episodes, 1024-step batches);
+     128 px (600-step episodes, 1024-step batches), then what gathering and
+     building a 1024-step PPO batch costs on libtorch (DIR/ppo_batches, when
+     DIR has it);
   4. one actor process's environments at 128 px with the GPU renderer
      (DIR/env_steps, its several-environments table for 1 and 32
      environments, 600-step episodes), when DIR has env_steps;
@@ -154,6 +156,11 @@ if ! skipped capacity; then
       add "${side} px, ${batch}-step batches: FAILED: $(tail -n 3 "$log" | tr '\n' ' ')"
     fi
   done
+  if [[ -x "$BIN/ppo_batches" ]]; then
+    add "" "A PPO batch of 1 024 steps gathered and built on libtorch (the learner's ppo-batching thread; ppo_batches):" ""
+    AFX_DEVICE=gpu AFX_REPEATS=3 limited 90 "$LOGS/ppo-batches.log" "$BIN/ppo_batches"
+    add "$(grep -E '^\|' "$LOGS/ppo-batches.log" || echo "FAILED: $(tail -n 3 "$LOGS/ppo-batches.log" | tr '\n' ' ')")" ""
+  fi
 fi
 
 if ! skipped actor && [[ -x "$BIN/env_steps" ]]; then
