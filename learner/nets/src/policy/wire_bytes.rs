@@ -104,9 +104,15 @@ pub(crate) fn upload(
 mod tests {
     use super::*;
 
+    /// Each tensor's values, as floats.
+    fn values<const D: usize>(tensors: &[Tensor<D>]) -> Vec<Vec<f32>> {
+        (tensors.iter())
+            .map(|t| t.clone().into_data().to_vec::<f32>().unwrap())
+            .collect()
+    }
+
     #[test]
     fn bytes_converted_on_the_device_are_the_hosts_floats() {
-        let device = Device::libtorch();
         let layout = PolicyLayout {
             image_channels: vec![3, 2],
             image_size: 8,
@@ -116,31 +122,36 @@ mod tests {
             gru_hidden: None,
         };
         let rows = 7;
-        let obs: Vec<u8> = (0..rows * layout.obs_len())
-            .map(|i| (i * 37 % 256) as u8)
-            .collect();
         let masks: Vec<u8> = (0..rows * 4).map(|i| u8::from(i % 3 != 0)).collect();
-        let uploaded = upload(&layout, &obs, &masks, rows, &device).expect("libtorch, bytes");
-        let floats: Vec<f32> = obs.iter().map(|&b| proto::byte_to_unit(b)).collect();
-        let host = PolicyInput::from_flat(&layout, &floats, &masks, rows, &device);
-        for (a, b) in uploaded.images.iter().zip(&host.images) {
-            assert_eq!(a.dims(), b.dims());
+        let mut devices = vec![Device::libtorch()];
+        if tch::Cuda::is_available() {
+            devices.push(Device::libtorch_cuda(0));
+        }
+        for device in devices {
+            let mut obs: Vec<u8> = (0..rows * layout.obs_len())
+                .map(|i| (i * 37 % 256) as u8)
+                .collect();
+            let uploaded = upload(&layout, &obs, &masks, rows, &device).expect("libtorch, bytes");
+            let floats: Vec<f32> = obs.iter().map(|&b| proto::byte_to_unit(b)).collect();
+            let host = PolicyInput::from_flat(&layout, &floats, &masks, rows, &device);
+            // The batch's buffer is refilled for the next batch: the
+            // uploaded tensors must not be views of it.
+            obs.fill(0);
+            assert_eq!(values(&uploaded.images), values(&host.images), "{device:?}");
             assert_eq!(
-                a.clone().into_data().to_vec::<f32>().unwrap(),
-                b.clone().into_data().to_vec::<f32>().unwrap()
+                values(&uploaded.vectors),
+                values(&host.vectors),
+                "{device:?}"
+            );
+            let dims = |i: &[Tensor<4>]| i.iter().map(Tensor::dims).collect::<Vec<_>>();
+            assert_eq!(dims(&uploaded.images), dims(&host.images));
+            assert_eq!(
+                uploaded.mask.into_data().to_vec::<bool>().unwrap(),
+                host.mask.into_data().to_vec::<bool>().unwrap()
             );
         }
-        for (a, b) in uploaded.vectors.iter().zip(&host.vectors) {
-            assert_eq!(a.dims(), b.dims());
-            assert_eq!(
-                a.clone().into_data().to_vec::<f32>().unwrap(),
-                b.clone().into_data().to_vec::<f32>().unwrap()
-            );
-        }
-        assert_eq!(
-            uploaded.mask.into_data().to_vec::<bool>().unwrap(),
-            host.mask.into_data().to_vec::<bool>().unwrap()
-        );
+        let obs = vec![0u8; rows * layout.obs_len()];
+        let device = Device::libtorch();
         let floats_layout = PolicyLayout {
             obs_dtype: ObsDtype::F32,
             ..layout.clone()
