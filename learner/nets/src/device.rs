@@ -39,6 +39,9 @@ pub enum DeviceError {
     /// The GPU backend found no usable adapter.
     #[error("no usable GPU: {0}; use `--device cpu`")]
     Unavailable(String),
+    /// A setting of the GPU backend (an environment variable) is not valid.
+    #[error("{0}")]
+    Setting(String),
 }
 
 /// Opens the chosen device and checks that it can run a tensor operation.
@@ -94,6 +97,9 @@ pub fn is_wgpu(device: &Device) -> bool {
 /// missing library stops the program before this runs (the loader names
 /// it); a libtorch without CUDA or a machine without a GPU fails the probe.
 ///
+/// `AFX_CUDA_WAIT` (`spin`, `yield`, `block`) sets how threads wait for the
+/// GPU ([`crate::cuda_wait`]); unset leaves CUDA's heuristic, which spins.
+///
 /// `AFX_CUDNN_BENCHMARK=1` has cuDNN time its algorithms for each new
 /// shape and keep the fastest (PyTorch's `torch.backends.cudnn.benchmark`),
 /// for measuring whether the U-Net's inference gains from it
@@ -101,7 +107,12 @@ pub fn is_wgpu(device: &Device) -> bool {
 #[cfg(feature = "gpu-torch")]
 #[allow(deprecated)] // burn 0.22 marks libtorch deprecated; chosen all the same (decision 0010)
 fn open_gpu() -> Result<Device, DeviceError> {
+    let wait = crate::cuda_wait::from_env().map_err(DeviceError::Setting)?;
     let device = probe(|| Device::libtorch_cuda(0), "libtorch could not use CUDA")?;
+    if let Some(wait) = wait {
+        let flags = crate::cuda_wait::apply(wait, 0).map_err(DeviceError::Unavailable)?;
+        eprintln!("CUDA waits: {wait:?} (AFX_CUDA_WAIT; context flags {flags:#x})");
+    }
     if std::env::var("AFX_CUDNN_BENCHMARK").is_ok_and(|v| v == "1") {
         tch::Cuda::cudnn_set_benchmark(true);
         eprintln!("cuDNN benchmark mode on (AFX_CUDNN_BENCHMARK=1)");

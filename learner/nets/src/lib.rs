@@ -25,6 +25,8 @@
 //! - [`sample`]: the masked categorical draw the actor acts with.
 
 mod conv_matmul;
+#[cfg(feature = "gpu-torch")]
+pub mod cuda_wait;
 pub mod device;
 mod kernels;
 mod layers;
