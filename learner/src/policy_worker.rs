@@ -10,9 +10,10 @@
 //! (advantages, observations copied and built for the device) while
 //! `ppo-training` runs the update on the one before, and hands it over only
 //! when the update is done (so the policy lag grows by one update at most).
-//! Gathering and building had run between updates on one thread: at 1 024
-//! steps they cost about half an update's time again at 64 px, and more
-//! than the update itself at 128 px. After each update the training thread
+//! Gathering and building had run between updates on one thread: with
+//! 1 024-step batches on an H200 they took about three quarters of an
+//! update's time at 64 px and three times it at 128 px
+//! (docs/notebook/2026-11-28-ppo-batches-ahead.md). After each update the training thread
 //! hands the new weights back for the next broadcast; on request, between
 //! updates, it hands over what a checkpoint needs.
 
