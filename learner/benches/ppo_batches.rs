@@ -17,8 +17,11 @@
 use std::time::Instant;
 
 use learner::config::PolicyConfig;
+use learner::synthetic;
 use learner::train::{BatchBuilder, PolicyTrainer};
-use proto::{decode, Limits, Message, MessageHeader, RolloutChunk, TaskSpec};
+use proto::{decode, Limits, Message, MessageHeader, TaskSpec};
+use rand::rngs::StdRng;
+use rand::SeedableRng;
 
 const CHUNK_STEPS: usize = 16;
 
@@ -27,31 +30,6 @@ fn env_usize(name: &str, default: usize) -> usize {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(default)
-}
-
-/// A valid rollout message of `task`, its bytes varying with `seed`.
-fn rollout(task: &TaskSpec, seed: usize) -> Vec<u8> {
-    let layout = task.layout();
-    let n = layout.n_actions;
-    let chunk = RolloutChunk {
-        episode_id: seed as u64,
-        first_step: 0,
-        n_actions: n as u32,
-        obs_dtype: layout.obs_dtype,
-        obs_elems: layout.obs_len() as u32,
-        obs: (0..CHUNK_STEPS * layout.obs_len())
-            .map(|i| ((i.wrapping_mul(2_654_435_761) >> 13) ^ seed) as u8)
-            .collect(),
-        actions: (0..CHUNK_STEPS).map(|i| ((i + seed) % n) as u32).collect(),
-        masks: vec![1; CHUNK_STEPS * n],
-        log_probs: vec![-(n as f32).ln(); CHUNK_STEPS],
-        values: (0..CHUNK_STEPS).map(|i| i as f32 * 0.01).collect(),
-        rewards: (0..CHUNK_STEPS).map(|i| (i % 3) as f32).collect(),
-        dones: vec![0; CHUNK_STEPS],
-        bootstrap_value: 0.1,
-        start_hidden: Vec::new(),
-    };
-    proto::encode(&chunk, MessageHeader::default())
 }
 
 /// Seconds gathering and building one batch from `messages`, round and round.
@@ -117,7 +95,13 @@ fn main() {
             batch_steps,
             ..PolicyConfig::default()
         };
-        let messages: Vec<Vec<u8>> = (0..4).map(|seed| rollout(&task, seed)).collect();
+        let messages: Vec<Vec<u8>> = (0..4)
+            .map(|seed| {
+                let mut rng = StdRng::seed_from_u64(seed);
+                let chunk = synthetic::rollout(&task.layout(), CHUNK_STEPS, &mut rng);
+                proto::encode(&chunk, MessageHeader::default())
+            })
+            .collect();
         let trainer = PolicyTrainer::new(&task, &settings, &device);
         let mut kept = trainer.batch_builder();
         // A batch each first: the kept builder's buffers grow to size.

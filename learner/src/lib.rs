@@ -22,6 +22,7 @@ pub(crate) mod prometheus;
 pub mod service;
 pub mod shared;
 pub mod status;
+pub mod synthetic;
 pub(crate) mod tensorboard;
 pub(crate) mod thread_priority;
 pub mod tools;

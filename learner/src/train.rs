@@ -327,31 +327,12 @@ impl PolicyTrainer {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use proto::{decode, Limits, Message, MessageHeader, RolloutChunk};
+    use proto::{decode, Limits, Message, MessageHeader};
 
-    /// A valid rollout message of `steps` steps of `task`, its byte
-    /// observations, actions and rewards varying with `seed`.
-    fn rollout(task: &TaskSpec, steps: usize, seed: usize) -> Vec<u8> {
-        let layout = task.layout();
-        let n = layout.n_actions;
-        let chunk = RolloutChunk {
-            episode_id: seed as u64,
-            first_step: 0,
-            n_actions: n as u32,
-            obs_dtype: layout.obs_dtype,
-            obs_elems: layout.obs_len() as u32,
-            obs: (0..steps * layout.obs_len())
-                .map(|i| ((i * 31 + seed * 101) % 256) as u8)
-                .collect(),
-            actions: (0..steps).map(|i| ((i + seed) % n) as u32).collect(),
-            masks: vec![1; steps * n],
-            log_probs: vec![-(n as f32).ln(); steps],
-            values: (0..steps).map(|i| (i + seed) as f32 * 0.1).collect(),
-            rewards: (0..steps).map(|i| ((i * seed) % 3) as f32).collect(),
-            dones: (0..steps).map(|i| u8::from(i == 2)).collect(),
-            bootstrap_value: 0.5,
-            start_hidden: Vec::new(),
-        };
+    /// A valid rollout message of `steps` random steps of `task`.
+    fn rollout(task: &TaskSpec, steps: usize, seed: u64) -> Vec<u8> {
+        let mut rng = StdRng::seed_from_u64(seed);
+        let chunk = crate::synthetic::rollout(&task.layout(), steps, &mut rng);
         proto::encode(&chunk, MessageHeader::default())
     }
 

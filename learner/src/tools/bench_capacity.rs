@@ -14,7 +14,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use proto::{EpisodeStats, FrameBatch, ObsDtype, RolloutChunk, StatField};
+use proto::{EpisodeStats, FrameBatch, StatField};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use transport::ActorPorts;
@@ -23,6 +23,7 @@ use crate::config::LearnerConfig;
 use crate::service::Trainers;
 use crate::shared::Shared;
 use crate::status::LearnerStatus;
+use crate::synthetic;
 
 /// How the synthetic actors feed the learner.
 #[derive(Debug, Clone)]
@@ -264,32 +265,7 @@ fn synthetic_actor(
         .with_context(|| format!("synthetic actor {actor_id}: opening its ports"))?;
     let mut rng = StdRng::seed_from_u64(u64::from(actor_id));
     let steps = feed.chunk_steps.max(1);
-    let obs_len = layout.obs_len();
-    let mut chunk = RolloutChunk {
-        episode_id: 0,
-        first_step: 0,
-        n_actions: layout.n_actions as u32,
-        obs_dtype: layout.obs_dtype,
-        obs_elems: obs_len as u32,
-        obs: match layout.obs_dtype {
-            ObsDtype::U8 => (0..steps * obs_len).map(|_| rng.random()).collect(),
-            ObsDtype::F32 => proto::obs_bytes_from_f32(
-                &(0..steps * obs_len)
-                    .map(|_| rng.random::<f32>())
-                    .collect::<Vec<_>>(),
-            ),
-        },
-        actions: (0..steps)
-            .map(|_| rng.random_range(0..layout.n_actions as u32))
-            .collect(),
-        masks: vec![1; steps * layout.n_actions],
-        log_probs: vec![-(layout.n_actions as f32).ln(); steps],
-        values: (0..steps).map(|_| rng.random::<f32>()).collect(),
-        rewards: (0..steps).map(|_| rng.random::<f32>() - 0.5).collect(),
-        dones: vec![0; steps],
-        bootstrap_value: 0.0,
-        start_hidden: vec![0.0; layout.gru_hidden.unwrap_or(0)],
-    };
+    let mut chunk = synthetic::rollout(&layout, steps, &mut rng);
     let side = task.image_size;
     let pixels = side * side;
     let planes = task.affordances.len();
