@@ -107,12 +107,12 @@ pub fn is_wgpu(device: &Device) -> bool {
 #[cfg(feature = "gpu-torch")]
 #[allow(deprecated)] // burn 0.22 marks libtorch deprecated; chosen all the same (decision 0010)
 fn open_gpu() -> Result<Device, DeviceError> {
-    let wait = crate::cuda_wait::from_env().map_err(DeviceError::Setting)?;
-    let device = probe(|| Device::libtorch_cuda(0), "libtorch could not use CUDA")?;
-    if let Some(wait) = wait {
+    // Before libtorch makes the context, so that it is made with the flags.
+    if let Some(wait) = crate::cuda_wait::from_env().map_err(DeviceError::Setting)? {
         let flags = crate::cuda_wait::apply(wait, 0).map_err(DeviceError::Unavailable)?;
         eprintln!("CUDA waits: {wait:?} (AFX_CUDA_WAIT; context flags {flags:#x})");
     }
+    let device = probe(|| Device::libtorch_cuda(0), "libtorch could not use CUDA")?;
     if std::env::var("AFX_CUDNN_BENCHMARK").is_ok_and(|v| v == "1") {
         tch::Cuda::cudnn_set_benchmark(true);
         eprintln!("cuDNN benchmark mode on (AFX_CUDNN_BENCHMARK=1)");
