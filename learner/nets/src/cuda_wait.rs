@@ -12,8 +12,8 @@
 //! (`yield` yields the core while polling, `spin` spins always); unset
 //! leaves CUDA's heuristic. It sets the scheduling flags of the device's
 //! primary context, the one libtorch uses, through the driver
-//! (`cuDevicePrimaryCtxSetFlags`, which since CUDA 11 applies to a context
-//! already made as well).
+//! (`cuDevicePrimaryCtxSetFlags`), before libtorch makes that context
+//! (`device::open_device`).
 
 use std::str::FromStr;
 
