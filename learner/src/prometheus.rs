@@ -118,13 +118,13 @@ pub fn render(s: &StatusSnapshot, timings: &Timings) -> String {
     seconds_counter(
         &mut r,
         "ppo_thread_batch",
-        "Time the PPO thread spent building batches (decoding observations, handing them to the device)",
+        "Time the PPO batching thread spent gathering and building batches (during the updates)",
         s.ppo_batch_seconds,
     );
     seconds_counter(
         &mut r,
         "ppo_thread_update",
-        "Time the PPO thread spent in updates",
+        "Time the PPO training thread spent in updates",
         s.ppo_update_seconds,
     );
     seconds_counter(

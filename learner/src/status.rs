@@ -70,10 +70,11 @@ pub struct LearnerStatus {
     pub untrainable_chunks: u64,
     /// Environment steps that went into policy updates.
     pub trained_steps: u64,
-    /// Seconds the PPO thread spent building batches (decoding the
-    /// observations and handing them to the device), in all.
+    /// Seconds the PPO batching thread spent gathering chunks into batches
+    /// and building them for the device (decoding the observations, or
+    /// uploading them), in all; it runs during the updates.
     pub ppo_batch_seconds: f64,
-    /// Seconds the PPO thread spent in updates, in all.
+    /// Seconds the PPO training thread spent in updates, in all.
     pub ppo_update_seconds: f64,
     /// Seconds the receive loop spent on its passes (taking, checking and
     /// handing on messages, publishing weights, checkpoints), not waiting
@@ -185,9 +186,10 @@ pub(crate) struct StatusSnapshot {
     pub untrainable_chunks: u64,
     /// Environment steps that went into policy updates.
     pub trained_steps: u64,
-    /// Seconds the PPO thread spent building batches, in all.
+    /// Seconds the PPO batching thread spent gathering and building
+    /// batches, in all.
     pub ppo_batch_seconds: f64,
-    /// Seconds the PPO thread spent in updates, in all.
+    /// Seconds the PPO training thread spent in updates, in all.
     pub ppo_update_seconds: f64,
     /// Seconds the receive loop spent on its passes, not waiting.
     pub receive_loop_seconds: f64,

@@ -61,7 +61,8 @@ pub struct Capacity {
     pub messages_dropped: u64,
     /// Mean policy lag (updates) of the last update's rows.
     pub mean_policy_lag: f32,
-    /// Mean seconds per update the PPO thread spent building its batch.
+    /// Mean seconds per update the PPO batching thread spent gathering and
+    /// building its batch (during the update before).
     pub batch_seconds: f64,
     /// Mean seconds per update in the update itself.
     pub update_seconds: f64,
