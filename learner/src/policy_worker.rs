@@ -499,19 +499,30 @@ mod tests {
         proto::encode(&chunk, header)
     }
 
-    #[test]
-    fn the_next_batch_is_taken_during_an_update_and_stop_returns() {
-        let dir = tempfile::tempdir().unwrap();
+    /// A PPO worker for the bandit fixture, at version 1, with its run
+    /// directory in `dir`: its config, shared state and the worker.
+    fn bandit_worker(
+        dir: &std::path::Path,
+        batch_steps: usize,
+        queue_steps: usize,
+    ) -> (LearnerConfig, Arc<Shared>, PolicyWorker) {
         let mut config = LearnerConfig::default();
         config.task.env = proto::EnvKind::BanditFixture;
-        config.policy.batch_steps = 4;
+        config.policy.batch_steps = batch_steps;
         let device = burn::prelude::Device::flex();
         let mut trainer = PolicyTrainer::new(&config.task, &config.policy, &device);
         trainer.set_version(1);
-        let shared = shared_state(&config, dir.path());
-        let history = Arc::new(Mutex::new(History::open(dir.path()).unwrap()));
+        let shared = shared_state(&config, dir);
+        let history = Arc::new(Mutex::new(History::open(dir).unwrap()));
+        let worker = PolicyWorker::start(trainer, shared.clone(), history, queue_steps).unwrap();
+        (config, shared, worker)
+    }
+
+    #[test]
+    fn the_next_batch_is_taken_during_an_update_and_stop_returns() {
+        let dir = tempfile::tempdir().unwrap();
+        let (config, shared, worker) = bandit_worker(dir.path(), 4, 1 << 20);
         let batches = 200;
-        let worker = PolicyWorker::start(trainer, shared.clone(), history, 1 << 20).unwrap();
         for sequence in 1..=batches {
             assert_eq!(worker.offer(rollout(&config, 4, sequence), 4), 0);
         }
@@ -538,15 +549,7 @@ mod tests {
     #[test]
     fn updates_publish_weights_and_a_snapshot_comes_between_updates() {
         let dir = tempfile::tempdir().unwrap();
-        let mut config = LearnerConfig::default();
-        config.task.env = proto::EnvKind::BanditFixture;
-        config.policy.batch_steps = 8;
-        let device = burn::prelude::Device::flex();
-        let mut trainer = PolicyTrainer::new(&config.task, &config.policy, &device);
-        trainer.set_version(1);
-        let shared = shared_state(&config, dir.path());
-        let history = Arc::new(Mutex::new(History::open(dir.path()).unwrap()));
-        let worker = PolicyWorker::start(trainer, shared.clone(), history, 64).unwrap();
+        let (config, shared, worker) = bandit_worker(dir.path(), 8, 64);
         for sequence in 1..=4 {
             assert_eq!(worker.offer(rollout(&config, 4, sequence), 4), 0);
         }
