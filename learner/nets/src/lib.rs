@@ -22,8 +22,13 @@
 //! - [`unet_inference`]: which of these a device gets;
 //! - [`weights`]: either network to and from safetensors bytes;
 //! - [`device`]: `--device cpu|gpu` at run time;
-//! - [`sample`]: the masked categorical draw the actor acts with.
+//! - [`sample`]: the masked categorical draw the actor acts with;
+//! - [`adam`]: the trainers' Adam, burn's but on libtorch a few libtorch
+//!   operations a parameter (`adam_torch`).
 
+pub mod adam;
+#[cfg(feature = "gpu-torch")]
+mod adam_torch;
 mod conv_matmul;
 #[cfg(feature = "gpu-torch")]
 pub mod cuda_wait;

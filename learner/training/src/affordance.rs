@@ -1,8 +1,8 @@
 //! Training and evaluating the affordance U-Net on labelled frames.
 
-use burn::optim::decay::WeightDecayConfig;
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
+use nets::adam::{Adam, AdamSettings};
 use nets::unet::{masked_bce_dice, AffordanceUnet};
 use nets::unet_inference::UnetInference;
 
@@ -133,9 +133,10 @@ impl UnetTrainer {
 
 /// A fresh Adam with `config`'s weight decay.
 fn adam(config: &UnetTrainingConfig) -> ModuleOptimizer {
-    AdamConfig::new()
-        .with_weight_decay(Some(WeightDecayConfig::new(config.weight_decay)))
-        .init()
+    Adam::for_module(AdamSettings {
+        weight_decay: Some(config.weight_decay),
+        ..AdamSettings::default()
+    })
 }
 
 /// Logits `[affordances, h, w]` of one frame, row-major.

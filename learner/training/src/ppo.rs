@@ -4,9 +4,10 @@
 //! policy that acted (the *behaviour* policy), so data from a slightly older
 //! policy is handled by the importance ratio; the update reports how old it was.
 
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use burn::tensor::{Bool, Int};
+use nets::adam::{Adam, AdamSettings};
 use nets::policy::{PolicyInput, PolicyNet};
 use rand::seq::SliceRandom;
 use rand::Rng;
@@ -279,7 +280,10 @@ impl LossTerms {
 
 /// A fresh Adam optimiser with the run's settings.
 fn adam(config: &PpoConfig) -> ModuleOptimizer {
-    AdamConfig::new().with_epsilon(config.adam_eps).init()
+    Adam::for_module(AdamSettings {
+        epsilon: config.adam_eps,
+        ..AdamSettings::default()
+    })
 }
 
 /// The learner side of PPO: the network being trained and its optimiser.
