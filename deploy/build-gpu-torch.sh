@@ -23,7 +23,7 @@ Options:
   --cache DIR      where fetched libtorch goes (default ~/.cache/afx-libtorch)
   --out DIR        where the binaries go (default target/gpu-torch)
   --checks         also the GPU checks' binaries: the training, env_steps,
-                   unet_inference and ppo_batches benches, the CPU/GPU
+                   unet_inference, ppo_batches and adam_steps benches, the CPU/GPU
                    agreement test and the gateway (for gpu-check.sh)
   --strip          strip the binaries (to carry them to another machine)
   -h, --help       this help
@@ -67,7 +67,7 @@ echo "building against $LIBTORCH_DIR"
 # torch-sys 0.22 is written for PyTorch 2.9; its C wrapper compiles against 2.11.
 export LIBTORCH="$LIBTORCH_DIR" LIBTORCH_BYPASS_VERSION_CHECK=1
 targets=(-p learner -p actor --bins)
-[[ $CHECKS -eq 0 ]] || targets+=(-p training -p nets -p gateway --bench learning --bench env_steps --bench unet_inference --bench ppo_batches --test gpu_matches_cpu)
+[[ $CHECKS -eq 0 ]] || targets+=(-p training -p nets -p gateway --bench learning --bench env_steps --bench unet_inference --bench ppo_batches --bench adam_steps --test gpu_matches_cpu)
 mkdir -p "$OUT"
 # Every executable cargo builds, with its target's name (a bench's or test's is hashed).
 cargo build --release --features nets/gpu-torch "${targets[@]}" --message-format=json-render-diagnostics \

@@ -14,7 +14,8 @@ Runs, one after the other, each under a time limit (about 9 minutes in all):
      AFX_BENCH_ONLY=gpu-check: PPO update of 1024 steps at 64 and 128 px, U-Net
      training step; needs python3 with torch for the PyTorch column), then one
      U-Net inference call per batch size beside PyTorch's (DIR/unet_inference,
-     when DIR has it, and learner/training/benches/torch_unet_inference.py);
+     when DIR has it, and learner/training/benches/torch_unet_inference.py),
+     and one step of the trainers' Adam against burn's (DIR/adam_steps);
   3. the learner's capacity with synthetic actors (`learner bench-capacity`)
      at 64 px (100-step episodes; PPO batches of 128 and 1024 steps) and
      128 px (600-step episodes, 1024-step batches), then what gathering and
@@ -40,11 +41,13 @@ build time, see docs/decisions/0010-libtorch-on-a-gpu.md):
   cargo build --release -p training --bench learning --features FEATURE
   cargo build --release -p nets --test gpu_matches_cpu --features FEATURE
   cargo build --release -p actor --bench env_steps --features FEATURE
-  cargo build --release -p nets --bench unet_inference --features FEATURE
+  cargo build --release -p nets --bench unet_inference --bench adam_steps --features FEATURE
+  cargo build --release -p learner --bench ppo_batches --features FEATURE
   cargo build --release -p gateway
 (copy target/release/{learner,actor,gateway} and the deps/learning-*, deps/gpu_matches_cpu-*,
-deps/env_steps-*, deps/unet_inference-* executables into DIR as learning, gpu_matches_cpu,
-env_steps, unet_inference). Binaries linked to
+deps/env_steps-*, deps/unet_inference-*, deps/adam_steps-*, deps/ppo_batches-* executables
+into DIR by their names without the hash; deploy/build-gpu-torch.sh --checks does all of
+this for libtorch). Binaries linked to
 libtorch find it through LD_LIBRARY_PATH, which this script points at the
 libtorch of python3's torch when the loader cannot find it otherwise.
 
@@ -135,6 +138,11 @@ if ! skipped training; then
     add "$(grep -E '^\|' "$LOGS/unet-inference.log" || echo "FAILED: $(tail -n 3 "$LOGS/unet-inference.log" | tr '\n' ' ')")" ""
     limited 90 "$LOGS/torch-unet-inference.log" python3 "$REPO/learner/training/benches/torch_unet_inference.py" --device cuda --quick
     add "$(grep -E '^\|' "$LOGS/torch-unet-inference.log" || echo "PyTorch's: not run: $(tail -n 1 "$LOGS/torch-unet-inference.log")")"
+  fi
+  if [[ -x "$BIN/adam_steps" ]]; then
+    add "" "One Adam step, the trainers' (nets::adam) against burn's (adam_steps):" ""
+    AFX_DEVICE=gpu AFX_REPEATS=30 limited 60 "$LOGS/adam-steps.log" "$BIN/adam_steps"
+    add "$(grep -E '^\|' "$LOGS/adam-steps.log" || echo "FAILED: $(tail -n 3 "$LOGS/adam-steps.log" | tr '\n' ' ')")"
   fi
 fi
 

@@ -5,14 +5,16 @@
 //! parameter at each step (weight decay, both moments, bias correction, the
 //! update), each through burn's dispatch into libtorch and, on a GPU, each a
 //! kernel launch. The PPO update takes eight optimiser steps over the
-//! policy's ~40 tensors and the U-Net's step one over its 36, so on an H200
-//! the host issuing those operations, not the GPU, sets the pace of the
-//! optimiser (PyTorch, against which the trainers are measured, updates all
-//! parameters at once). Here the same arithmetic is 8 libtorch operations a
-//! parameter (10 with weight decay), called on libtorch's tensors directly:
-//! on libtorch's CPU device with one-element parameters (so that only the
-//! cost of issuing operations is left) a step over 36 parameters took
-//! 1.0–1.4 ms against burn's 2.7 ms
+//! policy's 44 tensors and the U-Net's step one over its 36: thousands of
+//! small kernels an update, where the host issuing them rather than the GPU
+//! may set the pace (PyTorch, against which the trainers are measured,
+//! updates all parameters at once; what this saves on a GPU is the next GPU
+//! check's `adam_steps` figure). Here the same arithmetic is 8 libtorch operations a
+//! parameter (10 with weight decay), called on libtorch's tensors directly.
+//! `cargo bench -p nets --bench adam_steps` measures a step against burn's;
+//! on libtorch's CPU device with the U-Net's 36 tensors cut to one element
+//! each (the host's cost of issuing a step, the arithmetic left out) ours
+//! took 0.65–0.81 of burn's time on the 2-core VM
 //! (docs/notebook/2026-11-28-adam-on-libtorch.md).
 //!
 //! The arithmetic is burn's `Adam` with optional weight decay (L2, added to
