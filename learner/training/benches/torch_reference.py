@@ -45,12 +45,21 @@ def Policy(image_channels=(4, 4, 2), vector_dims=(50, 1), n_actions=8, size=128)
 
 
 def masked_bce_dice(logits, labels, known):
-    count = known.sum().clamp_min(1.0)
-    bce = (F.binary_cross_entropy_with_logits(logits, labels, reduction="none") * known).sum() / count
+    """`nets::unet::masked_bce_dice`, operation for operation's worth: per affordance plane the
+    BCE over its labelled pixels plus Dice where the batch has positives, summed over the planes
+    that have labels and divided by their count (the same value as the Rust loss to float
+    rounding, checked on a batch with a plane without positives: 1.5805372 against 1.5805376)."""
+    dims = (0, 2, 3)
+    labelled = known.sum(dims)
+    bce = (F.binary_cross_entropy_with_logits(logits, labels, reduction="none") * known).sum(dims)
+    bce = bce / labelled.clamp_min(1.0)
     p = torch.sigmoid(logits) * known
     y = labels * known
-    dice = (2 * (p * y).sum() + 1) / (p.sum() + y.sum() + 1)
-    return bce + 1 - dice
+    positives = y.sum(dims)
+    dice = (2 * (p * y).sum(dims) + 1) / (p.sum(dims) + positives + 1)
+    dice_loss = (1 - dice) * (positives > 0).float()
+    planes = (labelled > 0).float().sum().clamp_min(1.0)
+    return (bce + dice_loss).sum() / planes
 
 
 def timed(repeats, f):
