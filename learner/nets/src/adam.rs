@@ -4,6 +4,8 @@
 //!
 //! Its state is burn's `AdamState`, so an optimiser state saved with either
 //! loads into the other, and checkpoints written before it still resume.
+//! `AFX_ADAM=burn` has libtorch's tensors take burn's step too, to measure a
+//! whole update against.
 
 use burn::optim::decay::WeightDecayConfig;
 use burn::optim::{AdamConfig, AdamState, LearningRate, ModuleOptimizer, Optimizer};
@@ -70,6 +72,22 @@ impl Adam {
     }
 }
 
+/// Whether libtorch's tensors get `adam_torch`'s step: unless
+/// `AFX_ADAM=burn` (burn's own operations, to measure a whole PPO update or
+/// U-Net step against), read once.
+#[cfg(feature = "gpu-torch")]
+fn libtorch_steps_chosen() -> bool {
+    static CHOSEN: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *CHOSEN.get_or_init(|| match std::env::var("AFX_ADAM").as_deref() {
+        Err(_) | Ok("torch") => true,
+        Ok("burn") => false,
+        Ok(other) => {
+            eprintln!("AFX_ADAM takes torch or burn, not {other:?}; using torch");
+            true
+        }
+    })
+}
+
 impl Optimizer for Adam {
     type State<const D: usize> = AdamState<D>;
 
@@ -81,10 +99,12 @@ impl Optimizer for Adam {
         state: Option<Self::State<D>>,
     ) -> (Tensor<D>, Option<Self::State<D>>) {
         #[cfg(feature = "gpu-torch")]
-        if let Some((tensor, state)) =
-            crate::adam_torch::adam_step(&self.settings, lr, &tensor, &grad, state.as_ref())
-        {
-            return (tensor, Some(state));
+        if libtorch_steps_chosen() {
+            if let Some((tensor, state)) =
+                crate::adam_torch::adam_step(&self.settings, lr, &tensor, &grad, state.as_ref())
+            {
+                return (tensor, Some(state));
+            }
         }
         self.burn.step(lr, tensor, grad, state)
     }

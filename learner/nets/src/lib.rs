@@ -24,7 +24,9 @@
 //! - [`device`]: `--device cpu|gpu` at run time;
 //! - [`sample`]: the masked categorical draw the actor acts with;
 //! - [`adam`]: the trainers' Adam, burn's but on libtorch a few libtorch
-//!   operations a parameter (`adam_torch`).
+//!   operations a parameter (`adam_torch`);
+//! - [`libtorch_ops`]: the gradient clipping's per-parameter operations as
+//!   one libtorch call each.
 
 pub mod adam;
 #[cfg(feature = "gpu-torch")]
@@ -35,6 +37,7 @@ pub mod cuda_wait;
 pub mod device;
 mod kernels;
 mod layers;
+pub mod libtorch_ops;
 mod masked_categorical;
 pub mod policy;
 pub mod unet;

@@ -5,6 +5,8 @@
 //! The norm stays a tensor on the device: reading it back (once per
 //! parameter, as this module first did) made every minibatch wait for the
 //! GPU some fifty times; now the caller reads it when it wants the figure.
+//! On libtorch each tensor's squared norm and scaling are one libtorch call
+//! each (`nets::libtorch_ops`), not burn's two.
 
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::GradientsParams;
@@ -19,7 +21,8 @@ struct SquaredNorms<'a> {
 impl ModuleVisitor for SquaredNorms<'_> {
     fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
         if let Some(g) = self.grads.get::<D>(param.id) {
-            self.parts.push(g.square().sum());
+            let squared = nets::libtorch_ops::squared_norm(&g);
+            self.parts.push(squared.unwrap_or_else(|| g.square().sum()));
         }
     }
 }
@@ -33,8 +36,9 @@ struct Scale<'a> {
 impl ModuleVisitor for Scale<'_> {
     fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
         if let Some(g) = self.grads.remove::<D>(param.id) {
-            let factor = self.factor.clone().reshape([1; D]);
-            self.grads.register(param.id, g * factor);
+            let scaled = nets::libtorch_ops::scaled(&g, &self.factor)
+                .unwrap_or_else(|| g * self.factor.clone().reshape([1; D]));
+            self.grads.register(param.id, scaled);
         }
     }
 }
@@ -74,8 +78,8 @@ mod tests {
 
     /// Gradients of `sum(w · x) · k` for a small linear layer, with their
     /// expected norm computed on the host.
-    fn grads(k: f32) -> (Linear, GradientsParams, f64) {
-        let device = Device::flex().autodiff();
+    fn grads(k: f32, device: &Device) -> (Linear, GradientsParams, f64) {
+        let device = device.clone().autodiff();
         let layer = LinearConfig::new(3, 2).init(&device);
         let x = Tensor::<2>::from_floats([[1.0, -2.0, 0.5]], &device);
         let loss = layer.forward(x).sum() * k;
@@ -85,23 +89,42 @@ mod tests {
         (layer, grads, expected.sqrt())
     }
 
+    /// The gradients' global norm, summed on the host.
     fn norm_after(layer: &Linear, grads: &GradientsParams) -> f64 {
-        let mut norms = SquaredNorms {
-            grads,
-            parts: Vec::new(),
-        };
-        layer.visit(&mut norms);
-        norms
-            .parts
-            .into_iter()
-            .map(|t| f64::from(t.into_scalar::<f32>()))
+        let weight: Vec<f32> = grads
+            .get::<2>(layer.weight.id)
+            .expect("weight gradient")
+            .into_data()
+            .try_to_vec()
+            .unwrap();
+        let bias_id = layer.bias.as_ref().expect("a bias").id;
+        let bias: Vec<f32> = grads
+            .get::<1>(bias_id)
+            .expect("bias gradient")
+            .into_data()
+            .try_to_vec()
+            .unwrap();
+        (weight.iter().chain(&bias))
+            .map(|&g| f64::from(g) * f64::from(g))
             .sum::<f64>()
             .sqrt()
     }
 
     #[test]
     fn large_gradients_are_scaled_to_the_limit_and_small_ones_kept() {
-        let (layer, mut g, expected) = grads(10.0);
+        clips_on(&Device::flex());
+    }
+
+    /// The same through libtorch's calls (`nets::libtorch_ops`).
+    #[cfg(feature = "gpu-torch")]
+    #[test]
+    #[allow(deprecated)]
+    fn on_libtorch_too() {
+        clips_on(&Device::libtorch());
+    }
+
+    fn clips_on(device: &Device) {
+        let (layer, mut g, expected) = grads(10.0, device);
         let before = clip_global_norm(&layer, &mut g, 0.5).unwrap();
         let before = f64::from(before.into_scalar::<f32>());
         assert!(
@@ -110,7 +133,7 @@ mod tests {
         );
         assert!((norm_after(&layer, &g) - 0.5).abs() < 1e-5);
 
-        let (layer, mut g, expected) = grads(0.01);
+        let (layer, mut g, expected) = grads(0.01, device);
         let before = clip_global_norm(&layer, &mut g, 0.5).unwrap();
         assert!((f64::from(before.into_scalar::<f32>()) - expected).abs() < 1e-6);
         assert!(

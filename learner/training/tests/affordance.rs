@@ -67,7 +67,20 @@ fn synthetic_frame(rng: &mut StdRng) -> LabelledFrame {
 
 #[test]
 fn the_unet_overfits_sixteen_labelled_frames() {
-    let device = Device::flex();
+    overfits_on(&Device::flex());
+}
+
+/// The same on libtorch: the U-Net as one libtorch operation
+/// (`nets::unet_train_torch`) and the optimiser's libtorch calls (`nets::adam`).
+#[cfg(feature = "gpu-torch")]
+#[test]
+#[allow(deprecated)]
+fn the_unet_overfits_on_libtorch_too() {
+    overfits_on(&Device::libtorch());
+}
+
+fn overfits_on(device: &Device) {
+    let device = device.clone();
     let mut rng = StdRng::seed_from_u64(11);
     let frames: Vec<LabelledFrame> = (0..16).map(|_| synthetic_frame(&mut rng)).collect();
     let refs: Vec<&LabelledFrame> = frames.iter().collect();

@@ -169,14 +169,13 @@ impl Bandit {
 }
 
 /// The policy's input for a batch of bandit draws.
-fn bandit_input(envs: &[Bandit]) -> PolicyInput {
-    let device = cpu();
+fn bandit_input(envs: &[Bandit], device: &Device) -> PolicyInput {
     let obs: Vec<Vec<f32>> = envs.iter().map(Bandit::observation).collect();
     let allowed: Vec<bool> = envs.iter().flat_map(Bandit::allowed).collect();
     PolicyInput {
         images: vec![],
-        vectors: vec![vectors(&obs, &device)],
-        mask: mask_tensor(&allowed, 4, &device),
+        vectors: vec![vectors(&obs, device)],
+        mask: mask_tensor(&allowed, 4, device),
     }
 }
 
@@ -194,13 +193,13 @@ fn bandit_net(device: &Device) -> PolicyNet {
     )
 }
 
-/// Mean reward of `net` over `n` fresh bandit draws (`None`: uniformly random
-/// allowed actions).
-fn bandit_score(net: Option<&PolicyNet>, n: usize, rng: &mut StdRng) -> f32 {
+/// Mean reward of `net` (on `device`) over `n` fresh bandit draws (`None`:
+/// uniformly random allowed actions).
+fn bandit_score(net: Option<&PolicyNet>, n: usize, rng: &mut StdRng, device: &Device) -> f32 {
     let envs: Vec<Bandit> = (0..n).map(|_| Bandit::draw(rng)).collect();
     let actions: Vec<u32> = match net {
         Some(net) => {
-            let input = bandit_input(&envs);
+            let input = bandit_input(&envs, device);
             sample_rows(&net.forward(&input, None).log_probs, rng).0
         }
         None => envs
@@ -218,10 +217,11 @@ fn bandit_score(net: Option<&PolicyNet>, n: usize, rng: &mut StdRng) -> f32 {
         / n as f32
 }
 
-/// One batch of 128 bandit steps played by `net` (policy version `version`).
-fn bandit_batch(net: &PolicyNet, version: u64, rng: &mut StdRng) -> PpoBatch {
+/// One batch of 128 bandit steps played by `net` (on `device`, policy version
+/// `version`).
+fn bandit_batch(net: &PolicyNet, version: u64, rng: &mut StdRng, device: &Device) -> PpoBatch {
     let envs: Vec<Bandit> = (0..128).map(|_| Bandit::draw(rng)).collect();
-    let input = bandit_input(&envs);
+    let input = bandit_input(&envs, device);
     let out = net.forward(&input, None);
     let (actions, log_probs) = sample_rows(&out.log_probs, rng);
     let values: Vec<f32> = out.values.into_data().try_to_vec().unwrap();
@@ -245,7 +245,20 @@ fn bandit_batch(net: &PolicyNet, version: u64, rng: &mut StdRng) -> PpoBatch {
 
 #[test]
 fn ppo_solves_a_masked_contextual_bandit_and_random_does_not() {
-    let device = cpu();
+    solves_the_bandit_on(&cpu());
+}
+
+/// The same on libtorch, where the optimiser and the gradient clipping take
+/// libtorch's own calls (`nets::adam`, `nets::libtorch_ops`).
+#[cfg(feature = "gpu-torch")]
+#[test]
+#[allow(deprecated)]
+fn ppo_solves_the_bandit_on_libtorch_too() {
+    solves_the_bandit_on(&Device::libtorch());
+}
+
+fn solves_the_bandit_on(device: &Device) {
+    let device = device.clone();
     let mut rng = StdRng::seed_from_u64(1);
     let config = PpoConfig {
         learning_rate: 3e-3,
@@ -255,16 +268,21 @@ fn ppo_solves_a_masked_contextual_bandit_and_random_does_not() {
     let threshold = 0.9;
     let mut solved_after = None;
     for update in 0..40 {
-        let batch = bandit_batch(&ppo.inference_net(&device), ppo.version(), &mut rng);
+        let batch = bandit_batch(
+            &ppo.inference_net(&device),
+            ppo.version(),
+            &mut rng,
+            &device,
+        );
         let stats = ppo.update(&batch, &mut rng);
         assert!(stats.approx_kl.is_finite() && stats.entropy > 0.0);
-        let score = bandit_score(Some(&ppo.inference_net(&device)), 512, &mut rng);
+        let score = bandit_score(Some(&ppo.inference_net(&device)), 512, &mut rng, &device);
         if score >= threshold {
             solved_after = Some(update + 1);
             break;
         }
     }
-    let random = bandit_score(None, 2048, &mut rng);
+    let random = bandit_score(None, 2048, &mut rng, &device);
     eprintln!(
         "bandit: solved after {solved_after:?} updates of 128 steps; random scores {random:.3}"
     );
@@ -283,7 +301,7 @@ fn bandit_outputs(net: &PolicyNet) -> Vec<f32> {
             masked: (i % 4 + 1 + i / 4 % 3) % 4,
         })
         .collect();
-    let input = bandit_input(&envs);
+    let input = bandit_input(&envs, &cpu());
     let out = net.forward(&input, None);
     let mut all: Vec<f32> = out.log_probs.into_data().try_to_vec().unwrap();
     all.extend(out.values.into_data().try_to_vec::<f32>().unwrap());
@@ -305,6 +323,7 @@ fn a_run_resumed_with_the_saved_adam_state_continues_the_same_optimisation() {
             &original.inference_net(&device),
             original.version(),
             &mut rng,
+            &device,
         );
         original.update(&batch, &mut rng);
     }
@@ -326,6 +345,7 @@ fn a_run_resumed_with_the_saved_adam_state_continues_the_same_optimisation() {
         &original.inference_net(&device),
         original.version(),
         &mut rng,
+        &device,
     );
     for ppo in [&mut original, &mut resumed, &mut restarted] {
         ppo.update(&batch, &mut StdRng::seed_from_u64(9));
