@@ -1,6 +1,6 @@
 //! The learner's Adam: burn's, except where the parameters live on libtorch
 //! (`gpu-torch`), where each parameter's update is a few libtorch
-//! operations instead of burn's ~15 (`adam_torch`, which says why).
+//! operations instead of burn's 13–15 (`adam_torch`, which says why).
 //!
 //! Its state is burn's `AdamState`, so an optimiser state saved with either
 //! loads into the other, and checkpoints written before it still resume.
