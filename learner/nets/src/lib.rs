@@ -24,13 +24,11 @@
 //! - [`device`]: `--device cpu|gpu` at run time;
 //! - [`sample`]: the masked categorical draw the actor acts with;
 //! - [`adam`]: the trainers' Adam, burn's but on libtorch a few libtorch
-//!   operations a parameter (`adam_torch`);
+//!   operations a parameter (`adam::libtorch`);
 //! - [`libtorch_ops`]: the gradient clipping's per-parameter operations as
 //!   one libtorch call each.
 
 pub mod adam;
-#[cfg(feature = "gpu-torch")]
-mod adam_torch;
 mod conv_matmul;
 #[cfg(feature = "gpu-torch")]
 pub mod cuda_wait;

@@ -1,5 +1,5 @@
 //! Adam's update of one parameter as a handful of libtorch operations, for
-//! the learner's trainers on libtorch ([`crate::adam::Adam`]).
+//! the learner's trainers on libtorch ([`super::Adam`]).
 //!
 //! Why it exists: burn's Adam spends 13 tensor operations (15 with weight
 //! decay) on each parameter at each step (both moments, bias correction,
@@ -31,7 +31,7 @@ use burn::backend::LibTorch;
 use burn::optim::{AdamState, AdaptiveMomentumState};
 use burn::prelude::*;
 
-use crate::adam::AdamSettings;
+use super::settings::AdamSettings;
 
 /// The tensor's libtorch tensor, if it lives on libtorch.
 fn on_libtorch<const D: usize>(tensor: &Tensor<D>) -> Option<tch::Tensor> {
@@ -108,7 +108,7 @@ mod tests {
     use burn::optim::Optimizer;
 
     use super::*;
-    use crate::adam::burns_adam;
+    use crate::adam::settings::burns_adam;
 
     fn floats<const D: usize>(t: &Tensor<D>) -> Vec<f32> {
         t.clone().into_data().try_to_vec().unwrap()

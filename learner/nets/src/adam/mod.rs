@@ -1,51 +1,22 @@
 //! The learner's Adam: burn's, except where the parameters live on libtorch
 //! (`gpu-torch`), where each parameter's update is a few libtorch
-//! operations instead of burn's 13–15 (`adam_torch`, which says why).
+//! operations instead of burn's 13–15 (`libtorch`, which says why);
+//! `settings` holds what both take.
 //!
 //! Its state is burn's `AdamState`, so an optimiser state saved with either
 //! loads into the other, and checkpoints written before it still resume.
 //! `AFX_ADAM=burn` has libtorch's tensors take burn's step too, to measure a
 //! whole update against.
 
-use burn::optim::decay::WeightDecayConfig;
-use burn::optim::{AdamConfig, AdamState, LearningRate, ModuleOptimizer, Optimizer};
+#[cfg(feature = "gpu-torch")]
+mod libtorch;
+mod settings;
+
+use burn::optim::{AdamState, LearningRate, ModuleOptimizer, Optimizer};
 use burn::prelude::*;
 
-/// Adam's settings, as burn's `AdamConfig` names them.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct AdamSettings {
-    /// Decay of the first moment.
-    pub beta_1: f32,
-    /// Decay of the second moment.
-    pub beta_2: f32,
-    /// Added to the second moment's root (scaled by its bias correction,
-    /// as burn does).
-    pub epsilon: f32,
-    /// L2 penalty added to the gradient, if any.
-    pub weight_decay: Option<f32>,
-}
-
-impl Default for AdamSettings {
-    /// burn's defaults: betas 0.9 and 0.999, epsilon 1e-5, no weight decay.
-    fn default() -> Self {
-        Self {
-            beta_1: 0.9,
-            beta_2: 0.999,
-            epsilon: 1e-5,
-            weight_decay: None,
-        }
-    }
-}
-
-/// burn's Adam with `settings`.
-pub(crate) fn burns_adam(settings: &AdamSettings) -> burn::optim::Adam {
-    AdamConfig::new()
-        .with_beta_1(settings.beta_1)
-        .with_beta_2(settings.beta_2)
-        .with_epsilon(settings.epsilon)
-        .with_weight_decay(settings.weight_decay.map(WeightDecayConfig::new))
-        .build()
-}
+use settings::burns_adam;
+pub use settings::AdamSettings;
 
 /// Adam for one parameter at a time, as burn's optimisers are.
 #[derive(Clone)]
@@ -72,7 +43,7 @@ impl Adam {
     }
 }
 
-/// Whether libtorch's tensors get `adam_torch`'s step: unless
+/// Whether libtorch's tensors get `libtorch`'s step: unless
 /// `AFX_ADAM=burn` (burn's own operations, to measure a whole PPO update or
 /// U-Net step against), read once.
 #[cfg(feature = "gpu-torch")]
@@ -101,7 +72,7 @@ impl Optimizer for Adam {
         #[cfg(feature = "gpu-torch")]
         if libtorch_steps_chosen() {
             if let Some((tensor, state)) =
-                crate::adam_torch::adam_step(&self.settings, lr, &tensor, &grad, state.as_ref())
+                libtorch::adam_step(&self.settings, lr, &tensor, &grad, state.as_ref())
             {
                 return (tensor, Some(state));
             }
