@@ -18,9 +18,10 @@ use burn::prelude::*;
 #[cfg(feature = "gpu-torch")]
 use burn::backend::{libtorch::TchTensor, LibTorch};
 
-/// The tensor's libtorch tensor, if it lives on libtorch.
+/// The tensor's libtorch tensor, if it lives on libtorch (also the
+/// trainers' Adam's way in, `adam::libtorch`).
 #[cfg(feature = "gpu-torch")]
-fn on_libtorch<const D: usize>(tensor: &Tensor<D>) -> Option<tch::Tensor> {
+pub(crate) fn on_libtorch<const D: usize>(tensor: &Tensor<D>) -> Option<tch::Tensor> {
     Some(tensor.clone().try_into_primitive::<LibTorch>().ok()?.tensor)
 }
 

@@ -32,11 +32,7 @@ use burn::optim::{AdamState, AdaptiveMomentumState};
 use burn::prelude::*;
 
 use super::settings::AdamSettings;
-
-/// The tensor's libtorch tensor, if it lives on libtorch.
-fn on_libtorch<const D: usize>(tensor: &Tensor<D>) -> Option<tch::Tensor> {
-    Some(tensor.clone().try_into_primitive::<LibTorch>().ok()?.tensor)
-}
+use crate::libtorch_ops::on_libtorch;
 
 /// Adam's step of `param` with `grad` at learning rate `lr`, after
 /// `previous` (none before the first step): the new parameter and state.
