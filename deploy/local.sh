@@ -38,6 +38,12 @@ Options:
   --record DIR      each actor records episodes as MCAP files for Foxglove in
                     DIR (actorN_step<run steps>_episode<id>.mcap; never overwritten)
   --record-every N  with --record, only every N-th episode (default 1)
+  --dataset DIR     each actor writes the label ladder's dataset to DIR (method
+                    ours; for learner train-unet, docs/ladder.md): frames with
+                    ground-truth, tried-truth and the run's own labels
+  --dataset-every N with --dataset, only every N-th episode (default 1)
+  --dataset-frame-every K
+                    with --dataset, every K-th frame of an episode (default 1)
   --device D        where learner and actors run the networks: cpu (default) or
                     gpu (binaries built with --features nets/gpu; see README)
   --max-steps N     stop as on Ctrl-C (final checkpoint) once the run has taken
@@ -106,6 +112,9 @@ while [[ $# -gt 0 ]]; do
     --renderer) SETTINGS+=(--set "actors.renderer=${2:?--renderer needs a value}"); shift 2 ;;
     --record) mkdir -p "${2:?--record needs a directory}"; RECORD_ARGS+=(--record "$(cd "$2" && pwd)"); shift 2 ;;
     --record-every) RECORD_ARGS+=(--record-every "${2:?--record-every needs a number}"); shift 2 ;;
+    --dataset) mkdir -p "${2:?--dataset needs a directory}"; RECORD_ARGS+=(--dataset "$(cd "$2" && pwd)"); shift 2 ;;
+    --dataset-every) RECORD_ARGS+=(--dataset-every "${2:?--dataset-every needs a number}"); shift 2 ;;
+    --dataset-frame-every) RECORD_ARGS+=(--dataset-frame-every "${2:?--dataset-frame-every needs a number}"); shift 2 ;;
     --device) DEVICE="${2:?--device needs a value}"; SETTINGS+=(--set "actors.device=$DEVICE"); LEARNER_DEVICE=(--device "$DEVICE"); shift 2 ;;
     --port) PORT="${2:?--port needs a number}"; shift 2 ;;
     --progress-every) PROGRESS_EVERY="${2:?--progress-every needs a number of seconds}"; shift 2 ;;

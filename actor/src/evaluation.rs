@@ -17,6 +17,7 @@ mod weights;
 pub use object_trials::{sight_object, try_affordance, ObjectView, Sighting, SEARCH_RADIUS_M};
 pub use report::{
     Confusion, ObjectRow, ObjectTrial, Percentiles, PixelRow, Reference, Report, ScoredBy,
+    ThresholdF1, THRESHOLDS,
 };
 pub use selection::{Candidate, Selection, RULE as SELECTION_RULE};
 pub(crate) use test_views::test_views;
@@ -46,6 +47,9 @@ pub struct EvaluationSettings {
     pub views_per_scene: usize,
     /// Seed of the test views.
     pub seed: u64,
+    /// A pixel, or an object's mean, at or above it is predicted positive
+    /// (the paper's 0.5, or one chosen on the validation rooms).
+    pub threshold: f32,
 }
 
 /// The network under evaluation (or a stand-in in tests): per affordance,
@@ -64,6 +68,9 @@ pub fn evaluate(
 ) -> anyhow::Result<Report> {
     let planes = settings.affordances.len();
     let mut frame_scores: Vec<Vec<(PixelScores, Option<f32>)>> = vec![Vec::new(); planes];
+    // Per plane and threshold of THRESHOLDS, each view's pixel F1.
+    let mut f1_by_threshold: Vec<Vec<Vec<Option<f32>>>> =
+        vec![vec![Vec::new(); THRESHOLDS.len()]; planes];
     let mut false_positives = vec![FalsePositives::default(); planes];
     let mut all_positive_scores: Vec<Vec<(PixelScores, Option<f32>)>> = vec![Vec::new(); planes];
     let mut all_positive_false = vec![FalsePositives::default(); planes];
@@ -106,6 +113,9 @@ pub fn evaluate(
                     .get(plane)
                     .context("the network has too few planes")?;
                 let affords = affords(plane);
+                for (threshold, f1s) in THRESHOLDS.iter().zip(&mut f1_by_threshold[plane]) {
+                    f1s.push(pixel_scores(p, &view.ids, &affords, *threshold).f1);
+                }
                 for (p, scores, false_positives) in [
                     (p, &mut frame_scores[plane], &mut false_positives[plane]),
                     (
@@ -114,9 +124,14 @@ pub fn evaluate(
                         &mut all_positive_false[plane],
                     ),
                 ] {
-                    let object_accuracy = score_frame(p, &view.ids, &affords).object_accuracy;
-                    false_positives.add(p, &view.ids, &affords, &is_structure);
-                    scores.push((pixel_scores(p, &view.ids, &affords), object_accuracy));
+                    let threshold = settings.threshold;
+                    let object_accuracy =
+                        score_frame(p, &view.ids, &affords, threshold).object_accuracy;
+                    false_positives.add(p, &view.ids, &affords, &is_structure, threshold);
+                    scores.push((
+                        pixel_scores(p, &view.ids, &affords, threshold),
+                        object_accuracy,
+                    ));
                 }
             }
         }
@@ -187,26 +202,45 @@ pub fn evaluate(
         .iter()
         .map(|a| a.as_str().to_string())
         .collect();
+    // The median F1 at each threshold, per plane (none for a reference).
+    let sweeps: Vec<Vec<ThresholdF1>> = f1_by_threshold
+        .iter()
+        .map(|per_threshold| {
+            THRESHOLDS
+                .iter()
+                .zip(per_threshold)
+                .filter_map(|(&threshold, f1s)| {
+                    let f1 = Percentiles::of(f1s.iter().copied())?.median;
+                    Some(ThresholdF1 { threshold, f1 })
+                })
+                .collect()
+        })
+        .collect();
     let pixel_rows = |scores: &[Vec<(PixelScores, Option<f32>)>],
-                      false_positives: &[FalsePositives]| {
+                      false_positives: &[FalsePositives],
+                      sweeps: &[Vec<ThresholdF1>]| {
         names
             .iter()
             .zip(scores.iter().zip(false_positives))
-            .map(|(affordance, (scores, false_positives))| PixelRow {
-                affordance: affordance.clone(),
-                precision: Percentiles::of(scores.iter().map(|s| s.0.precision)),
-                recall: Percentiles::of(scores.iter().map(|s| s.0.recall)),
-                f1: Percentiles::of(scores.iter().map(|s| s.0.f1)),
-                object_accuracy: Percentiles::of(scores.iter().map(|s| s.1)),
-                false_positives_on_structure: false_positives.on_structure_share(),
-            })
+            .enumerate()
+            .map(
+                |(plane, (affordance, (scores, false_positives)))| PixelRow {
+                    affordance: affordance.clone(),
+                    precision: Percentiles::of(scores.iter().map(|s| s.0.precision)),
+                    recall: Percentiles::of(scores.iter().map(|s| s.0.recall)),
+                    f1: Percentiles::of(scores.iter().map(|s| s.0.f1)),
+                    object_accuracy: Percentiles::of(scores.iter().map(|s| s.1)),
+                    false_positives_on_structure: false_positives.on_structure_share(),
+                    f1_by_threshold: sweeps.get(plane).cloned().unwrap_or_default(),
+                },
+            )
             .collect::<Vec<_>>()
     };
-    let object_rows = |scored: &[Vec<(f32, bool)>]| {
+    let object_rows = |scored: &[Vec<(f32, bool)>], threshold: f32| {
         names
             .iter()
             .zip(scored)
-            .map(|(affordance, scored)| ObjectRow::new(affordance.clone(), scored))
+            .map(|(affordance, scored)| ObjectRow::at(affordance.clone(), scored, threshold))
             .collect::<Vec<_>>()
     };
     let everything: Vec<Vec<(f32, bool)>> = scored
@@ -219,21 +253,22 @@ pub fn evaluate(
         selection: None,
         scenes: scenes.iter().map(|s| s.name.clone()).collect(),
         frames,
-        pixel: pixel_rows(&frame_scores, &false_positives),
+        threshold: settings.threshold,
+        pixel: pixel_rows(&frame_scores, &false_positives, &sweeps),
         objects: trials.len() + objects_unseen.len(),
         objects_unseen,
-        object: object_rows(&scored),
+        object: object_rows(&scored, settings.threshold),
         trials,
         all_positive: Reference {
             name: "all positive".into(),
-            pixel: pixel_rows(&all_positive_scores, &all_positive_false),
-            object: object_rows(&everything),
+            pixel: pixel_rows(&all_positive_scores, &all_positive_false, &[]),
+            object: object_rows(&everything, crate::frame_scores::PAPER_THRESHOLD),
         },
     })
 }
 
-/// Pixels wrongly predicted positive (threshold 0.5), and how many of them
-/// lie on the floor and walls.
+/// Pixels wrongly predicted positive, and how many of them lie on the
+/// floor and walls.
 #[derive(Debug, Clone, Copy, Default)]
 struct FalsePositives {
     all: usize,
@@ -247,9 +282,10 @@ impl FalsePositives {
         ids: &[u32],
         affords: &dyn Fn(u32) -> bool,
         is_structure: &dyn Fn(u32) -> bool,
+        threshold: f32,
     ) {
         for (&p, &id) in probabilities.iter().zip(ids) {
-            if p >= 0.5 && (id == 0 || !affords(id)) {
+            if p >= threshold && (id == 0 || !affords(id)) {
                 self.all += 1;
                 self.on_structure += usize::from(is_structure(id));
             }

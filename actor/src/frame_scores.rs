@@ -51,16 +51,22 @@ pub(crate) struct FrameScores {
     pub object_accuracy: Option<f32>,
 }
 
-/// Scores a probability plane (threshold 0.5) against the ground truth.
+/// The paper's threshold: a pixel (or an object's mean) at or above it is
+/// predicted to afford the affordance.
+pub const PAPER_THRESHOLD: f32 = 0.5;
+
+/// Scores a probability plane (predicted where at or above `threshold`)
+/// against the ground truth.
 pub(crate) fn score_frame(
     probabilities: &[f32],
     instances: &[u32],
     affords: &dyn Fn(u32) -> bool,
+    threshold: f32,
 ) -> FrameScores {
     let (mut intersection, mut union) = (0usize, 0usize);
     let mut votes: BTreeMap<u32, (usize, usize)> = BTreeMap::new();
     for (&p, &id) in probabilities.iter().zip(instances) {
-        let (predicted, truth) = (p >= 0.5, id != 0 && affords(id));
+        let (predicted, truth) = (p >= threshold, id != 0 && affords(id));
         intersection += usize::from(predicted && truth);
         union += usize::from(predicted || truth);
         if id == 0 {
@@ -95,16 +101,17 @@ pub(crate) struct PixelScores {
     pub f1: Option<f32>,
 }
 
-/// Scores a probability plane (threshold 0.5) pixel by pixel against the
-/// ground truth (see [`PixelScores`]).
+/// Scores a probability plane (predicted where at or above `threshold`)
+/// pixel by pixel against the ground truth (see [`PixelScores`]).
 pub(crate) fn pixel_scores(
     probabilities: &[f32],
     instances: &[u32],
     affords: &dyn Fn(u32) -> bool,
+    threshold: f32,
 ) -> PixelScores {
     let (mut tp, mut fp, mut fn_) = (0usize, 0usize, 0usize);
     for (&p, &id) in probabilities.iter().zip(instances) {
-        let (predicted, truth) = (p >= 0.5, id != 0 && affords(id));
+        let (predicted, truth) = (p >= threshold, id != 0 && affords(id));
         tp += usize::from(predicted && truth);
         fp += usize::from(predicted && !truth);
         fn_ += usize::from(!predicted && truth);
@@ -192,16 +199,16 @@ mod tests {
         let affords = |id: u32| id == 1;
         // Predicted: three of object 1, one of object 2, and the structure.
         let p = [0.9, 0.9, 0.9, 0.1, 0.8, 0.2, 0.2, 0.2, 0.9, 0.9];
-        let s = score_frame(&p, &ids, &affords);
+        let s = score_frame(&p, &ids, &affords, PAPER_THRESHOLD);
         assert_eq!(s.iou, Some(3.0 / 7.0), "structure called positive is wrong");
         assert_eq!(s.object_accuracy, Some(1.0), "both majorities are right");
         let all_yes = [0.9; 10];
-        let s = score_frame(&all_yes, &ids, &affords);
+        let s = score_frame(&all_yes, &ids, &affords, PAPER_THRESHOLD);
         assert_eq!(s.iou, Some(0.4));
         assert_eq!(s.object_accuracy, Some(0.5));
-        let s = score_frame(&[0.1; 2], &[0, 0], &affords);
+        let s = score_frame(&[0.1; 2], &[0, 0], &affords, PAPER_THRESHOLD);
         assert_eq!((s.iou, s.object_accuracy), (None, None));
-        let s = score_frame(&[0.9, 0.1], &[0, 0], &affords);
+        let s = score_frame(&[0.9, 0.1], &[0, 0], &affords, PAPER_THRESHOLD);
         assert_eq!(
             (s.iou, s.object_accuracy),
             (Some(0.0), None),
@@ -216,16 +223,21 @@ mod tests {
         let affords = |id: u32| id == 1;
         // Hits 3 of object 1; false alarms on object 2 (1 px) and the floor (1 px).
         let p = [0.9, 0.9, 0.9, 0.1, 0.7, 0.1, 0.6, 0.0];
-        let s = pixel_scores(&p, &ids, &affords);
+        let s = pixel_scores(&p, &ids, &affords, PAPER_THRESHOLD);
         assert_eq!(s.precision, Some(3.0 / 5.0));
         assert_eq!(s.recall, Some(3.0 / 4.0));
         assert_eq!(s.f1, Some(6.0 / 9.0));
         // Nothing affords and nothing is predicted: all undefined.
-        let s = pixel_scores(&[0.1; 8], &ids, &|_| false);
+        let s = pixel_scores(&[0.1; 8], &ids, &|_| false, PAPER_THRESHOLD);
         assert_eq!((s.precision, s.recall, s.f1), (None, None, None));
         // Nothing predicted where something affords: recall and F1 are 0.
-        let s = pixel_scores(&[0.1; 8], &ids, &affords);
+        let s = pixel_scores(&[0.1; 8], &ids, &affords, PAPER_THRESHOLD);
         assert_eq!((s.precision, s.recall, s.f1), (None, Some(0.0), Some(0.0)));
+        // A higher threshold drops the floor's 0.6; a lower one adds 0.1s.
+        let s = pixel_scores(&p, &ids, &affords, 0.65);
+        assert_eq!((s.precision, s.recall), (Some(3.0 / 4.0), Some(3.0 / 4.0)));
+        let s = pixel_scores(&p, &ids, &affords, 0.05);
+        assert_eq!((s.precision, s.recall), (Some(4.0 / 7.0), Some(1.0)));
     }
 
     #[test]

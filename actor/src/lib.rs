@@ -17,6 +17,7 @@ pub mod episode_loop;
 pub mod evaluation;
 pub mod frame_scores;
 pub mod labeler;
+pub mod ladder_labels;
 pub mod mapping;
 pub(crate) mod recording;
 pub mod results;

@@ -107,6 +107,12 @@ struct EvaluateArgs {
     /// objects), whatever network is evaluated.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Predict a pixel, or an object (its mean), positive at or above this
+    /// probability. The paper's is 0.5; a threshold chosen on the validation
+    /// rooms (the report's "thresholds that would do best") is for the test
+    /// rooms, never chosen on them.
+    #[arg(long, default_value_t = 0.5, value_parser = parse_threshold)]
+    threshold: f32,
     /// Write the whole report (both tables, the all-positive reference,
     /// the selection and every object's trial) as JSON here.
     #[arg(long, value_name = "FILE")]
@@ -246,6 +252,20 @@ struct RunArgs {
     /// of megabytes).
     #[arg(long, default_value_t = 1, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
     record_every: u64,
+    /// Write the label ladder's dataset to this directory (created; method
+    /// `ours`): episodes' frames, each with the simulator's ground truth
+    /// for every object (L0), for the objects the agent tried (L1) and the
+    /// run's own labels (L2), for `learner train-unet` (docs/ladder.md).
+    /// The run's config.toml is copied beside them.
+    #[arg(long, value_name = "DIR", requires = "config")]
+    dataset: Option<PathBuf>,
+    /// With --dataset, write only every N-th episode.
+    #[arg(long, default_value_t = 1, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    dataset_every: u64,
+    /// With --dataset, keep every K-th frame of an episode (a 600-step
+    /// episode at 128 px is 128 MB whole).
+    #[arg(long, default_value_t = 1, value_name = "K", value_parser = clap::value_parser!(u16).range(1..))]
+    dataset_frame_every: u16,
 }
 
 fn main() -> anyhow::Result<()> {
@@ -340,6 +360,7 @@ fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
             image_size: task.image_size,
             views_per_scene: views,
             seed: args.seed,
+            threshold: args.threshold,
         };
         eprintln!(
             "evaluate: {name} in {} rooms at {} px with {}",
@@ -426,6 +447,20 @@ fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A probability strictly between 0 and 1.
+fn parse_threshold(text: &str) -> Result<f32, String> {
+    let value: f32 = text
+        .parse()
+        .map_err(|_| format!("'{text}' is not a number"))?;
+    if value > 0.0 && value < 1.0 {
+        Ok(value)
+    } else {
+        Err(format!(
+            "{value} is not a probability strictly between 0 and 1"
+        ))
+    }
+}
+
 fn results(args: ResultsArgs) -> anyhow::Result<()> {
     let comparison = actor::results::load(&args.root)?;
     let page = actor::results::render(&comparison, args.curves.as_deref());
@@ -466,7 +501,45 @@ fn flat_sim_env(
             cli.record_every,
         );
     }
+    if let Some(dir) = &cli.dataset {
+        env.dataset_to(
+            dir.clone(),
+            format!("actor{}_", cli.actor_id.unwrap_or(0)),
+            cli.dataset_every,
+            usize::from(cli.dataset_frame_every),
+        );
+    }
     FlatSimEnv::new(env, task)
+}
+
+/// Starts the label ladder's dataset in `dir`: the run's config beside the
+/// episodes, for the offline trainer to read the task and the U-Net's
+/// settings from.
+fn start_dataset(
+    dir: &std::path::Path,
+    config: &std::path::Path,
+    task: &TaskSpec,
+) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        task.env == EnvKind::Sim && task.method.spec().map,
+        "--dataset records the label ladder of a method with a map (ours); this run's is {}",
+        task.method.as_str()
+    );
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("creating the --dataset directory {}", dir.display()))?;
+    let target = dir.join("config.toml");
+    let text = std::fs::read(config).with_context(|| format!("reading {}", config.display()))?;
+    match std::fs::read(&target) {
+        Ok(existing) => anyhow::ensure!(
+            existing == text,
+            "{} holds a dataset of another run (its config.toml differs from {}): choose another --dataset directory",
+            dir.display(),
+            config.display()
+        ),
+        Err(_) => std::fs::write(&target, text)
+            .with_context(|| format!("writing {}", target.display()))?,
+    }
+    Ok(())
 }
 
 /// Reads the run's join key (`--join-key`, or join.key beside `--config`),
@@ -546,6 +619,9 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
         sim.renderer,
         sim.data.display()
     );
+    if let (Some(dir), Some(config)) = (&cli.dataset, &cli.config) {
+        start_dataset(dir, config, &task)?;
+    }
     let choice: nets::device::DeviceChoice = device_name
         .parse()
         .map_err(|e| anyhow::anyhow!("--device: {e}"))?;

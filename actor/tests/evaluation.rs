@@ -24,12 +24,22 @@ fn room() -> (Scene, RobotProfile) {
 }
 
 fn run(scene: &Scene, profile: &RobotProfile, predict: &Predictor<'_>) -> Report {
+    run_at(scene, profile, predict, 0.5)
+}
+
+fn run_at(
+    scene: &Scene,
+    profile: &RobotProfile,
+    predict: &Predictor<'_>,
+    threshold: f32,
+) -> Report {
     let settings = EvaluationSettings {
         model: "the ground truth".into(),
         affordances: AFFORDANCES.to_vec(),
         image_size: 64,
         views_per_scene: 4,
         seed: 3,
+        threshold,
     };
     let mut renderer = Renderer::open(RendererChoice::Cpu).unwrap();
     let mut rooms = Vec::new();
@@ -162,4 +172,63 @@ fn the_ground_truth_scores_perfectly_and_its_opposite_scores_nothing() {
             "the opposite ranks oppositely: {w:?}"
         );
     }
+}
+
+#[test]
+fn a_network_that_ranks_well_below_one_half_is_found_by_the_threshold_sweep() {
+    let (scene, profile) = room();
+    let truth = ground_truth_planes(&scene, &profile, &AFFORDANCES);
+    // The truth's ranking with every probability far too low: 0.3 where an
+    // object affords, 0.08 elsewhere.
+    let shy = |frame: &Frame| -> Vec<Vec<f32>> {
+        (0..AFFORDANCES.len())
+            .map(|plane| {
+                frame
+                    .ids
+                    .iter()
+                    .map(|&id| {
+                        if id != 0 && truth[id as usize - 1][plane] {
+                            0.3
+                        } else {
+                            0.08
+                        }
+                    })
+                    .collect()
+            })
+            .collect()
+    };
+    let paper = run(&scene, &profile, &shy);
+    let pick_up = &paper.object[0];
+    assert_eq!(pick_up.threshold, 0.5);
+    assert_eq!(
+        pick_up.recall,
+        Some(0.0),
+        "nothing reaches 0.5: {pick_up:?}"
+    );
+    let best = pick_up.best.expect("some threshold predicts");
+    // Not 1: a trial fails where the rules allow a pick-up but there is no
+    // room to lift the object.
+    assert!(
+        best.threshold > 0.08 && best.threshold <= 0.3 && best.f1 >= 0.75,
+        "{best:?}"
+    );
+    let pixel_best = paper.pixel[0].best().expect("a sweep");
+    assert!(
+        pixel_best.threshold > 0.08 && pixel_best.threshold <= 0.3,
+        "{pixel_best:?}"
+    );
+    assert_eq!(pixel_best.f1, 1.0);
+    assert!(paper
+        .to_markdown()
+        .contains("Thresholds that would do best"));
+
+    let chosen = run_at(&scene, &profile, &shy, best.threshold);
+    assert_eq!(chosen.threshold, best.threshold);
+    assert_eq!(chosen.object[0].f1, Some(best.f1));
+    let f1 = chosen.pixel[0].f1.expect("defined");
+    assert_eq!((f1.p10, f1.median), (1.0, 1.0), "{f1:?}");
+    assert_eq!(
+        chosen.all_positive, paper.all_positive,
+        "the floor does not move"
+    );
 }

@@ -31,6 +31,7 @@ fn report(f1: f32, p: f32, selected: bool) -> Report {
         f1: percentiles(f1),
         object_accuracy: percentiles(0.8),
         false_positives_on_structure: Some(0.4),
+        f1_by_threshold: Vec::new(),
     };
     let scored = [(p, true), (1.0 - p, false)];
     let trial = |object: &str, p: f32, success: bool, scored_by| ObjectTrial {
@@ -62,6 +63,7 @@ fn report(f1: f32, p: f32, selected: bool) -> Report {
         }),
         scenes: vec!["FloorPlan226".into()],
         frames: 10,
+        threshold: 0.5,
         pixel: vec![pixel(f1)],
         objects: 3,
         objects_unseen: vec!["FloorPlan226/Pen|1".into()],

@@ -66,6 +66,11 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Train the affordance U-Net offline on the label ladder's dataset
+    /// (`actor --dataset`) with one of its label sources, replaying the
+    /// run's U-Net schedule (split, gate, temperature); writes a directory
+    /// that `actor evaluate --run-dir` scores (docs/ladder.md).
+    TrainUnet(TrainUnetArgs),
     /// Measure how many environment steps this learner takes: a real learner
     /// fed by synthetic actors (valid rollouts, labelled frames and stats of
     /// the task, as fast as it takes them; no simulator), printed as a
@@ -126,6 +131,37 @@ struct ServeArgs {
     /// `learner print-config` lists every key.
     #[arg(long, value_name = "KEY=VALUE")]
     set: Vec<String>,
+}
+
+#[derive(clap::Args)]
+struct TrainUnetArgs {
+    /// The dataset directory (`actor --dataset`; holds config.toml and episodes/).
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Whose labels to learn: ground-truth (L0: every object in view),
+    /// tried-truth (L1: the objects the agent tried, spread by the map,
+    /// perfect outcomes) or run (L2: the run's own labels).
+    #[arg(long)]
+    labels: proto::LabelRung,
+    /// The directory to write (config.toml, checkpoints/, train-unet.json).
+    #[arg(long)]
+    out: PathBuf,
+    /// Times the episodes are replayed.
+    #[arg(long, default_value_t = 1)]
+    passes: usize,
+    /// Gradient steps per episode (default: the run's [unet] steps_per_episode;
+    /// raise it for a dataset of every N-th episode).
+    #[arg(long)]
+    steps_per_episode: Option<usize>,
+    /// Checkpoints written, evenly over the training (the last at its end).
+    #[arg(long, default_value_t = 1)]
+    checkpoints: usize,
+    /// Seed of the split, the batches and the initial weights.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Where the U-Net trains: cpu, or gpu in a GPU build.
+    #[arg(long, default_value = "cpu", value_parser = ["cpu", "gpu"])]
+    device: String,
 }
 
 #[derive(clap::Args)]
@@ -295,6 +331,23 @@ fn main() -> anyhow::Result<()> {
             } else {
                 print!("{}", summary.markdown());
             }
+            Ok(())
+        }
+        Command::TrainUnet(args) => {
+            let device = open_named_device(&args.device, "--device")?;
+            let settings = learner::tools::train_unet::TrainUnetSettings {
+                dataset: args.dataset,
+                rung: args.labels,
+                out: args.out,
+                passes: args.passes,
+                steps_per_episode: args.steps_per_episode,
+                checkpoints: args.checkpoints,
+                seed: args.seed,
+            };
+            let report = learner::tools::train_unet::train_unet(&settings, &device, &mut |line| {
+                eprintln!("train-unet: {line}")
+            })?;
+            println!("{}", serde_json::to_string_pretty(&report)?);
             Ok(())
         }
         Command::Clean => {

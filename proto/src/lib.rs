@@ -15,6 +15,7 @@ mod error;
 mod frames;
 mod header;
 mod join;
+mod ladder;
 mod message;
 mod method;
 mod payload;
@@ -35,6 +36,7 @@ pub use frames::{
 };
 pub use header::{MessageHeader, MessageKind, HEADER_LEN, LEARNER_ID, MAGIC, SCHEMA_VERSION};
 pub use join::{Join, JoinKey, JoinKeyError, JOIN_KEY_LEN, JOIN_PAYLOAD_LEN};
+pub use ladder::{LabelRung, DATASET_EPISODES_DIR, DATASET_EPISODE_EXTENSION};
 pub use message::{
     decode, decode_header, decode_weights, encode, encode_into, encoded_len, Limits, Message,
 };

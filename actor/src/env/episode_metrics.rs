@@ -10,7 +10,7 @@ use mapper::Affordance;
 use proto::{AffordanceStat, StatField, StatKey};
 use sim::agent::{Failure, Outcome};
 
-use crate::frame_scores::{annotation_rates, score_frame};
+use crate::frame_scores::{annotation_rates, score_frame, PAPER_THRESHOLD};
 
 /// Counts per affordance, indexed by [`Affordance::code`].
 type PerAffordance = [u32; Affordance::COUNT];
@@ -70,7 +70,12 @@ impl EpisodeMetrics {
     pub(crate) fn observe_frame(&mut self, probabilities: &[Vec<f32>], ids: Vec<u32>) {
         for (plane, (probabilities, sums)) in probabilities.iter().zip(&mut self.scores).enumerate()
         {
-            let scores = score_frame(probabilities, &ids, &|id| affords(&self.truth, id, plane));
+            let scores = score_frame(
+                probabilities,
+                &ids,
+                &|id| affords(&self.truth, id, plane),
+                PAPER_THRESHOLD,
+            );
             if let Some(iou) = scores.iou {
                 sums.iou += f64::from(iou);
                 sums.iou_frames += 1;
@@ -110,6 +115,11 @@ impl EpisodeMetrics {
     /// A step's reward.
     pub fn reward(&mut self, reward: f32) {
         self.episode_return += reward;
+    }
+
+    /// Per scene object, whether it affords each affordance (plane order).
+    pub(crate) fn truth(&self) -> &[Vec<bool>] {
+        &self.truth
     }
 
     /// The simulator's instance ids of every frame observed.

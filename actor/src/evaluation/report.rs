@@ -123,6 +123,43 @@ pub struct PixelRow {
     /// afford it: a network that has not learnt what an object is spends
     /// its false positives there (the paper saw this in its baselines).
     pub false_positives_on_structure: Option<f32>,
+    /// The median per-frame F1 at each of [`THRESHOLDS`]: where a network's
+    /// probabilities are too low or too high for the paper's 0.5, how much
+    /// a threshold chosen on the validation rooms would give back.
+    #[serde(default)]
+    pub f1_by_threshold: Vec<ThresholdF1>,
+}
+
+/// Thresholds tried for [`PixelRow::f1_by_threshold`] and [`ObjectRow::best`].
+pub const THRESHOLDS: [f32; 18] = [
+    0.01, 0.02, 0.03, 0.05, 0.07, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.6, 0.7, 0.8,
+    0.9,
+];
+
+/// An F1 score at a threshold.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ThresholdF1 {
+    /// The threshold.
+    pub threshold: f32,
+    /// The F1 there.
+    pub f1: f32,
+}
+
+impl ThresholdF1 {
+    /// The highest F1 of `scores` (the lower threshold on a tie); `None` if empty.
+    pub fn best(scores: &[ThresholdF1]) -> Option<ThresholdF1> {
+        scores
+            .iter()
+            .copied()
+            .reduce(|best, s| if s.f1 > best.f1 { s } else { best })
+    }
+}
+
+impl PixelRow {
+    /// The threshold of [`THRESHOLDS`] with the highest median per-frame F1.
+    pub fn best(&self) -> Option<ThresholdF1> {
+        ThresholdF1::best(&self.f1_by_threshold)
+    }
 }
 
 /// Table 2's row for one affordance.
@@ -130,8 +167,12 @@ pub struct PixelRow {
 pub struct ObjectRow {
     /// The affordance (`pick_up`, `push`).
     pub affordance: String,
-    /// Predictions (mean probability over the object's pixels ≥ 0.5)
-    /// against the outcome of trying.
+    /// The threshold of the predictions (0.5, the paper's, unless the
+    /// evaluation was given another).
+    #[serde(default = "paper_threshold")]
+    pub threshold: f32,
+    /// Predictions (mean probability over the object's pixels ≥
+    /// [`ObjectRow::threshold`]) against the outcome of trying.
     pub confusion: Confusion,
     /// [`Confusion::accuracy`].
     pub accuracy: Option<f32>,
@@ -146,18 +187,46 @@ pub struct ObjectRow {
     /// threshold (0.5 = chance), so a network that rates every object
     /// below 0.5 still shows whether it has learnt which ones afford it.
     pub auc: Option<f32>,
+    /// The threshold of [`THRESHOLDS`] that maximises F1 on these objects,
+    /// with that F1: choose it on the validation rooms and evaluate the
+    /// test rooms at it (`actor evaluate --threshold`), never the other way.
+    #[serde(default)]
+    pub best: Option<ThresholdF1>,
+}
+
+fn paper_threshold() -> f32 {
+    crate::frame_scores::PAPER_THRESHOLD
 }
 
 impl ObjectRow {
     /// The row of `affordance` from each tried object's mean probability
-    /// and whether trying succeeded.
+    /// and whether trying succeeded, at the paper's threshold.
     pub fn new(affordance: String, scored: &[(f32, bool)]) -> Self {
-        let mut confusion = Confusion::default();
-        for &(probability, succeeded) in scored {
-            confusion.add(probability >= 0.5, succeeded);
-        }
+        Self::at(affordance, scored, paper_threshold())
+    }
+
+    /// The row of `affordance` with objects predicted where their mean
+    /// probability is at least `threshold`.
+    pub fn at(affordance: String, scored: &[(f32, bool)], threshold: f32) -> Self {
+        let confusion_at = |threshold: f32| {
+            let mut confusion = Confusion::default();
+            for &(probability, succeeded) in scored {
+                confusion.add(probability >= threshold, succeeded);
+            }
+            confusion
+        };
+        let confusion = confusion_at(threshold);
+        let by_threshold: Vec<ThresholdF1> = THRESHOLDS
+            .iter()
+            .filter_map(|&threshold| {
+                let f1 = confusion_at(threshold).f1()?;
+                Some(ThresholdF1 { threshold, f1 })
+            })
+            .collect();
         Self {
             affordance,
+            threshold,
+            best: ThresholdF1::best(&by_threshold),
             confusion,
             accuracy: confusion.accuracy(),
             precision: confusion.precision(),
@@ -251,6 +320,10 @@ pub struct Report {
     pub scenes: Vec<String>,
     /// Test frames scored (Table 1).
     pub frames: usize,
+    /// The threshold of both tables' predictions (0.5, the paper's, unless
+    /// the evaluation was given one chosen on the validation rooms).
+    #[serde(default = "paper_threshold")]
+    pub threshold: f32,
     /// Table 1, one row per affordance.
     pub pixel: Vec<PixelRow>,
     /// Objects of the rooms (the floor excluded).
@@ -293,9 +366,9 @@ impl Report {
         }
         let _ = writeln!(
             out,
-            "Table 1: per-frame pixel scores on {} test frames, median [10th, 90th percentile] \
-             (frames where defined)\n",
-            self.frames
+            "Table 1: per-frame pixel scores at threshold {} on {} test frames, median [10th, \
+             90th percentile] (frames where defined)\n",
+            self.threshold, self.frames
         );
         out.push_str(
             "| prediction | affordance | precision | recall | F1 | object accuracy | false positives on floor & walls |\n",
@@ -326,9 +399,10 @@ impl Report {
             .count();
         let _ = writeln!(
             out,
-            "\nTable 2: object-level prediction (mean over the object's pixels ≥ 0.5) against \
+            "\nTable 2: object-level prediction (mean over the object's pixels ≥ {}) against \
              trying it: {} of {} objects, {} tried, {judged} out of reach from every position and \
              judged by the simulator's ground truth, {} in view from no reachable position\n",
+            self.threshold,
             self.trials.len(),
             self.objects,
             self.trials.len() - judged,
@@ -357,6 +431,24 @@ impl Report {
                     c.true_positives + c.false_positives
                 );
             }
+        }
+        out.push_str(
+            "\nThresholds that would do best in these rooms (choose on the validation rooms, \
+             then evaluate the test rooms with --threshold):\n\n",
+        );
+        out.push_str("| affordance | Table 1 median F1: best threshold → F1 | Table 2 F1: best threshold → F1 |\n");
+        out.push_str("|---|---|---|\n");
+        let best = |b: Option<ThresholdF1>| {
+            b.map_or_else(|| "–".into(), |b| format!("{} → {:.2}", b.threshold, b.f1))
+        };
+        for (pixel, object) in self.pixel.iter().zip(&self.object) {
+            let _ = writeln!(
+                out,
+                "| {} | {} | {} |",
+                pixel.affordance,
+                best(pixel.best()),
+                best(object.best)
+            );
         }
         out
     }

@@ -4,18 +4,21 @@
 //! down), and labels come from every view of an object it holds an outcome
 //! for, by interaction and, later in a run, by confidence.
 
+use std::collections::BTreeSet;
+
 use anyhow::Context;
 use mapper::{
     Affordance, IntegrateTimings, Intrinsics, Map, MapConfig, ObjectId, Outcome as MapOutcome, Pose,
 };
 use proto::ConfidenceRule;
-use sim::agent::{Outcome, Simulator};
+use sim::agent::{Failure, Outcome, Simulator};
 use sim::raycast::Frame;
 use sim::scene::OrientedBox;
 
 use super::{tells_the_affordance, Interaction, ObjectMemory};
 use crate::frame_scores::map_id_consistency;
 use crate::labeler::{apply_confidence_labels, confidence_labels, map_labels, EpisodeFrame};
+use crate::ladder_labels::TriedObjects;
 use crate::mapping::{class_image, map_frame};
 use crate::recording::ObjectRecord;
 
@@ -31,6 +34,9 @@ pub(crate) struct MapMemory {
     pending: Option<(Interaction, Vec<OrientedBox>)>,
     /// The object in the hand: its map id and its box when it was picked up.
     in_hand: Option<(ObjectId, OrientedBox)>,
+    /// Every (object, affordance) the agent tried on an object, whatever
+    /// came of it (by the id the object had then).
+    tried: BTreeSet<(ObjectId, Affordance)>,
 }
 
 impl MapMemory {
@@ -49,6 +55,7 @@ impl MapMemory {
             confidence,
             pending: None,
             in_hand: None,
+            tried: BTreeSet::new(),
         }
     }
 }
@@ -82,6 +89,10 @@ impl ObjectMemory for MapMemory {
         let Some((interaction, boxes_before)) = self.pending.take() else {
             return;
         };
+        if !matches!(outcome.failure, Some(Failure::NothingThere)) {
+            self.tried
+                .insert((ObjectId(interaction.target.object), interaction.affordance));
+        }
         if !tells_the_affordance(outcome) {
             return;
         }
@@ -167,6 +178,27 @@ impl ObjectMemory for MapMemory {
             .zip(frames)
             .map(|(truth, frame)| (truth.as_slice(), frame.map_ids.as_slice()));
         map_id_consistency(pairs, |id| self.map.current_id(ObjectId(id)).0)
+    }
+
+    fn tried_objects(&self, frames: &[EpisodeFrame]) -> Option<TriedObjects> {
+        let current = |id: u32| {
+            if id == 0 {
+                0
+            } else {
+                self.map.current_id(ObjectId(id)).0
+            }
+        };
+        Some(TriedObjects {
+            objects: frames
+                .iter()
+                .map(|frame| frame.map_ids.iter().map(|&id| current(id)).collect())
+                .collect(),
+            tried: self
+                .tried
+                .iter()
+                .map(|&(id, affordance)| (current(id.0), affordance))
+                .collect(),
+        })
     }
 
     fn object_records(&self) -> anyhow::Result<Vec<ObjectRecord>> {

@@ -21,6 +21,7 @@ use sim::raycast::Frame;
 
 use crate::env::actions::Target;
 use crate::labeler::EpisodeFrame;
+use crate::ladder_labels::TriedObjects;
 use crate::recording::ObjectRecord;
 
 /// An interaction the agent is about to try.
@@ -88,6 +89,14 @@ pub(crate) trait ObjectMemory: Send {
     /// episode (`truth_ids`: the simulator's instance ids of every frame);
     /// `None` where the memory's ids are the simulator's own.
     fn id_consistency(&self, _truth_ids: &[Vec<u32>], _frames: &[EpisodeFrame]) -> Option<f32> {
+        None
+    }
+
+    /// The objects the agent tried, and every one of `frames`' objects as
+    /// the memory knows them at the episode's end, for the label ladder's
+    /// dataset ([`crate::ladder_labels`]); `None` for a memory without
+    /// objects of its own.
+    fn tried_objects(&self, _frames: &[EpisodeFrame]) -> Option<TriedObjects> {
         None
     }
 

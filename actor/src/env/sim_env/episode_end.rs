@@ -37,6 +37,14 @@ impl SimEnv {
                     )
                 })?;
         }
+        if let Some(dataset) = self
+            .dataset
+            .as_ref()
+            .filter(|d| episode_id.is_multiple_of(d.every))
+        {
+            self.write_dataset_episode(&episode, &labels, &k, dataset, episode_id)
+                .context("writing the episode to the label ladder's dataset (--dataset)")?;
+        }
         let id_consistency = episode
             .memory
             .id_consistency(episode.metrics.truth_ids(), &episode.frames);

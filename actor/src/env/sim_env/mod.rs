@@ -48,11 +48,13 @@ use crate::labeler::{frame_batch, label_background_negative, EpisodeFrame};
 use crate::mapping::{instance_classes, intrinsics};
 use crate::recording::StepRecord;
 
+mod dataset;
 mod episode_end;
 mod observation;
 mod recorder;
 mod step;
 
+use dataset::DatasetRecording;
 use recorder::{EpisodeRecorder, Recording};
 
 /// Settings of the environment.
@@ -197,6 +199,8 @@ pub struct SimEnv {
     global_steps: u64,
     /// Where episodes are recorded, if they are.
     recording: Option<Recording>,
+    /// Where the label ladder's dataset goes, if it is written.
+    dataset: Option<DatasetRecording>,
 }
 
 /// A frame rendered (and integrated into the map) that waits for the
@@ -264,6 +268,7 @@ impl SimEnv {
             timings: StepTimings::default(),
             global_steps: 0,
             recording: None,
+            dataset: None,
         }
     }
 
