@@ -4,7 +4,7 @@
 //! the actors use only when it beats it on validation.
 
 use burn::prelude::*;
-use nets::unet::AffordanceUnet;
+use nets::unet::{AffordanceUnet, ClassBalance};
 use nets::unet_inference::UnetInference;
 use nets::weights::{load_safetensors, to_safetensors, WeightsError};
 use proto::{FrameBatchView, LABEL_UNKNOWN};
@@ -16,7 +16,7 @@ use training::affordance::{
 };
 use training::dataset::{validation_gate, AffordanceDataset, DatasetConfig, Split};
 use training::optimizer_state::{OptimizerState, OptimizerStateError};
-use training::temperature::fit_temperature;
+use training::temperature::fit_weighted_temperature;
 
 use crate::config::UnetConfig;
 
@@ -176,6 +176,7 @@ impl AffordanceLearner {
         UnetTrainingConfig {
             learning_rate: settings.learning_rate,
             weight_decay: settings.weight_decay,
+            class_balance: settings.class_balance,
         }
     }
 
@@ -207,6 +208,7 @@ impl AffordanceLearner {
             &self.deployed,
             &self.dataset,
             self.settings.max_validation_frames,
+            self.settings.class_balance,
             &self.device,
         );
         if gate.replace {
@@ -228,24 +230,43 @@ impl AffordanceLearner {
 
     /// Temperature scaling of `net` on the newest validation frames'
     /// labelled pixels, so that the actors' confidence labels rest on
-    /// calibrated probabilities.
+    /// calibrated probabilities; with balanced classes, each plane's
+    /// classes weigh half, as in training.
     fn fit_temperature(&self, net: &AffordanceUnet) -> f32 {
         let frames = self.dataset.frames(Split::Validation);
         let newest = &frames[frames
             .len()
             .saturating_sub(self.settings.max_validation_frames)..];
         let net = UnetInference::new(net.clone(), &self.device);
-        let (mut logits, mut labels) = (Vec::new(), Vec::new());
+        // Per plane: logits and labels of its labelled pixels.
+        let mut planes = vec![(Vec::new(), Vec::new()); self.affordances];
         for frame in newest {
             let predicted = predict_logits(&net, frame);
-            for (&l, &label) in predicted.iter().zip(&frame.labels) {
-                if label != UNKNOWN {
-                    logits.push(l);
-                    labels.push(label == 1);
+            let pixels = frame.size[0] * frame.size[1];
+            for (plane, (logits, labels)) in planes.iter_mut().enumerate() {
+                let range = plane * pixels..(plane + 1) * pixels;
+                for (&l, &label) in predicted[range.clone()].iter().zip(&frame.labels[range]) {
+                    if label != UNKNOWN {
+                        logits.push(l);
+                        labels.push(label == 1);
+                    }
                 }
             }
         }
-        fit_temperature(&logits, &labels)
+        let (mut logits, mut labels, mut weights) = (Vec::new(), Vec::new(), Vec::new());
+        for (plane_logits, plane_labels) in planes {
+            let positives = plane_labels.iter().filter(|&&y| y).count();
+            let negatives = plane_labels.len() - positives;
+            let weight = |y: bool| match self.settings.class_balance {
+                ClassBalance::Pixels => 1.0,
+                ClassBalance::Classes if y => 0.5 / positives as f32,
+                ClassBalance::Classes => 0.5 / negatives as f32,
+            };
+            weights.extend(plane_labels.iter().map(|&y| weight(y)));
+            logits.extend(plane_logits);
+            labels.extend(plane_labels);
+        }
+        fit_weighted_temperature(&logits, &labels, &weights)
     }
 
     /// The deployed network's calibration temperature.

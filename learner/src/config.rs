@@ -2,6 +2,7 @@
 //! Loaded from TOML, overridden by CLI flags, printed at start and saved in
 //! the run directory.
 
+use nets::unet::ClassBalance;
 use serde::{Deserialize, Serialize};
 use training::ppo::PpoConfig;
 use transport::TransportConfig;
@@ -115,6 +116,13 @@ pub struct UnetConfig {
     /// to training (without a cap, held-out frames pile up while training
     /// frames leave after their uses).
     pub max_held_out_frames: usize,
+    /// How each affordance plane's loss weighs positive labels against
+    /// negative ones: "pixels" (every labelled pixel alike: probabilities
+    /// follow the labels' share of positives, about 1 in 1 000 pick-up
+    /// pixels) or "classes" (positives and negatives half each: 0.5 means
+    /// as likely as not). The validation gate and the temperature weigh
+    /// them the same way (docs/ladder.md).
+    pub class_balance: ClassBalance,
 }
 
 impl Default for LearnerConfig {
@@ -195,6 +203,7 @@ impl Default for UnetConfig {
             test_fraction: 0.15,
             max_validation_frames: 64,
             max_held_out_frames: 256,
+            class_balance: ClassBalance::default(),
         }
     }
 }

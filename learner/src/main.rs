@@ -156,6 +156,10 @@ struct TrainUnetArgs {
     /// Checkpoints written, evenly over the training (the last at its end).
     #[arg(long, default_value_t = 1)]
     checkpoints: usize,
+    /// How the loss weighs positive labels against negative ones: pixels or
+    /// classes (default: the run's [unet] class_balance).
+    #[arg(long)]
+    class_balance: Option<nets::unet::ClassBalance>,
     /// Seed of the split, the batches and the initial weights.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -342,6 +346,7 @@ fn main() -> anyhow::Result<()> {
                 passes: args.passes,
                 steps_per_episode: args.steps_per_episode,
                 checkpoints: args.checkpoints,
+                class_balance: args.class_balance,
                 seed: args.seed,
             };
             let report = learner::tools::train_unet::train_unet(&settings, &device, &mut |line| {

@@ -142,23 +142,75 @@ impl AffordanceUnet {
     }
 }
 
-/// Loss over labelled pixels only: binary cross-entropy (from logits) plus
-/// soft Dice (on planes whose batch has positive labels). `labels` holds
-/// 1 / 0 where `known` is 1; pixels with `known` 0 contribute nothing
-/// (neither value nor gradient). All `[b, a, h, w]`.
+/// How a plane's BCE weighs its positive labelled pixels against its
+/// negative ones (`[unet] class_balance`; docs/ladder.md).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ClassBalance {
+    /// Every labelled pixel alike (the mean over the labelled pixels):
+    /// probabilities follow the labels' share of positives, which for pick
+    /// up, with the floor and walls labelled negative in every frame, is
+    /// about one pixel in a thousand.
+    #[default]
+    Pixels,
+    /// Positives and negatives each half of the plane's BCE where the batch
+    /// has both (each class's mean): the network's odds are those of a
+    /// plane with as many positive as negative labels, so 0.5 is where a
+    /// pixel is as likely to afford the affordance as not, whatever the
+    /// share of positives the run happened to label.
+    Classes,
+}
+
+impl std::str::FromStr for ClassBalance {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "pixels" => Ok(Self::Pixels),
+            "classes" => Ok(Self::Classes),
+            other => Err(format!(
+                "unknown class balance '{other}': pixels or classes"
+            )),
+        }
+    }
+}
+
+/// Loss over labelled pixels only: binary cross-entropy (from logits,
+/// weighed by `balance`) plus soft Dice (on planes whose batch has positive
+/// labels). `labels` holds 1 / 0 where `known` is 1; pixels with `known` 0
+/// contribute nothing (neither value nor gradient). All `[b, a, h, w]`.
 ///
-/// Each affordance plane gets its own BCE (mean over its labelled pixels)
-/// and its own Dice, and the loss is their mean over the planes that have
-/// labels: every affordance is learnt as if it were the network's only one
-/// (the paper trained one network per affordance), so one with few labels
-/// (successful pick-ups are rare) is not drowned by another's.
-pub fn masked_bce_dice(logits: Tensor<4>, labels: Tensor<4>, known: Tensor<4>) -> Tensor<1> {
+/// Each affordance plane gets its own BCE and its own Dice, and the loss is
+/// their mean over the planes that have labels: every affordance is learnt
+/// as if it were the network's only one (the paper trained one network per
+/// affordance), so one with few labels (successful pick-ups are rare) is
+/// not drowned by another's.
+pub fn masked_bce_dice(
+    logits: Tensor<4>,
+    labels: Tensor<4>,
+    known: Tensor<4>,
+    balance: ClassBalance,
+) -> Tensor<1> {
     let per_plane = |t: Tensor<4>| t.sum_dim(0).sum_dim(2).sum_dim(3).flatten::<1>(0, 3);
     let labelled = per_plane(known.clone());
     // softplus(x) - y x, written stably as max(x, 0) - y x + ln(1 + e^{-|x|}).
     let bce = logits.clone().clamp_min(0.0) - logits.clone() * labels.clone()
         + (logits.clone().abs().neg().exp() + 1.0).log();
-    let bce = per_plane(bce * known.clone()) / labelled.clone().clamp_min(1.0);
+    let bce = match balance {
+        ClassBalance::Pixels => per_plane(bce * known.clone()) / labelled.clone().clamp_min(1.0),
+        ClassBalance::Classes => {
+            let positive = labels.clone() * known.clone();
+            let negative = known.clone() - positive.clone();
+            let (n_pos, n_neg) = (per_plane(positive.clone()), per_plane(negative.clone()));
+            let mean_pos = per_plane(bce.clone() * positive) / n_pos.clone().clamp_min(1.0);
+            let mean_neg = per_plane(bce * negative) / n_neg.clone().clamp_min(1.0);
+            // Half each where the plane has both classes; else the one it has.
+            let has_pos = n_pos.greater_elem(0.0).float();
+            let has_neg = n_neg.greater_elem(0.0).float();
+            (mean_pos * has_pos.clone() + mean_neg * has_neg.clone())
+                / (has_pos + has_neg).clamp_min(1.0)
+        }
+    };
     let p = burn::tensor::activation::sigmoid(logits) * known.clone();
     let y = labels * known;
     let intersection = per_plane(p.clone() * y.clone());
@@ -203,11 +255,53 @@ mod tests {
         }
         let labels = Tensor::<4>::from_data(burn::tensor::TensorData::new(labels, shape), &device);
         let known = Tensor::<4>::ones(shape, &device);
-        let loss = masked_bce_dice(logits, labels, known).into_scalar::<f32>();
+        let loss =
+            masked_bce_dice(logits, labels, known, ClassBalance::Pixels).into_scalar::<f32>();
         let ln2 = std::f32::consts::LN_2;
         // Plane 1's Dice: (2·128 + 1) / (256 + 256 + 1) with p = ½ over 512 pixels.
         let dice1 = 1.0 - (2.0 * 128.0 + 1.0) / (256.0 + 256.0 + 1.0);
         let expected = (ln2 + (ln2 + dice1)) / 2.0;
         assert!((loss - expected).abs() < 1e-4, "{loss} vs {expected}");
+    }
+
+    #[test]
+    fn balanced_classes_weigh_a_rare_positive_as_much_as_all_negatives() {
+        let device = Device::flex();
+        let shape = [1, 1, 1, 100];
+        // One positive and 99 negatives; the positive's logit is -2 (missed),
+        // the negatives' -4 (right).
+        let mut logits = vec![-4.0f32; 100];
+        logits[0] = -2.0;
+        let mut labels = vec![0.0f32; 100];
+        labels[0] = 1.0;
+        let tensor =
+            |v: Vec<f32>| Tensor::<4>::from_data(burn::tensor::TensorData::new(v, shape), &device);
+        let known = Tensor::<4>::ones(shape, &device);
+        let softplus = |x: f32| x.max(0.0) + (-x.abs()).exp().ln_1p();
+        let (bce_pos, bce_neg) = (softplus(2.0), softplus(-4.0));
+        let p = [1.0 / (1.0 + 2f32.exp()), 1.0 / (1.0 + 4f32.exp())];
+        let dice = 1.0 - (2.0 * p[0] + 1.0) / (p[0] + 99.0 * p[1] + 1.0 + 1.0);
+        let pixels = masked_bce_dice(
+            tensor(logits.clone()),
+            tensor(labels.clone()),
+            known.clone(),
+            ClassBalance::Pixels,
+        )
+        .into_scalar::<f32>();
+        let expected = (bce_pos + 99.0 * bce_neg) / 100.0 + dice;
+        assert!((pixels - expected).abs() < 1e-4, "{pixels} vs {expected}");
+        let classes = masked_bce_dice(tensor(logits), tensor(labels), known, ClassBalance::Classes)
+            .into_scalar::<f32>();
+        let expected = (bce_pos + bce_neg) / 2.0 + dice;
+        assert!((classes - expected).abs() < 1e-4, "{classes} vs {expected}");
+        // Negatives only: both are the negatives' mean.
+        let negatives = masked_bce_dice(
+            tensor(vec![-4.0; 100]),
+            tensor(vec![0.0; 100]),
+            Tensor::<4>::ones(shape, &device),
+            ClassBalance::Classes,
+        )
+        .into_scalar::<f32>();
+        assert!((negatives - bce_neg).abs() < 1e-5, "{negatives}");
     }
 }

@@ -39,6 +39,8 @@ pub struct TrainUnetSettings {
     pub steps_per_episode: Option<usize>,
     /// Checkpoints written, evenly over the training (the last at its end).
     pub checkpoints: usize,
+    /// The loss's class balance (default: the run's `[unet] class_balance`).
+    pub class_balance: Option<nets::unet::ClassBalance>,
     /// Seed of the split, the batches and the initial weights.
     pub seed: u64,
 }
@@ -205,6 +207,9 @@ pub fn train_unet(
         anyhow::ensure!(steps > 0, "--steps-per-episode must be at least 1");
         unet.steps_per_episode = steps;
     }
+    if let Some(balance) = settings.class_balance {
+        unet.class_balance = balance;
+    }
     let files = episode_files(&settings.dataset)?;
     anyhow::ensure!(
         !settings.out.join("checkpoints").exists(),
@@ -213,13 +218,12 @@ pub fn train_unet(
     );
     std::fs::create_dir_all(&settings.out)
         .with_context(|| format!("creating {}", settings.out.display()))?;
-    std::fs::copy(&config_path, settings.out.join("config.toml")).with_context(|| {
-        format!(
-            "copying {} to {}",
-            config_path.display(),
-            settings.out.display()
-        )
-    })?;
+    // The run's config with the U-Net settings this training used.
+    let mut written = config.clone();
+    written.unet = unet.clone();
+    let out_config = settings.out.join("config.toml");
+    std::fs::write(&out_config, written.to_toml())
+        .with_context(|| format!("writing {}", out_config.display()))?;
 
     let mut learner = AffordanceLearner::new(affordances, &unet, settings.seed, device);
     let rounds = settings.passes * files.len();

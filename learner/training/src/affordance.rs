@@ -3,7 +3,7 @@
 use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use nets::adam::{Adam, AdamSettings};
-use nets::unet::{masked_bce_dice, AffordanceUnet};
+use nets::unet::{masked_bce_dice, AffordanceUnet, ClassBalance};
 use nets::unet_inference::UnetInference;
 
 use crate::optimizer_state::{OptimizerState, OptimizerStateError};
@@ -36,6 +36,8 @@ pub struct UnetTrainingConfig {
     pub learning_rate: f64,
     /// L2 weight decay.
     pub weight_decay: f32,
+    /// How the loss weighs positive labels against negative ones.
+    pub class_balance: ClassBalance,
 }
 
 impl Default for UnetTrainingConfig {
@@ -43,6 +45,7 @@ impl Default for UnetTrainingConfig {
         Self {
             learning_rate: 1e-3,
             weight_decay: 1e-4,
+            class_balance: ClassBalance::default(),
         }
     }
 }
@@ -112,7 +115,7 @@ impl UnetTrainer {
     /// One gradient step on `frames`; returns the loss before the step.
     pub fn step(&mut self, frames: &[&LabelledFrame]) -> f32 {
         let (x, y, known) = batch_tensors(frames, &self.device);
-        let loss = masked_bce_dice(self.net.forward(x), y, known);
+        let loss = masked_bce_dice(self.net.forward(x), y, known, self.config.class_balance);
         let value = loss.clone();
         let grads = GradientsParams::from_grads(loss.backward(), &self.net);
         self.net = self
@@ -158,15 +161,21 @@ pub struct Evaluation {
     pub labelled_pixels: usize,
 }
 
-/// Evaluates `net` on `frames` (one at a time, so memory stays flat).
-pub fn evaluate(net: &AffordanceUnet, frames: &[&LabelledFrame], device: &Device) -> Evaluation {
+/// Evaluates `net` on `frames` (one at a time, so memory stays flat), the
+/// loss weighing the classes by `balance` as training does.
+pub fn evaluate(
+    net: &AffordanceUnet,
+    frames: &[&LabelledFrame],
+    balance: ClassBalance,
+    device: &Device,
+) -> Evaluation {
     let inference = UnetInference::new(net.clone(), device);
     let (mut loss, mut inter, mut union, mut labelled) = (0.0f64, 0usize, 0usize, 0usize);
     for frame in frames {
         let values = predict_logits(&inference, frame);
         let (y, known) = label_tensors(&[frame], device);
         let logits = Tensor::<1>::from_floats(values.as_slice(), device).reshape(y.dims());
-        loss += f64::from(masked_bce_dice(logits, y, known).into_scalar::<f32>());
+        loss += f64::from(masked_bce_dice(logits, y, known, balance).into_scalar::<f32>());
         for (&l, &label) in values.iter().zip(&frame.labels) {
             if label == UNKNOWN {
                 continue;

@@ -8,7 +8,7 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 
 use burn::prelude::Device;
-use nets::unet::AffordanceUnet;
+use nets::unet::{AffordanceUnet, ClassBalance};
 use rand::Rng;
 
 use crate::affordance::{evaluate, Evaluation, LabelledFrame};
@@ -221,13 +221,14 @@ pub fn validation_gate(
     deployed: &AffordanceUnet,
     dataset: &AffordanceDataset,
     max_frames: usize,
+    balance: ClassBalance,
     device: &Device,
 ) -> GateDecision {
     let frames = dataset.frames(Split::Validation);
     let newest = &frames[frames.len().saturating_sub(max_frames)..];
     let refs: Vec<&LabelledFrame> = newest.iter().map(|f| f.as_ref()).collect();
-    let candidate = evaluate(candidate, &refs, device);
-    let deployed = evaluate(deployed, &refs, device);
+    let candidate = evaluate(candidate, &refs, balance, device);
+    let deployed = evaluate(deployed, &refs, balance, device);
     GateDecision {
         replace: !refs.is_empty() && candidate.loss < deployed.loss,
         candidate,

@@ -5,31 +5,42 @@
 
 /// Mean negative log-likelihood of `labels` under `sigmoid(logit / t)`.
 pub fn nll(logits: &[f32], labels: &[bool], t: f64) -> f64 {
-    let n = logits.len().max(1) as f64;
+    weighted_nll(logits, labels, &[], t)
+}
+
+/// [`nll`] with each sample weighted by `weights` (empty: all 1), divided
+/// by the weights' sum.
+pub fn weighted_nll(logits: &[f32], labels: &[bool], weights: &[f32], t: f64) -> f64 {
+    let weight = |i: usize| weights.get(i).map_or(1.0, |&w| f64::from(w));
+    let total: f64 = (0..logits.len()).map(weight).sum();
     logits
         .iter()
         .zip(labels)
-        .map(|(&x, &y)| {
+        .enumerate()
+        .map(|(i, (&x, &y))| {
             let z = f64::from(x) / t;
             // −log σ(z) = softplus(−z); −log(1 − σ(z)) = softplus(z).
             let softplus = |v: f64| v.max(0.0) + (-v.abs()).exp().ln_1p();
-            if y {
-                softplus(-z)
-            } else {
-                softplus(z)
-            }
+            weight(i) * if y { softplus(-z) } else { softplus(z) }
         })
         .sum::<f64>()
-        / n
+        / total.max(f64::MIN_POSITIVE)
 }
 
 /// The temperature in [0.05, 20] minimising [`nll`], by golden-section search
 /// on log T (the NLL is unimodal in it). Returns 1 when there is no data.
 pub fn fit_temperature(logits: &[f32], labels: &[bool]) -> f32 {
+    fit_weighted_temperature(logits, labels, &[])
+}
+
+/// [`fit_temperature`] minimising [`weighted_nll`]: with weights that make
+/// each class weigh half, the temperature keeps the odds of a network
+/// trained with balanced classes (`nets::unet::ClassBalance::Classes`).
+pub fn fit_weighted_temperature(logits: &[f32], labels: &[bool], weights: &[f32]) -> f32 {
     if logits.is_empty() {
         return 1.0;
     }
-    let f = |log_t: f64| nll(logits, labels, log_t.exp());
+    let f = |log_t: f64| weighted_nll(logits, labels, weights, log_t.exp());
     let (mut lo, mut hi) = (0.05f64.ln(), 20f64.ln());
     let golden = (5f64.sqrt() - 1.0) / 2.0;
     let mut a = hi - golden * (hi - lo);

@@ -4,7 +4,7 @@
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::GradientsParams;
 use burn::prelude::*;
-use nets::unet::{masked_bce_dice, AffordanceUnet};
+use nets::unet::{masked_bce_dice, AffordanceUnet, ClassBalance};
 use nets::unet_inference::UnetInference;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -89,16 +89,27 @@ fn overfits_on(device: &Device) {
         UnetTrainingConfig {
             learning_rate: 3e-3,
             weight_decay: 1e-5,
+            class_balance: ClassBalance::Pixels,
         },
         &device,
     );
-    let before = evaluate(&trainer.inference_net(&device), &refs, &device);
+    let before = evaluate(
+        &trainer.inference_net(&device),
+        &refs,
+        ClassBalance::Pixels,
+        &device,
+    );
     let mut reached = None;
     for step in 1..=400 {
         let start = (step * 8) % 16;
         trainer.step(&refs[start..start + 8]);
         if step % 20 == 0 {
-            let e = evaluate(&trainer.inference_net(&device), &refs, &device);
+            let e = evaluate(
+                &trainer.inference_net(&device),
+                &refs,
+                ClassBalance::Pixels,
+                &device,
+            );
             if e.iou > 0.9 {
                 reached = Some((step, e));
                 break;
@@ -119,7 +130,7 @@ fn a_step_returns_the_loss_of_the_weights_before_it() {
     let net = AffordanceUnet::new(4, 1, &device);
     let loss_of = |net: &AffordanceUnet| {
         let (x, y, known) = batch_tensors(&refs, &device);
-        masked_bce_dice(net.forward(x), y, known).into_scalar::<f32>()
+        masked_bce_dice(net.forward(x), y, known, ClassBalance::Pixels).into_scalar::<f32>()
     };
     let before = loss_of(&net);
     let mut trainer = UnetTrainer::new(net, UnetTrainingConfig::default(), &device);
@@ -177,7 +188,7 @@ fn unknown_pixels_do_not_affect_the_loss_or_its_gradients() {
             // Give every unknown pixel the label 1 instead of 0.
             y = y.clone() + (known.clone().neg() + 1.0);
         }
-        let loss = masked_bce_dice(net.forward(x), y, known);
+        let loss = masked_bce_dice(net.forward(x), y, known, ClassBalance::Pixels);
         let value = loss.clone().into_scalar::<f32>();
         let grads = GradientsParams::from_grads(loss.backward(), &net);
         (value, gradients(&net, &grads))
@@ -207,8 +218,9 @@ fn each_affordance_counts_as_if_it_were_learnt_alone() {
         })
         .collect();
     let tensor = |v: &[f32]| Tensor::<1>::from_floats(v, &device).reshape([b, 2, h, w]);
-    let loss =
-        |l: Tensor<4>, y: Tensor<4>, k: Tensor<4>| masked_bce_dice(l, y, k).into_scalar::<f32>();
+    let loss = |l: Tensor<4>, y: Tensor<4>, k: Tensor<4>| {
+        masked_bce_dice(l, y, k, ClassBalance::Pixels).into_scalar::<f32>()
+    };
     let plane = |t: Tensor<4>, a: usize| t.slice([0..b, a..a + 1, 0..h, 0..w]);
     let (l, y, k) = (tensor(&logits), tensor(&labels), tensor(&known));
     let both = loss(l.clone(), y.clone(), k.clone());
@@ -342,7 +354,15 @@ fn a_candidate_replaces_the_deployed_network_only_if_better_on_validation() {
     });
     let untrained = AffordanceUnet::new(4, 1, &device);
     assert!(
-        !validation_gate(&untrained, &untrained, &data, usize::MAX, &device).replace,
+        !validation_gate(
+            &untrained,
+            &untrained,
+            &data,
+            usize::MAX,
+            ClassBalance::Pixels,
+            &device
+        )
+        .replace,
         "no validation data, no replacement"
     );
     data.add_episode(
@@ -355,6 +375,7 @@ fn a_candidate_replaces_the_deployed_network_only_if_better_on_validation() {
         UnetTrainingConfig {
             learning_rate: 3e-3,
             weight_decay: 1e-5,
+            class_balance: ClassBalance::Pixels,
         },
         &device,
     );
@@ -367,13 +388,35 @@ fn a_candidate_replaces_the_deployed_network_only_if_better_on_validation() {
         trainer.step(&refs);
     }
     let trained = trainer.inference_net(&device);
-    let better = validation_gate(&trained, &untrained, &data, usize::MAX, &device);
+    let better = validation_gate(
+        &trained,
+        &untrained,
+        &data,
+        usize::MAX,
+        ClassBalance::Pixels,
+        &device,
+    );
     eprintln!("gate: {better:?}");
     assert!(better.replace, "{better:?}");
-    let worse = validation_gate(&untrained, &trained, &data, usize::MAX, &device);
+    let worse = validation_gate(
+        &untrained,
+        &trained,
+        &data,
+        usize::MAX,
+        ClassBalance::Pixels,
+        &device,
+    );
     assert!(!worse.replace);
     assert!(
-        !validation_gate(&trained, &trained, &data, usize::MAX, &device).replace,
+        !validation_gate(
+            &trained,
+            &trained,
+            &data,
+            usize::MAX,
+            ClassBalance::Pixels,
+            &device
+        )
+        .replace,
         "a tie keeps the deployed network"
     );
 }
@@ -391,6 +434,7 @@ fn unet_training_resumed_with_the_saved_adam_state_continues_the_same_optimisati
     let config = UnetTrainingConfig {
         learning_rate: 3e-3,
         weight_decay: 1e-5,
+        class_balance: ClassBalance::Pixels,
     };
     let mut original = UnetTrainer::new(AffordanceUnet::new(4, 1, &device), config, &device);
     for step in 0..3 {
