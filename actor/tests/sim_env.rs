@@ -177,11 +177,12 @@ fn an_episode_runs_labels_and_repeats_exactly() {
         "attempts on objects that do not afford the action"
     );
     for affordance in [Affordance::PickUp, Affordance::Push] {
-        let [attempt_rate, success_rate, out_of_reach_rate, unafforded_rate] = [
+        let [attempt_rate, success_rate, out_of_reach_rate, unafforded_rate, no_room_rate] = [
             AffordanceStat::AttemptRate,
             AffordanceStat::SuccessRate,
             AffordanceStat::OutOfReachRate,
             AffordanceStat::UnaffordedRate,
+            AffordanceStat::NoRoomRate,
         ]
         .map(|stat| per(affordance, stat));
         let tried: Vec<&ActionOutcome> = outcomes
@@ -210,6 +211,40 @@ fn an_episode_runs_labels_and_repeats_exactly() {
             failed_share(&tried, Failure::object_does_not_afford),
             "{affordance:?} attempts on objects that do not afford it"
         );
+        assert_eq!(
+            stats.get(&no_room_rate).copied(),
+            failed_share(&tried, |f| matches!(f, Failure::NoRoom { .. })),
+            "{affordance:?} attempts without room"
+        );
+        // The frames sent are some of the episode's: their labels are a
+        // lower bound of the episode's label shares.
+        let pixels = 128 * 128;
+        let plane = [Affordance::PickUp, Affordance::Push]
+            .iter()
+            .position(|&a| a == affordance)
+            .unwrap();
+        let sent = |label: u8| {
+            batch
+                .labels
+                .chunks(pixels)
+                .skip(plane)
+                .step_by(2)
+                .flatten()
+                .filter(|&&l| l == label)
+                .count() as f32
+        };
+        let all = ((steps + 1) * pixels) as f32;
+        let positive = stats[&per(affordance, AffordanceStat::PositiveLabelShare)];
+        let negative = stats[&per(affordance, AffordanceStat::NegativeLabelShare)];
+        assert!(
+            positive * all + 0.5 >= sent(proto::LABEL_POSITIVE),
+            "{affordance:?}"
+        );
+        assert!(
+            negative * all + 0.5 >= sent(proto::LABEL_NEGATIVE),
+            "{affordance:?}"
+        );
+        assert!(positive + negative <= 1.0);
     }
     assert!(batch.n_frames() <= steps + 1);
     println!("labelled frames: {}", batch.n_frames());

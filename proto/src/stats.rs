@@ -132,11 +132,23 @@ pub enum AffordanceStat {
     /// too heavy or wide; for push: static objects, or objects that did not
     /// move). Reported when the episode tried any.
     UnaffordedRate = 5,
+    /// Of this affordance's attempts, the share that failed for want of
+    /// room to lift or put the object (the arm reached it; no label
+    /// follows). Reported when the episode tried any.
+    NoRoomRate = 6,
+    /// Of the episode's frames' pixels, the share its labels call
+    /// positive in this affordance's plane: what the U-Net gets to learn
+    /// from (docs/ladder.md).
+    PositiveLabelShare = 7,
+    /// Of the episode's frames' pixels, the share its labels call negative
+    /// in this affordance's plane (the floor and walls too, where they are
+    /// labelled).
+    NegativeLabelShare = 8,
 }
 
 impl AffordanceStat {
     /// Number of per-affordance metrics.
-    pub const COUNT: usize = 6;
+    pub const COUNT: usize = 9;
     /// All of them in wire order.
     pub const ALL: [AffordanceStat; Self::COUNT] = [
         AffordanceStat::AttemptRate,
@@ -145,6 +157,9 @@ impl AffordanceStat {
         AffordanceStat::ObjectAccuracy,
         AffordanceStat::OutOfReachRate,
         AffordanceStat::UnaffordedRate,
+        AffordanceStat::NoRoomRate,
+        AffordanceStat::PositiveLabelShare,
+        AffordanceStat::NegativeLabelShare,
     ];
 
     /// snake_case name, after the affordance's in metrics and JSON
@@ -157,6 +172,9 @@ impl AffordanceStat {
             AffordanceStat::ObjectAccuracy => "object_accuracy",
             AffordanceStat::OutOfReachRate => "out_of_reach_rate",
             AffordanceStat::UnaffordedRate => "unafforded_rate",
+            AffordanceStat::NoRoomRate => "no_room_rate",
+            AffordanceStat::PositiveLabelShare => "positive_label_share",
+            AffordanceStat::NegativeLabelShare => "negative_label_share",
         }
     }
 }
@@ -454,6 +472,9 @@ mod tests {
             "pick_up_unafforded_rate",
             "push_out_of_reach_rate",
             "push_unafforded_rate",
+            "pick_up_no_room_rate",
+            "pick_up_positive_label_share",
+            "push_negative_label_share",
         ] {
             assert!(names.iter().any(|n| n == name), "{name}");
         }

@@ -7,7 +7,7 @@
 use std::collections::BTreeSet;
 
 use mapper::Affordance;
-use proto::{AffordanceStat, StatField, StatKey};
+use proto::{AffordanceStat, StatField, StatKey, LABEL_NEGATIVE, LABEL_POSITIVE};
 use sim::agent::{Failure, Outcome};
 
 use crate::frame_scores::{annotation_rates, score_frame, PAPER_THRESHOLD};
@@ -41,6 +41,9 @@ pub(crate) struct EpisodeMetrics {
     /// because it does not afford the action ([`Failure::object_does_not_afford`]).
     out_of_reach: PerAffordance,
     unafforded: PerAffordance,
+    /// Interactions that reached the object but found no room to lift or
+    /// put it.
+    no_room: PerAffordance,
     /// Scene objects an interaction succeeded on.
     interacted: BTreeSet<usize>,
     episode_return: f32,
@@ -59,6 +62,7 @@ impl EpisodeMetrics {
             successes: Default::default(),
             out_of_reach: Default::default(),
             unafforded: Default::default(),
+            no_room: Default::default(),
             interacted: BTreeSet::new(),
             episode_return: 0.0,
         }
@@ -96,6 +100,7 @@ impl EpisodeMetrics {
         if let Some(failure) = &outcome.failure {
             self.out_of_reach[kind] += u32::from(matches!(failure, Failure::OutOfReach { .. }));
             self.unafforded[kind] += u32::from(failure.object_does_not_afford());
+            self.no_room[kind] += u32::from(matches!(failure, Failure::NoRoom { .. }));
         }
     }
 
@@ -195,7 +200,7 @@ impl EpisodeMetrics {
         if let Some(accuracy) = total(|s| (s.accuracy, s.accuracy_frames)) {
             stats.push(episode_wide(StatField::ObjectAccuracy, accuracy));
         }
-        for (&affordance, sums) in self.affordances.iter().zip(&self.scores) {
+        for (plane, (&affordance, sums)) in self.affordances.iter().zip(&self.scores).enumerate() {
             let of = |stat| StatKey::Affordance(affordance, stat);
             let kind = affordance.code() as usize;
             let attempts = self.attempts[kind];
@@ -208,6 +213,11 @@ impl EpisodeMetrics {
                     share(&self.out_of_reach),
                 ));
                 stats.push((of(AffordanceStat::UnaffordedRate), share(&self.unafforded)));
+                stats.push((of(AffordanceStat::NoRoomRate), share(&self.no_room)));
+            }
+            if let Some((positive, negative)) = label_shares(labels, pixels, plane) {
+                stats.push((of(AffordanceStat::PositiveLabelShare), positive));
+                stats.push((of(AffordanceStat::NegativeLabelShare), negative));
             }
             stats
                 .extend(per_frame(sums.iou, sums.iou_frames).map(|v| (of(AffordanceStat::Iou), v)));
@@ -239,6 +249,22 @@ impl EpisodeMetrics {
     }
 }
 
+/// Of every frame's pixels, the shares `labels` (per frame, planes of
+/// `pixels` one after the other) call positive and negative in `plane`;
+/// `None` without frames.
+fn label_shares(labels: &[Vec<u8>], pixels: usize, plane: usize) -> Option<(f32, f32)> {
+    let (mut positive, mut negative, mut all) = (0usize, 0usize, 0usize);
+    for frame in labels {
+        let Some(plane) = frame.chunks(pixels.max(1)).nth(plane) else {
+            continue;
+        };
+        positive += plane.iter().filter(|&&l| l == LABEL_POSITIVE).count();
+        negative += plane.iter().filter(|&&l| l == LABEL_NEGATIVE).count();
+        all += plane.len();
+    }
+    (all > 0).then(|| (positive as f32 / all as f32, negative as f32 / all as f32))
+}
+
 /// A sum of per-frame scores over its `frames`, as their mean; `None`
 /// without frames.
 fn per_frame(sum: f64, frames: u32) -> Option<f32> {
@@ -252,4 +278,21 @@ fn affords(truth: &[Vec<bool>], id: u32, plane: usize) -> bool {
         .checked_sub(1)
         .and_then(|object| truth.get(object))
         .is_some_and(|t| t[plane])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn label_shares_count_a_scripted_episodes_labels_exactly() {
+        const U: u8 = proto::LABEL_UNKNOWN;
+        const P: u8 = LABEL_POSITIVE;
+        const N: u8 = LABEL_NEGATIVE;
+        // Two frames of 4 pixels, two planes each.
+        let labels = vec![vec![P, N, N, U, U, U, N, N], vec![P, P, U, U, N, N, N, N]];
+        assert_eq!(label_shares(&labels, 4, 0), Some((3.0 / 8.0, 2.0 / 8.0)));
+        assert_eq!(label_shares(&labels, 4, 1), Some((0.0, 6.0 / 8.0)));
+        assert_eq!(label_shares(&[], 4, 0), None);
+    }
 }
