@@ -56,31 +56,33 @@ fn run_at(
     report
 }
 
+/// A predictor that says `yes` wherever the ground truth `truth` (per scene
+/// object and plane) affords the plane's affordance, and `no` elsewhere.
+fn by_truth(truth: Vec<Vec<bool>>, yes: f32, no: f32) -> impl Fn(&Frame) -> Vec<Vec<f32>> {
+    move |frame: &Frame| {
+        (0..AFFORDANCES.len())
+            .map(|plane| {
+                frame
+                    .ids
+                    .iter()
+                    .map(|&id| {
+                        if id != 0 && truth[id as usize - 1][plane] {
+                            yes
+                        } else {
+                            no
+                        }
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+}
+
 #[test]
 fn the_ground_truth_scores_perfectly_and_its_opposite_scores_nothing() {
     let (scene, profile) = room();
     let truth = ground_truth_planes(&scene, &profile, &AFFORDANCES);
-    let oracle = |value: f32| {
-        let truth = truth.clone();
-        move |frame: &Frame| -> Vec<Vec<f32>> {
-            (0..AFFORDANCES.len())
-                .map(|plane| {
-                    frame
-                        .ids
-                        .iter()
-                        .map(|&id| {
-                            let affords = id != 0 && truth[id as usize - 1][plane];
-                            if affords {
-                                value
-                            } else {
-                                1.0 - value
-                            }
-                        })
-                        .collect()
-                })
-                .collect()
-        }
-    };
+    let oracle = |value: f32| by_truth(truth.clone(), value, 1.0 - value);
     let right = run(&scene, &profile, &oracle(1.0));
     assert_eq!(right.frames, 4);
     let objects = scene
@@ -180,23 +182,7 @@ fn a_network_that_ranks_well_below_one_half_is_found_by_the_threshold_sweep() {
     let truth = ground_truth_planes(&scene, &profile, &AFFORDANCES);
     // The truth's ranking with every probability far too low: 0.3 where an
     // object affords, 0.08 elsewhere.
-    let shy = |frame: &Frame| -> Vec<Vec<f32>> {
-        (0..AFFORDANCES.len())
-            .map(|plane| {
-                frame
-                    .ids
-                    .iter()
-                    .map(|&id| {
-                        if id != 0 && truth[id as usize - 1][plane] {
-                            0.3
-                        } else {
-                            0.08
-                        }
-                    })
-                    .collect()
-            })
-            .collect()
-    };
+    let shy = by_truth(truth, 0.3, 0.08);
     let paper = run(&scene, &profile, &shy);
     let pick_up = &paper.object[0];
     assert_eq!(pick_up.threshold, 0.5);

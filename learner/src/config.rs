@@ -117,11 +117,12 @@ pub struct UnetConfig {
     /// frames leave after their uses).
     pub max_held_out_frames: usize,
     /// How each affordance plane's loss weighs positive labels against
-    /// negative ones: "pixels" (every labelled pixel alike: probabilities
-    /// follow the labels' share of positives, about 1 in 1 000 pick-up
-    /// pixels) or "classes" (positives and negatives half each: 0.5 means
-    /// as likely as not). The validation gate and the temperature weigh
-    /// them the same way (docs/ladder.md).
+    /// negative ones: "classes" (positives and negatives half each, so 0.5
+    /// means as likely as not) or "pixels" (the paper's: every labelled
+    /// pixel alike, so probabilities follow the labels' share of positives,
+    /// 2 to 5 in 1 000 pick-up pixels). The validation gate and the
+    /// temperature weigh them the same way
+    /// (docs/decisions/0011-class-balanced-loss.md).
     pub class_balance: ClassBalance,
 }
 

@@ -147,17 +147,18 @@ impl AffordanceUnet {
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum ClassBalance {
-    /// Every labelled pixel alike (the mean over the labelled pixels):
-    /// probabilities follow the labels' share of positives, which for pick
-    /// up, with the floor and walls labelled negative in every frame, is
-    /// about one pixel in a thousand.
-    #[default]
+    /// Every labelled pixel alike (the mean over the labelled pixels), the
+    /// paper's: probabilities follow the labels' share of positives, which
+    /// for pick up, with the floor and walls labelled negative in every
+    /// frame, is two to five pixels in a thousand.
     Pixels,
     /// Positives and negatives each half of the plane's BCE where the batch
     /// has both (each class's mean): the network's odds are those of a
     /// plane with as many positive as negative labels, so 0.5 is where a
     /// pixel is as likely to afford the affordance as not, whatever the
-    /// share of positives the run happened to label.
+    /// share of positives the run happened to label (the default;
+    /// docs/decisions/0011-class-balanced-loss.md).
+    #[default]
     Classes,
 }
 

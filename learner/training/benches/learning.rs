@@ -212,7 +212,12 @@ fn gpu_check(device: &Device, gpu: bool, rng: &mut StdRng) {
     let refs: Vec<&LabelledFrame> = frames.iter().collect();
     let mut trainer = UnetTrainer::new(
         AffordanceUnet::new(4, 2, device),
-        UnetTrainingConfig::default(),
+        // The PyTorch reference computes the paper's loss (every labelled
+        // pixel alike): the same work on both sides.
+        UnetTrainingConfig {
+            class_balance: nets::unet::ClassBalance::Pixels,
+            ..UnetTrainingConfig::default()
+        },
         device,
     );
     results.push((
@@ -296,7 +301,12 @@ fn main() {
     let refs: Vec<&LabelledFrame> = frames.iter().collect();
     let mut trainer = UnetTrainer::new(
         AffordanceUnet::new(4, 2, &device),
-        UnetTrainingConfig::default(),
+        // The PyTorch reference computes the paper's loss (every labelled
+        // pixel alike): the same work on both sides.
+        UnetTrainingConfig {
+            class_balance: nets::unet::ClassBalance::Pixels,
+            ..UnetTrainingConfig::default()
+        },
         &device,
     );
     results.push((

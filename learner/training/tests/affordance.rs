@@ -130,7 +130,8 @@ fn a_step_returns_the_loss_of_the_weights_before_it() {
     let net = AffordanceUnet::new(4, 1, &device);
     let loss_of = |net: &AffordanceUnet| {
         let (x, y, known) = batch_tensors(&refs, &device);
-        masked_bce_dice(net.forward(x), y, known, ClassBalance::Pixels).into_scalar::<f32>()
+        let balance = UnetTrainingConfig::default().class_balance;
+        masked_bce_dice(net.forward(x), y, known, balance).into_scalar::<f32>()
     };
     let before = loss_of(&net);
     let mut trainer = UnetTrainer::new(net, UnetTrainingConfig::default(), &device);
