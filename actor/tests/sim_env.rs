@@ -641,3 +641,69 @@ fn python_decodes_every_message_of_a_recording_and_the_layout_finds_its_topics()
     assert_eq!(topics["/policy/step"]["encoding"], "json");
     assert_eq!(topics["/policy/step"]["messages"], steps);
 }
+
+#[test]
+fn the_ladder_dataset_holds_the_truth_the_tried_objects_and_the_runs_labels() {
+    let steps = 30;
+    let dir = tempfile::tempdir().unwrap();
+    let mut env = environment(steps);
+    env.dataset_to(dir.path().to_path_buf(), "t_".into(), 1, 2);
+    let model = unet();
+    run(&mut env, &model, 2, steps);
+    env.finish_episode(4).unwrap();
+    let files: Vec<_> = std::fs::read_dir(dir.path().join(proto::DATASET_EPISODES_DIR))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert_eq!(files.len(), 1, "{files:?}");
+    let bytes = std::fs::read(&files[0]).unwrap();
+    let limits = proto::Limits {
+        max_actors: 1,
+        max_payload_len: bytes.len() as u64,
+    };
+    let proto::Message::Frames(view) = proto::decode(&bytes, &limits).unwrap().1 else {
+        panic!("an episode file holds frames");
+    };
+    let planes = AFFORDANCES.len();
+    assert_eq!(view.n_affordances as usize, 3 * planes);
+    // Every 2nd frame, but those no source labels at all (a view of bare
+    // walls under the paper's rules): nothing to learn from them.
+    let kept = view.n_frames as usize;
+    assert!(kept > 0 && kept <= (steps + 1).div_ceil(2), "{kept} frames");
+    let pixels = (view.height * view.width) as usize;
+    let plane = |frame: usize, rung: proto::LabelRung, a: usize| {
+        let p = rung.planes(planes).start + a;
+        &view.labels[(frame * 3 * planes + p) * pixels..][..pixels]
+    };
+    let labelled = |labels: &[u8]| labels.iter().filter(|&&l| l != LABEL_UNKNOWN).count();
+    let (mut truth, mut run_labels) = (0, 0);
+    for frame in 0..view.n_frames as usize {
+        for a in 0..planes {
+            let (l0, l1, l2) = (
+                plane(frame, proto::LabelRung::GroundTruth, a),
+                plane(frame, proto::LabelRung::TriedTruth, a),
+                plane(frame, proto::LabelRung::Run, a),
+            );
+            // The run labels only tried objects (and the background, as
+            // every rung does): where it says anything, L1 does too.
+            for (&tried, &run) in l1.iter().zip(l2) {
+                assert!(run == LABEL_UNKNOWN || tried != LABEL_UNKNOWN);
+            }
+            truth += labelled(l0);
+            run_labels += labelled(l2);
+        }
+    }
+    assert!(
+        truth > run_labels,
+        "the ground truth labels every object in view"
+    );
+
+    let mut baseline = environment_for(Method::NomapNoseg, 5);
+    baseline.dataset_to(dir.path().join("baseline"), "b_".into(), 1, 1);
+    run(&mut baseline, &model, 2, 5);
+    let err = baseline.finish_episode(1).unwrap_err();
+    assert!(
+        format!("{err:#}").contains("needs a method with a map"),
+        "{err:#}"
+    );
+}

@@ -42,7 +42,8 @@ impl SimEnv {
 
     /// Writes `episode`'s dataset file: its kept frames, each with the
     /// ground truth (L0), the tried objects' ground truth (L1) and the
-    /// run's own `labels` (L2), the background labelled as the run labels it.
+    /// run's own `labels` (L2), the background labelled as the run labels
+    /// it. A kept frame that no source labels at all is left out.
     pub(super) fn write_dataset_episode(
         &self,
         episode: &Episode,
