@@ -76,6 +76,38 @@ mod tests {
     use rand::{Rng, SeedableRng};
 
     #[test]
+    fn a_weight_of_two_counts_as_a_sample_twice() {
+        let mut rng = StdRng::seed_from_u64(3);
+        let logits: Vec<f32> = (0..2_000).map(|_| rng.random_range(-6.0..6.0)).collect();
+        let labels: Vec<bool> = logits
+            .iter()
+            .map(|&x| rng.random::<f32>() < calibrated(x, if x > 0.0 { 3.0 } else { 1.0 }))
+            .collect();
+        // The positive-logit half twice over, and once with weight 2.
+        let twice: Vec<usize> = (0..logits.len())
+            .chain((0..logits.len()).filter(|&i| logits[i] > 0.0))
+            .collect();
+        let duplicated = fit_temperature(
+            &twice.iter().map(|&i| logits[i]).collect::<Vec<_>>(),
+            &twice.iter().map(|&i| labels[i]).collect::<Vec<_>>(),
+        );
+        let weights: Vec<f32> = logits
+            .iter()
+            .map(|&x| if x > 0.0 { 2.0 } else { 1.0 })
+            .collect();
+        let weighted = fit_weighted_temperature(&logits, &labels, &weights);
+        assert!(
+            (duplicated - weighted).abs() < 1e-3,
+            "{duplicated} vs {weighted}"
+        );
+        let plain = fit_temperature(&logits, &labels);
+        assert!(
+            (plain - weighted).abs() > 0.05,
+            "the weights matter: {plain} vs {weighted}"
+        );
+    }
+
+    #[test]
     fn recovers_the_temperature_of_overconfident_logits() {
         // Labels drawn from sigmoid(x / 2.5): logits x are 2.5× overconfident.
         let mut rng = StdRng::seed_from_u64(9);
