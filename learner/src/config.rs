@@ -519,6 +519,12 @@ mod tests {
         assert_eq!(paper.task.confidence_after_steps, 400_000);
         let w = paper.task.reward;
         assert_eq!((w.navigation, w.interaction, w.failure), (1.0, 1.0, 1.0));
+        assert!(!paper.task.selection.within_reach, "the paper's grid");
+        assert_eq!(
+            paper.unet.class_balance,
+            nets::unet::ClassBalance::Pixels,
+            "the paper's loss"
+        );
         let small = preset("small-cpu.toml");
         assert_eq!((small.task.image_size, small.task.episode_steps), (64, 100));
         let scale = preset("paper-scale.toml");

@@ -59,6 +59,12 @@ pub struct SelectionRule {
     /// Objects with fewer pixels are ignored; pixels of a 128 × 128 image,
     /// scaled to the frame's area.
     pub min_pixels: usize,
+    /// Whether selection sees only the pixels within the robot's reach
+    /// (measured from the agent's depth and pose, as the simulator judges
+    /// reach): a cell whose objects all lie beyond reach is masked and the
+    /// robot aims at an object's part within reach. `false` is the paper's
+    /// grid, which offers every object in view (docs/decisions/0012).
+    pub within_reach: bool,
 }
 
 impl SelectionRule {
@@ -79,6 +85,7 @@ impl Default for SelectionRule {
         Self {
             centre_fraction: 0.75,
             min_pixels: 10,
+            within_reach: true,
         }
     }
 }

@@ -36,7 +36,8 @@ use sim::renderer::Renderer;
 use sim::scenes::SceneSource;
 
 use crate::env::actions::{
-    cell_targets, centred_target, ActionSpace, CellTargets, PolicyAction, Selection,
+    beyond_reach_hidden, cell_targets, centred_target, ActionSpace, CellTargets, PolicyAction,
+    Selection,
 };
 use crate::env::affordance_model::{AffordanceModel, CameraFrame};
 use crate::env::episode_metrics::EpisodeMetrics;
@@ -389,6 +390,7 @@ mod tests {
             selection: SelectionRule {
                 centre_fraction: 0.5,
                 min_pixels: 4,
+                within_reach: false,
             },
             confidence: ConfidenceRule {
                 positive_above: 0.8,

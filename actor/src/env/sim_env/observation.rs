@@ -67,9 +67,23 @@ impl SimEnv {
         let k = intrinsics(&camera);
         let agent = episode.sim.agent();
         let holding = episode.sim.held().is_some();
+        let reachable_ids;
+        let selectable: &[u32] = if self.config.selection.within_reach {
+            reachable_ids = beyond_reach_hidden(
+                &map_ids,
+                &frame.depth_m,
+                &k,
+                &camera.t_world_camera,
+                (agent.x, agent.y),
+                self.profile.reach_m,
+            );
+            &reachable_ids
+        } else {
+            &map_ids
+        };
         episode.targets = match self.config.method.spec().selection {
             Selection::Grid => cell_targets(
-                &map_ids,
+                selectable,
                 frame.width,
                 &self.config.affordances,
                 Some(&probabilities),
@@ -77,7 +91,7 @@ impl SimEnv {
                 &self.config.selection,
             ),
             Selection::Centred => centred_target(
-                &map_ids,
+                selectable,
                 frame.width,
                 &self.config.affordances,
                 &self.config.selection,
