@@ -19,7 +19,7 @@ pub use report::{
     Confusion, ObjectRow, ObjectTrial, Percentiles, PixelRow, Reference, Report, ScoredBy,
     ThresholdF1, THRESHOLDS,
 };
-pub use selection::{Candidate, Selection, RULE as SELECTION_RULE};
+pub use selection::{recorded_scores, Candidate, Selection, RULE as SELECTION_RULE};
 pub(crate) use test_views::test_views;
 pub use weights::{checkpoint_steps, load_checkpoint_unet, CheckpointUnet};
 

@@ -93,6 +93,13 @@ struct EvaluateArgs {
     /// Validation views per room when choosing with --select.
     #[arg(long, default_value_t = 120)]
     val_views_per_scene: usize,
+    /// With --select, score every checkpoint afresh even where the run's
+    /// learner recorded validation scores during training
+    /// (RUN_DIR/validation/): by default --select takes those and scores
+    /// only the kept checkpoints without them, with as many views per room
+    /// as the recorded ones.
+    #[arg(long, requires = "select")]
+    rescore: bool,
     /// Evaluate a freshly initialised network instead, its weights drawn
     /// from SEED (default: --seed): the floor a trained one must beat.
     #[arg(long, value_name = "SEED", num_args = 0..=1)]
@@ -117,6 +124,12 @@ struct EvaluateArgs {
     /// the selection and every object's trial) as JSON here.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
+    /// Write the checkpoint's scores (per affordance: median pixel F1,
+    /// Table 2's F1 and ROC AUC) as JSON here: the learner's background
+    /// validation scorer runs `evaluate --step S --scenes val --scores
+    /// RUN_DIR/validation/S.json`, and --select reads them back.
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["untrained", "select"])]
+    scores: Option<PathBuf>,
     /// The robot and renderer: pass the ones the run trained with.
     #[command(flatten)]
     sim: SimArgs,
@@ -408,25 +421,52 @@ fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
             args.run_dir.display()
         );
         let val = load_rooms(SceneSet::Val)?;
+        let recorded = if args.rescore {
+            Vec::new()
+        } else {
+            actor::evaluation::recorded_scores(&args.run_dir, &steps)?
+        };
         let mut candidates = Vec::with_capacity(steps.len());
-        for (i, &step) in steps.iter().enumerate() {
+        let mut views_per_scene = args.val_views_per_scene;
+        if let Some(first) = recorded.first() {
+            views_per_scene = first.views_per_scene;
+            eprintln!(
+                "evaluate: {} of {} kept checkpoints were scored on the validation rooms during \
+                 training ({views_per_scene} views per room); scoring the rest the same way \
+                 (--rescore scores all afresh)",
+                recorded.len(),
+                steps.len()
+            );
+            candidates.extend(
+                recorded
+                    .iter()
+                    .map(actor::evaluation::Candidate::from_scores),
+            );
+        }
+        let to_score: Vec<u64> = steps
+            .iter()
+            .copied()
+            .filter(|step| !recorded.iter().any(|r| r.step == *step))
+            .collect();
+        for (i, &step) in to_score.iter().enumerate() {
             let (_, name) = load(&mut model, Some(step))?;
-            let report = run(&model, &val, args.val_views_per_scene, &name)?;
+            let report = run(&model, &val, views_per_scene, &name)?;
             let candidate = report.candidate(step);
             eprintln!(
                 "evaluate: validation {}/{}: step {step} scores {:.3}",
                 i + 1,
-                steps.len(),
+                to_score.len(),
                 candidate.score
             );
             candidates.push(candidate);
         }
-        let selection = actor::evaluation::Selection::choose(
+        let mut selection = actor::evaluation::Selection::choose(
             val.iter().map(|s| s.name.clone()).collect(),
-            args.val_views_per_scene,
+            views_per_scene,
             candidates,
         )
         .context("no checkpoint was scored")?;
+        selection.recorded = recorded.len();
         let (step, name) = load(&mut model, Some(selection.chosen_step))?;
         let mut report = run(&model, &scenes, args.views_per_scene, &name)?;
         report.checkpoint_step = Some(step);
@@ -436,6 +476,11 @@ fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
         let (step, name) = load(&mut model, args.step)?;
         let mut report = run(&model, &scenes, args.views_per_scene, &name)?;
         report.checkpoint_step = Some(step);
+        if let Some(path) = &args.scores {
+            let scores = report.scores(step, args.views_per_scene);
+            write_atomically(path, &serde_json::to_vec_pretty(&scores)?)?;
+            eprintln!("evaluate: wrote the scores to {}", path.display());
+        }
         report
     };
     print!("{}", report.to_markdown());
@@ -445,6 +490,17 @@ fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
         eprintln!("evaluate: wrote {}", path.display());
     }
     Ok(())
+}
+
+/// Writes `bytes` to `path` through a temporary file beside it, so that a
+/// reader never sees half a file.
+fn write_atomically(path: &std::path::Path, bytes: &[u8]) -> anyhow::Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let partial = path.with_extension("partial");
+    std::fs::write(&partial, bytes).with_context(|| format!("writing {}", partial.display()))?;
+    std::fs::rename(&partial, path).with_context(|| format!("writing {}", path.display()))
 }
 
 /// A probability strictly between 0 and 1.

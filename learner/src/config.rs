@@ -40,6 +40,40 @@ pub struct LearnerConfig {
     /// How the run's actors run (renderer, rooms, robot, device,
     /// environments, data): read by every actor and by `actor evaluate`.
     pub actors: proto::ActorSettings,
+    /// Each checkpoint scored on the validation rooms in the background.
+    pub validation: ValidationConfig,
+}
+
+/// The background validation scorer (`src/validation_scorer.rs`): each new
+/// checkpoint's U-Net scored on the validation rooms (FloorPlan221–225) by
+/// a process of its own at low priority, so that training never waits for
+/// it; the scores go to the history, `/metrics`, TensorBoard and the live
+/// page, and `actor evaluate --select` chooses a checkpoint from them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, documented::DocumentedFields)]
+#[serde(default, deny_unknown_fields)]
+pub struct ValidationConfig {
+    /// Views per validation room of each scoring (Table 1; Table 2 tries
+    /// every object of the rooms whatever this is). 0 turns the scorer off.
+    pub views_per_room: usize,
+    /// The program that scores: empty runs the `actor` binary beside the
+    /// learner's (tasks with a U-Net only). A program named here runs for
+    /// every task, as `PROGRAM evaluate --run-dir DIR --step S --scenes val
+    /// --views-per-scene N --scores FILE`, and must write the scores
+    /// (`proto::ValidationScores` as JSON) to FILE.
+    pub scorer: String,
+    /// Niceness of the scorer's process, 0..=19 (19: it runs only on
+    /// otherwise idle cores).
+    pub nice: i32,
+}
+
+impl Default for ValidationConfig {
+    fn default() -> Self {
+        Self {
+            views_per_room: 20,
+            scorer: String::new(),
+            nice: 19,
+        }
+    }
 }
 
 /// PPO settings (the paper's, i.e. IntExp's, values by default).
@@ -141,6 +175,7 @@ impl Default for LearnerConfig {
             unet: UnetConfig::default(),
             transport: TransportConfig::default(),
             actors: proto::ActorSettings::default(),
+            validation: ValidationConfig::default(),
         }
     }
 }
@@ -324,6 +359,10 @@ impl LearnerConfig {
         anyhow::ensure!(
             (0..=19).contains(&self.training_nice),
             "training_nice must be in 0..=19 (0: training at the receive loop's priority)"
+        );
+        anyhow::ensure!(
+            (0..=19).contains(&self.validation.nice),
+            "validation.nice must be in 0..=19"
         );
         Ok(())
     }

@@ -5,7 +5,7 @@
 
 use documented::DocumentedFields;
 
-use crate::config::{LearnerConfig, PolicyConfig, UnetConfig};
+use crate::config::{LearnerConfig, PolicyConfig, UnetConfig, ValidationConfig};
 
 /// The doc comment of setting `key` in the table at `table` (`[]` for the
 /// top level, `["task", "reward"]` for `[task.reward]`).
@@ -22,6 +22,7 @@ fn setting_doc(table: &[&str], key: &str) -> Option<&'static str> {
         ["unet"] => UnetConfig::get_field_docs(key),
         ["transport"] => transport::TransportConfig::get_field_docs(key),
         ["actors"] => proto::ActorSettings::get_field_docs(key),
+        ["validation"] => ValidationConfig::get_field_docs(key),
         _ => return None,
     }
     .ok()

@@ -1,5 +1,6 @@
 //! The run's history as JSON lines in `RUN_DIR/history.jsonl`: one record
-//! per reported episode, policy update and U-Net round, each stamped with
+//! per reported episode, policy update, U-Net round and checkpoint scored on
+//! the validation rooms, each stamped with
 //! the environment steps, the seconds the run has been training
 //! (`time_s`, which a resumed run continues rather than restarts) and the
 //! wall-clock time (`unix_time_s`). Appended (a resumed run continues the
@@ -39,7 +40,8 @@ const EPISODE_WINDOW: usize = 100;
 
 /// The history's records as TensorBoard scalars: every episode metric as
 /// its mean over the last 100 episodes (`episode/…`), every PPO update's
-/// and U-Net round's numbers (`ppo/…`, `unet/…`), and environment steps per
+/// and U-Net round's numbers (`ppo/…`, `unet/…`), each checkpoint's
+/// validation scores (`validation/<affordance>/…`), and environment steps per
 /// second between PPO updates (`throughput/env_steps_per_s`).
 struct Scalars {
     writer: EventWriter,
@@ -89,6 +91,7 @@ impl Scalars {
                 scalars
             }
             "unet" => numbers(&record["round"], "unet"),
+            "validation" => numbers(&record["validation"], "validation"),
             _ => Vec::new(),
         };
         self.writer.scalars(step, &scalars)

@@ -1,6 +1,7 @@
 //! The learner process as a library: configuration, validation of incoming
 //! messages, the policy update (PPO), U-Net training on labelled frames, checkpoints, the run's
-//! history (JSON lines and TensorBoard scalars), and the HTTP edge (live page, metrics, status).
+//! history (JSON lines and TensorBoard scalars), checkpoints scored on the validation rooms in the
+//! background, and the HTTP edge (live page, metrics, status).
 //!
 //! It never runs a simulator or a map; it only sees what actors send through
 //! the `transport` crate, in the layouts of `proto`.
@@ -28,3 +29,4 @@ pub(crate) mod thread_priority;
 pub mod tools;
 pub mod train;
 pub(crate) mod unet_worker;
+pub(crate) mod validation_scorer;

@@ -40,6 +40,11 @@ struct ActorLabel {
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+struct AffordanceLabel {
+    affordance: String,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 struct BuildLabel {
     version: String,
     backend: String,
@@ -262,6 +267,7 @@ pub fn render(s: &StatusSnapshot, timings: &Timings) -> String {
     let lag = Family::<ActorLabel, Gauge<f64, AtomicU64>>::default();
     let last_seen = Family::<ActorLabel, Gauge<f64, AtomicU64>>::default();
     let actor_steps = Family::<ActorLabel, Counter>::default();
+    let actor_rate = Family::<ActorLabel, Gauge<f64, AtomicU64>>::default();
     for a in &s.actors {
         let label = ActorLabel {
             actor: a.id.to_string(),
@@ -269,7 +275,15 @@ pub fn render(s: &StatusSnapshot, timings: &Timings) -> String {
         lag.get_or_create(&label).set(a.policy_lag as f64);
         last_seen.get_or_create(&label).set(a.last_seen_s);
         actor_steps.get_or_create(&label).inc_by(a.env_steps);
+        if let Some(rate) = a.steps_per_s {
+            actor_rate.get_or_create(&label).set(rate);
+        }
     }
+    r.register(
+        "actor_env_steps_per_second",
+        "Environment steps per second per actor, over its chunks of the last minute",
+        actor_rate,
+    );
     r.register(
         "actor_policy_lag",
         "Policy versions between the learner and the actor's newest chunk",
@@ -368,6 +382,7 @@ pub fn render(s: &StatusSnapshot, timings: &Timings) -> String {
             );
         }
     }
+    validation_families(&mut r, s);
     r.register(
         "ppo_update_duration_seconds",
         "Time one PPO update took (every epoch and minibatch of one batch)",
@@ -383,6 +398,68 @@ pub fn render(s: &StatusSnapshot, timings: &Timings) -> String {
     // Writing into a String cannot fail.
     let _ = prometheus_client::encoding::text::encode(&mut out, &r);
     out
+}
+
+/// The background validation scorer's counts and the newest checkpoint's
+/// scores on the validation rooms, per affordance.
+fn validation_families(r: &mut Registry, s: &StatusSnapshot) {
+    let v = &s.validation;
+    counter(
+        r,
+        "validation_checkpoints_scored",
+        "Checkpoints scored on the validation rooms in the background",
+        v.scored,
+    );
+    counter(
+        r,
+        "validation_checkpoints_skipped",
+        "Checkpoints not scored because a newer one came while they waited",
+        v.skipped,
+    );
+    counter(
+        r,
+        "validation_failures",
+        "Background scorings that failed (logs/validation-scorer.log says why)",
+        v.failed,
+    );
+    let Some(last) = &v.last else {
+        return;
+    };
+    gauge(
+        r,
+        "validation_step",
+        "Environment step of the newest checkpoint scored on the validation rooms",
+        last.step as f64,
+    );
+    for (name, help, value) in [
+        (
+            "validation_pixel_f1",
+            "Newest scored checkpoint, validation rooms: median pixel F1 (Table 1)",
+            (|a: &proto::AffordanceScores| a.pixel_f1) as fn(&proto::AffordanceScores) -> _,
+        ),
+        (
+            "validation_object_f1",
+            "Newest scored checkpoint, validation rooms: object-level F1 (Table 2)",
+            |a| a.object_f1,
+        ),
+        (
+            "validation_object_auc",
+            "Newest scored checkpoint, validation rooms: object-level ROC AUC (Table 2)",
+            |a| a.object_auc,
+        ),
+    ] {
+        let family = Family::<AffordanceLabel, Gauge<f64, AtomicU64>>::default();
+        for a in &last.affordances {
+            if let Some(x) = value(a) {
+                family
+                    .get_or_create(&AffordanceLabel {
+                        affordance: a.affordance.clone(),
+                    })
+                    .set(f64::from(x));
+            }
+        }
+        r.register(name, help, family);
+    }
 }
 
 /// The classic Prometheus text format (0.0.4) of OpenMetrics text from

@@ -13,6 +13,7 @@ use serde::Serialize;
 use training::ppo::PpoStats;
 
 use crate::affordance_learner::UnetRound;
+use crate::validation_scorer::ValidationStatus;
 
 /// Per-actor book-keeping.
 #[derive(Debug, Clone)]
@@ -31,6 +32,52 @@ pub struct ActorState {
     /// Policy version of its newest chunk.
     pub policy_version: u64,
     next_sequence: BTreeMap<&'static str, u64>,
+    /// When its recent chunks arrived, for its steps per second.
+    rate: StepRate,
+}
+
+/// Steps per second from the arrival times of recent chunks. A chunk
+/// carries many steps (1 024 for an actor of 32 environments at the
+/// paper's scale), so steps counted between two looks a few seconds apart
+/// are often none: the rate is taken from the first to the last chunk of
+/// the last [`RATE_WINDOW`] instead.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct StepRate {
+    /// (arrival, steps counted up to and including that chunk), oldest first.
+    arrivals: VecDeque<(Instant, u64)>,
+}
+
+/// How far back [`StepRate`] looks.
+pub(crate) const RATE_WINDOW: std::time::Duration = std::time::Duration::from_secs(60);
+
+impl StepRate {
+    /// Books a chunk of `steps` arriving at `at`.
+    pub(crate) fn add(&mut self, at: Instant, steps: u64) {
+        let total = self.arrivals.back().map_or(0, |&(_, n)| n) + steps;
+        self.arrivals.push_back((at, total));
+        // Keep one arrival older than the window: the span starts there.
+        while self.arrivals.len() > 2
+            && self
+                .arrivals
+                .get(1)
+                .is_some_and(|&(t, _)| at.duration_since(t) > RATE_WINDOW)
+        {
+            self.arrivals.pop_front();
+        }
+    }
+
+    /// Steps per second over the chunks after the oldest one kept (its
+    /// steps were taken before the span began); `None` before two chunks,
+    /// and 0 once none has arrived for a whole window before `now`.
+    pub(crate) fn per_s(&self, now: Instant) -> Option<f64> {
+        let (&(first, first_total), &(last, last_total)) =
+            (self.arrivals.front()?, self.arrivals.back()?);
+        if now.duration_since(last) > RATE_WINDOW {
+            return Some(0.0);
+        }
+        let span = last.duration_since(first).as_secs_f64();
+        (span > 0.0).then(|| (last_total - first_total) as f64 / span)
+    }
 }
 
 impl ActorState {
@@ -112,6 +159,8 @@ pub struct LearnerStatus {
     pub actors: BTreeMap<u32, ActorState>,
     /// Publishers on each actor→learner service (slots taken).
     pub publishers: BTreeMap<&'static str, usize>,
+    /// The background validation scorer.
+    pub(crate) validation: ValidationStatus,
     /// How long updates and rounds take (shared handles: `/metrics` registers clones).
     pub timings: Timings,
 }
@@ -220,6 +269,8 @@ pub(crate) struct StatusSnapshot {
     /// Publishers on each actor→learner service: actors, and anything else
     /// holding one of its `max_actors + spare_ports` slots.
     pub publishers: BTreeMap<String, usize>,
+    /// The background validation scorer: counts and the newest scores.
+    pub validation: ValidationStatus,
 }
 
 /// One row of rejected-message counts.
@@ -252,6 +303,9 @@ pub(crate) struct ActorSnapshot {
     pub policy_lag: u64,
     /// Policy version its newest chunk was produced with.
     pub policy_version: u64,
+    /// Environment steps per second over its chunks of the last minute
+    /// (`None` before its second chunk).
+    pub steps_per_s: Option<f64>,
 }
 
 impl LearnerStatus {
@@ -297,6 +351,7 @@ impl LearnerStatus {
             recent_episodes: BTreeMap::new(),
             actors: BTreeMap::new(),
             publishers: BTreeMap::new(),
+            validation: ValidationStatus::default(),
             timings: Timings::default(),
         }
     }
@@ -329,6 +384,7 @@ impl LearnerStatus {
             policy_lag: 0,
             policy_version: 0,
             next_sequence: BTreeMap::new(),
+            rate: StepRate::default(),
         });
         actor.last_seen = now;
         *actor.received.entry(kind.as_str()).or_default() += 1;
@@ -356,6 +412,7 @@ impl LearnerStatus {
         self.env_steps += steps;
         if let Some(actor) = self.actors.get_mut(&actor_id) {
             actor.env_steps += steps;
+            actor.rate.add(Instant::now(), steps);
         }
     }
 
@@ -400,6 +457,7 @@ impl LearnerStatus {
                     env_steps: a.env_steps,
                     policy_lag: a.policy_lag,
                     policy_version: a.policy_version,
+                    steps_per_s: a.rate.per_s(Instant::now()),
                 }
             })
             .collect();
@@ -467,6 +525,7 @@ impl LearnerStatus {
                 .map(|(k, v)| (k.to_string(), v.iter().sum::<f32>() / v.len() as f32))
                 .collect(),
             actors,
+            validation: self.validation.clone(),
         }
     }
 }
@@ -474,6 +533,30 @@ impl LearnerStatus {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_actor_sending_big_chunks_seldom_has_its_rate_over_the_last_minute() {
+        let t0 = Instant::now();
+        let at = |s: f64| t0 + std::time::Duration::from_secs_f64(s);
+        let mut rate = StepRate::default();
+        assert_eq!(rate.per_s(t0), None);
+        rate.add(at(0.0), 1024);
+        assert_eq!(rate.per_s(at(1.0)), None, "one chunk: no span yet");
+        // 1 024 steps every 11.4 s: about 90 steps/s, whatever the moment asked.
+        for k in 1..=20 {
+            rate.add(at(11.4 * k as f64), 1024);
+            let r = rate.per_s(at(11.4 * k as f64 + 5.0)).unwrap();
+            assert!((r - 1024.0 / 11.4).abs() < 1e-6, "after chunk {k}: {r}");
+        }
+        assert!(rate.arrivals.len() <= 7, "a minute's chunks and one before");
+        // Twice as fast from now on: within a minute the rate is the new one.
+        for k in 1..=12 {
+            rate.add(at(228.0 + 5.7 * k as f64), 1024);
+        }
+        let r = rate.per_s(at(300.0)).unwrap();
+        assert!((r - 1024.0 / 5.7).abs() < 1.0, "{r}");
+        assert_eq!(rate.per_s(at(400.0)), Some(0.0), "silent for a minute");
+    }
 
     #[test]
     fn gaps_count_as_losses_and_a_jump_beyond_the_window_is_refused() {

@@ -26,6 +26,7 @@ mod stats;
 pub mod task;
 #[cfg(test)]
 mod third_affordance;
+mod validation;
 mod weights;
 
 pub use actors::{ActorSettings, ActorSettingsError, ACTOR_DEVICES, RENDERERS, TRAINING_SCENES};
@@ -49,6 +50,7 @@ pub use rollout::{
 pub use rules::{ConfidenceRule, MapSegmentation, MapSettings, SelectionRule, SphereRule};
 pub use stats::{AffordanceStat, EpisodeStats, StatField, StatKey};
 pub use task::{Affordance, EnvKind, PolicyLayout, RewardWeights, TaskError, TaskSpec};
+pub use validation::{AffordanceScores, ValidationScores, VALIDATION_DIR};
 pub use weights::{
     WeightsBlob, WeightsView, WEIGHTS_META_ENV_STEPS, WEIGHTS_META_TEMPERATURE,
     WEIGHTS_POLICY_PREFIX, WEIGHTS_TAG_LEN, WEIGHTS_UNET_PREFIX,

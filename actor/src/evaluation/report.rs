@@ -355,6 +355,28 @@ impl Report {
         )
     }
 
+    /// This report's scores of checkpoint `step`, for the learner's
+    /// background scorer (`evaluate --scores`) and a later `--select`.
+    pub fn scores(&self, step: u64, views_per_scene: usize) -> proto::ValidationScores {
+        proto::ValidationScores {
+            step,
+            scenes: self.scenes.clone(),
+            views_per_scene,
+            threshold: self.threshold,
+            affordances: self
+                .pixel
+                .iter()
+                .zip(&self.object)
+                .map(|(pixel, object)| proto::AffordanceScores {
+                    affordance: pixel.affordance.clone(),
+                    pixel_f1: pixel.f1.map(|p| p.median),
+                    object_f1: object.f1,
+                    object_auc: object.auc,
+                })
+                .collect(),
+        }
+    }
+
     /// Tables 1 and 2 as Markdown, the network's rows beside the
     /// all-positive reference's.
     pub fn to_markdown(&self) -> String {

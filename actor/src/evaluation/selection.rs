@@ -26,6 +26,15 @@ pub struct Candidate {
 }
 
 impl Candidate {
+    /// The candidate that recorded validation `scores` make.
+    pub fn from_scores(scores: &proto::ValidationScores) -> Self {
+        Self::new(
+            scores.step,
+            scores.affordances.iter().map(|a| a.pixel_f1).collect(),
+            scores.affordances.iter().map(|a| a.object_f1).collect(),
+        )
+    }
+
     /// The candidate of checkpoint `step` with these validation scores per
     /// affordance (see [`crate::evaluation::Report::candidate`]), scored by [`RULE`].
     pub fn new(step: u64, pixel_f1: Vec<Option<f32>>, object_f1: Vec<Option<f32>>) -> Self {
@@ -61,6 +70,11 @@ pub struct Selection {
     pub candidates: Vec<Candidate>,
     /// The checkpoint chosen.
     pub chosen_step: u64,
+    /// How many of the candidates' scores are those the run's learner
+    /// recorded during training (`RUN_DIR/validation/`); the others were
+    /// scored for this report.
+    #[serde(default)]
+    pub recorded: usize,
 }
 
 impl Selection {
@@ -82,16 +96,25 @@ impl Selection {
             views_per_scene,
             candidates,
             chosen_step,
+            recorded: 0,
         })
     }
 
     /// One paragraph for a report: the rule and each checkpoint's score.
     pub fn describe(&self) -> String {
         let mut out = format!(
-            "Checkpoint chosen on the validation rooms ({}, {} views each) by {}: step {}. \
+            "Checkpoint chosen on the validation rooms ({}, {} views each{}) by {}: step {}. \
              Scores:",
             self.scenes.join(", "),
             self.views_per_scene,
+            if self.recorded > 0 {
+                format!(
+                    "; {} of them scored in the background during training",
+                    self.recorded
+                )
+            } else {
+                String::new()
+            },
             self.rule,
             self.chosen_step
         );
@@ -102,6 +125,48 @@ impl Selection {
         out.push('.');
         out
     }
+}
+
+/// The validation scores the run's learner recorded for the checkpoints
+/// `steps` (`RUN_DIR/validation/<step>.json`, written by `evaluate
+/// --scores`), in step order: those of other steps, or of another number
+/// of views per room than the first one found, are left out. A file that
+/// does not parse is an error that names it.
+pub fn recorded_scores(
+    run_dir: &std::path::Path,
+    steps: &[u64],
+) -> anyhow::Result<Vec<proto::ValidationScores>> {
+    use anyhow::Context;
+    let dir = run_dir.join(proto::VALIDATION_DIR);
+    let mut found: Vec<proto::ValidationScores> = Vec::new();
+    for &step in steps {
+        let path = dir.join(format!("{step}.json"));
+        let text = match std::fs::read_to_string(&path) {
+            Ok(text) => text,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
+            Err(e) => return Err(e).with_context(|| format!("reading {}", path.display())),
+        };
+        let scores: proto::ValidationScores = serde_json::from_str(&text).with_context(|| {
+            format!(
+                "parsing {} (delete it, or pass --rescore, to score the checkpoint afresh)",
+                path.display()
+            )
+        })?;
+        if scores.step != step {
+            anyhow::bail!(
+                "{} holds the scores of step {}, not {step}",
+                path.display(),
+                scores.step
+            );
+        }
+        if found
+            .first()
+            .is_none_or(|first| first.views_per_scene == scores.views_per_scene)
+        {
+            found.push(scores);
+        }
+    }
+    Ok(found)
 }
 
 #[cfg(test)]

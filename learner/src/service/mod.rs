@@ -27,6 +27,7 @@ use crate::shared::Shared;
 use crate::status::LearnerStatus;
 use crate::train::PolicyTrainer;
 use crate::unet_worker::{DeployedUnet, UnetWorker};
+use crate::validation_scorer::ValidationScorer;
 use training::optimizer_state::OptimizerState;
 use transport::membership::{Joined, Membership, Sender};
 
@@ -119,6 +120,9 @@ pub struct Learner {
     warned: HashSet<(MessageKind, &'static str)>,
     last_checkpoint: Instant,
     updates_at_checkpoint: u64,
+    /// Scores each checkpoint on the validation rooms, started by `run`
+    /// (`None` when scoring is off).
+    validation_scorer: Option<ValidationScorer>,
 }
 
 impl Learner {
@@ -157,6 +161,7 @@ impl Learner {
             warned: HashSet::new(),
             last_checkpoint: Instant::now(),
             updates_at_checkpoint,
+            validation_scorer: None,
         }
     }
 
@@ -196,7 +201,12 @@ impl Learner {
                 self.shared.config.unet.max_frames,
             )?);
         }
+        self.validation_scorer = ValidationScorer::start(self.shared.clone(), self.history.clone());
         let result = self.serve();
+        // A scoring in progress is killed: the learner stops now.
+        if let Some(scorer) = self.validation_scorer.take() {
+            scorer.stop();
+        }
         // Both training threads stop first (after their current update or
         // round), so the final checkpoint holds their last state. Should a
         // thread have failed, the checkpoint is still written, with the state

@@ -68,10 +68,15 @@ impl Learner {
         .context("writing a checkpoint (is the disk full?)")?;
         self.last_checkpoint = Instant::now();
         self.updates_at_checkpoint = counters.updates;
-        let mut status = self.shared.status();
-        status.checkpoints_written += 1;
-        status.last_checkpoint_step = Some(counters.env_steps);
+        {
+            let mut status = self.shared.status();
+            status.checkpoints_written += 1;
+            status.last_checkpoint_step = Some(counters.env_steps);
+        }
         tracing::info!(dir = %dir.display(), updates = counters.updates, "checkpoint written");
+        if let Some(scorer) = &self.validation_scorer {
+            scorer.submit(counters.env_steps);
+        }
         Ok(())
     }
 }
