@@ -13,8 +13,9 @@ Usage: deploy/reproduce.sh [options] [-- deploy/local.sh options]
 
 Reproduces the paper's comparison: trains each method with each seed for the
 same number of environment steps (deploy/local.sh), scores every kept
-checkpoint of a run on the validation rooms (FloorPlan221-225) and only the
-best on the test rooms (FloorPlan226-230), scores the floors (an untrained
+checkpoint of a run on the validation rooms (FloorPlan221-225; the learner
+scores each in the background while it trains, the rest are scored after)
+and only the best on the test rooms (FloorPlan226-230), scores the floors (an untrained
 U-Net per seed; predicting everything positive), draws the training curves
 and writes the results page (actor results).
 
@@ -232,7 +233,10 @@ train() {
     fi
     echo "[$index/$TOTAL] $v seed $s: training $STEPS steps"
     args=(--run-dir "$dir" --method "$method" --seed "$s")
-    learner_args=(-- --config "$(variant_config "$v")")
+    # The learner scores each checkpoint on the validation views in the
+    # background; the evaluation below chooses from those scores.
+    learner_args=(-- --config "$(variant_config "$v")" --set "validation.views_per_room=$VAL_VIEWS"
+      --set "validation.seed=$VIEWS_SEED")
   fi
   mkdir -p "$dir/logs"
   "$REPO/deploy/local.sh" "${args[@]}" --max-steps "$STEPS" --renderer "$RENDERER" --data "$DATA" \

@@ -58,9 +58,12 @@ pub struct ValidationConfig {
     /// The program that scores: empty runs the `actor` binary beside the
     /// learner's (tasks with a U-Net only). A program named here runs for
     /// every task, as `PROGRAM evaluate --run-dir DIR --step S --scenes val
-    /// --views-per-scene N --scores FILE`, and must write the scores
+    /// --views-per-scene N --seed SEED --scores FILE`, and must write the scores
     /// (`proto::ValidationScores` as JSON) to FILE.
     pub scorer: String,
+    /// Seed of the validation views (`actor evaluate --seed`): scores
+    /// taken with the same seed are of the same views.
+    pub seed: u64,
     /// Niceness of the scorer's process, 0..=19 (19: it runs only on
     /// otherwise idle cores).
     pub nice: i32,
@@ -71,6 +74,7 @@ impl Default for ValidationConfig {
         Self {
             views_per_room: 20,
             scorer: String::new(),
+            seed: 0,
             nice: 19,
         }
     }

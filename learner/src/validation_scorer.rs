@@ -236,6 +236,8 @@ fn score(
         .args([
             "--views-per-scene",
             &shared.config.validation.views_per_room.to_string(),
+            "--seed",
+            &shared.config.validation.seed.to_string(),
         ])
         .arg("--scores")
         .arg(&out)

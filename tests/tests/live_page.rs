@@ -102,6 +102,23 @@ fn the_live_page_draws_the_curves_in_a_browser() {
         "actor 0 listed alive:\n{dom_text}"
     );
     assert!(dom_text.contains("bandit-fixture"), "the config is shown");
+    assert!(
+        dom_text.contains("not scored: the task has no U-Net to score"),
+        "the validation section says why it is empty:\n{dom_text}"
+    );
+    // Actor 0's steps/s: the learner's rate over its chunks, never "–" or 0.0
+    // once it has sent a few.
+    let row = dom_text
+        .find("<td>0</td><td class=\"\">yes</td>")
+        .map(|at| &dom_text[at..])
+        .expect("actor 0's row");
+    let rate: f64 = row
+        .split("<td>")
+        .nth(3) // after the id and alive cells, and env steps
+        .and_then(|cell| cell.split('<').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("actor 0's steps/s in {row}"));
+    assert!(rate > 0.0, "actor 0 runs at {rate} steps/s");
 
     let shot = dir.join("live-page.png");
     let out = headless(

@@ -206,4 +206,53 @@ mod tests {
         assert!(tie.describe().contains("step 30") && tie.describe().contains("20 → 0.100"));
         assert_eq!(Selection::choose(scenes, 4, Vec::new()), None);
     }
+
+    fn scores(step: u64, views: usize, pixel: f32) -> proto::ValidationScores {
+        proto::ValidationScores {
+            step,
+            scenes: vec!["FloorPlan221".into()],
+            views_per_scene: views,
+            threshold: 0.5,
+            affordances: vec![proto::AffordanceScores {
+                affordance: "pick_up".into(),
+                pixel_f1: Some(pixel),
+                object_f1: None,
+                object_auc: Some(0.7),
+            }],
+        }
+    }
+
+    #[test]
+    fn recorded_scores_are_read_for_kept_checkpoints_of_one_view_count() {
+        let run = tempfile::tempdir().unwrap();
+        let dir = run.path().join(proto::VALIDATION_DIR);
+        std::fs::create_dir_all(&dir).unwrap();
+        let write = |name: &str, s: &proto::ValidationScores| {
+            std::fs::write(dir.join(name), serde_json::to_string(s).unwrap()).unwrap();
+        };
+        write("10.json", &scores(10, 20, 0.1));
+        write("20.json", &scores(20, 120, 0.9)); // other views: left out
+        write("30.json", &scores(30, 20, 0.3));
+        write("40.json", &scores(40, 20, 0.4)); // a checkpoint no longer kept
+        let found = recorded_scores(run.path(), &[10, 20, 30, 35]).unwrap();
+        assert_eq!(
+            found.iter().map(|s| s.step).collect::<Vec<_>>(),
+            vec![10, 30]
+        );
+        let candidate = Candidate::from_scores(&found[1]);
+        assert_eq!(candidate.step, 30);
+        assert_eq!(candidate.pixel_f1, vec![Some(0.3)]);
+        assert_eq!(candidate.object_f1, vec![None]);
+        assert!(
+            (candidate.score - 0.15).abs() < 1e-6,
+            "an undefined F1 counts 0"
+        );
+
+        write("35.json", &scores(36, 20, 0.3));
+        let e = recorded_scores(run.path(), &[35]).unwrap_err().to_string();
+        assert!(e.contains("35.json") && e.contains("step 36"), "{e}");
+        std::fs::write(dir.join("35.json"), "{").unwrap();
+        let e = format!("{:#}", recorded_scores(run.path(), &[35]).unwrap_err());
+        assert!(e.contains("--rescore"), "{e}");
+    }
 }
