@@ -421,6 +421,30 @@ fn load_config(args: &ServeArgs, run_dir: &Path) -> anyhow::Result<LearnerConfig
     Ok(config)
 }
 
+/// Moves a run's history (`history.jsonl`, `tensorboard/`) aside, to
+/// `<name>.before-restart-<unix time>`, for a run that starts afresh in its
+/// directory: the new history counts steps from 0 again. Returns where the
+/// history went, `None` when there was none.
+fn set_aside_history(run_dir: &Path) -> anyhow::Result<Option<PathBuf>> {
+    let stamp = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    let mut history_to = None;
+    for name in ["history.jsonl", "tensorboard"] {
+        let from = run_dir.join(name);
+        if !from.exists() {
+            continue;
+        }
+        let to = run_dir.join(format!("{name}.before-restart-{stamp}"));
+        std::fs::rename(&from, &to)
+            .with_context(|| format!("moving {} aside to {}", from.display(), to.display()))?;
+        if name == "history.jsonl" {
+            history_to = Some(to);
+        }
+    }
+    Ok(history_to)
+}
+
 /// Opens the device `name` (`cpu` or `gpu`) names; `setting` says where the
 /// name came from in the error.
 fn open_named_device(name: &str, setting: &str) -> anyhow::Result<burn::prelude::Device> {
@@ -462,8 +486,17 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
     };
     let mut trainers = Trainers::new(&config, &device, &policy_device);
     let mut status = LearnerStatus::new(run_id);
-    if args.resume.is_some() {
-        resume(&checkpoint_dir, &mut trainers, &mut status)?;
+    if args.resume.is_some() && !resume(&checkpoint_dir, &mut trainers, &mut status)? {
+        let aside = set_aside_history(&run_dir)?;
+        eprintln!(
+            "learner: {} has no checkpoint (its learner stopped before writing one): starting \
+             the run afresh in the same directory, with its config.toml{}",
+            run_dir.display(),
+            aside.map_or(String::new(), |to| format!(
+                "; the steps it lost are in {}",
+                to.display()
+            ))
+        );
     }
 
     let shared = Arc::new(Shared {

@@ -136,3 +136,84 @@ fn resume_after_kill_and_fall_back_past_a_corrupt_checkpoint() {
         "no warning about the damaged checkpoint:\n{log}"
     );
 }
+
+/// A learner killed before it wrote any checkpoint leaves a run that
+/// `--resume` starts afresh in the same directory (its history set aside);
+/// the first checkpoint then comes with the first update, long before the
+/// default cadence (300 s), so the next kill loses at most that.
+#[test]
+fn a_learner_killed_before_its_first_checkpoint_leaves_a_run_to_resume() {
+    let dir = scratch_dir("first-checkpoint");
+    let prefix = format!("it-first-{}", std::process::id());
+    let run_dir = dir.join("run");
+    let config = dir.join("learner.toml");
+    // The default cadence: by time (300 s) and by count (10 000 updates).
+    std::fs::write(&config, format!("[transport]\nservice_prefix = \"{prefix}\"\nmax_actors = 2\n[task]\nenv = \"bandit-fixture\"\n[policy]\nbatch_steps = 32\n")).unwrap();
+    let args = |flag: &str| {
+        vec![
+            "--config".to_string(),
+            config.display().to_string(),
+            flag.into(),
+            run_dir.display().to_string(),
+        ]
+    };
+    let kill = |mut learner: Learner| {
+        learner.process.signal(libc::SIGKILL);
+        learner
+            .process
+            .wait_exit(Duration::from_secs(5))
+            .expect("learner dies");
+    };
+
+    // Killed with episodes in its history but no update yet: no checkpoint.
+    let learner = Learner::start(&run_dir, &args("--run-dir"), dir.join("learner-1.log"));
+    std::fs::write(
+        run_dir.join("history.jsonl"),
+        "{\"kind\":\"episode\",\"env_steps\":7,\"time_s\":1.0}\n",
+    )
+    .unwrap();
+    kill(learner);
+    assert!(checkpoints(&run_dir).is_empty());
+
+    // Resumed: it starts afresh, says so, and keeps the lost history aside.
+    let learner = Learner::start(&run_dir, &args("--resume"), dir.join("learner-2.log"));
+    let log = learner.process.log_text();
+    assert!(
+        log.contains("has no checkpoint") && log.contains("starting the run afresh"),
+        "{log}"
+    );
+    assert_eq!(learner.status()["env_steps"].as_u64(), Some(0));
+    let aside: Vec<_> = std::fs::read_dir(&run_dir)
+        .unwrap()
+        .filter_map(|e| e.ok()?.file_name().into_string().ok())
+        .filter(|n| n.starts_with("history.jsonl.before-restart-"))
+        .collect();
+    assert_eq!(aside.len(), 1, "the lost history is kept");
+
+    // Its first update writes the first checkpoint.
+    let join_key = run_dir.join("join.key").display().to_string();
+    let config_arg = config.display().to_string();
+    let mut actor = start_actor(
+        0,
+        &prefix,
+        &dir,
+        &["--config", &config_arg, "--join-key", &join_key],
+    );
+    let (step, first) = wait_for(Duration::from_secs(60), "the first checkpoint", || {
+        checkpoints(&run_dir)
+            .into_iter()
+            .find(|(_, d)| d.join("manifest.json").exists())
+    });
+    assert!(counters(&first)["updates"].as_u64() >= Some(1));
+    actor.signal(libc::SIGINT);
+    actor
+        .wait_exit(Duration::from_secs(10))
+        .expect("actor stops");
+    kill(learner);
+
+    // Killed again: it resumes from that checkpoint.
+    let learner = Learner::start(&run_dir, &args("--resume"), dir.join("learner-3.log"));
+    let (newest_step, newest) = checkpoints(&run_dir).last().cloned().unwrap();
+    assert!(newest_step >= step);
+    assert_resumed_from(&learner, &newest);
+}

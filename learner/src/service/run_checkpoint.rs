@@ -12,6 +12,11 @@ impl Learner {
         if updates == self.updates_at_checkpoint {
             return false;
         }
+        // A run's first checkpoint comes after its first update, so that
+        // a learner killed in its first minutes leaves a run to resume.
+        if self.updates_at_checkpoint == 0 {
+            return true;
+        }
         let by_count = config.checkpoint_every_updates > 0
             && updates - self.updates_at_checkpoint >= config.checkpoint_every_updates;
         let by_time = config.checkpoint_interval_s > 0.0
@@ -97,16 +102,16 @@ const UNET_OPTIMIZER_RECORD: &str = "unet_optimizer.bpk";
 const UNET_OPTIMIZER_PARAMETERS: &str = "unet_optimizer_parameters.json";
 
 /// Restores trainer and counters from the newest checkpoint that verifies.
+/// Returns `false`, restoring nothing, when there is no checkpoint at all
+/// (the run's learner stopped before writing one): the run starts afresh.
+/// Checkpoints that all fail to verify are an error.
 pub fn resume(
     checkpoint_dir: &std::path::Path,
     trainers: &mut Trainers,
     status: &mut LearnerStatus,
-) -> anyhow::Result<()> {
+) -> anyhow::Result<bool> {
     let Some(loaded) = checkpoint::load_newest_valid(checkpoint_dir)? else {
-        anyhow::bail!(
-            "no checkpoint under {}: nothing to resume (start without --resume for a new run)",
-            checkpoint_dir.display()
-        );
+        return Ok(false);
     };
     for (dir, reason) in &loaded.skipped {
         tracing::warn!(
@@ -210,5 +215,5 @@ pub fn resume(
         if optimizer.is_some() { "state restored" } else { "afresh" },
         unet_training
     );
-    Ok(())
+    Ok(true)
 }
