@@ -12,7 +12,10 @@ without_backtrace() { sed '/^Stack backtrace:$/,/^$/d; /^stack backtrace:$/,/^$/
 # problem (data, Vulkan, config, a taken port), not a crash: restarting
 # would only repeat it, so it is said (WHEN names the moment, e.g. "before
 # it received its first weights") with the end of the log, SETUP_FAILED is
-# created and it is not restarted.
+# created and it is not restarted. Status 75 (EX_TEMPFAIL: an actor found
+# every publisher slot of a service taken, by another process or by a
+# crashed one not yet cleaned up) is a condition to wait out: it is said
+# and retried with back-off, whenever it happens.
 supervise() {
   local name=$1 label=$2 ready=$3 when=$4 restarts=0 backoff=1 code log start
   shift 4
@@ -24,6 +27,12 @@ supervise() {
     code=0; wait $! || code=$?
     [[ -e "$STOP_FILE" ]] && return 0
     if [[ $code -eq 0 ]]; then echo "$label finished"; return 0; fi
+    if [[ $code -eq 75 ]]; then
+      echo "$label could not join: every publisher slot of a service is taken (see $log); retrying in ${backoff}s"
+      sleep "$backoff"
+      backoff=$((backoff * 2 > 30 ? 30 : backoff * 2))
+      continue
+    fi
     if [[ $code -lt 128 ]] && ! tail -c +"$((start + 1))" "$log" | grep -q "$ready"; then
       {
         echo "${0##*/}: $label exited with status $code $when: a setup problem, not a crash, so it is not restarted. The end of $log:"

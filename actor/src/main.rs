@@ -297,8 +297,29 @@ fn main() -> anyhow::Result<()> {
         Some(Command::SimView(args)) => sim_view(args),
         Some(Command::Evaluate(args)) => evaluate(args),
         Some(Command::Results(args)) => results(args),
-        None => run_actor(cli.run),
+        None => run_actor(cli.run).or_else(|e| {
+            if !slots_taken(&e) {
+                return Err(e);
+            }
+            // A condition that heals when a holder ends: a distinct status,
+            // which deploy/supervise.sh retries with back-off.
+            eprintln!("Error: {e:#}");
+            eprintln!(
+                "actor: exiting with status {} (no free publisher slot yet; a supervisor retries)",
+                transport::SLOTS_TAKEN_EXIT
+            );
+            std::process::exit(transport::SLOTS_TAKEN_EXIT)
+        }),
     }
+}
+
+/// Whether `error` comes from a service whose every publisher slot was taken.
+fn slots_taken(error: &anyhow::Error) -> bool {
+    error.chain().any(|cause| {
+        cause
+            .downcast_ref::<transport::TransportError>()
+            .is_some_and(|e| e.slots_taken)
+    })
 }
 
 fn sim_view(args: SimViewArgs) -> anyhow::Result<()> {

@@ -159,6 +159,8 @@ pub struct LearnerStatus {
     pub actors: BTreeMap<u32, ActorState>,
     /// Publishers on each actor→learner service (slots taken).
     pub publishers: BTreeMap<&'static str, usize>,
+    /// The services whose every publisher slot is taken.
+    pub services_full: Vec<&'static str>,
     /// The background validation scorer.
     pub(crate) validation: ValidationStatus,
     /// How long updates and rounds take (shared handles: `/metrics` registers clones).
@@ -269,6 +271,9 @@ pub(crate) struct StatusSnapshot {
     /// Publishers on each actor→learner service: actors, and anything else
     /// holding one of its `max_actors + spare_ports` slots.
     pub publishers: BTreeMap<String, usize>,
+    /// The services whose every publisher slot is taken: an actor that is
+    /// not running cannot join them until a holder ends.
+    pub services_full: Vec<String>,
     /// The background validation scorer: counts and the newest scores.
     pub validation: ValidationStatus,
 }
@@ -351,6 +356,7 @@ impl LearnerStatus {
             recent_episodes: BTreeMap::new(),
             actors: BTreeMap::new(),
             publishers: BTreeMap::new(),
+            services_full: Vec::new(),
             validation: ValidationStatus::default(),
             timings: Timings::default(),
         }
@@ -525,6 +531,7 @@ impl LearnerStatus {
                 .map(|(k, v)| (k.to_string(), v.iter().sum::<f32>() / v.len() as f32))
                 .collect(),
             actors,
+            services_full: self.services_full.iter().map(|s| s.to_string()).collect(),
             validation: self.validation.clone(),
         }
     }

@@ -370,3 +370,76 @@ pub fn host_dir(dir: &Path, run_dir: &Path, name: &str) -> PathBuf {
         .expect("copying the run's key");
     host_dir
 }
+
+/// A running `deploy/local.sh`, killed with its process group on drop.
+pub struct Launch {
+    /// The script's process (the leader of its process group).
+    pub script: Child,
+    /// Where its output goes.
+    pub log: PathBuf,
+}
+
+impl Drop for Launch {
+    fn drop(&mut self) {
+        // SAFETY: kill(2) on the process group we created has no memory-safety preconditions.
+        unsafe {
+            libc::kill(-(self.script.id() as i32), libc::SIGKILL);
+        }
+        let _ = self.script.wait();
+    }
+}
+
+/// Starts `deploy/local.sh` with two actors of the bandit fixture (seed 3,
+/// the built binaries) on `run_dir`, its endpoint on `port`, its output in
+/// `log`, with `extra` options after the others.
+pub fn launch_bandit_run(run_dir: &Path, port: u16, log: PathBuf, extra: &[&str]) -> Launch {
+    use std::os::unix::process::CommandExt;
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let out = File::create(&log).expect("log file");
+    let script = Command::new(repo.join("deploy/local.sh"))
+        .args(["--actors", "2", "--env", "bandit-fixture", "--seed", "3"])
+        .arg("--bin-dir")
+        .arg(bin("learner").parent().expect("binary dir"))
+        .arg("--run-dir")
+        .arg(run_dir)
+        .args(["--port", &port.to_string()])
+        .args(extra)
+        .stdout(Stdio::from(out.try_clone().expect("log handle")))
+        .stderr(Stdio::from(out))
+        .process_group(0)
+        .spawn()
+        .expect("starting deploy/local.sh");
+    Launch { script, log }
+}
+
+/// `/api/status` of the learner on local port `port`, when it answers.
+pub fn run_status(port: u16) -> Option<serde_json::Value> {
+    let (code, body) = http_get(&format!("127.0.0.1:{port}"), "/api/status")?;
+    (code == 200).then(|| serde_json::from_str(&body).ok())?
+}
+
+/// Sends `signal` to the process whose id is `pid` (as a pid file holds it).
+pub fn kill_pid(pid: &str, signal: i32) {
+    let pid: i32 = pid.trim().parse().expect("a pid");
+    // SAFETY: kill(2) has no memory-safety preconditions.
+    unsafe {
+        libc::kill(pid, signal);
+    }
+}
+
+/// Waits at most `seconds` for `launch`'s script to exit; fails with its
+/// output otherwise.
+pub fn wait_launch_exit(launch: &mut Launch, seconds: u64) -> std::process::ExitStatus {
+    let deadline = Instant::now() + Duration::from_secs(seconds);
+    loop {
+        if let Some(status) = launch.script.try_wait().expect("waiting for local.sh") {
+            return status;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "local.sh did not exit:\n{}",
+            std::fs::read_to_string(&launch.log).unwrap_or_default()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}

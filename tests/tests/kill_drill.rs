@@ -6,53 +6,14 @@
 //! (`sha256sum`), the run stops cleanly, and it leaves nothing in /dev/shm.
 
 use std::collections::BTreeSet;
-use std::fs::File;
-use std::os::unix::process::CommandExt;
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::path::Path;
+use std::process::Command;
+use std::time::Duration;
 
-use system_tests::{bin, http_get, scratch_dir, wait_for};
-
-/// A running `deploy/local.sh`, killed with its process group on drop.
-struct Launch {
-    script: Child,
-    log: PathBuf,
-}
-
-impl Drop for Launch {
-    fn drop(&mut self) {
-        // SAFETY: kill(2) on the process group we created has no memory-safety preconditions.
-        unsafe {
-            libc::kill(-(self.script.id() as i32), libc::SIGKILL);
-        }
-        let _ = self.script.wait();
-    }
-}
-
-fn launch(run_dir: &Path, port: u16, log: PathBuf, extra: &[&str]) -> Launch {
-    let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let out = File::create(&log).expect("log file");
-    let script = Command::new(repo.join("deploy/local.sh"))
-        .args(["--actors", "2", "--env", "bandit-fixture", "--seed", "3"])
-        .arg("--bin-dir")
-        .arg(bin("learner").parent().expect("binary dir"))
-        .arg("--run-dir")
-        .arg(run_dir)
-        .args(["--port", &port.to_string()])
-        .args(extra)
-        .stdout(Stdio::from(out.try_clone().expect("log handle")))
-        .stderr(Stdio::from(out))
-        .process_group(0)
-        .spawn()
-        .expect("starting deploy/local.sh");
-    Launch { script, log }
-}
-
-fn status(port: u16) -> Option<serde_json::Value> {
-    let (code, body) = http_get(&format!("127.0.0.1:{port}"), "/api/status")?;
-    (code == 200).then(|| serde_json::from_str(&body).ok())?
-}
+use system_tests::{
+    kill_pid as kill, launch_bandit_run as launch, run_status as status, scratch_dir, wait_for,
+    wait_launch_exit as wait_exit,
+};
 
 fn checkpoints(run_dir: &Path) -> Vec<u64> {
     let mut steps: Vec<u64> = std::fs::read_dir(run_dir.join("checkpoints"))
@@ -95,29 +56,6 @@ fn shm_files() -> BTreeSet<String> {
                 .collect()
         })
         .unwrap_or_default()
-}
-
-fn kill(pid: &str, signal: i32) {
-    let pid: i32 = pid.trim().parse().expect("a pid");
-    // SAFETY: kill(2) has no memory-safety preconditions.
-    unsafe {
-        libc::kill(pid, signal);
-    }
-}
-
-fn wait_exit(launch: &mut Launch, seconds: u64) -> std::process::ExitStatus {
-    let deadline = Instant::now() + Duration::from_secs(seconds);
-    loop {
-        if let Some(status) = launch.script.try_wait().expect("waiting for local.sh") {
-            return status;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "local.sh did not exit:\n{}",
-            std::fs::read_to_string(&launch.log).unwrap_or_default()
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
 }
 
 #[test]

@@ -43,7 +43,11 @@ fn an_actor_without_a_publisher_slot_says_what_holds_them_and_what_to_raise() {
     let status = actor
         .wait_exit(Duration::from_secs(30))
         .expect("the actor gives up at once");
-    assert!(!status.success());
+    assert_eq!(
+        status.code(),
+        Some(transport::SLOTS_TAKEN_EXIT),
+        "a distinct status, which a supervisor retries"
+    );
     let log = actor.log_text();
     for words in [
         "\"rollouts\"",

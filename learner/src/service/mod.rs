@@ -243,6 +243,33 @@ impl Learner {
         unet_failure.map_or(Ok(()), Err)
     }
 
+    /// Books each actor→learner service's publishers in the status, and says
+    /// when a service's slots are all taken: an actor that is not running
+    /// then cannot join (its supervisor retries) until a holder ends.
+    fn note_publishers(&mut self) {
+        let t = &self.shared.config.transport;
+        let slots = (t.max_actors + t.spare_ports) as usize;
+        let publishers: std::collections::BTreeMap<_, _> =
+            self.ports.publishers().into_iter().collect();
+        let full: Vec<&'static str> = publishers
+            .iter()
+            .filter(|&(_, &n)| n >= slots)
+            .map(|(&service, _)| service)
+            .collect();
+        let mut status = self.shared.status();
+        for service in &full {
+            if !status.services_full.contains(service) {
+                tracing::warn!(
+                    service,
+                    "every publisher slot of the service is taken ({slots} of {slots}: max_actors + \
+                     spare_ports): an actor that is not running cannot join until a holder ends"
+                );
+            }
+        }
+        status.services_full = full;
+        status.publishers = publishers;
+    }
+
     /// The loop proper.
     fn serve(&mut self) -> anyhow::Result<()> {
         self.publish_weights()?;
@@ -320,7 +347,7 @@ impl Learner {
             }
             if last_maintenance.elapsed() > Duration::from_millis(250) {
                 self.ports.maintain();
-                self.shared.status().publishers = self.ports.publishers().into_iter().collect();
+                self.note_publishers();
                 last_maintenance = Instant::now();
             }
             if self.unet_worker.as_ref().is_some_and(UnetWorker::finished) {

@@ -57,6 +57,10 @@ impl ActorPorts {
                 format!("actor id must be below max_actors = {}", config.max_actors),
             ));
         }
+        // A crashed process's slots are freed first (the learner also does
+        // so periodically), so that this actor's own earlier life, killed,
+        // does not hold the slots it needs.
+        crate::remove_dead_nodes()?;
         let node = open_node(&format!("actor-{actor_id}"))?;
         // Enough samples for a full learner buffer plus one in flight: when the
         // pool is exhausted the next message is dropped, so memory stays fixed.
@@ -75,7 +79,7 @@ impl ActorPorts {
                     let service = proto::service::for_kind(kind);
                     match e {
                         PublisherCreateError::ExceedsMaxSupportedPublishers => {
-                            TransportError::explained(
+                            let mut error = TransportError::explained(
                                 "create publisher",
                                 service,
                                 format!(
@@ -87,7 +91,9 @@ impl ActorPorts {
                                     config.max_actors,
                                     config.spare_ports
                                 ),
-                            )
+                            );
+                            error.slots_taken = true;
+                            error
                         }
                         other => TransportError::new("create publisher", service, other),
                     }

@@ -10,7 +10,15 @@ pub struct TransportError {
     pub subject: String,
     /// iceoryx2's error, formatted.
     pub detail: String,
+    /// Whether every publisher slot of the service was taken: a condition
+    /// that heals when a holder ends (a supervisor retries), not a setup error.
+    pub slots_taken: bool,
 }
+
+/// Exit status of an actor that could not join because every publisher
+/// slot of a service was taken (EX_TEMPFAIL): `deploy/supervise.sh`
+/// retries it with back-off rather than stopping the run.
+pub const SLOTS_TAKEN_EXIT: i32 = 75;
 
 impl TransportError {
     pub(crate) fn new(action: &'static str, subject: &str, detail: impl std::fmt::Debug) -> Self {
@@ -18,6 +26,7 @@ impl TransportError {
             action,
             subject: subject.to_string(),
             detail: format!("{detail:?}"),
+            slots_taken: false,
         }
     }
 
@@ -27,6 +36,7 @@ impl TransportError {
             action,
             subject: subject.to_string(),
             detail,
+            slots_taken: false,
         }
     }
 }

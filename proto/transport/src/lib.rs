@@ -27,7 +27,7 @@ mod weights_side;
 pub use actor_side::ActorPorts;
 pub use cleanup::remove_dead_nodes;
 pub use config::TransportConfig;
-pub use error::TransportError;
+pub use error::{TransportError, SLOTS_TAKEN_EXIT};
 pub use join_key::{load_or_create_join_key, read_join_key, JoinKeyFileError, JOIN_KEY_FILE};
 pub use learner_side::{LearnerPorts, ReceivedMessage};
 pub use wakeup::Wakeup;
