@@ -140,14 +140,14 @@ fn resume_after_kill_and_fall_back_past_a_corrupt_checkpoint() {
 /// A learner killed before it wrote any checkpoint leaves a run that
 /// `--resume` starts afresh in the same directory (its history set aside);
 /// the first checkpoint then comes with the first update, long before the
-/// default cadence (300 s), so the next kill loses at most that.
+/// default cadence (120 s), so the next kill loses at most that.
 #[test]
 fn a_learner_killed_before_its_first_checkpoint_leaves_a_run_to_resume() {
     let dir = scratch_dir("first-checkpoint");
     let prefix = format!("it-first-{}", std::process::id());
     let run_dir = dir.join("run");
     let config = dir.join("learner.toml");
-    // The default cadence: by time (300 s) and by count (10 000 updates).
+    // The default cadence: by time (120 s) and by count (10 000 updates).
     std::fs::write(&config, format!("[transport]\nservice_prefix = \"{prefix}\"\nmax_actors = 2\n[task]\nenv = \"bandit-fixture\"\n[policy]\nbatch_steps = 32\n")).unwrap();
     let args = |flag: &str| {
         vec![
