@@ -13,7 +13,6 @@ use serde::Serialize;
 use training::ppo::PpoStats;
 
 use crate::affordance_learner::UnetRound;
-use crate::validation_scorer::ValidationStatus;
 
 /// Per-actor book-keeping.
 #[derive(Debug, Clone)]
@@ -165,6 +164,25 @@ pub struct LearnerStatus {
     pub(crate) validation: ValidationStatus,
     /// How long updates and rounds take (shared handles: `/metrics` registers clones).
     pub timings: Timings,
+}
+
+/// What the status shows of the background validation scorer
+/// (`crate::validation_scorer`).
+#[derive(Debug, Clone, Default, Serialize)]
+pub(crate) struct ValidationStatus {
+    /// Why no checkpoint is scored, when none is (`None`: the scorer runs).
+    pub off: Option<String>,
+    /// Checkpoints scored.
+    pub scored: u64,
+    /// Checkpoints not scored because a newer one was written while they
+    /// waited.
+    pub skipped: u64,
+    /// Scorings that failed (the scorer's log says why).
+    pub failed: u64,
+    /// The checkpoint being scored now.
+    pub scoring_step: Option<u64>,
+    /// The newest scores.
+    pub last: Option<proto::ValidationScores>,
 }
 
 /// Farthest ahead of an actor's next sequence number (per kind) a message

@@ -16,31 +16,12 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use anyhow::Context;
-use serde::Serialize;
 
 use crate::history::History;
 use crate::shared::Shared;
 
 /// File in the run's `logs/` that the scorer's output is appended to.
 pub(crate) const SCORER_LOG: &str = "validation-scorer.log";
-
-/// What the status shows of the scorer.
-#[derive(Debug, Clone, Default, Serialize)]
-pub(crate) struct ValidationStatus {
-    /// Why no checkpoint is scored, when none is (`None`: the scorer runs).
-    pub off: Option<String>,
-    /// Checkpoints scored.
-    pub scored: u64,
-    /// Checkpoints not scored because a newer one was written while they
-    /// waited.
-    pub skipped: u64,
-    /// Scorings that failed (the scorer's log says why).
-    pub failed: u64,
-    /// The checkpoint being scored now.
-    pub scoring_step: Option<u64>,
-    /// The newest scores.
-    pub last: Option<proto::ValidationScores>,
-}
 
 /// Steps waiting for the scorer thread.
 #[derive(Debug, Default)]
