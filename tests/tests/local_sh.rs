@@ -8,27 +8,17 @@
 use std::fs::File;
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use system_tests::{bin, free_port, http_get, scratch_dir, wait_for};
+use system_tests::{bin, free_port, http_get, scratch_dir, wait_for, wait_launch_exit};
 
-/// A running `deploy/local.sh`, killed with its process group on drop.
+/// A running `deploy/local.sh` (killed with its process group on drop),
+/// its run directory and service prefix.
 struct Launch {
-    script: Child,
-    log: PathBuf,
+    run: system_tests::Launch,
     run_dir: PathBuf,
     prefix: String,
-}
-
-impl Drop for Launch {
-    fn drop(&mut self) {
-        // SAFETY: kill(2) on the process group we created has no memory-safety preconditions.
-        unsafe {
-            libc::kill(-(self.script.id() as i32), libc::SIGKILL);
-        }
-        let _ = self.script.wait();
-    }
 }
 
 /// The `--seed` every launch gives.
@@ -64,8 +54,7 @@ fn start(dir: &Path, case: &str, extra: &[&str]) -> (Launch, String) {
         .spawn()
         .expect("starting deploy/local.sh");
     let launch = Launch {
-        script,
-        log,
+        run: system_tests::Launch { script, log },
         run_dir,
         prefix: format!("afx-{name}"),
     };
@@ -137,19 +126,8 @@ fn survivors(prefix: &str) -> Vec<String> {
 
 /// Waits for the script's exit and checks that the run ended cleanly.
 fn assert_stopped_cleanly(mut launch: Launch) {
-    let deadline = Instant::now() + Duration::from_secs(60);
-    let status = loop {
-        if let Some(status) = launch.script.try_wait().expect("waiting for the script") {
-            break status;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "deploy/local.sh did not stop within 60 s:\n{}",
-            std::fs::read_to_string(&launch.log).unwrap_or_default()
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    };
-    let log = std::fs::read_to_string(&launch.log).unwrap_or_default();
+    let status = wait_launch_exit(&mut launch.run, 60);
+    let log = std::fs::read_to_string(&launch.run.log).unwrap_or_default();
     assert!(
         status.success() && log.contains("stopped (learner exit status 0)"),
         "{status}:\n{log}"
@@ -234,7 +212,7 @@ fn sigterm_to_the_script_stops_actors_then_the_learner() {
     }
     // SAFETY: kill(2) on our own child's pid has no memory-safety preconditions.
     unsafe {
-        libc::kill(launch.script.id() as i32, libc::SIGTERM);
+        libc::kill(launch.run.script.id() as i32, libc::SIGTERM);
     }
     assert_stopped_cleanly(launch);
 }
@@ -245,7 +223,7 @@ fn sigterm_that_also_kills_the_actor_supervisors_still_stops_the_learner() {
     // subshells share its command line and die with it.
     let dir = scratch_dir("local-sh-pkill");
     let launch = launch(&dir, "pkill");
-    let script = launch.script.id();
+    let script = launch.run.script.id();
     let supervisors: Vec<u32> = all_pids()
         .into_iter()
         .filter(|&p| parent_of(p) == Some(script) && cmdline(p).contains("local.sh"))
@@ -275,7 +253,7 @@ fn max_steps_stops_the_run_cleanly_once_it_has_taken_them() {
         ],
     );
     let run_dir = launch.run_dir.clone();
-    let log_path = launch.log.clone();
+    let log_path = launch.run.log.clone();
     assert_stopped_cleanly(launch);
     let log = std::fs::read_to_string(&log_path).unwrap_or_default();
     assert!(
@@ -446,17 +424,22 @@ fn an_actor_that_fails_before_its_first_weights_stops_the_run_with_its_log() {
     let (mut launch, _) = start(&dir, "setup", &["--", "--set", "actors.device=gpu"]);
     let deadline = Instant::now() + Duration::from_secs(60);
     let status = loop {
-        if let Some(status) = launch.script.try_wait().expect("waiting for the script") {
+        if let Some(status) = launch
+            .run
+            .script
+            .try_wait()
+            .expect("waiting for the script")
+        {
             break status;
         }
         assert!(
             Instant::now() < deadline,
             "deploy/local.sh kept restarting actors that cannot start:\n{}",
-            std::fs::read_to_string(&launch.log).unwrap_or_default()
+            std::fs::read_to_string(&launch.run.log).unwrap_or_default()
         );
         std::thread::sleep(Duration::from_millis(50));
     };
-    let log = std::fs::read_to_string(&launch.log).unwrap_or_default();
+    let log = std::fs::read_to_string(&launch.run.log).unwrap_or_default();
     assert!(!status.success(), "{status}:\n{log}");
     for words in [
         "before it received its first weights",
@@ -476,9 +459,13 @@ fn a_setting_actors_cannot_use_is_refused_before_anything_starts() {
     let dir = scratch_dir("local-sh-bad-setting");
     let (mut launch, _) = start(&dir, "badset", &["--renderer", "bogus"]);
     let status = wait_for(Duration::from_secs(30), "the script to give up", || {
-        launch.script.try_wait().expect("waiting for the script")
+        launch
+            .run
+            .script
+            .try_wait()
+            .expect("waiting for the script")
     });
-    let log = std::fs::read_to_string(&launch.log).unwrap_or_default();
+    let log = std::fs::read_to_string(&launch.run.log).unwrap_or_default();
     assert!(!status.success(), "{status}:\n{log}");
     assert!(
         log.contains("actors.renderer") && log.contains("auto, gpu, cpu"),
@@ -495,9 +482,13 @@ fn a_taken_port_is_named_with_the_option_that_changes_it() {
     let port = taken.local_addr().expect("its address").port().to_string();
     let (mut launch, _) = start(&dir, "port", &["--port", &port]);
     let status = wait_for(Duration::from_secs(30), "the script to give up", || {
-        launch.script.try_wait().expect("waiting for the script")
+        launch
+            .run
+            .script
+            .try_wait()
+            .expect("waiting for the script")
     });
-    let log = std::fs::read_to_string(&launch.log).unwrap_or_default();
+    let log = std::fs::read_to_string(&launch.run.log).unwrap_or_default();
     assert!(!status.success(), "{status}:\n{log}");
     assert!(
         log.contains(&format!("port {port} is taken")) && log.contains("with --port"),
