@@ -47,7 +47,9 @@ pub use rollout::{
     byte_to_unit, obs_bytes_from_f32, unit_to_byte, ObsDtype, RolloutChunk, RolloutView,
     MAX_ACTIONS, MAX_STEPS,
 };
-pub use rules::{ConfidenceRule, MapSegmentation, MapSettings, SelectionRule, SphereRule};
+pub use rules::{
+    CellPreference, ConfidenceRule, MapSegmentation, MapSettings, SelectionRule, SphereRule,
+};
 pub use stats::{AffordanceStat, EpisodeStats, StatField, StatKey};
 pub use task::{Affordance, EnvKind, PolicyLayout, RewardWeights, TaskError, TaskSpec};
 pub use validation::{AffordanceScores, ValidationScores, VALIDATION_DIR};

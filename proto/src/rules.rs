@@ -65,6 +65,23 @@ pub struct SelectionRule {
     /// robot aims at an object's part within reach. `false` is the paper's
     /// grid, which offers every object in view (docs/decisions/0012).
     pub within_reach: bool,
+    /// Which of a cell's objects it offers when the U-Net is running.
+    pub prefer: CellPreference,
+}
+
+/// Which object a grid cell offers among those assigned to it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CellPreference {
+    /// The paper's rule: the largest object whose mean probability is at
+    /// least the task's `selection_confidence`; failing any, the most
+    /// probable one.
+    #[default]
+    Largest,
+    /// The object with the highest mean probability of the affordance, so
+    /// that an attempt goes to what the network rates likeliest to afford
+    /// it rather than to the largest object (a sofa, a table) in the cell.
+    MostProbable,
 }
 
 impl SelectionRule {
@@ -86,6 +103,7 @@ impl Default for SelectionRule {
             centre_fraction: 0.75,
             min_pixels: 10,
             within_reach: true,
+            prefer: CellPreference::Largest,
         }
     }
 }

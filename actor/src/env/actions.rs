@@ -26,7 +26,7 @@
 //! attempts then failed out of reach and taught nothing (docs/decisions/0012).
 
 use mapper::Affordance;
-use proto::SelectionRule;
+use proto::{CellPreference, SelectionRule};
 use sim::agent::{Action, HandMove, NavAction};
 
 /// Cells per side of the selection grid.
@@ -247,14 +247,15 @@ impl Blob {
     }
 }
 
-/// How strongly a cell prefers one of its objects: any object the U-Net is
-/// confident about (by size) over any it is not (by mean probability).
+/// How strongly a cell prefers one of its objects: any object ranked by its
+/// size (without a network, or confident under the paper's rule) over any
+/// ranked by its mean probability.
 #[derive(Debug, Clone, Copy, PartialEq, PartialOrd)]
 enum Preference {
-    /// Mean probability below the threshold.
-    Doubtful(f32),
-    /// Mean probability at or above it (or no network): its pixel count.
-    Confident(usize),
+    /// Its mean probability of the affordance.
+    Probability(f32),
+    /// Its pixel count.
+    Size(usize),
 }
 
 /// The grid targets for a frame: `map_ids` is the frame's map-id image
@@ -319,21 +320,25 @@ pub(crate) fn cell_targets(
     };
     let mut cells = Vec::with_capacity(affordances.len());
     for (k, &affordance) in affordances.iter().enumerate() {
-        // Per cell, the largest confident object; failing any, the most
-        // probable one (the lowest id on ties).
+        // Per cell, the largest confident object, failing any the most
+        // probable one (`largest`); or the most probable one
+        // (`most_probable`); the lowest id on ties.
         let mut best: [Option<(u32, &Blob, Preference)>; GRID * GRID] = [None; GRID * GRID];
         for (&id, blob) in &blobs {
             if blob.pixels < min_pixels {
                 continue;
             }
             let preference = match probabilities {
-                None => Preference::Confident(blob.pixels),
+                None => Preference::Size(blob.pixels),
                 Some(_) => {
                     let mean = (blob.sum_probability[k] / blob.pixels as f64) as f32;
-                    if mean >= min_confidence {
-                        Preference::Confident(blob.pixels)
-                    } else {
-                        Preference::Doubtful(mean)
+                    match rule.prefer {
+                        CellPreference::Largest if mean >= min_confidence => {
+                            Preference::Size(blob.pixels)
+                        }
+                        CellPreference::Largest | CellPreference::MostProbable => {
+                            Preference::Probability(mean)
+                        }
                     }
                 }
             };
@@ -567,6 +572,42 @@ mod tests {
         assert_eq!(t.target(Affordance::Push, 0).unwrap().object, 3);
         assert_eq!(t.target(Affordance::Push, 8).unwrap().object, 5);
         assert!(t.target(Affordance::Push, 4).is_none());
+    }
+
+    #[test]
+    fn a_most_probable_cell_offers_the_object_rated_likeliest_whatever_its_size() {
+        // Top-left: a big object (2) and a small one (3); bottom-right: object 5.
+        let ids = image(&[(2, 3, 3, 10, 10), (3, 10, 3, 12, 8), (5, 22, 22, 27, 27)]);
+        let rule = SelectionRule {
+            prefer: CellPreference::MostProbable,
+            ..SelectionRule::default()
+        };
+        let targets = |planes: Option<&[Vec<f32>]>| {
+            cell_targets(&ids, 30, &[Affordance::PickUp], planes, MIN_CONFIDENCE, &rule)
+        };
+        // Both confident: the paper's rule would offer the big one.
+        let plane: Vec<f32> = ids
+            .iter()
+            .map(|&id| match id {
+                2 => 0.6,
+                3 => 0.9,
+                _ => 0.2,
+            })
+            .collect();
+        let t = targets(Some(&[plane.clone()]));
+        assert_eq!(t.target(Affordance::PickUp, 0).unwrap().object, 3);
+        assert_eq!(t.target(Affordance::PickUp, 8).unwrap().object, 5);
+        let paper = cell_targets(
+            &ids,
+            30,
+            &[Affordance::PickUp],
+            Some(&[plane]),
+            MIN_CONFIDENCE,
+            &SelectionRule::default(),
+        );
+        assert_eq!(paper.target(Affordance::PickUp, 0).unwrap().object, 2);
+        // Without a network the cell offers its largest object.
+        assert_eq!(targets(None).target(Affordance::PickUp, 0).unwrap().object, 2);
     }
 
     #[test]

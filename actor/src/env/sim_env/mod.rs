@@ -391,6 +391,7 @@ mod tests {
                 centre_fraction: 0.5,
                 min_pixels: 4,
                 within_reach: false,
+                prefer: proto::CellPreference::MostProbable,
             },
             confidence: ConfidenceRule {
                 positive_above: 0.8,
