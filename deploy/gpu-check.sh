@@ -26,7 +26,7 @@ Runs, one after the other, each under a time limit (about 9 minutes in all):
      environments, 600-step episodes), when DIR has env_steps;
   5. deploy/throughput.sh: the whole system, `ours`, 1x32 at 64 px with the CPU
      renderer, and 1x32 at 128 px with the GPU renderer and with the CPU
-     renderer, PPO on 1024-step batches (what the README advises on a GPU),
+     renderer, PPO on 1024-step batches (what docs/running.md advises on a GPU),
      with the CPU cores the learner and the actors kept busy (and per thread
      name), the messages lost by kind, each actor's loop thread's chores per
      step, its U-Net batching threads' share and its environments' steps;
@@ -149,7 +149,7 @@ fi
 if ! skipped capacity; then
   section "Learner capacity, synthetic actors (learner bench-capacity)"
   header_done=0
-  # The learner's default PPO batch, and the 1024 steps a GPU wants (README).
+  # The learner's default PPO batch, and the 1024 steps a GPU wants (docs/running.md).
   for setting in "64 100 4 128" "64 100 4 1024" "128 600 4 1024"; do
     read -r side steps feeds batch <<<"$setting"
     log="$LOGS/capacity-${side}px-${batch}.log"

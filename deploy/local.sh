@@ -25,7 +25,7 @@ Options:
   --run-dir DIR     run directory (config, checkpoints, logs); default runs/run-<time>
   --resume          resume the run in --run-dir from its newest valid checkpoint
   --method M        ours (default: object-level map), nomap-seg, nomap-noseg
-                    or intexp (no map: GRU memory, point labels; see README)
+                    or intexp (no map: GRU memory, point labels; see README, "The methods")
   --env ENV         sim (default: simulator, map, U-Net, labeler) or
                     bandit-fixture (a wiring test fixture)
   --image-size N    camera and map side in pixels, a multiple of 16 (default 128,
@@ -45,7 +45,7 @@ Options:
   --dataset-frame-every K
                     with --dataset, every K-th frame of an episode (default 1)
   --device D        where learner and actors run the networks: cpu (default) or
-                    gpu (binaries built with --features nets/gpu; see README)
+                    gpu (binaries built with --features nets/gpu; see docs/running.md)
   --max-steps N     stop as on Ctrl-C (final checkpoint) once the run has taken
                     N environment steps over all actors (on --resume: the run's
                     total, so resuming continues to N); default: run until stopped
@@ -82,7 +82,7 @@ Options:
 run's config.toml ([actors]), where every actor reads them; on --resume the
 saved ones hold unless given again.
 Everything after `--` is passed to `learner serve`, e.g. `-- --config my.toml`
-for a learner config (reward weights: [task.reward]; see README).
+for a learner config (reward weights: [task.reward]; see docs/running.md).
 Stop with Ctrl-C, or with SIGTERM (a script started in the background with `&`
 ignores SIGINT).
 USAGE

@@ -50,7 +50,8 @@ pub enum MapError {
     UnknownObject(ObjectId),
 }
 
-/// Map settings; defaults follow `mapper.md`.
+/// Map settings; the defaults are those the map was measured with
+/// (docs/notebook/2026-11-22-mapper.md).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MapConfig {
     /// Voxel edge of object volumes, metres.

@@ -4,7 +4,7 @@
 //! The map renders every frame for association, so [`render_layers`] casts
 //! about a quarter of the rays: it marches a sparse grid, fills pixels
 //! inside one surface from their neighbours, and marches the rest
-//! (silhouettes, depth edges) exactly. mapper.md allows ray marching or
+//! (silhouettes, depth edges) exactly. The map may be rendered by ray marching or
 //! projection; this keeps marching's exact silhouettes, which splatting
 //! voxels would dilate, at 0.72–0.80 of its cost in `cargo bench -p mapper`'s
 //! room (silhouettes' rays, grazing their surfaces, cost more than most).

@@ -213,7 +213,7 @@ fn ids_rendered_into_a_training_frame_match_ground_truth() {
             pred.difference(&gt).count()
         );
         // Boundary pixels dominate small masks: a 0.3 m cube at 2.5 m is ~90 px,
-        // and a one-pixel ring of errors costs ~12 % IoU. mapper.md's 0.9 is
+        // and a one-pixel ring of errors costs ~12 % IoU. The 0.9 bar is
         // asserted for objects of 200+ px; smaller ones must reach 0.8.
         let bound = if gt.len() >= 200 { 0.9 } else { 0.8 };
         assert!(iou > bound, "instance {instance} IoU {iou} (bound {bound})");

@@ -1,4 +1,4 @@
-//! Tracking of a moved object (mapper.md test 6): the pose follows a box
+//! Tracking of a moved object: the pose follows a box
 //! moved 10 cm and turned 15°, no ghost remains, static objects do not drift,
 //! and a jump beyond the gate fails without touching the model. Objects the
 //! robot moved that tracking loses are found again.

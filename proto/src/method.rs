@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 /// Cells of the object-selection grid per affordance (3 × 3).
 pub const GRID_CELLS: usize = 9;
 
-/// The four methods of the paper's comparison (ARCHITECTURE.md, "Methods").
+/// The four methods of the paper's comparison (README, "The methods").
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Method {

@@ -63,7 +63,7 @@ pub struct SelectionRule {
     /// (measured from the agent's depth and pose, as the simulator judges
     /// reach): a cell whose objects all lie beyond reach is masked and the
     /// robot aims at an object's part within reach. `false` is the paper's
-    /// grid, which offers every object in view (docs/decisions/0012).
+    /// grid, which offers every object in view (docs/decisions/0012-selection-within-reach.md).
     pub within_reach: bool,
     /// Which of a cell's objects it offers when the U-Net is running.
     pub prefer: CellPreference,

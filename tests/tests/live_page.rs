@@ -1,7 +1,7 @@
 //! The learner's live page at `/`, in a real browser: headless Chromium
 //! (Debian's `chromium`) loads it from a learner with two actors, and the
 //! curves are drawn with data, the actors listed and the config shown; a
-//! screenshot is saved (the README's comes from this test). Without
+//! screenshot is saved (the README's, docs/figures/live-page.png, comes from this test). Without
 //! Chromium the browser part is skipped with a message, except where
 //! `AFX_REQUIRE_BROWSER` is set (CI), where it fails.
 

@@ -23,7 +23,7 @@
 //! ([`beyond_reach_hidden`]): a cell whose objects all lie beyond reach is
 //! masked, and the robot aims at the part of an object it can reach. The
 //! paper's grid offers every object in view, and half of a run's pick-up
-//! attempts then failed out of reach and taught nothing (docs/decisions/0012).
+//! attempts then failed out of reach and taught nothing (docs/decisions/0012-selection-within-reach.md).
 
 use mapper::Affordance;
 use proto::{CellPreference, SelectionRule};
@@ -583,7 +583,14 @@ mod tests {
             ..SelectionRule::default()
         };
         let targets = |planes: Option<&[Vec<f32>]>| {
-            cell_targets(&ids, 30, &[Affordance::PickUp], planes, MIN_CONFIDENCE, &rule)
+            cell_targets(
+                &ids,
+                30,
+                &[Affordance::PickUp],
+                planes,
+                MIN_CONFIDENCE,
+                &rule,
+            )
         };
         // Both confident: the paper's rule would offer the big one.
         let plane: Vec<f32> = ids
@@ -607,7 +614,10 @@ mod tests {
         );
         assert_eq!(paper.target(Affordance::PickUp, 0).unwrap().object, 2);
         // Without a network the cell offers its largest object.
-        assert_eq!(targets(None).target(Affordance::PickUp, 0).unwrap().object, 2);
+        assert_eq!(
+            targets(None).target(Affordance::PickUp, 0).unwrap().object,
+            2
+        );
     }
 
     #[test]

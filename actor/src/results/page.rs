@@ -466,7 +466,7 @@ fn differences(out: &mut String, comparison: &Comparison) {
         "## How these runs differ from the paper\n\n\
          - **Simulator**: this project's own (iTHOR rooms' metadata, rapier physics, its own \
          renderer and robot profile), not AI2-THOR; pick up and push succeed by its rules \
-         (README). The paper's numbers are a reference for the methods' order, not values to \
+         (`actor/sim/src/affordances.rs`). The paper's numbers are a reference for the methods' order, not values to \
          match.\n\
          - **Scale**: `{}`, {} steps per run; the paper trained at 128 px with 600-step \
          episodes for about 1 M steps (8 parallel environments).\n\

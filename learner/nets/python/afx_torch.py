@@ -17,7 +17,7 @@ convolutions `[in, out, kh, kw]`. The file's metadata holds `unet_temperature`
     log_probs, value, hidden = policy(images, vectors, mask)
 
 `load_run(run_dir)` takes the image size from the run's `config.toml` and the
-newest checkpoint. The tensor table is in the README ("PyTorch").
+newest checkpoint. The tensor table is in docs/pytorch.md.
 
 `python3 afx_torch.py --parity DIR` compares these networks with the Rust
 forward passes on the inputs and outputs a test wrote into DIR

@@ -4,7 +4,7 @@
 //! - `afx/R/up/HOST/KIND`: what the actors of host `HOST` send to the
 //!   learner (`rollout`, `frames`, `stats`; joins travel with the stats, as
 //!   they do in shared memory). One host publishes only under its own name,
-//!   which an access-control list can enforce (README, "Actors on other hosts").
+//!   which an access-control list can enforce (docs/many-hosts.md).
 //! - `afx/R/weights`: the learner's weights, to every actor host.
 //! - `afx/R/config`: the run's `config.toml`, answered on request.
 
