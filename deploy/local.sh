@@ -49,6 +49,10 @@ Options:
   --max-steps N     stop as on Ctrl-C (final checkpoint) once the run has taken
                     N environment steps over all actors (on --resume: the run's
                     total, so resuming continues to N); default: run until stopped
+  --max-seconds S   stop as on Ctrl-C (final checkpoint) S seconds after the
+                    learner started (building not counted): for a machine lent
+                    for a fixed time, leave a minute or two of it for the stop
+                    and deploy/pack-run.sh; default: no deadline
   --seed N          the run's seed (default 0): initial networks, rooms, actions;
                     runs that differ only in --seed are independent repeats
   --port PORT       HTTP port of the learner's metrics endpoint (default 9464)
@@ -89,7 +93,7 @@ USAGE
 }
 
 PROGRESS_EVERY=10
-ACTORS="" ENVS="" RUN_DIR="" RESUME=0 PORT=9464 PROFILE=release BIN="" SEED=0 MAX_STEPS=
+ACTORS="" ENVS="" RUN_DIR="" RESUME=0 PORT=9464 PROFILE=release BIN="" SEED=0 MAX_STEPS= MAX_SECONDS=
 # TASK_ARGS: what the run learns (fixed once the run exists); SETTINGS: how
 # its actors run, written into the run's config.toml ([actors]) by the
 # learner and read from there by every actor; RECORD_ARGS: this start's
@@ -119,6 +123,7 @@ while [[ $# -gt 0 ]]; do
     --port) PORT="${2:?--port needs a number}"; shift 2 ;;
     --progress-every) PROGRESS_EVERY="${2:?--progress-every needs a number of seconds}"; shift 2 ;;
     --max-steps) MAX_STEPS="${2:?--max-steps needs a number}"; shift 2 ;;
+    --max-seconds) MAX_SECONDS="${2:?--max-seconds needs a number of seconds}"; shift 2 ;;
     --seed) SEED="${2:?--seed needs a number}"; TASK_ARGS+=(--seed "$SEED"); shift 2 ;;
     --listen) LISTEN="${2:?--listen needs an endpoint, e.g. tls/10.0.0.5:7447}"; shift 2 ;;
     --remote-actors) REMOTE="${2:?--remote-actors needs a number}"; shift 2 ;;
@@ -143,6 +148,7 @@ fi
 ALL_ACTORS=$((ACTORS + REMOTE))
 [[ -z "$ENVS" || ( "$ENVS" =~ ^[1-9][0-9]*$ && "$ENVS" -le 256 ) ]] || { echo "local.sh: --envs-per-actor needs an integer in 1..256, got '$ENVS'" >&2; exit 2; }
 [[ -z "$MAX_STEPS" || "$MAX_STEPS" =~ ^[1-9][0-9]*$ ]] || { echo "local.sh: --max-steps needs a positive integer, got '$MAX_STEPS'" >&2; exit 2; }
+[[ -z "$MAX_SECONDS" || "$MAX_SECONDS" =~ ^[1-9][0-9]*$ ]] || { echo "local.sh: --max-seconds needs a positive whole number of seconds, got '$MAX_SECONDS'" >&2; exit 2; }
 [[ "$ACTOR_NICE" =~ ^[0-9]+$ && "$ACTOR_NICE" -le 19 ]] || { echo "local.sh: --actor-nice needs an integer in 0..19, got '$ACTOR_NICE'" >&2; exit 2; }
 [[ "$SEED" =~ ^[0-9]+$ ]] || { echo "local.sh: --seed needs a non-negative integer, got '$SEED'" >&2; exit 2; }
 [[ "$PROGRESS_EVERY" =~ ^[0-9]+$ ]] || { echo "local.sh: --progress-every needs a whole number of seconds, got '$PROGRESS_EVERY'" >&2; exit 2; }
@@ -207,6 +213,7 @@ fi
 echo "starting the learner (log: $LOGS/learner.log)"
 "$BIN/learner" "${LEARNER_ARGS[@]}" "${EXTRA[@]}" >>"$LOGS/learner.log" 2>&1 &
 LEARNER_PID=$!
+LEARNER_STARTED_S=$SECONDS
 echo "$LEARNER_PID" >"$LOGS/learner.pid"
 
 for _ in $(seq 1 200); do
@@ -329,6 +336,7 @@ print_progress() {
 }
 
 [[ -z "$MAX_STEPS" ]] || echo "stops after $MAX_STEPS environment steps"
+[[ -z "$MAX_SECONDS" ]] || echo "stops $MAX_SECONDS s after the learner started"
 while kill -0 "$LEARNER_PID" 2>/dev/null; do
   if [[ -e "$SETUP_FAILED" ]]; then
     echo "local.sh: stopping the run: fix the problem above, then start it again" >&2
@@ -344,6 +352,10 @@ while kill -0 "$LEARNER_PID" 2>/dev/null; do
       echo "the run reached $steps environment steps (--max-steps $MAX_STEPS)"
       shutdown
     fi
+  fi
+  if [[ -n "$MAX_SECONDS" && $((SECONDS - LEARNER_STARTED_S)) -ge $MAX_SECONDS ]]; then
+    echo "the run reached its deadline (--max-seconds $MAX_SECONDS) at $(run_steps || echo '?') environment steps"
+    shutdown
   fi
   # `wait` on a background sleep lets a Ctrl-C's trap run at once.
   sleep 2 & wait $! || true
