@@ -23,7 +23,11 @@
 //! side with PyTorch: one PPO update of 1 024 steps (`AFX_BENCH_PPO_STEPS`) of
 //! the default `ours` task's observations at 64 and 128 px, 4 epochs × 2
 //! minibatches, and the U-Net training step (batch 8, 128 px).
-//! `AFX_BENCH_SIDES=64` limits the PPO update to the sides listed.
+//! `AFX_BENCH_SIDES=64` limits the PPO update to the sides listed. It times
+//! 15 repeats of each (5 in the quick mode; `AFX_BENCH_REPEATS=N`) and prints
+//! each figure's median with its 10th and 90th percentiles, and each ratio to
+//! PyTorch with the range the two spreads allow: a range that holds 1.0 does
+//! not tell the two apart.
 //! `AFX_POLICY_CONV` (`auto`, `burn`, `batch`, `image`) chooses how the
 //! policy's encoders compute their convolutions (`nets::policy::ConvPath`);
 //! `AFX_TORCH_REFERENCE=none` skips PyTorch.
@@ -58,22 +62,45 @@ fn policy_config_at(side: usize) -> PolicyLayout {
     }
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
+/// Whether `AFX_BENCH_QUICK` asks for the quick mode (set and not empty).
+fn quick_mode() -> bool {
+    std::env::var("AFX_BENCH_QUICK").is_ok_and(|v| !v.is_empty())
 }
 
-fn time(repeats: usize, mut f: impl FnMut()) -> f64 {
-    f(); // warm-up
-    median(
-        (0..repeats)
-            .map(|_| {
-                let t = Instant::now();
-                f();
-                t.elapsed().as_secs_f64() * 1e3
-            })
-            .collect(),
-    )
+/// One measurement's repeats, milliseconds, sorted: its median and the
+/// spread between its 10th and 90th percentiles (the extremes for fewer than
+/// ten repeats), so that two figures can be told apart or not.
+#[derive(Debug, Clone)]
+struct Timing(Vec<f64>);
+
+impl Timing {
+    fn quantile(&self, q: f64) -> f64 {
+        let i = (q * (self.0.len() - 1) as f64).round() as usize;
+        self.0[i]
+    }
+
+    fn median(&self) -> f64 {
+        self.quantile(0.5)
+    }
+
+    /// The 10th and 90th percentiles.
+    fn spread(&self) -> (f64, f64) {
+        (self.quantile(0.1), self.quantile(0.9))
+    }
+}
+
+/// Times `f` `repeats` times after a warm-up call.
+fn time(repeats: usize, mut f: impl FnMut()) -> Timing {
+    f();
+    let mut samples: Vec<f64> = (0..repeats.max(1))
+        .map(|_| {
+            let t = Instant::now();
+            f();
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    samples.sort_by(f64::total_cmp);
+    Timing(samples)
 }
 
 fn random_input(rows: usize, rng: &mut StdRng, device: &Device) -> PolicyInput {
@@ -138,7 +165,7 @@ fn learner_batch_steps() -> usize {
 /// update unless `AFX_BENCH_PPO_STEPS` says otherwise, 4 epochs × 2
 /// minibatches) on 64 × 64 images, the size a 2-core machine trains at
 /// (`deploy/local.sh --image-size 64`).
-fn ppo_update_at_learner_defaults(repeats: usize, rng: &mut StdRng, device: &Device) -> f64 {
+fn ppo_update_at_learner_defaults(repeats: usize, rng: &mut StdRng, device: &Device) -> Timing {
     let layout = policy_config_at(64);
     let batch = ppo_batch(&layout, learner_batch_steps(), rng, device);
     let mut ppo = Ppo::new(
@@ -177,8 +204,14 @@ fn ours_layout(side: usize) -> PolicyLayout {
 /// The learner's training shapes (see the module's doc), with PyTorch's
 /// figures beside them.
 fn gpu_check(device: &Device, gpu: bool, rng: &mut StdRng) {
-    let quick = std::env::var_os("AFX_BENCH_QUICK").is_some();
-    let repeats = if quick { 2 } else { 5 };
+    let quick = quick_mode();
+    // Enough repeats that the spread says whether two figures differ (two
+    // repeats swung 1.7x between calls of one binary on an H200).
+    let repeats = std::env::var("AFX_BENCH_REPEATS")
+        .ok()
+        .and_then(|s| s.trim().parse::<usize>().ok())
+        .filter(|&n| n >= 1)
+        .unwrap_or(if quick { 5 } else { 15 });
     let steps = std::env::var("AFX_BENCH_PPO_STEPS")
         .ok()
         .and_then(|s| s.trim().parse::<usize>().ok())
@@ -193,7 +226,7 @@ fn gpu_check(device: &Device, gpu: bool, rng: &mut StdRng) {
             })
             .collect()
     });
-    let mut results: Vec<(String, f64)> = Vec::new();
+    let mut results: Vec<(String, Timing)> = Vec::new();
     for side in sides {
         let layout = ours_layout(side);
         let batch = ppo_batch(&layout, steps, rng, device);
@@ -205,8 +238,11 @@ fn gpu_check(device: &Device, gpu: bool, rng: &mut StdRng) {
         let ms = time(repeats, || {
             ppo.update(&batch, rng);
         });
+        eprintln!(
+            "  ppo_update_{steps}_{side}px_ms: median {:.1} ms",
+            ms.median()
+        );
         results.push((format!("ppo_update_{steps}_{side}px_ms"), ms));
-        eprintln!("  {}: {ms:.1} ms", results.last().unwrap().0);
     }
     let frames = unet_frames(rng);
     let refs: Vec<&LabelledFrame> = frames.iter().collect();
@@ -226,7 +262,10 @@ fn gpu_check(device: &Device, gpu: bool, rng: &mut StdRng) {
             trainer.step(&refs);
         }),
     ));
-    let named: Vec<(&str, f64)> = results.iter().map(|(n, v)| (n.as_str(), *v)).collect();
+    let named: Vec<(&str, Timing)> = results
+        .iter()
+        .map(|(n, v)| (n.as_str(), v.clone()))
+        .collect();
     print_results(&named, gpu);
     let layout = ours_layout(64);
     let list = |v: &[usize]| v.iter().map(usize::to_string).collect::<Vec<_>>().join(",");
@@ -267,11 +306,11 @@ fn main() {
     if std::env::args().any(|a| a == "--list") {
         return; // `cargo test --benches` asks benches to list themselves
     }
-    let quick = std::env::var_os("AFX_BENCH_QUICK").is_some();
+    let quick = quick_mode();
     let repeats = if quick { 1 } else { 5 };
     let (device, gpu) = bench_device();
     let mut rng = StdRng::seed_from_u64(1);
-    let mut results: Vec<(&str, f64)> = Vec::new();
+    let mut results: Vec<(&str, Timing)> = Vec::new();
 
     let only = std::env::var("AFX_BENCH_ONLY").ok();
     if only.as_deref() == Some("gpu-check") {
@@ -426,23 +465,53 @@ fn main() {
     );
 }
 
-/// Prints each measurement's median.
-fn print_results(results: &[(&str, f64)], gpu: bool) {
+/// Prints each measurement's median and spread.
+fn print_results(results: &[(&str, Timing)], gpu: bool) {
     let backend = if gpu { "wgpu (GPU)" } else { "flex (CPU)" };
     println!(
         "burn 0.22.1 {backend}, {} CPU threads available, features: {}:",
         std::thread::available_parallelism().map_or(1, |n| n.get()),
         nets::device::backend_features()
     );
-    for (name, ms) in results {
-        println!("  {name}: median {ms:.1} ms");
+    for (name, timing) in results {
+        let (low, high) = timing.spread();
+        println!(
+            "  {name}: median {:.1} ms [p10 {low:.1}, p90 {high:.1}] of {}",
+            timing.median(),
+            timing.0.len()
+        );
     }
 }
 
+/// A reference line's median and spread: `name: median M ms [p10 L, p90 H] of N`
+/// (or without the spread, as older references print).
+fn reference(text: &str, name: &str) -> Option<(f64, f64, f64)> {
+    let line = text
+        .lines()
+        .find(|l| l.trim_start().starts_with(&format!("{name}:")))?;
+    let number = |after: &str| -> Option<f64> {
+        line.split(after)
+            .nth(1)?
+            .split([' ', ',', ']'])
+            .next()?
+            .parse()
+            .ok()
+    };
+    let median = number("median ")?;
+    Some((
+        median,
+        number("p10 ").unwrap_or(median),
+        number("p90 ").unwrap_or(median),
+    ))
+}
+
 /// Runs the PyTorch reference with `args` and prints ours / theirs per
-/// measurement. `AFX_TORCH_REFERENCE` names the script where the bench runs
-/// away from its source tree (a GPU machine with the binary alone).
-fn compare_with_torch(ours: &[(&str, f64)], args: &[String]) {
+/// measurement: the ratio of the medians, and the range of ratios the two
+/// spreads allow (ours at its 10th percentile against theirs at its 90th, and
+/// the other way): a ratio whose range holds 1.0 does not tell the two apart.
+/// `AFX_TORCH_REFERENCE` names the script where the bench runs away from its
+/// source tree (a GPU machine with the binary alone).
+fn compare_with_torch(ours: &[(&str, Timing)], args: &[String]) {
     if std::env::var_os("AFX_TORCH_REFERENCE").is_some_and(|v| v == "none") {
         return;
     }
@@ -469,20 +538,20 @@ fn compare_with_torch(ours: &[(&str, f64)], args: &[String]) {
         }
     };
     print!("{text}");
-    for (name, ms) in ours {
+    for (name, timing) in ours {
         // The CPU path runs on one thread: PyTorch on one thread is its peer.
-        let reference = name.replace("_cpu_path", "_1thread");
-        let theirs = text
-            .lines()
-            .find(|l| l.trim_start().starts_with(&format!("{reference}:")))
-            .and_then(|l| l.split("median ").nth(1))
-            .and_then(|r| r.split(' ').next())
-            .and_then(|v| v.parse::<f64>().ok());
-        if let Some(theirs) = theirs {
-            println!(
-                "  ours / pytorch, {name}: {ms:.1} / {theirs:.1} = {:.2}",
-                ms / theirs
-            );
-        }
+        let Some((theirs, their_low, their_high)) =
+            reference(&text, &name.replace("_cpu_path", "_1thread"))
+        else {
+            continue;
+        };
+        let ms = timing.median();
+        let (low, high) = timing.spread();
+        println!(
+            "  ours / pytorch, {name}: {ms:.1} / {theirs:.1} = {:.2} [{:.2}, {:.2}]",
+            ms / theirs,
+            low / their_high,
+            high / their_low
+        );
     }
 }

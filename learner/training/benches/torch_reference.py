@@ -6,7 +6,9 @@ Same architectures as `learner/nets` (policy: three conv encoders 8x8/4,
 U-Net: levels (24, 48, 92, 164), double 3x3 convs, max-pool, transposed
 convs), the same batch sizes and the same PPO update (4 epochs x 2
 minibatches, clipped losses, Adam, global grad-norm clipping). Prints one
-`name: median X ms` line per measurement, on CPU unless --device says otherwise.
+`name: median X ms [p10 L, p90 H] of N` line per measurement (a warm-up call
+first; the spread is the extremes for fewer than ten repeats), on CPU unless
+--device says otherwise.
 
 Usage: python3 learner/training/benches/torch_reference.py [--envs 8] [--repeats 5] [--device cpu]
        python3 learner/training/benches/torch_reference.py --gpu-check --ppo-steps 1024 \
@@ -17,7 +19,6 @@ Needs `pip install torch` (CPU wheels: https://download.pytorch.org/whl/cpu).
 """
 
 import argparse
-import statistics
 import sys
 import time
 from pathlib import Path
@@ -63,13 +64,18 @@ def masked_bce_dice(logits, labels, known):
 
 
 def timed(repeats, f):
+    """Milliseconds of `repeats` calls of `f` after a warm-up call, sorted."""
     f()
     out = []
-    for _ in range(repeats):
+    for _ in range(max(repeats, 1)):
         t = time.perf_counter()
         f()
         out.append((time.perf_counter() - t) * 1e3)
-    return statistics.median(out)
+    return sorted(out)
+
+
+def quantile(samples, q):
+    return samples[round(q * (len(samples) - 1))]
 
 
 def ppo_update_fn(policy, rows, image_channels, vector_dims, n_actions, size, dev, sync):
@@ -189,7 +195,10 @@ def main():
 def report(results, dev):
     print(f"pytorch {torch.__version__} ({dev}, {torch.get_num_threads()} threads):")
     for k, v in results.items():
-        print(f"  {k}: median {v:.1f} ms")
+        print(
+            f"  {k}: median {quantile(v, 0.5):.1f} ms "
+            f"[p10 {quantile(v, 0.1):.1f}, p90 {quantile(v, 0.9):.1f}] of {len(v)}"
+        )
 
 
 if __name__ == "__main__":
