@@ -82,8 +82,8 @@ impl Inbox {
         }
         {
             let mut status = shared.status();
-            status.rollout_steps_discarded += discarded as u64;
-            status.rollout_steps_queued = state.steps as u64;
+            status.counters.rollout_steps_discarded += discarded as u64;
+            status.counters.rollout_steps_queued = state.steps as u64;
         }
         drop(state);
         self.changed.notify_one();
@@ -142,7 +142,7 @@ enum Work {
 fn snapshot(trainer: &PolicyTrainer, shared: &Shared) -> anyhow::Result<PolicySnapshot> {
     Ok(PolicySnapshot {
         version: trainer.version(),
-        updates: shared.status().updates,
+        updates: shared.status().counters.updates,
         weights: trainer.weights().context("serialising the policy")?,
         optimizer: trainer
             .optimizer_state()
@@ -279,7 +279,7 @@ fn take(inbox: &Inbox, need: usize, shared: &Shared) -> Taken {
             chunks.push(chunk);
         }
     }
-    shared.status().rollout_steps_queued = state.steps as u64;
+    shared.status().counters.rollout_steps_queued = state.steps as u64;
     Taken {
         chunks,
         snapshot: std::mem::take(&mut state.snapshot_requested),
@@ -327,7 +327,7 @@ fn gather(builder: &mut BatchBuilder, inbox: &Inbox, shared: &Shared, work: &Syn
                 }
                 Ok(None) => {}
                 Err(error) => {
-                    shared.status().untrainable_chunks += 1;
+                    shared.status().counters.untrainable_chunks += 1;
                     if warned.insert(header.actor_id) {
                         tracing::warn!(
                             "actor {}: {error} (further ones are only counted)",
@@ -378,13 +378,13 @@ fn train(
         let env_steps = {
             let mut status = shared.status();
             status.timings.ppo_update.observe(updated);
-            status.ppo_batch_seconds += built;
-            status.ppo_update_seconds += updated;
-            status.updates += 1;
-            status.last_update = Some(stats);
-            status.policy_version = version;
-            status.trained_steps += rows as u64;
-            status.env_steps
+            status.counters.ppo_batch_seconds += built;
+            status.counters.ppo_update_seconds += updated;
+            status.counters.updates += 1;
+            status.counters.last_update = Some(stats);
+            status.counters.policy_version = version;
+            status.counters.trained_steps += rows as u64;
+            status.counters.env_steps
         };
         outlets
             .history
@@ -441,7 +441,10 @@ mod tests {
         let shared = shared_state(&LearnerConfig::default(), dir.path());
         let counts = || {
             let status = shared.status();
-            (status.rollout_steps_queued, status.rollout_steps_discarded)
+            (
+                status.counters.rollout_steps_queued,
+                status.counters.rollout_steps_discarded,
+            )
         };
         let inbox = Inbox::new(10);
         assert_eq!(inbox.push(chunk(1, 4), &shared), 0);
@@ -535,15 +538,20 @@ mod tests {
         while lead < 8 {
             let status = shared.status();
             assert!(
-                Instant::now() < deadline && status.updates < batches,
+                Instant::now() < deadline && status.counters.updates < batches,
                 "never two batches ahead of training"
             );
-            lead = (batches * 4 - status.rollout_steps_queued).saturating_sub(status.trained_steps);
+            lead = (batches * 4 - status.counters.rollout_steps_queued)
+                .saturating_sub(status.counters.trained_steps);
         }
         let last = worker.stop().unwrap();
         let status = shared.status();
-        assert_eq!(last.version, 1 + status.updates, "one version an update");
-        assert_eq!(status.trained_steps, 4 * status.updates);
+        assert_eq!(
+            last.version,
+            1 + status.counters.updates,
+            "one version an update"
+        );
+        assert_eq!(status.counters.trained_steps, 4 * status.counters.updates);
     }
 
     #[test]
@@ -576,8 +584,11 @@ mod tests {
         };
         assert_eq!((snapshot.version, snapshot.updates), (3, 2));
         let status = shared.status();
-        assert_eq!((status.updates, status.trained_steps), (2, 16));
-        assert_eq!(status.policy_version, 3);
+        assert_eq!(
+            (status.counters.updates, status.counters.trained_steps),
+            (2, 16)
+        );
+        assert_eq!(status.counters.policy_version, 3);
         drop(status);
         let last = worker.stop().unwrap();
         assert_eq!(last.version, 3);

@@ -87,98 +87,103 @@ pub fn render(s: &StatusSnapshot, timings: &Timings) -> String {
         &mut r,
         "env_steps",
         "Environment steps trained on",
-        s.env_steps,
+        s.counters.env_steps,
     );
-    counter(&mut r, "policy_updates", "Policy updates done", s.updates);
+    counter(
+        &mut r,
+        "policy_updates",
+        "Policy updates done",
+        s.counters.updates,
+    );
     counter(
         &mut r,
         "episodes",
         "Episodes reported by actors",
-        s.episodes,
+        s.counters.episodes,
     );
     counter(
         &mut r,
         "weights_published",
         "Weights messages published",
-        s.weights_published,
+        s.counters.weights_published,
     );
     counter(
         &mut r,
         "checkpoints_written",
         "Checkpoints written by this learner process",
-        s.checkpoints_written,
+        s.counters.checkpoints_written,
     );
     counter(
         &mut r,
         "untrainable_chunks",
         "Valid rollout chunks whose shapes did not fit the policy",
-        s.untrainable_chunks,
+        s.counters.untrainable_chunks,
     );
     counter(
         &mut r,
         "trained_steps",
         "Environment steps that went into policy updates",
-        s.trained_steps,
+        s.counters.trained_steps,
     );
     seconds_counter(
         &mut r,
         "ppo_thread_batch",
         "Time the PPO batching thread spent gathering and building batches (during the updates)",
-        s.ppo_batch_seconds,
+        s.counters.ppo_batch_seconds,
     );
     seconds_counter(
         &mut r,
         "ppo_thread_update",
         "Time the PPO training thread spent in updates",
-        s.ppo_update_seconds,
+        s.counters.ppo_update_seconds,
     );
     seconds_counter(
         &mut r,
         "receive_loop_busy",
         "Time the receive loop spent on its passes, not waiting for messages",
-        s.receive_loop_seconds,
+        s.counters.receive_loop_seconds,
     );
     counter(
         &mut r,
         "receive_loop_long_passes",
         "Passes of the receive loop longer than 0.1 s (each may lose messages)",
-        s.receive_loop_long_passes,
+        s.counters.receive_loop_long_passes,
     );
     gauge(
         &mut r,
         "receive_loop_longest_pass_seconds",
         "The receive loop's longest pass so far",
-        s.receive_loop_longest_pass_s,
+        s.counters.receive_loop_longest_pass_s,
     );
     counter(
         &mut r,
         "rollout_steps_discarded",
         "Environment steps discarded, oldest first, because the PPO queue was full",
-        s.rollout_steps_discarded,
+        s.counters.rollout_steps_discarded,
     );
     gauge(
         &mut r,
         "rollout_steps_queued",
         "Environment steps waiting for the PPO thread",
-        s.rollout_steps_queued as f64,
+        s.counters.rollout_steps_queued as f64,
     );
     counter(
         &mut r,
         "frames_received",
         "Labelled frames received for U-Net training",
-        s.frames_received,
+        s.counters.frames_received,
     );
     counter(
         &mut r,
         "frames_skipped",
         "Labelled frames skipped because the U-Net trainer was behind",
-        s.frames_skipped,
+        s.counters.frames_skipped,
     );
     counter(
         &mut r,
         "unet_rounds",
         "Rounds of U-Net training (a few steps each, after every episode's frames)",
-        s.unet_rounds,
+        s.counters.unet_rounds,
     );
     counter(
         &mut r,
@@ -190,13 +195,13 @@ pub fn render(s: &StatusSnapshot, timings: &Timings) -> String {
         &mut r,
         "policy_version",
         "Current policy version",
-        s.policy_version as f64,
+        s.counters.policy_version as f64,
     );
     gauge(
         &mut r,
         "unet_version",
         "Current U-Net version",
-        s.unet_version as f64,
+        s.counters.unet_version as f64,
     );
     gauge(
         &mut r,
@@ -311,7 +316,7 @@ pub fn render(s: &StatusSnapshot, timings: &Timings) -> String {
             f64::from(mean),
         );
     }
-    if let Some(u) = &s.last_update {
+    if let Some(u) = &s.counters.last_update {
         for (field, v, help) in [
             ("policy_loss", u.policy_loss, "PPO's clipped policy loss"),
             ("value_loss", u.value_loss, "PPO's value loss"),
@@ -350,7 +355,7 @@ pub fn render(s: &StatusSnapshot, timings: &Timings) -> String {
             );
         }
     }
-    if let Some(u) = &s.last_unet {
+    if let Some(u) = &s.counters.last_unet {
         for (field, v, help) in [
             ("train_loss", u.train_loss, "training loss"),
             (
@@ -518,8 +523,8 @@ mod tests {
         status.add_episode(&stats);
         let _ = status.accept(0, proto::MessageKind::Rollout, 1, 0);
         status.reject(proto::MessageKind::Rollout, "bad_magic");
-        status.last_update = Some(Default::default());
-        status.last_unet = Some(crate::affordance_learner::UnetRound {
+        status.counters.last_update = Some(Default::default());
+        status.counters.last_unet = Some(crate::affordance_learner::UnetRound {
             train_loss: 0.5,
             candidate_loss: 0.5,
             candidate_iou: 0.5,

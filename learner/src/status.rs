@@ -86,12 +86,10 @@ impl ActorState {
     }
 }
 
-/// The learner's live state.
-#[derive(Debug)]
-pub struct LearnerStatus {
-    /// Run id (the run directory's name).
-    pub run_id: String,
-    started: Instant,
+/// The learner's counters and its latest training results: kept once here,
+/// shown as they are by `/api/status` and rendered by `/metrics`.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Counters {
     /// Environment steps trained on.
     pub env_steps: u64,
     /// Policy updates done.
@@ -108,10 +106,6 @@ pub struct LearnerStatus {
     pub checkpoints_written: u64,
     /// Step of the newest checkpoint.
     pub last_checkpoint_step: Option<u64>,
-    /// Accepted messages per kind.
-    pub received: BTreeMap<&'static str, u64>,
-    /// Rejected messages per (service, reason).
-    pub rejected: BTreeMap<(&'static str, &'static str), u64>,
     /// Chunks that were valid but could not train the policy.
     pub untrainable_chunks: u64,
     /// Environment steps that went into policy updates.
@@ -150,6 +144,20 @@ pub struct LearnerStatus {
     pub unet_rounds: u64,
     /// Latest U-Net round.
     pub last_unet: Option<UnetRound>,
+}
+
+/// The learner's live state.
+#[derive(Debug)]
+pub struct LearnerStatus {
+    /// Run id (the run directory's name).
+    pub run_id: String,
+    started: Instant,
+    /// Counters and latest results.
+    pub counters: Counters,
+    /// Accepted messages per kind.
+    pub received: BTreeMap<&'static str, u64>,
+    /// Rejected messages per (service, reason).
+    pub rejected: BTreeMap<(&'static str, &'static str), u64>,
     /// Latest episode's reported metrics.
     pub last_episode: BTreeMap<Cow<'static, str>, f32>,
     /// Each metric of the last [`EPISODE_WINDOW`] episodes that reported it.
@@ -225,22 +233,9 @@ pub(crate) struct StatusSnapshot {
     pub run_id: String,
     /// Seconds since the learner started.
     pub uptime_s: f64,
-    /// Environment steps trained on.
-    pub env_steps: u64,
-    /// Policy updates done.
-    pub updates: u64,
-    /// Episodes reported.
-    pub episodes: u64,
-    /// Model versions.
-    pub policy_version: u64,
-    /// U-Net version (0 until the U-Net trains).
-    pub unet_version: u64,
-    /// Weights messages published.
-    pub weights_published: u64,
-    /// Checkpoints written by this process.
-    pub checkpoints_written: u64,
-    /// Step of the newest checkpoint.
-    pub last_checkpoint_step: Option<u64>,
+    /// Counters and latest results, flattened into the JSON.
+    #[serde(flatten)]
+    pub counters: Counters,
     /// Actors seen within the timeout.
     pub actors_alive: usize,
     /// Accepted messages per kind.
@@ -251,35 +246,6 @@ pub(crate) struct StatusSnapshot {
     pub dropped: u64,
     /// [`StatusSnapshot::dropped`] per kind (`rollout`, `frames`, `stats`).
     pub dropped_by_kind: BTreeMap<String, u64>,
-    /// Valid chunks that did not fit the policy's shapes.
-    pub untrainable_chunks: u64,
-    /// Environment steps that went into policy updates.
-    pub trained_steps: u64,
-    /// Seconds the PPO batching thread spent gathering and building
-    /// batches, in all.
-    pub ppo_batch_seconds: f64,
-    /// Seconds the PPO training thread spent in updates, in all.
-    pub ppo_update_seconds: f64,
-    /// Seconds the receive loop spent on its passes, not waiting.
-    pub receive_loop_seconds: f64,
-    /// Passes of the receive loop longer than 0.1 s.
-    pub receive_loop_long_passes: u64,
-    /// The longest pass of the receive loop so far, seconds.
-    pub receive_loop_longest_pass_s: f64,
-    /// Environment steps discarded because the PPO thread's queue was full.
-    pub rollout_steps_discarded: u64,
-    /// Environment steps waiting for the PPO thread.
-    pub rollout_steps_queued: u64,
-    /// Latest update's statistics.
-    pub last_update: Option<PpoStats>,
-    /// Labelled frames received and queued for the U-Net.
-    pub frames_received: u64,
-    /// Labelled frames skipped because the U-Net trainer was behind.
-    pub frames_skipped: u64,
-    /// Rounds of U-Net training.
-    pub unet_rounds: u64,
-    /// Latest U-Net round.
-    pub last_unet: Option<UnetRound>,
     /// Latest episode's metrics.
     pub last_episode: BTreeMap<String, f32>,
     /// Each episode metric's mean over the last 100 episodes that reported it.
@@ -334,11 +300,12 @@ pub(crate) struct ActorSnapshot {
 impl LearnerStatus {
     /// Books one pass of the receive loop that took `seconds`.
     pub(crate) fn add_receive_pass(&mut self, seconds: f64) {
-        self.receive_loop_seconds += seconds;
+        self.counters.receive_loop_seconds += seconds;
         if seconds > LONG_PASS_S {
-            self.receive_loop_long_passes += 1;
+            self.counters.receive_loop_long_passes += 1;
         }
-        self.receive_loop_longest_pass_s = self.receive_loop_longest_pass_s.max(seconds);
+        self.counters.receive_loop_longest_pass_s =
+            self.counters.receive_loop_longest_pass_s.max(seconds);
     }
 
     /// A fresh status for `run_id`.
@@ -346,30 +313,9 @@ impl LearnerStatus {
         Self {
             run_id,
             started: Instant::now(),
-            env_steps: 0,
-            updates: 0,
-            episodes: 0,
-            policy_version: 0,
-            unet_version: 0,
-            weights_published: 0,
-            checkpoints_written: 0,
-            last_checkpoint_step: None,
+            counters: Counters::default(),
             received: BTreeMap::new(),
             rejected: BTreeMap::new(),
-            untrainable_chunks: 0,
-            trained_steps: 0,
-            ppo_batch_seconds: 0.0,
-            ppo_update_seconds: 0.0,
-            receive_loop_seconds: 0.0,
-            receive_loop_long_passes: 0,
-            receive_loop_longest_pass_s: 0.0,
-            rollout_steps_discarded: 0,
-            rollout_steps_queued: 0,
-            last_update: None,
-            frames_received: 0,
-            frames_skipped: 0,
-            unet_rounds: 0,
-            last_unet: None,
             last_episode: BTreeMap::new(),
             recent_episodes: BTreeMap::new(),
             actors: BTreeMap::new(),
@@ -399,7 +345,7 @@ impl LearnerStatus {
             return None;
         }
         let now = Instant::now();
-        let current = self.policy_version;
+        let current = self.counters.policy_version;
         let actor = self.actors.entry(actor_id).or_insert_with(|| ActorState {
             last_seen: now,
             received: BTreeMap::new(),
@@ -433,7 +379,7 @@ impl LearnerStatus {
 
     /// Adds environment steps from an accepted chunk.
     pub(crate) fn add_steps(&mut self, actor_id: u32, steps: u64) {
-        self.env_steps += steps;
+        self.counters.env_steps += steps;
         if let Some(actor) = self.actors.get_mut(&actor_id) {
             actor.env_steps += steps;
             actor.rate.add(Instant::now(), steps);
@@ -442,7 +388,7 @@ impl LearnerStatus {
 
     /// Records a finished episode's metrics.
     pub(crate) fn add_episode(&mut self, stats: &EpisodeStats) {
-        self.episodes += 1;
+        self.counters.episodes += 1;
         for (field, value) in stats.present() {
             self.last_episode.insert(field.name(), value);
             let recent = self.recent_episodes.entry(field.name()).or_default();
@@ -488,14 +434,7 @@ impl LearnerStatus {
         StatusSnapshot {
             run_id: self.run_id.clone(),
             uptime_s: self.started.elapsed().as_secs_f64(),
-            env_steps: self.env_steps,
-            updates: self.updates,
-            episodes: self.episodes,
-            policy_version: self.policy_version,
-            unet_version: self.unet_version,
-            weights_published: self.weights_published,
-            checkpoints_written: self.checkpoints_written,
-            last_checkpoint_step: self.last_checkpoint_step,
+            counters: self.counters.clone(),
             actors_alive: actors.iter().filter(|a| a.alive).count(),
             received: self
                 .received
@@ -518,20 +457,6 @@ impl LearnerStatus {
                 }
                 all
             }),
-            untrainable_chunks: self.untrainable_chunks,
-            trained_steps: self.trained_steps,
-            ppo_batch_seconds: self.ppo_batch_seconds,
-            ppo_update_seconds: self.ppo_update_seconds,
-            receive_loop_seconds: self.receive_loop_seconds,
-            receive_loop_long_passes: self.receive_loop_long_passes,
-            receive_loop_longest_pass_s: self.receive_loop_longest_pass_s,
-            rollout_steps_discarded: self.rollout_steps_discarded,
-            rollout_steps_queued: self.rollout_steps_queued,
-            last_update: self.last_update,
-            frames_received: self.frames_received,
-            frames_skipped: self.frames_skipped,
-            unet_rounds: self.unet_rounds,
-            last_unet: self.last_unet,
             last_episode: self
                 .last_episode
                 .iter()
@@ -618,9 +543,12 @@ mod tests {
         for seconds in [0.01, 0.25, 0.05, LONG_PASS_S, 0.5] {
             status.add_receive_pass(seconds);
         }
-        assert!((status.receive_loop_seconds - 0.91).abs() < 1e-9);
-        assert_eq!(status.receive_loop_long_passes, 2, "0.25 and 0.5 s");
-        assert_eq!(status.receive_loop_longest_pass_s, 0.5);
+        assert!((status.counters.receive_loop_seconds - 0.91).abs() < 1e-9);
+        assert_eq!(
+            status.counters.receive_loop_long_passes, 2,
+            "0.25 and 0.5 s"
+        );
+        assert_eq!(status.counters.receive_loop_longest_pass_s, 0.5);
     }
 
     #[test]

@@ -104,12 +104,12 @@ impl UnetWorker {
                     let (env_steps, unet_version) = {
                         let mut status = shared.status();
                         status.timings.unet_round.observe(seconds);
-                        status.unet_rounds += 1;
-                        status.last_unet = Some(round);
+                        status.counters.unet_rounds += 1;
+                        status.counters.last_unet = Some(round);
                         if round.replaced {
-                            status.unet_version += 1;
+                            status.counters.unet_version += 1;
                         }
-                        (status.env_steps, status.unet_version)
+                        (status.counters.env_steps, status.counters.unet_version)
                     };
                     history.lock().unwrap_or_else(|p| p.into_inner()).record(
                         "unet",

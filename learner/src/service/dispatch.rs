@@ -77,7 +77,7 @@ impl Learner {
                 let env_steps = {
                     let mut status = self.shared.status();
                     status.add_episode(&stats);
-                    status.env_steps
+                    status.counters.env_steps
                 };
                 let fields: serde_json::Map<String, serde_json::Value> = stats
                     .present()
@@ -111,16 +111,16 @@ impl Learner {
                     Ok(batch) => {
                         let n = batch.len() as u64;
                         if worker.offer(episode, batch) {
-                            self.shared.status().frames_received += n;
+                            self.shared.status().counters.frames_received += n;
                         } else {
-                            self.shared.status().frames_skipped += n;
+                            self.shared.status().counters.frames_skipped += n;
                             if self.warned.insert((kind, "unet busy")) {
                                 tracing::warn!("the U-Net trainer is behind: skipping episodes' frames until it catches up (further skips are only counted in frames_skipped)");
                             }
                         }
                     }
                     Err(error) => {
-                        self.shared.status().untrainable_chunks += 1;
+                        self.shared.status().counters.untrainable_chunks += 1;
                         if self.warned.insert((kind, "untrainable")) {
                             tracing::warn!("actor {}: {error}", header.actor_id);
                         }
@@ -173,7 +173,7 @@ impl Learner {
             .ports
             .publish_weights(policy_version, unet_version, &blob)?
         {
-            Delivery::Delivered(_) => self.shared.status().weights_published += 1,
+            Delivery::Delivered(_) => self.shared.status().counters.weights_published += 1,
             Delivery::Dropped => tracing::debug!(
                 policy_version,
                 "weights pool busy; the next publish carries newer weights"
@@ -188,7 +188,7 @@ impl Learner {
         let mut parts: Vec<(&str, &[u8])> = vec![(proto::WEIGHTS_POLICY_PREFIX, policy)];
         let mut metadata = std::collections::HashMap::from([(
             proto::WEIGHTS_META_ENV_STEPS.to_string(),
-            self.shared.status().env_steps.to_string(),
+            self.shared.status().counters.env_steps.to_string(),
         )]);
         if let Some(unet) = &self.unet {
             parts.push((proto::WEIGHTS_UNET_PREFIX, &unet.weights));

@@ -138,8 +138,8 @@ impl Learner {
     ) -> Self {
         trainers
             .policy
-            .set_version(shared.status().policy_version.max(1));
-        let updates_at_checkpoint = shared.status().updates;
+            .set_version(shared.status().counters.policy_version.max(1));
+        let updates_at_checkpoint = shared.status().counters.updates;
         let affordances = shared.config.task.affordances.len();
         Self {
             shared,
@@ -169,7 +169,7 @@ impl Learner {
     pub fn run(mut self) -> anyhow::Result<()> {
         {
             let mut status = self.shared.status();
-            status.policy_version = status.policy_version.max(1);
+            status.counters.policy_version = status.counters.policy_version.max(1);
         }
         let trainer = self
             .policy_trainer
@@ -188,7 +188,7 @@ impl Learner {
         )?);
         if let Some(affordance) = self.affordance.take() {
             self.unet = Some(DeployedUnet {
-                version: self.shared.status().unet_version,
+                version: self.shared.status().counters.unet_version,
                 weights: affordance
                     .deployed_weights()
                     .context("serialising the U-Net")?,

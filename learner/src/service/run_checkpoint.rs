@@ -8,7 +8,7 @@ use super::*;
 impl Learner {
     pub(super) fn checkpoint_due(&self) -> bool {
         let config = &self.shared.config;
-        let updates = self.shared.status().updates;
+        let updates = self.shared.status().counters.updates;
         if updates == self.updates_at_checkpoint {
             return false;
         }
@@ -36,9 +36,9 @@ impl Learner {
             let status = self.shared.status();
             Counters {
                 run_id: status.run_id.clone(),
-                env_steps: status.env_steps,
+                env_steps: status.counters.env_steps,
                 updates: policy.updates,
-                episodes: status.episodes,
+                episodes: status.counters.episodes,
                 policy_version: policy.version,
                 // The version of the U-Net the weights file holds.
                 unet_version: self.unet.as_ref().map_or(0, |unet| unet.version),
@@ -75,8 +75,8 @@ impl Learner {
         self.updates_at_checkpoint = counters.updates;
         {
             let mut status = self.shared.status();
-            status.checkpoints_written += 1;
-            status.last_checkpoint_step = Some(counters.env_steps);
+            status.counters.checkpoints_written += 1;
+            status.counters.last_checkpoint_step = Some(counters.env_steps);
         }
         tracing::info!(dir = %dir.display(), updates = counters.updates, "checkpoint written");
         if let Some(scorer) = &self.validation_scorer {
@@ -200,12 +200,12 @@ pub fn resume(
             }
         }
     }
-    status.env_steps = counters.env_steps;
-    status.updates = counters.updates;
-    status.episodes = counters.episodes;
-    status.policy_version = counters.policy_version;
-    status.unet_version = counters.unet_version;
-    status.last_checkpoint_step = Some(loaded.step);
+    status.counters.env_steps = counters.env_steps;
+    status.counters.updates = counters.updates;
+    status.counters.episodes = counters.episodes;
+    status.counters.policy_version = counters.policy_version;
+    status.counters.unet_version = counters.unet_version;
+    status.counters.last_checkpoint_step = Some(loaded.step);
     tracing::info!(
         "resumed from checkpoint {} (env steps {}, updates {}, policy version {}, policy optimiser {}, U-Net training {})",
         loaded.dir.display(),

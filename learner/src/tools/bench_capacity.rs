@@ -88,16 +88,16 @@ fn read(shared: &Shared) -> Reading {
     let status = shared.status();
     Reading {
         at: Instant::now(),
-        env_steps: status.env_steps,
-        trained_steps: status.trained_steps,
-        updates: status.updates,
-        frames: status.frames_received,
-        rounds: status.unet_rounds,
-        skipped: status.frames_skipped,
-        discarded: status.rollout_steps_discarded,
+        env_steps: status.counters.env_steps,
+        trained_steps: status.counters.trained_steps,
+        updates: status.counters.updates,
+        frames: status.counters.frames_received,
+        rounds: status.counters.unet_rounds,
+        skipped: status.counters.frames_skipped,
+        discarded: status.counters.rollout_steps_discarded,
         dropped: status.actors.values().map(|a| a.dropped()).sum(),
-        batch_seconds: status.ppo_batch_seconds,
-        update_seconds: status.ppo_update_seconds,
+        batch_seconds: status.counters.ppo_batch_seconds,
+        update_seconds: status.counters.ppo_update_seconds,
     }
 }
 
@@ -199,10 +199,10 @@ fn measure(shared: &Shared, feed: &FeedSettings) -> anyhow::Result<Capacity> {
             eprintln!(
                 "  {:>4.0} s: {} steps taken, {} updates, {} frames to the U-Net, {} U-Net rounds",
                 elapsed.as_secs_f64(),
-                status.env_steps,
-                status.updates,
-                status.frames_received,
-                status.unet_rounds
+                status.counters.env_steps,
+                status.counters.updates,
+                status.counters.frames_received,
+                status.counters.unet_rounds
             );
         }
         if let Some(start) = start {
@@ -214,6 +214,7 @@ fn measure(shared: &Shared, feed: &FeedSettings) -> anyhow::Result<Capacity> {
                 let per_update = |a: f64, b: f64| (b - a) / updates;
                 let lag = shared
                     .status()
+                    .counters
                     .last_update
                     .map_or(0.0, |u| u.mean_policy_lag);
                 return Ok(Capacity {
@@ -248,7 +249,7 @@ fn learner_ready(shared: &Shared, actor_id: u32, sent: u64, window: u64, room: u
                 .copied()
         })
         .unwrap_or(0);
-    sent < accepted + window && status.rollout_steps_queued <= room
+    sent < accepted + window && status.counters.rollout_steps_queued <= room
 }
 
 /// One synthetic actor: the task's messages, as fast as the learner takes them.
@@ -307,7 +308,7 @@ fn synthetic_actor(
     let in_flight = (window as usize * feed.actors as usize + 1) * steps;
     let room = queue.saturating_sub(in_flight) as u64;
     let (mut sent, mut episode, mut step) = (0u64, 0u64, 0usize);
-    let version = || shared.status().policy_version;
+    let version = || shared.status().counters.policy_version;
     while !stop.load(Ordering::Relaxed) {
         if !learner_ready(shared, actor_id, sent, window, room) {
             std::thread::sleep(Duration::from_micros(500));
