@@ -16,8 +16,8 @@ mod weights;
 
 pub use object_trials::{sight_object, try_affordance, ObjectView, Sighting, SEARCH_RADIUS_M};
 pub use report::{
-    Confusion, ObjectRow, ObjectTrial, Percentiles, PixelRow, Reference, Report, ScoredBy,
-    ThresholdF1, THRESHOLDS,
+    AtValidationThreshold, Confusion, ObjectRow, ObjectTrial, Percentiles, PixelRow, Reference,
+    Report, ScoredBy, ThresholdF1, THRESHOLDS,
 };
 pub use selection::{recorded_scores, Candidate, Selection, RULE as SELECTION_RULE};
 pub(crate) use test_views::test_views;
@@ -264,6 +264,7 @@ pub fn evaluate(
             pixel: pixel_rows(&all_positive_scores, &all_positive_false, &[]),
             object: object_rows(&everything, crate::frame_scores::PAPER_THRESHOLD),
         },
+        at_validation_thresholds: Vec::new(),
     })
 }
 

@@ -448,6 +448,8 @@ fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
             actor::evaluation::recorded_scores(&args.run_dir, &steps)?
         };
         let mut candidates = Vec::with_capacity(steps.len());
+        // The validation reports made here, to read the chosen one's best thresholds.
+        let mut validation_reports = std::collections::BTreeMap::new();
         let mut views_per_scene = args.val_views_per_scene;
         if let Some(first) = recorded.first() {
             views_per_scene = first.views_per_scene;
@@ -480,6 +482,7 @@ fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
                 candidate.score
             );
             candidates.push(candidate);
+            validation_reports.insert(step, report);
         }
         let mut selection = actor::evaluation::Selection::choose(
             val.iter().map(|s| s.name.clone()).collect(),
@@ -489,9 +492,16 @@ fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
         .context("no checkpoint was scored")?;
         selection.recorded = recorded.len();
         let (step, name) = load(&mut model, Some(selection.chosen_step))?;
+        // Scores recorded in the background hold no threshold sweep: the
+        // chosen checkpoint is scored on the validation rooms once more.
+        let validation = match validation_reports.remove(&step) {
+            Some(report) => report,
+            None => run(&model, &val, views_per_scene, &name)?,
+        };
         let mut report = run(&model, &scenes, args.views_per_scene, &name)?;
         report.checkpoint_step = Some(step);
         report.selection = Some(selection);
+        report.score_at_validation_thresholds(&validation);
         report
     } else {
         let (step, name) = load(&mut model, args.step)?;

@@ -6,8 +6,8 @@
 use std::path::Path;
 
 use actor::evaluation::{
-    Candidate, ObjectRow, ObjectTrial, Percentiles, PixelRow, Reference, Report, ScoredBy,
-    Selection,
+    AtValidationThreshold, Candidate, ObjectRow, ObjectTrial, Percentiles, PixelRow, Reference,
+    Report, ScoredBy, Selection, ThresholdF1,
 };
 use actor::results::{load, render, run_dir, test_report_path, untrained_report_path};
 use serde_json::json;
@@ -79,6 +79,24 @@ fn report(f1: f32, p: f32, selected: bool) -> Report {
                 "pick_up".into(),
                 &[(1.0, true), (1.0, false)],
             )],
+        },
+        // A selected run's scores at the validation rooms' thresholds.
+        at_validation_thresholds: if selected {
+            vec![AtValidationThreshold {
+                affordance: "pick_up".into(),
+                pixel_validation: Some(ThresholdF1 {
+                    threshold: 0.3,
+                    f1: 0.7,
+                }),
+                pixel_f1: Some(f1 + 0.05),
+                object_validation: Some(ThresholdF1 {
+                    threshold: 0.3,
+                    f1: 0.8,
+                }),
+                object: Some(ObjectRow::at("pick_up".into(), &scored, 0.3)),
+            }]
+        } else {
+            Vec::new()
         },
     }
 }
@@ -173,6 +191,17 @@ fn the_page_shows_every_variant_over_seeds_beside_the_floors() {
         "{page}"
     );
     assert!(page.contains("![training curves](results-curves.svg)"));
+    // The scores at each run's validation-chosen thresholds, in their own table.
+    let chosen = &page[page
+        .find("## At thresholds chosen on the validation rooms")
+        .expect("the section")..];
+    assert!(
+        chosen.contains(
+            "| **ours** | 0.30 [0.30, 0.30] | 0.55 [0.45, 0.65] | 0.30 [0.30, 0.30] | \
+             1.00 [1.00, 1.00] | 1.00 [1.00, 1.00] | 1.00 [1.00, 1.00] |"
+        ),
+        "{chosen}"
+    );
 }
 
 #[test]

@@ -295,6 +295,25 @@ pub enum ScoredBy {
     GroundTruth,
 }
 
+/// One affordance's scores in these rooms at the thresholds that did best
+/// on the validation rooms: a threshold read off the validation rooms and
+/// applied here, never chosen on these rooms' own scores.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AtValidationThreshold {
+    /// The affordance (`pick_up`, `push`).
+    pub affordance: String,
+    /// Table 1: the threshold with the best median pixel F1 on the
+    /// validation rooms, with that F1 there.
+    pub pixel_validation: Option<ThresholdF1>,
+    /// Table 1: the median pixel F1 in these rooms at that threshold.
+    pub pixel_f1: Option<f32>,
+    /// Table 2: the threshold with the best F1 on the validation rooms,
+    /// with that F1 there.
+    pub object_validation: Option<ThresholdF1>,
+    /// Table 2 in these rooms at that threshold.
+    pub object: Option<ObjectRow>,
+}
+
 /// The scores of a fixed prediction that needs no network, beside which a
 /// network's scores mean something.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -339,6 +358,10 @@ pub struct Report {
     /// Predicting every pixel and object positive, on the same views and
     /// objects: the floor that recall alone reaches.
     pub all_positive: Reference,
+    /// Both tables at the thresholds chosen on the validation rooms, per
+    /// affordance (`evaluate --select`; empty otherwise).
+    #[serde(default)]
+    pub at_validation_thresholds: Vec<AtValidationThreshold>,
 }
 
 impl Report {
@@ -353,6 +376,42 @@ impl Report {
                 .collect(),
             self.object.iter().map(|row| row.f1).collect(),
         )
+    }
+
+    /// Scores both tables of this report at the thresholds that did best in
+    /// `validation` (the same network on the validation rooms): Table 1 from
+    /// this report's sweep over [`THRESHOLDS`], Table 2 from its trials.
+    pub fn score_at_validation_thresholds(&mut self, validation: &Report) {
+        self.at_validation_thresholds = self
+            .pixel
+            .iter()
+            .zip(&self.object)
+            .enumerate()
+            .map(|(plane, (pixel, object))| {
+                let pixel_validation = validation.pixel.get(plane).and_then(PixelRow::best);
+                let object_validation = validation.object.get(plane).and_then(|row| row.best);
+                let scored: Vec<(f32, bool)> = self
+                    .trials
+                    .iter()
+                    .map(|t| (t.predicted[plane], t.succeeded[plane]))
+                    .collect();
+                AtValidationThreshold {
+                    affordance: pixel.affordance.clone(),
+                    pixel_validation,
+                    pixel_f1: pixel_validation.and_then(|chosen| {
+                        pixel
+                            .f1_by_threshold
+                            .iter()
+                            .find(|s| s.threshold == chosen.threshold)
+                            .map(|s| s.f1)
+                    }),
+                    object_validation,
+                    object: object_validation.map(|chosen| {
+                        ObjectRow::at(object.affordance.clone(), &scored, chosen.threshold)
+                    }),
+                }
+            })
+            .collect();
     }
 
     /// This report's scores of checkpoint `step`, for the learner's
@@ -472,6 +531,35 @@ impl Report {
                 best(object.best)
             );
         }
+        if !self.at_validation_thresholds.is_empty() {
+            out.push_str(
+                "\nAt the thresholds chosen on the validation rooms (the threshold, its F1 \
+                 there → the score here):\n\n",
+            );
+            out.push_str("| affordance | Table 1 median F1 | Table 2 precision / recall / F1 |\n");
+            out.push_str("|---|---|---|\n");
+            for row in &self.at_validation_thresholds {
+                let object = row.object.as_ref().map_or_else(
+                    || "–".into(),
+                    |o| {
+                        format!(
+                            "{} / {} / {}",
+                            number(o.precision),
+                            number(o.recall),
+                            number(o.f1)
+                        )
+                    },
+                );
+                let _ = writeln!(
+                    out,
+                    "| {} | {} → {} | {} → {object} |",
+                    row.affordance,
+                    best(row.pixel_validation),
+                    number(row.pixel_f1),
+                    best(row.object_validation),
+                );
+            }
+        }
         out
     }
 }
@@ -536,5 +624,90 @@ mod tests {
             (none.accuracy(), none.precision(), none.f1()),
             (None, None, None)
         );
+    }
+
+    /// A one-affordance report whose objects have these (mean probability,
+    /// outcome) pairs and whose pixel sweep is `sweep`.
+    fn report(objects: &[(f32, bool)], sweep: &[(f32, f32)]) -> Report {
+        let trial = |&(p, success): &(f32, bool)| ObjectTrial {
+            scene: "FloorPlan221".into(),
+            object: "Book|1".into(),
+            object_type: "Book".into(),
+            pixels: 20,
+            distance_m: 1.0,
+            predicted: vec![p],
+            scored_by: ScoredBy::Trial,
+            succeeded: vec![success],
+            failure: vec![None],
+        };
+        let pixel = PixelRow {
+            affordance: "pick_up".into(),
+            precision: None,
+            recall: None,
+            f1: None,
+            object_accuracy: None,
+            false_positives_on_structure: None,
+            f1_by_threshold: sweep
+                .iter()
+                .map(|&(threshold, f1)| ThresholdF1 { threshold, f1 })
+                .collect(),
+        };
+        Report {
+            model: "a test".into(),
+            checkpoint_step: Some(1),
+            selection: None,
+            scenes: vec![],
+            frames: 0,
+            threshold: 0.5,
+            pixel: vec![pixel.clone()],
+            objects: objects.len(),
+            objects_unseen: vec![],
+            object: vec![ObjectRow::new("pick_up".into(), objects)],
+            trials: objects.iter().map(trial).collect(),
+            all_positive: Reference {
+                name: "all positive".into(),
+                pixel: vec![pixel],
+                object: vec![],
+            },
+            at_validation_thresholds: vec![],
+        }
+    }
+
+    #[test]
+    fn test_scores_are_read_at_the_thresholds_the_validation_rooms_chose() {
+        // Validation: pixels do best at 0.7; objects at 0.6 (0.55 is
+        // predicted, 0.5 is not).
+        let validation = report(
+            &[(0.65, true), (0.55, false), (0.2, false)],
+            &[(0.5, 0.10), (0.7, 0.30), (0.8, 0.20)],
+        );
+        // Test rooms: their own best would be 0.8 and 0.5; the validation's
+        // thresholds are applied instead.
+        let mut test = report(
+            &[(0.9, true), (0.55, true), (0.58, false), (0.1, false)],
+            &[(0.5, 0.15), (0.7, 0.25), (0.8, 0.40)],
+        );
+        test.score_at_validation_thresholds(&validation);
+        let row = &test.at_validation_thresholds[0];
+        assert_eq!(row.pixel_validation.map(|t| t.threshold), Some(0.7));
+        assert_eq!(
+            row.pixel_f1,
+            Some(0.25),
+            "the test sweep at 0.7, not its best"
+        );
+        assert_eq!(row.object_validation.map(|t| t.threshold), Some(0.6));
+        let object = row.object.as_ref().unwrap();
+        assert_eq!(object.threshold, 0.6);
+        assert_eq!(
+            (
+                object.confusion.true_positives,
+                object.confusion.false_negatives
+            ),
+            (1, 1),
+            "0.9 predicted, 0.55 missed at 0.6"
+        );
+        assert!(test
+            .to_markdown()
+            .contains("| pick_up | 0.7 → 0.30 → 0.25 |"));
     }
 }
