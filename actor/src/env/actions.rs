@@ -601,7 +601,7 @@ mod tests {
                 _ => 0.2,
             })
             .collect();
-        let t = targets(Some(&[plane.clone()]));
+        let t = targets(Some(std::slice::from_ref(&plane)));
         assert_eq!(t.target(Affordance::PickUp, 0).unwrap().object, 3);
         assert_eq!(t.target(Affordance::PickUp, 8).unwrap().object, 5);
         let paper = cell_targets(
