@@ -83,34 +83,11 @@ impl Default for ValidationConfig {
     }
 }
 
-/// PPO settings (the paper's, i.e. IntExp's, values by default).
+/// The policy's training: PPO's own settings (`[policy.ppo]`) and how the
+/// learner batches steps for it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, documented::DocumentedFields)]
 #[serde(default, deny_unknown_fields)]
 pub struct PolicyConfig {
-    /// Adam learning rate.
-    pub learning_rate: f64,
-    /// Adam epsilon.
-    pub adam_eps: f32,
-    /// Discount factor γ.
-    pub gamma: f32,
-    /// GAE λ.
-    pub gae_lambda: f32,
-    /// PPO ratio clip ε (also clips the value loss).
-    pub clip: f32,
-    /// Passes over each batch.
-    pub epochs: usize,
-    /// Minibatches per pass.
-    pub minibatches: usize,
-    /// Weight of the value loss.
-    pub value_coef: f32,
-    /// Weight of the entropy bonus.
-    pub entropy_coef: f32,
-    /// Largest global gradient norm; larger gradients are scaled down.
-    pub max_grad_norm: f32,
-    /// Clip the value loss around the old values (as the policy's ratio).
-    pub clip_value_loss: bool,
-    /// Normalise advantages per minibatch.
-    pub normalize_advantages: bool,
     /// Environment steps (from any actors) per update. The paper used 8
     /// actors × 600 steps; the default fits a 2-core machine's memory and
     /// time at 128 × 128 (each step's observation is ~0.4 MB as floats).
@@ -129,6 +106,11 @@ pub struct PolicyConfig {
     /// GPU.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub device: Option<String>,
+    /// PPO's settings (the paper's, i.e. IntExp's, values by default).
+    /// Configs written before 2026-11-29 held them in `[policy]` itself;
+    /// such files (a resumed run's config.toml) and `--set policy.KEY`
+    /// are read as before.
+    pub ppo: PpoConfig,
 }
 
 /// Affordance U-Net training on the global dataset of labelled frames.
@@ -191,44 +173,12 @@ impl Default for PolicyConfig {
     /// PPO's own defaults (`training::ppo::PpoConfig`, written once there)
     /// and the learner's batching.
     fn default() -> Self {
-        let ppo = PpoConfig::default();
         Self {
-            learning_rate: ppo.learning_rate,
-            adam_eps: ppo.adam_eps,
-            gamma: ppo.gamma,
-            gae_lambda: ppo.gae_lambda,
-            clip: ppo.clip,
-            epochs: ppo.epochs,
-            minibatches: ppo.minibatches,
-            value_coef: ppo.value_coef,
-            entropy_coef: ppo.entropy_coef,
-            max_grad_norm: ppo.max_grad_norm,
-            clip_value_loss: ppo.clip_value_loss,
-            normalize_advantages: ppo.normalize_advantages,
             batch_steps: 128,
             queue_batches: 2,
             seed: 0,
             device: None,
-        }
-    }
-}
-
-impl PolicyConfig {
-    /// The PPO update's settings.
-    pub(crate) fn ppo(&self) -> PpoConfig {
-        PpoConfig {
-            learning_rate: self.learning_rate,
-            adam_eps: self.adam_eps,
-            clip: self.clip,
-            clip_value_loss: self.clip_value_loss,
-            epochs: self.epochs,
-            minibatches: self.minibatches,
-            value_coef: self.value_coef,
-            entropy_coef: self.entropy_coef,
-            max_grad_norm: self.max_grad_norm,
-            gamma: self.gamma,
-            gae_lambda: self.gae_lambda,
-            normalize_advantages: self.normalize_advantages,
+            ppo: PpoConfig::default(),
         }
     }
 }
@@ -310,6 +260,7 @@ impl LearnerConfig {
         for setting in settings {
             set_dotted(&mut table, setting)?;
         }
+        nest_flat_ppo_keys(&mut table)?;
         toml::Value::Table(table).try_into().with_context(|| {
             format!(
                 "the learner config from {source} with {settings:?} (run `learner print-config` \
@@ -338,13 +289,14 @@ impl LearnerConfig {
         }
         anyhow::ensure!(p.batch_steps >= 1, "policy.batch_steps must be >= 1");
         anyhow::ensure!(p.queue_batches >= 1, "policy.queue_batches must be >= 1");
+        let ppo = &p.ppo;
         anyhow::ensure!(
-            p.epochs >= 1 && p.minibatches >= 1 && p.minibatches <= p.batch_steps,
-            "policy.epochs must be >= 1 and policy.minibatches in 1..=policy.batch_steps"
+            ppo.epochs >= 1 && ppo.minibatches >= 1 && ppo.minibatches <= p.batch_steps,
+            "policy.ppo.epochs must be >= 1 and policy.ppo.minibatches in 1..=policy.batch_steps"
         );
         anyhow::ensure!(
-            p.learning_rate > 0.0 && p.clip > 0.0 && p.max_grad_norm > 0.0,
-            "policy.learning_rate, policy.clip and policy.max_grad_norm must be > 0"
+            ppo.learning_rate > 0.0 && ppo.clip > 0.0 && ppo.max_grad_norm > 0.0,
+            "policy.ppo.learning_rate, policy.ppo.clip and policy.ppo.max_grad_norm must be > 0"
         );
         let u = &self.unet;
         anyhow::ensure!(
@@ -373,6 +325,36 @@ impl LearnerConfig {
         );
         Ok(())
     }
+}
+
+/// Moves PPO's settings written directly in `[policy]` (configs before
+/// 2026-11-29, `--set policy.epochs=2`) into `[policy.ppo]`, where a
+/// setting of the old place wins over one of the new (a `--set` on top of a
+/// file).
+fn nest_flat_ppo_keys(table: &mut toml::Table) -> anyhow::Result<()> {
+    use documented::DocumentedFields;
+    let Some(policy) = table.get_mut("policy").and_then(toml::Value::as_table_mut) else {
+        return Ok(());
+    };
+    let flat: Vec<String> = policy
+        .keys()
+        .filter(|key| PpoConfig::get_field_docs(key.as_str()).is_ok())
+        .cloned()
+        .collect();
+    let moved: Vec<(String, toml::Value)> = flat
+        .into_iter()
+        .filter_map(|key| Some((key.clone(), policy.remove(&key)?)))
+        .collect();
+    if moved.is_empty() {
+        return Ok(());
+    }
+    policy
+        .entry("ppo")
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+        .as_table_mut()
+        .ok_or_else(|| anyhow::anyhow!("policy.ppo is a value, not a table"))?
+        .extend(moved);
+    Ok(())
 }
 
 /// Applies one `KEY=VALUE` setting to a TOML table (see
@@ -409,9 +391,9 @@ mod tests {
     use super::*;
 
     #[test]
-    fn ppo_settings_default_to_ppo_s_own_and_reach_the_update_unchanged() {
-        assert_eq!(PolicyConfig::default().ppo(), PpoConfig::default());
-        // Every field reaches the update: change each from its default.
+    fn ppo_settings_of_the_old_flat_policy_table_are_read_into_policy_ppo() {
+        // A config.toml from before [policy.ppo]: every field still reaches
+        // the update (each changed from its default).
         let mut text = String::from("[policy]\n");
         text.push_str(
             "learning_rate = 0.5\nadam_eps = 0.25\nclip = 0.125\nclip_value_loss = false\n",
@@ -435,7 +417,22 @@ mod tests {
             gae_lambda: 0.25,
             normalize_advantages: false,
         };
-        assert_eq!(config.policy.ppo(), expected);
+        assert_eq!(config.policy.ppo, expected);
+        // The same in its new place, and written back there.
+        let nested = text.replace("[policy]", "[policy.ppo]");
+        let config = LearnerConfig::from_toml_str_with(&nested, "a test", &[]).unwrap();
+        assert_eq!(config.policy.ppo, expected);
+        assert!(config.to_toml().contains("[policy.ppo]"));
+        // A setting of the old place on top of a file of the new wins.
+        let over =
+            LearnerConfig::from_toml_str_with(&nested, "a test", &["policy.epochs=2".into()])
+                .unwrap();
+        assert_eq!(over.policy.ppo.epochs, 2);
+        let typo = LearnerConfig::from_toml_str_with("[policy.ppo]\nepoch = 2\n", "a test", &[]);
+        assert!(
+            typo.is_err(),
+            "unknown keys are refused in the new table too"
+        );
     }
 
     #[test]
@@ -480,7 +477,7 @@ mod tests {
             &["policy.batch_steps=9".to_string()],
         )
         .unwrap();
-        assert_eq!((over.policy.batch_steps, over.policy.epochs), (9, 2));
+        assert_eq!((over.policy.batch_steps, over.policy.ppo.epochs), (9, 2));
         std::fs::remove_file(&file).ok();
     }
 
@@ -495,7 +492,7 @@ mod tests {
         let partial: LearnerConfig =
             toml::from_str("[policy]\nbatch_steps = 6\n[task]\nenv = \"bandit-fixture\"").unwrap();
         assert_eq!(partial.policy.batch_steps, 6);
-        assert_eq!(partial.policy.epochs, 4);
+        assert_eq!(partial.policy.ppo.epochs, 4);
         assert_eq!(partial.task.env, proto::EnvKind::BanditFixture);
         let weighted: LearnerConfig = toml::from_str("[task.reward]\nfailure = 0.25").unwrap();
         assert_eq!(weighted.task.reward.failure, 0.25);

@@ -19,6 +19,7 @@ fn setting_doc(table: &[&str], key: &str) -> Option<&'static str> {
         ["task", "sphere"] => proto::SphereRule::get_field_docs(key),
         ["task", "map"] => proto::MapSettings::get_field_docs(key),
         ["policy"] => PolicyConfig::get_field_docs(key),
+        ["policy", "ppo"] => training::ppo::PpoConfig::get_field_docs(key),
         ["unet"] => UnetConfig::get_field_docs(key),
         ["transport"] => transport::TransportConfig::get_field_docs(key),
         ["actors"] => proto::ActorSettings::get_field_docs(key),

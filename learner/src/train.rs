@@ -196,8 +196,8 @@ impl BatchBuilder {
             &values,
             &dones,
             chunk.bootstrap_value,
-            self.settings.gamma,
-            self.settings.gae_lambda,
+            self.settings.ppo.gamma,
+            self.settings.ppo.gae_lambda,
         );
         g.actions.extend(chunk.actions.iter());
         g.log_probs.extend(chunk.log_probs.iter());
@@ -258,7 +258,7 @@ impl PolicyTrainer {
     pub fn new(task: &TaskSpec, settings: &PolicyConfig, device: &Device) -> Self {
         let layout = task.layout();
         let net = PolicyNet::new(&layout, device);
-        let ppo_config = settings.ppo();
+        let ppo_config = settings.ppo;
         Self {
             layout,
             settings: settings.clone(),

@@ -16,18 +16,28 @@ use std::ops::Range;
 use crate::grad_norm::clip_global_norm;
 use crate::optimizer_state::{OptimizerState, OptimizerStateError};
 
-/// PPO settings; defaults are the paper's (IntExp's) values.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// PPO settings; defaults are the paper's (IntExp's) values. A learner
+/// config's `[policy.ppo]` table.
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    serde::Serialize,
+    serde::Deserialize,
+    documented::DocumentedFields,
+)]
+#[serde(default, deny_unknown_fields)]
 pub struct PpoConfig {
     /// Adam learning rate.
     pub learning_rate: f64,
     /// Adam epsilon.
     pub adam_eps: f32,
-    /// Ratio clip ε of the policy loss (and of the value loss when clipped).
+    /// PPO ratio clip ε (also clips the value loss when `clip_value_loss`).
     pub clip: f32,
-    /// Clip the value loss around the old values.
+    /// Clip the value loss around the old values (as the policy's ratio).
     pub clip_value_loss: bool,
-    /// Passes over the batch.
+    /// Passes over each batch.
     pub epochs: usize,
     /// Minibatches per pass.
     pub minibatches: usize,
@@ -35,9 +45,9 @@ pub struct PpoConfig {
     pub value_coef: f32,
     /// Weight of the entropy bonus.
     pub entropy_coef: f32,
-    /// Global gradient-norm limit.
+    /// Largest global gradient norm; larger gradients are scaled down.
     pub max_grad_norm: f32,
-    /// Discount γ (used by [`crate::gae::gae`] when the caller builds batches).
+    /// Discount factor γ (used by [`crate::gae::gae`] when the caller builds batches).
     pub gamma: f32,
     /// GAE λ.
     pub gae_lambda: f32,
