@@ -6,12 +6,12 @@
 //! receive loop has not emptied it in time. With the actors and the
 //! learner at one priority, the loop waits its turn behind the actors'
 //! threads on a busy host: on the 2-core VM the bandit fixture's flood of
-//! messages lost a third as many with the loop first (0.24–0.26 % against
-//! 0.07–0.11 %; docs/notebook/2026-11-28-what-holds-the-whole-system.md).
-//! On an H200 with 16 cores the 128-px whole system lost 1.13 %, while the
-//! same learner fed by a synthetic set of actors (no competition for the
-//! CPU) lost none at 2.7 × the rate; whether the loop's turn is why there
-//! is measured next on a GPU.
+//! messages lost about a third as many with the loop first
+//! (docs/performance.md, "The whole system";
+//! docs/notebook/2026-11-28-what-holds-the-whole-system.md). On an H200
+//! the 128-px whole system lost messages while the same learner fed by
+//! synthetic actors (no competition for the CPU) lost none at a higher
+//! rate; whether the loop's turn is why there is measured next on a GPU.
 //! `deploy/local.sh` starts its actors at a niceness (`--actor-nice`, 10)
 //! and gives the learner the same for its training threads
 //! ([`crate::config::LearnerConfig::training_nice`]): training and actors

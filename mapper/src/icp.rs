@@ -418,9 +418,9 @@ pub fn align(
 /// interpolated SDF at the segment's measured points (dense, sub-voxel, no
 /// correspondences), in the spirit of SDF tracking (Bylow et al., 2013).
 /// Each point's residual and gradient come from the one trilinear cell it
-/// lies in: central differences read six cells more, which cost ~0.8 ms of
-/// the map's ~3.9 ms a step over 600-step 128-px episodes and made
-/// re-identification's bursts 2–6× longer
+/// lies in: central differences read six cells more, which cost a fifth of
+/// the map's time a step over 600-step 128-px episodes and made
+/// re-identification's bursts several times longer
 /// (docs/notebook/2026-11-28-sdf-refinement-audit.md). Points where the SDF
 /// is unknown (any of the cell's eight voxels unobserved), truncated, or
 /// beyond the inlier distance are left out. Converges only from within about

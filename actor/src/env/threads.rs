@@ -24,8 +24,8 @@
 //! the policy's CPU pass on every observation it makes, so the caller finds
 //! it done ([`PolicyPass`]) and only draws the action: the passes run in
 //! parallel on the environments' own threads instead of one after another
-//! on the caller's, which at 128 px (a pass of 2–5 ms) made the caller the
-//! wall (docs/notebook/2026-11-27-free-running-gpu-actor.md).
+//! on the caller's, which at 128 px made the caller the wall
+//! (docs/notebook/2026-11-27-free-running-gpu-actor.md).
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::mpsc::{channel, Receiver, Sender};

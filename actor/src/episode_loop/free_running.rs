@@ -32,14 +32,12 @@ enum Phase {
 /// policy with the CPU's own pass (`nets::policy::CpuPolicy`), which the
 /// environments' threads run on their observations (a GRU's state goes
 /// with each step's task). Free-running, nobody waits for the slowest
-/// environment at a barrier. Measured (env bench, policy included):
-/// on the VM's CPU, 2 environments at 64 px, `ours` 121–149 steps/s in
-/// lock-step against 115–145 free-running, `nomap-seg` (a GRU) 151–208
-/// against 167–235 (five runs each, 2026-11-27); on an H200 at 128 px
-/// with 16 environments, the U-Net's frames batched by one thread
-/// (`crate::env::unet_batcher`), `ours` 217 against 353 and `nomap-seg`
-/// 712 against 970, with 32 environments 287 / 469 and 888 / 1 049
-/// (docs/notebook/2026-11-27-gpu-check-free-running.md).
+/// environment at a barrier. Measured with the env bench, policy included
+/// (docs/performance.md, "One actor"): on the VM's CPU two free-running
+/// environments make about what two in lock-step make; on an H200 at
+/// 128 px with 16 and 32 environments, the U-Net's frames batched by one
+/// thread (`crate::env::unet_batcher`), free-running makes 1.2–1.8× the
+/// steps (docs/notebook/2026-11-27-gpu-check-free-running.md).
 pub(super) fn suits(actor: &Actor<'_>, envs: usize) -> bool {
     envs > 1 && actor.policy.cpu.is_some()
 }

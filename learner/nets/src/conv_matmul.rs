@@ -18,7 +18,8 @@
 //! over the GPU's cores. On libtorch the one product is best: cuBLAS splits
 //! it, and burn's own convolution there computes its weight gradient as a
 //! dilated convolution with the output gradient as kernel, which cuDNN runs
-//! slowly (a 1 024-step PPO update at 128 px: 119 ms against 383 ms).
+//! slowly (a 1 024-step PPO update at 128 px took three times as long;
+//! docs/decisions/0010-libtorch-on-a-gpu.md).
 
 use burn::nn::conv::Conv2d;
 use burn::prelude::*;

@@ -6,8 +6,9 @@
 //! has cores, which is always the case here. So every process's waiting
 //! threads (an actor's U-Net batching thread, the learner's trainers) keep
 //! a core busy while the GPU works, cores the environments need: on the
-//! H200 the 64-px whole system kept ~14 of 16 cores busy for ~5 ms of an
-//! environment's work a step (docs/notebook/2026-11-28-what-holds-the-whole-system.md).
+//! H200 the 64-px whole system kept nearly every core busy for far less
+//! environment work than that
+//! (docs/notebook/2026-11-28-what-holds-the-whole-system.md).
 //! `AFX_CUDA_WAIT=block` makes such threads sleep until the GPU is done
 //! (`yield` yields the core while polling, `spin` spins always); unset
 //! leaves CUDA's heuristic. It sets the scheduling flags of the device's

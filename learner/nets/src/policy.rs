@@ -198,10 +198,9 @@ impl ConvEncoder {
 /// [`set_conv_path`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ConvPath {
-    /// The device's best as measured: one product per image on wgpu (a
-    /// 1 024-step PPO update at 128 px on an H200: 1.65 s against 3.39 s
-    /// with burn's); one over the batch on the CPU and on libtorch (there
-    /// 119 ms against 176 ms per image and 383 ms with burn's).
+    /// The device's best as measured (docs/decisions/0006-cpu-kernels.md,
+    /// 0010): one product per image on wgpu; one over the batch on the CPU
+    /// and on libtorch.
     Auto,
     /// burn's `Conv2d`.
     Burn,

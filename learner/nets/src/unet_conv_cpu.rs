@@ -21,8 +21,8 @@
 //! The images of a batch run in parallel on rayon's threads.
 //! Tensors elsewhere (the GPU) take burn's own `Conv2d` and ReLU. (The
 //! matrix-product form the policy encoders train with on a GPU, padded, with
-//! nine taps per image, made the U-Net's training step slower there: 173
-//! against 151 ms; docs/notebook/2026-11-26-gpu-learner.md.)
+//! nine taps per image, made the U-Net's training step slower there;
+//! docs/notebook/2026-11-26-gpu-learner.md.)
 
 use std::borrow::Cow;
 use std::sync::Arc;

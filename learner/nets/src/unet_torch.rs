@@ -7,9 +7,9 @@
 //! Why it exists: an actor on a GPU sends every camera frame through the
 //! U-Net, in batches of one thread (`actor::env::unet_batcher`), which
 //! bounds the process's steps per second. On an H200 at 128 px a call
-//! through libtorch's own calls took 0.98 / 1.71 / 2.95 ms for 1 / 4 / 8
-//! frames against burn's 1.28 / 2.05 / 4.75 ms (`cargo bench -p nets
-//! --bench unet_inference`, before the copies were cut); half precision
+//! through libtorch's own calls is faster than burn's at every batch size
+//! (`cargo bench -p nets --bench unet_inference`; docs/performance.md,
+//! "One actor"); half precision
 //! with channels-last tensors was tried and made actors slower
 //! (docs/notebook/2026-11-27-actor-unet-on-libtorch.md).
 

@@ -1,10 +1,10 @@
 //! The U-Net's whole forward pass as one differentiable operation on
 //! libtorch, whose backward step is libtorch's own.
 //!
-//! Why it exists: a U-Net training step (batch 8, 128 px) took 26.6 ms on an
-//! H200 against PyTorch's 10.1 ms with the same network, with only its 3 × 3
-//! convolutions through libtorch's autograd (one operation each, session
-//! 36): every pooling, transposed convolution, concatenation and ReLU was
+//! Why it exists: a U-Net training step (batch 8, 128 px) took over twice
+//! PyTorch's time on an H200 with the same network (docs/performance.md,
+//! "The learner"), with only its 3 × 3 convolutions through libtorch's
+//! autograd (one operation each): every pooling, transposed convolution, concatenation and ReLU was
 //! still a burn operation with burn's backward, and the U-Net trainer's
 //! kernels delay the PPO update's on the GPU they share
 //! (docs/notebook/2026-11-27-gpu-check-free-running.md). Here the forward

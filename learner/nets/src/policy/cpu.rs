@@ -2,8 +2,7 @@
 //!
 //! Why it exists: an actor runs the policy on every step, and on the CPU
 //! burn's pass over `ours`' three conv encoders (about 15 MFLOP at 64 px)
-//! took 1.2 ms alone and about 2 ms per step in lock-step: the time goes to
-//! per-operation overhead (tensor allocation, layout copies), not to
+//! took a millisecond or more: the time goes to per-operation overhead (tensor allocation, layout copies), not to
 //! arithmetic. Here each convolution is one im2col copy and one GEMM, the
 //! rest (dense layers, the GRU of the methods with memory) plain loops over
 //! weights copied out once.
@@ -332,8 +331,8 @@ thread_local! {
     /// Each thread's im2col columns and stride phases for [`Conv::forward`],
     /// kept from pass to pass: allocated anew on every pass (hundreds of kB)
     /// they cost page faults whenever the allocator had handed the memory
-    /// back to the system, which made a 64-px pass 2.5× slower in one
-    /// process than in another (0.41 against 1.05 ms, `cpu_policy` bench).
+    /// back to the system, which made a 64-px pass more than twice as slow
+    /// in one process as in another (`cpu_policy` bench; docs/performance.md).
     static SCRATCH: RefCell<(Vec<f32>, Vec<f32>)> = const { RefCell::new((Vec::new(), Vec::new())) };
 }
 

@@ -4,8 +4,8 @@
 //! Why: at 128 px a PPO batch of 1 024 steps of the `ours` state is 436 MB
 //! of bytes and 1.7 GB of floats. Decoded on the host and handed to burn,
 //! the floats are copied again into a libtorch tensor and then uploaded
-//! from pageable memory: on an H200 building the batch took 904 ms against
-//! 212 ms for the update it fed (docs/notebook/2026-11-27-libtorch-learner.md).
+//! from pageable memory: on an H200 building the batch took four times as
+//! long as the update it fed (docs/notebook/2026-11-27-libtorch-learner.md).
 //! Here one upload of the bytes straight from the batch's buffer, then a
 //! slice, a cast and a scale per input on the device.
 
