@@ -199,7 +199,7 @@ pub(crate) struct ValidationStatus {
 pub(crate) const SEQUENCE_WINDOW: u64 = 1_000_000;
 
 /// A pass of the receive loop longer than this is counted
-/// ([`LearnerStatus::receive_loop_long_passes`]), seconds.
+/// ([`Counters::receive_loop_long_passes`]), seconds.
 pub const LONG_PASS_S: f64 = 0.1;
 
 /// Episodes in the means `/metrics` and `/api/status` report.
