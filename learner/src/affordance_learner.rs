@@ -4,7 +4,7 @@
 //! the actors use only when it beats it on validation.
 
 use burn::prelude::*;
-use nets::unet::{AffordanceUnet, ClassBalance};
+use nets::unet::AffordanceUnet;
 use nets::unet_inference::UnetInference;
 use nets::weights::{load_safetensors, to_safetensors, WeightsError};
 use proto::{FrameBatchView, LABEL_UNKNOWN};
@@ -257,10 +257,10 @@ impl AffordanceLearner {
         for (plane_logits, plane_labels) in planes {
             let positives = plane_labels.iter().filter(|&&y| y).count();
             let negatives = plane_labels.len() - positives;
-            let weight = |y: bool| match self.settings.class_balance {
-                ClassBalance::Pixels => 1.0,
-                ClassBalance::Classes if y => 0.5 / positives as f32,
-                ClassBalance::Classes => 0.5 / negatives as f32,
+            let weight = |y: bool| match self.settings.class_balance.positive_share() {
+                None => 1.0,
+                Some(share) if y => share / positives as f32,
+                Some(share) => (1.0 - share) / negatives as f32,
             };
             weights.extend(plane_labels.iter().map(|&y| weight(y)));
             logits.extend(plane_logits);

@@ -143,7 +143,8 @@ pub struct UnetConfig {
     /// negative ones: "classes" (positives and negatives half each, so 0.5
     /// means as likely as not) or "pixels" (the paper's: every labelled
     /// pixel alike, so probabilities follow the labels' share of positives,
-    /// 2 to 5 in 1 000 pick-up pixels). The validation gate and the
+    /// 2 to 5 in 1 000 pick-up pixels), or `{ positive-share = A }`
+    /// (positives A of it, negatives the rest). The validation gate and the
     /// temperature weigh them the same way
     /// (docs/decisions/0011-class-balanced-loss.md).
     pub class_balance: ClassBalance,
@@ -299,6 +300,12 @@ impl LearnerConfig {
             "policy.ppo.learning_rate, policy.ppo.clip and policy.ppo.max_grad_norm must be > 0"
         );
         let u = &self.unet;
+        if let Some(share) = u.class_balance.positive_share() {
+            anyhow::ensure!(
+                share > 0.0 && share < 1.0,
+                "unet.class_balance's positive-share must be above 0 and below 1, got {share}"
+            );
+        }
         anyhow::ensure!(
             u.batch_frames >= 1 && u.max_uses >= 1 && u.max_frames >= 1,
             "unet.batch_frames, unet.max_uses and unet.max_frames must be >= 1"
@@ -456,6 +463,12 @@ mod tests {
         assert_eq!(config.actors.data.as_deref(), Some("/data/x y"));
         assert_eq!(config.task.affordances, vec![proto::Affordance::Push]);
         assert_eq!(config.keep_checkpoints, 5);
+        let share = set(&["unet.class_balance={positive-share = 0.25}"]).unwrap();
+        assert_eq!(
+            share.unet.class_balance,
+            ClassBalance::PositiveShare(0.25)
+        );
+        assert!(toml::from_str::<LearnerConfig>(&share.to_toml()).unwrap() == share);
         for (bad, says) in [
             ("policy.batch_step=3", "batch_step"),
             ("no_equals_sign", "KEY=VALUE"),

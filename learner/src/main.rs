@@ -156,8 +156,9 @@ struct TrainUnetArgs {
     /// Checkpoints written, evenly over the training (the last at its end).
     #[arg(long, default_value_t = 1)]
     checkpoints: usize,
-    /// How the loss weighs positive labels against negative ones: pixels or
-    /// classes (default: the run's [unet] class_balance).
+    /// How the loss weighs positive labels against negative ones: pixels,
+    /// classes or positive-share=A (0 < A < 1: positives A of each plane's
+    /// BCE) (default: the run's [unet] class_balance).
     #[arg(long)]
     class_balance: Option<nets::unet::ClassBalance>,
     /// Seed of the split, the batches and the initial weights.

@@ -144,7 +144,7 @@ impl AffordanceUnet {
 
 /// How a plane's BCE weighs its positive labelled pixels against its
 /// negative ones (`[unet] class_balance`; docs/ladder.md).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum ClassBalance {
     /// Every labelled pixel alike (the mean over the labelled pixels), the
@@ -160,18 +160,48 @@ pub enum ClassBalance {
     /// docs/decisions/0011-class-balanced-loss.md).
     #[default]
     Classes,
+    /// As `Classes`, with the positives' mean carrying this share of the
+    /// plane's BCE and the negatives' the rest (the α of an α-balanced
+    /// loss): below one half it moves the network's odds from even towards
+    /// the rarer positives that rooms hold (`{ positive-share = 0.25 }`).
+    PositiveShare(f32),
+}
+
+impl ClassBalance {
+    /// The share of a plane's BCE its positive pixels carry when the batch
+    /// has both classes; `None` for [`ClassBalance::Pixels`].
+    pub fn positive_share(self) -> Option<f32> {
+        match self {
+            Self::Pixels => None,
+            Self::Classes => Some(0.5),
+            Self::PositiveShare(share) => Some(share),
+        }
+    }
 }
 
 impl std::str::FromStr for ClassBalance {
     type Err = String;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let share = |v: &str| -> Result<Self, String> {
+            let share: f32 = v
+                .parse()
+                .map_err(|_| format!("positive-share={v}: not a number"))?;
+            if share > 0.0 && share < 1.0 {
+                Ok(Self::PositiveShare(share))
+            } else {
+                Err(format!("positive-share={v}: must be above 0 and below 1"))
+            }
+        };
         match s {
             "pixels" => Ok(Self::Pixels),
             "classes" => Ok(Self::Classes),
-            other => Err(format!(
-                "unknown class balance '{other}': pixels or classes"
-            )),
+            other => match other.strip_prefix("positive-share=") {
+                Some(v) => share(v),
+                None => Err(format!(
+                    "unknown class balance '{other}': pixels, classes or positive-share=A (0 < A < 1)"
+                )),
+            },
         }
     }
 }
@@ -199,17 +229,21 @@ pub fn masked_bce_dice(
         + (logits.clone().abs().neg().exp() + 1.0).log();
     let bce = match balance {
         ClassBalance::Pixels => per_plane(bce * known.clone()) / labelled.clone().clamp_min(1.0),
-        ClassBalance::Classes => {
+        ClassBalance::Classes | ClassBalance::PositiveShare(_) => {
+            let share = balance.positive_share().unwrap_or(0.5);
             let positive = labels.clone() * known.clone();
             let negative = known.clone() - positive.clone();
             let (n_pos, n_neg) = (per_plane(positive.clone()), per_plane(negative.clone()));
             let mean_pos = per_plane(bce.clone() * positive) / n_pos.clone().clamp_min(1.0);
             let mean_neg = per_plane(bce * negative) / n_neg.clone().clamp_min(1.0);
-            // Half each where the plane has both classes; else the one it has.
+            // `share` and the rest where the plane has both classes; else
+            // the one it has, whole.
             let has_pos = n_pos.greater_elem(0.0).float();
             let has_neg = n_neg.greater_elem(0.0).float();
-            (mean_pos * has_pos.clone() + mean_neg * has_neg.clone())
-                / (has_pos + has_neg).clamp_min(1.0)
+            let both = has_pos.clone() * has_neg.clone();
+            let w_pos = has_pos.clone() - both.clone() * (1.0 - share);
+            let w_neg = has_neg.clone() - both * share;
+            mean_pos * w_pos + mean_neg * w_neg
         }
     };
     let p = burn::tensor::activation::sigmoid(logits) * known.clone();
@@ -291,10 +325,25 @@ mod tests {
         .into_scalar::<f32>();
         let expected = (bce_pos + 99.0 * bce_neg) / 100.0 + dice;
         assert!((pixels - expected).abs() < 1e-4, "{pixels} vs {expected}");
-        let classes = masked_bce_dice(tensor(logits), tensor(labels), known, ClassBalance::Classes)
-            .into_scalar::<f32>();
+        let classes = masked_bce_dice(
+            tensor(logits.clone()),
+            tensor(labels.clone()),
+            known.clone(),
+            ClassBalance::Classes,
+        )
+        .into_scalar::<f32>();
         let expected = (bce_pos + bce_neg) / 2.0 + dice;
         assert!((classes - expected).abs() < 1e-4, "{classes} vs {expected}");
+        // A quarter for the positives, three quarters for the negatives.
+        let quarter = masked_bce_dice(
+            tensor(logits),
+            tensor(labels),
+            known,
+            ClassBalance::PositiveShare(0.25),
+        )
+        .into_scalar::<f32>();
+        let expected = 0.25 * bce_pos + 0.75 * bce_neg + dice;
+        assert!((quarter - expected).abs() < 1e-4, "{quarter} vs {expected}");
         // Negatives only: both are the negatives' mean.
         let negatives = masked_bce_dice(
             tensor(vec![-4.0; 100]),
@@ -304,5 +353,25 @@ mod tests {
         )
         .into_scalar::<f32>();
         assert!((negatives - bce_neg).abs() < 1e-5, "{negatives}");
+    }
+
+    #[test]
+    fn a_class_balance_reads_from_its_name() {
+        assert_eq!("pixels".parse(), Ok(ClassBalance::Pixels));
+        assert_eq!("classes".parse(), Ok(ClassBalance::Classes));
+        assert_eq!(
+            "positive-share=0.25".parse(),
+            Ok(ClassBalance::PositiveShare(0.25))
+        );
+        for bad in [
+            "positive-share=1",
+            "positive-share=0",
+            "positive-share=x",
+            "share",
+        ] {
+            assert!(bad.parse::<ClassBalance>().is_err(), "{bad}");
+        }
+        assert_eq!(ClassBalance::Classes.positive_share(), Some(0.5));
+        assert_eq!(ClassBalance::Pixels.positive_share(), None);
     }
 }
