@@ -464,10 +464,7 @@ mod tests {
         assert_eq!(config.task.affordances, vec![proto::Affordance::Push]);
         assert_eq!(config.keep_checkpoints, 5);
         let share = set(&["unet.class_balance={positive-share = 0.25}"]).unwrap();
-        assert_eq!(
-            share.unet.class_balance,
-            ClassBalance::PositiveShare(0.25)
-        );
+        assert_eq!(share.unet.class_balance, ClassBalance::PositiveShare(0.25));
         assert!(toml::from_str::<LearnerConfig>(&share.to_toml()).unwrap() == share);
         for (bad, says) in [
             ("policy.batch_step=3", "batch_step"),
