@@ -295,6 +295,18 @@ pub fn open_as_outsider(
     (node, factory)
 }
 
+/// The steps of a run's checkpoints (`RUN_DIR/checkpoints/<step>/`), oldest first.
+pub fn checkpoint_steps(run_dir: &Path) -> Vec<u64> {
+    let mut steps: Vec<u64> = std::fs::read_dir(run_dir.join("checkpoints"))
+        .map(|d| {
+            d.filter_map(|e| e.ok()?.file_name().to_str()?.parse().ok())
+                .collect()
+        })
+        .unwrap_or_default();
+    steps.sort_unstable();
+    steps
+}
+
 /// A loopback TCP port nobody listens on now.
 pub fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0")

@@ -11,20 +11,9 @@ use std::process::Command;
 use std::time::Duration;
 
 use system_tests::{
-    kill_pid as kill, launch_bandit_run as launch, run_status as status, scratch_dir, wait_for,
-    wait_launch_exit as wait_exit,
+    checkpoint_steps as checkpoints, kill_pid as kill, launch_bandit_run as launch,
+    run_status as status, scratch_dir, wait_for, wait_launch_exit as wait_exit,
 };
-
-fn checkpoints(run_dir: &Path) -> Vec<u64> {
-    let mut steps: Vec<u64> = std::fs::read_dir(run_dir.join("checkpoints"))
-        .map(|d| {
-            d.filter_map(|e| e.ok()?.file_name().to_str()?.parse().ok())
-                .collect()
-        })
-        .unwrap_or_default();
-    steps.sort_unstable();
-    steps
-}
 
 /// Whether every file of checkpoint `step` has the size and SHA-256 its
 /// manifest says, by `sha256sum` (not the learner's own code).

@@ -8,7 +8,10 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use system_tests::{launch_bandit_run as launch, scratch_dir, wait_launch_exit as wait_exit};
+use system_tests::{
+    checkpoint_steps as checkpoints, free_port, launch_bandit_run as launch, scratch_dir,
+    wait_launch_exit as wait_exit,
+};
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
@@ -29,17 +32,6 @@ fn text(out: &Output) -> String {
     )
 }
 
-fn checkpoints(run_dir: &Path) -> Vec<u64> {
-    let mut steps: Vec<u64> = std::fs::read_dir(run_dir.join("checkpoints"))
-        .map(|d| {
-            d.filter_map(|e| e.ok()?.file_name().to_str()?.parse().ok())
-                .collect()
-        })
-        .unwrap_or_default();
-    steps.sort_unstable();
-    steps
-}
-
 fn parts(pack: &Path) -> Vec<PathBuf> {
     let mut parts: Vec<PathBuf> = std::fs::read_dir(pack)
         .unwrap()
@@ -49,13 +41,6 @@ fn parts(pack: &Path) -> Vec<PathBuf> {
         .collect();
     parts.sort();
     parts
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .expect("a free port")
-        .port()
 }
 
 #[test]
