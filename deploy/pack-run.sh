@@ -61,26 +61,7 @@ if [[ -s "$RUN_DIR/logs/learner.pid" ]] && kill -0 "$(cat "$RUN_DIR/logs/learner
 fi
 
 # Whether checkpoint directory $1 matches its manifest (sizes and sha256).
-verifies() {
-  python3 - "$1" <<'PY'
-import hashlib, json, os, sys
-d = sys.argv[1]
-try:
-    manifest = json.load(open(os.path.join(d, "manifest.json")))
-    for f in manifest["files"]:
-        p = os.path.join(d, f["name"])
-        if os.path.getsize(p) != f["size"]:
-            sys.exit(1)
-        h = hashlib.sha256()
-        with open(p, "rb") as fh:
-            for block in iter(lambda: fh.read(1 << 20), b""):
-                h.update(block)
-        if h.hexdigest() != f["sha256"]:
-            sys.exit(1)
-except (OSError, ValueError, KeyError):
-    sys.exit(1)
-PY
-}
+verifies() { "$(dirname "$0")/verify-checkpoint.py" "$1" >/dev/null; }
 
 members=(config.toml)
 for f in join.key history.jsonl tensorboard validation; do

@@ -76,20 +76,10 @@ trap 'rm -rf "$STAGE"' EXIT
 (cd "$PACK" && cat $(grep -v '^#' "$RUN.sha256" | awk '{print $2}')) | tar -C "$STAGE" -xf -
 
 # Each checkpoint against its manifest (what `learner serve --resume` checks too).
-bad=$(python3 - "$STAGE" <<'PY'
-import hashlib, json, os, sys
-root = os.path.join(sys.argv[1], "checkpoints")
-for step in sorted(os.listdir(root)) if os.path.isdir(root) else []:
-    d = os.path.join(root, step)
-    try:
-        for f in json.load(open(os.path.join(d, "manifest.json")))["files"]:
-            h = hashlib.sha256(open(os.path.join(d, f["name"]), "rb").read()).hexdigest()
-            if h != f["sha256"]:
-                raise ValueError(f["name"])
-    except (OSError, ValueError, KeyError) as e:
-        print(f"{step} ({e})")
-PY
-)
+bad=""
+if [[ -d "$STAGE/checkpoints" ]]; then
+  bad=$("$(dirname "$0")/verify-checkpoint.py" "$STAGE"/checkpoints/*/ || true)
+fi
 if [[ -n "$bad" ]]; then
   echo "unpack-run.sh: checkpoints that do not match their manifest: $bad; nothing was unpacked" >&2
   exit 4
