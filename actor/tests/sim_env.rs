@@ -30,6 +30,14 @@ fn unet() -> AffordanceModel {
 }
 
 fn environment_for(method: Method, steps: usize) -> SimEnv {
+    environment_with(method, steps, |_| {})
+}
+
+fn environment_with(
+    method: Method,
+    steps: usize,
+    change: impl FnOnce(&mut SimEnvConfig),
+) -> SimEnv {
     let data = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
     let profile = RobotProfile::load("default").unwrap();
     let source = SceneSource::open(
@@ -39,11 +47,12 @@ fn environment_for(method: Method, steps: usize) -> SimEnv {
         &profile,
     )
     .unwrap();
-    let config = SimEnvConfig {
+    let mut config = SimEnvConfig {
         episode_steps: steps,
         balanced_frames: false,
         ..SimEnvConfig::paper(method, &AFFORDANCES)
     };
+    change(&mut config);
     SimEnv::new(
         config,
         source,
@@ -83,6 +92,35 @@ fn run(
         observations.push(observation.clone());
     }
     (outcomes, observations)
+}
+
+#[test]
+fn cell_ratings_in_the_state_follow_the_cells_the_mask_offers() {
+    let steps = 12;
+    let mut env = environment_with(Method::Ours, steps, |c| {
+        c.selection.ratings_in_state = true;
+    });
+    assert_eq!(env.state_config().ratings_len, 9 * AFFORDANCES.len());
+    let (_, observations) = run(&mut env, &unet(), 3, steps);
+    let space = env.action_space().actions().to_vec();
+    let mut offered = 0;
+    for o in &observations {
+        assert_eq!(o.state.ratings.len(), 9 * AFFORDANCES.len());
+        for (index, action) in space.iter().enumerate() {
+            if let PolicyAction::Select {
+                affordance: Affordance::Push,
+                cell,
+            } = *action
+            {
+                let rating = o.state.ratings[9 + cell];
+                assert!((0.0..=1.0).contains(&rating));
+                // An untrained sigmoid never says exactly 0.
+                assert_eq!(o.mask[index] == 1, rating > 0.0, "cell {cell}");
+                offered += usize::from(rating > 0.0);
+            }
+        }
+    }
+    assert!(offered > 0, "some cell offered an object to push");
 }
 
 #[test]

@@ -59,6 +59,7 @@ fn observe(
         map: Some(map),
         history,
         holding: false,
+        ratings: &[],
     };
     (build_state(config, &inputs), map_ids)
 }

@@ -67,6 +67,14 @@ pub struct SelectionRule {
     pub within_reach: bool,
     /// Which of a cell's objects it offers when the U-Net is running.
     pub prefer: CellPreference,
+    /// Whether the policy's state holds, per affordance and grid cell, the
+    /// U-Net's mean probability over the object the cell offers (0 for an
+    /// empty cell): the network's rating, per action, of the objects the
+    /// camera input shows as a probability image, so that the policy need
+    /// not learn which image region each cell covers before it can choose
+    /// likely objects. Needs the grid (`ours`, `nomap-*`). `false` is the
+    /// paper's state.
+    pub ratings_in_state: bool,
 }
 
 /// Which object a grid cell offers among those assigned to it.
@@ -104,6 +112,7 @@ impl Default for SelectionRule {
             min_pixels: 10,
             within_reach: true,
             prefer: CellPreference::Largest,
+            ratings_in_state: false,
         }
     }
 }

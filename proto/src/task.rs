@@ -5,7 +5,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::method::Method;
+use crate::method::{Method, Selection};
 use crate::rules::{ConfidenceRule, MapSettings, SelectionRule, SphereRule};
 use crate::ObsDtype;
 
@@ -271,6 +271,9 @@ pub enum TaskError {
     /// A selection threshold that is not a probability.
     #[error("task.selection_confidence {0} must be a probability, between 0 and 1")]
     SelectionConfidence(f32),
+    /// Cell ratings asked of a method without the grid.
+    #[error("task.selection.ratings_in_state needs the grid selection (ours, nomap-seg, nomap-noseg), not {0}")]
+    RatingsWithoutGrid(&'static str),
     /// A selection, label or map rule outside what it can mean.
     #[error(transparent)]
     Rule(#[from] crate::rules::RuleError),
@@ -314,6 +317,9 @@ impl TaskSpec {
                 self.method.as_str(),
             ));
         }
+        if self.selection.ratings_in_state && self.method.spec().selection != Selection::Grid {
+            return Err(TaskError::RatingsWithoutGrid(self.method.as_str()));
+        }
         crate::rules::validate_all(&self.selection, &self.confidence, &self.sphere, &self.map)?;
         Ok(())
     }
@@ -343,6 +349,17 @@ impl TaskSpec {
                     + self.selection_slots() * self.affordances.len()
                     + usize::from(pick) * (1 + HAND_MOVES)
             }
+        }
+    }
+
+    /// Length of the cell-ratings input: per affordance and selection slot
+    /// the U-Net's mean probability over the offered object (0 unless
+    /// `[task.selection] ratings_in_state`).
+    pub fn ratings_len(&self) -> usize {
+        if self.selection.ratings_in_state {
+            self.selection_slots() * self.affordances.len()
+        } else {
+            0
         }
     }
 
@@ -384,7 +401,7 @@ impl TaskSpec {
             EnvKind::Sim => {
                 // The camera; with a map its global (10 m) and local (2 m)
                 // maps. The history if the method has it; the inventory
-                // (what the hand holds) always.
+                // (what the hand holds) always; the cells' ratings if set.
                 let spec = self.method.spec();
                 let mut image_channels = vec![self.camera_channels()];
                 if spec.map {
@@ -395,6 +412,9 @@ impl TaskSpec {
                     vector_dims.push(self.history_len());
                 }
                 vector_dims.push(1);
+                if self.ratings_len() > 0 {
+                    vector_dims.push(self.ratings_len());
+                }
                 PolicyLayout {
                     image_channels,
                     image_size: self.image_size,
@@ -498,6 +518,31 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("task.memory_size"));
+    }
+
+    #[test]
+    fn cell_ratings_add_one_input_per_cell_and_affordance_and_need_the_grid() {
+        let with_ratings = |method| TaskSpec {
+            method,
+            selection: SelectionRule {
+                ratings_in_state: true,
+                ..SelectionRule::default()
+            },
+            ..TaskSpec::default()
+        };
+        let ours = with_ratings(Method::Ours);
+        ours.validate().unwrap();
+        let plain = TaskSpec::default().layout().vector_dims;
+        let mut expected = plain.clone();
+        expected.push(crate::GRID_CELLS * ours.affordances.len());
+        assert_eq!(ours.layout().vector_dims, expected);
+        assert_eq!(TaskSpec::default().ratings_len(), 0);
+        let intexp = with_ratings(Method::Intexp);
+        assert!(intexp
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("ratings_in_state"));
     }
 
     #[test]

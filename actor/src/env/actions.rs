@@ -166,7 +166,7 @@ pub fn random_allowed_action(
 }
 
 /// The object a grid cell selects.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Target {
     /// Map object id.
     pub object: u32,
@@ -176,6 +176,9 @@ pub struct Target {
     pub v: usize,
     /// The object's pixel count in the frame.
     pub pixels: usize,
+    /// The U-Net's mean probability of the cell's affordance over the
+    /// object's pixels (0 without a network).
+    pub rating: f32,
 }
 
 /// Per affordance and grid cell, the selected object.
@@ -191,6 +194,17 @@ impl CellTargets {
             .iter()
             .find(|(a, _)| *a == affordance)
             .and_then(|(_, t)| t.get(cell).copied().flatten())
+    }
+
+    /// Per affordance of `affordances` (in that order) and cell, the
+    /// offered object's rating, 0 for an empty cell: the policy's
+    /// cell-ratings input.
+    pub fn ratings(&self, affordances: &[Affordance]) -> Vec<f32> {
+        affordances
+            .iter()
+            .flat_map(|&a| (0..GRID * GRID).map(move |cell| (a, cell)))
+            .map(|(a, cell)| self.target(a, cell).map_or(0.0, |t| t.rating))
+            .collect()
     }
 }
 
@@ -364,6 +378,7 @@ pub(crate) fn cell_targets(
                     u: p % width,
                     v: p / width,
                     pixels: blob.pixels,
+                    rating: (blob.sum_probability[k] / blob.pixels as f64) as f32,
                 }
             })
         });
@@ -407,6 +422,7 @@ pub(crate) fn centred_target(
             u: p % width,
             v: p / width,
             pixels,
+            rating: 0.0,
         })
     });
     let mut slots = [None; GRID * GRID];
@@ -558,6 +574,11 @@ mod tests {
             .collect();
         let t = push_targets(Some(&[plane]));
         assert_eq!(t.target(Affordance::Push, 0).unwrap().object, 3);
+        // The policy's cell ratings: the offered object's mean, 0 where empty.
+        let ratings = t.ratings(&[Affordance::Push]);
+        assert_eq!(ratings.len(), GRID * GRID);
+        assert!((ratings[0] - 0.6).abs() < 1e-6 && (ratings[8] - 0.6).abs() < 1e-6);
+        assert!(ratings[1..8].iter().all(|&r| r == 0.0));
         // Sure of nothing in the cell: the cell stays selectable and takes
         // the object rated highest, however small.
         let plane: Vec<f32> = ids

@@ -58,6 +58,7 @@ impl FlatSimEnv {
             &s.local_map,
             &s.history,
             &s.inventory,
+            &s.ratings,
         ] {
             bytes.extend(part.iter().map(|&v| proto::unit_to_byte(v)));
         }

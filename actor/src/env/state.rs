@@ -15,6 +15,9 @@
 //!   newest first, zeros before the episode's start. Every input lies in
 //!   0..1, so the state travels to the learner as bytes.
 //! - **inventory** `[1]`: 1 while holding an object.
+//! - **cell ratings** `[9 · A]`, only with `[task.selection]
+//!   ratings_in_state`: per affordance and grid cell the U-Net's mean
+//!   probability over the object the cell offers, 0 for an empty cell.
 //!
 //! The methods without a map keep only what needs no map: `nomap-seg` and
 //! `nomap-noseg` the camera's RGB, distance and probabilities, the history
@@ -47,6 +50,8 @@ pub struct StateConfig {
     pub local_extent_m: f32,
     /// Heights above the floor that count as occupied, metres.
     pub occupancy_heights_m: (f32, f32),
+    /// Length of the cell-ratings input (0: the paper's state, without it).
+    pub ratings_len: usize,
 }
 
 impl StateConfig {
@@ -61,6 +66,7 @@ impl StateConfig {
             global_extent_m: 10.0,
             local_extent_m: 2.0,
             occupancy_heights_m: (0.05, 1.8),
+            ratings_len: 0,
         }
     }
 
@@ -104,7 +110,7 @@ impl StateConfig {
             self.map_channels(),
             self.map_channels(),
         ];
-        let vectors = [self.history_len(), 1];
+        let vectors = [self.history_len(), 1, self.ratings_len];
         (
             images.into_iter().filter(|&c| c > 0).collect(),
             vectors.into_iter().filter(|&d| d > 0).collect(),
@@ -155,6 +161,10 @@ pub struct StateInputs<'a> {
     pub history: &'a ActionHistory,
     /// Whether the hand holds an object.
     pub holding: bool,
+    /// Per affordance and grid cell the offered object's rating
+    /// ([`crate::env::actions::CellTargets::ratings`]); used only when the
+    /// state has the cell-ratings input.
+    pub ratings: &'a [f32],
 }
 
 /// One state, ready to become the policy's tensors.
@@ -170,6 +180,8 @@ pub struct State {
     pub history: Vec<f32>,
     /// `[1]`.
     pub inventory: Vec<f32>,
+    /// `[ratings_len]`.
+    pub ratings: Vec<f32>,
 }
 
 /// Builds the state of `config.method`: inputs the method does not have
@@ -190,6 +202,11 @@ pub fn build_state(config: &StateConfig, input: &StateInputs<'_>) -> State {
         local_map,
         history: history_vector(config, input.history),
         inventory: vec![f32::from(u8::from(input.holding))],
+        ratings: if config.ratings_len > 0 {
+            input.ratings.to_vec()
+        } else {
+            Vec::new()
+        },
     }
 }
 

@@ -256,6 +256,11 @@ impl SimEnv {
         let state_config = StateConfig {
             image_size: config.image_size,
             map_cells: config.image_size,
+            ratings_len: if config.selection.ratings_in_state {
+                config.method.spec().selection.slots() * config.affordances.len()
+            } else {
+                0
+            },
             ..StateConfig::paper(config.method, &config.affordances, space.len())
         };
         Self {
@@ -392,6 +397,7 @@ mod tests {
                 min_pixels: 4,
                 within_reach: false,
                 prefer: proto::CellPreference::MostProbable,
+                ratings_in_state: true,
             },
             confidence: ConfidenceRule {
                 positive_above: 0.8,

@@ -97,6 +97,7 @@ impl SimEnv {
                 &self.config.selection,
             ),
         };
+        let ratings = episode.targets.ratings(&self.config.affordances);
         let state = build_state(
             &self.state_config,
             &StateInputs {
@@ -113,6 +114,7 @@ impl SimEnv {
                 map: episode.memory.map(),
                 history: &episode.history,
                 holding,
+                ratings: &ratings,
             },
         );
         if let Some(recorder) = &mut episode.recorder {
