@@ -106,6 +106,12 @@ pub struct RewardWeights {
     /// `interaction`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub push_interaction: Option<f32>,
+    /// Reward for the first attempt of each affordance on an object
+    /// instance whose outcome tells the affordance (a success, or a failure
+    /// of the object itself): the outcome labels the object either way, so
+    /// trying an untried object pays even when it fails. 0 is the paper's
+    /// reward, which pays successes only.
+    pub first_try: f32,
 }
 
 impl RewardWeights {
@@ -116,6 +122,7 @@ impl RewardWeights {
         failure: 1.0,
         pick_up_interaction: None,
         push_interaction: None,
+        first_try: 0.0,
     };
 
     /// α2 for a success of `affordance`.
@@ -138,6 +145,7 @@ impl Default for RewardWeights {
             failure: 0.05,
             pick_up_interaction: None,
             push_interaction: None,
+            first_try: 0.0,
         }
     }
 }
@@ -298,7 +306,7 @@ impl TaskSpec {
             return Err(TaskError::EpisodeSteps);
         }
         let r = self.reward;
-        if ![r.navigation, r.interaction, r.failure]
+        if ![r.navigation, r.interaction, r.failure, r.first_try]
             .into_iter()
             .chain(r.pick_up_interaction)
             .chain(r.push_interaction)

@@ -2,7 +2,8 @@
 //! R_nav is 1 for a position not visited before in the episode and 0.3 for
 //! a new heading at a visited position; R_int is 1 for the first successful
 //! interaction of each kind with an object instance; R_fail is −1 for any
-//! failed action.
+//! failed action. Beyond the paper, `first_try` pays the first attempt of
+//! each kind on an object instance whose outcome labels it.
 
 use std::collections::HashSet;
 
@@ -25,6 +26,9 @@ pub(crate) struct StepEvent {
     pub success: bool,
     /// For interactions: the affordance tried and the object instance.
     pub interaction: Option<(Affordance, usize)>,
+    /// Whether the interaction's outcome tells the affordance of its object
+    /// (a success, or a failure of the object itself), so that it labels it.
+    pub informative: bool,
 }
 
 /// The reward's memory of one episode.
@@ -34,6 +38,7 @@ pub(crate) struct RewardTracker {
     positions: HashSet<(i32, i32)>,
     headings: HashSet<(i32, i32, i32)>,
     interacted: HashSet<(Affordance, usize)>,
+    tried: HashSet<(Affordance, usize)>,
 }
 
 impl RewardTracker {
@@ -71,8 +76,15 @@ impl RewardTracker {
             }
             _ => 0.0,
         };
+        let first_try = match event.interaction {
+            Some(key) if event.informative && self.tried.insert(key) => self.weights.first_try,
+            _ => 0.0,
+        };
         let failure = if event.success { 0.0 } else { -1.0 };
-        self.weights.navigation * navigation + interaction + self.weights.failure * failure
+        self.weights.navigation * navigation
+            + interaction
+            + first_try
+            + self.weights.failure * failure
     }
 }
 
@@ -98,7 +110,33 @@ mod tests {
             agent,
             success,
             interaction,
+            informative: success,
         }
+    }
+
+    #[test]
+    fn a_first_informative_try_pays_once_per_object_and_kind_even_when_it_fails() {
+        let weights = RewardWeights {
+            first_try: 0.5,
+            ..RewardWeights::PAPER
+        };
+        let mut r = RewardTracker::new(weights, at(0.0, 0.0, 0.0));
+        let here = at(0.0, 0.0, 0.0);
+        let tried = |object, informative| StepEvent {
+            agent: here,
+            success: false,
+            interaction: Some((Affordance::PickUp, object)),
+            informative,
+        };
+        assert_eq!(r.reward(&tried(1, false)), -1.0, "beyond reach: no label");
+        assert_eq!(r.reward(&tried(1, true)), -0.5, "the object itself failed");
+        assert_eq!(r.reward(&tried(1, true)), -1.0, "once per object");
+        assert_eq!(
+            r.reward(&step(here, true, Some((Affordance::Push, 1)))),
+            1.5,
+            "another kind, a success"
+        );
+        assert_eq!(r.reward(&tried(2, true)), -0.5, "another object");
     }
 
     #[test]

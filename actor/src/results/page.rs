@@ -559,6 +559,9 @@ fn reward_line(config: Option<&str>) -> String {
     if let Some(a) = w.push_interaction {
         line += &format!(", α2 = {a} for pushes");
     }
+    if w.first_try != 0.0 {
+        line += &format!(", {} for each first try that labels an object", w.first_try);
+    }
     if w == proto::RewardWeights::PAPER {
         line += " (the paper's)";
     } else {
@@ -600,6 +603,8 @@ mod tests {
         let split = "[task.reward]\nnavigation = 0.25\ninteraction = 2.0\nfailure = 0.05\n\
                      pick_up_interaction = 6.0\n";
         assert!(reward_line(Some(split)).contains(", α2 = 6 for pick-ups"));
+        let first_try = "[task.reward]\nfirst_try = 0.5\n";
+        assert!(reward_line(Some(first_try)).contains(", 0.5 for each first try that labels"));
         assert!(reward_line(None).contains("unknown"));
         assert!(reward_line(Some("not toml [")).contains("unknown"));
     }

@@ -153,7 +153,7 @@ pub(crate) fn object_memory(
 /// robot knows this from its own arm, and labelling such objects negative
 /// taught the U-Net that reachable pickupable objects cannot be picked up
 /// (56 % of a trained policy's failed pick-ups were beyond reach).
-fn tells_the_affordance(outcome: &Outcome) -> bool {
+pub(crate) fn tells_the_affordance(outcome: &Outcome) -> bool {
     outcome.success
         || outcome
             .failure

@@ -60,6 +60,7 @@ impl SimEnv {
             agent,
             success: outcome.success,
             interaction: interaction.map(|i| (i.affordance, i.target.object as usize)),
+            informative: crate::env::object_memory::tells_the_affordance(&outcome),
         });
         episode.metrics.reward(reward);
         if let Some(recorder) = &mut episode.recorder {
