@@ -8,6 +8,7 @@
 //! predicting everything positive on the same views and objects, the floor
 //! a network must beat.
 
+mod by_type;
 mod object_trials;
 mod report;
 mod selection;

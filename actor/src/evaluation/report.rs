@@ -531,6 +531,19 @@ impl Report {
                 best(object.best)
             );
         }
+        let _ = writeln!(
+            out,
+            "\nTable 2 by object type (the share of the objects that afforded it, and the \
+             network's mean prediction for them):\n\n{}",
+            super::by_type::markdown(
+                &super::by_type::by_object_type(&self.trials),
+                &self
+                    .object
+                    .iter()
+                    .map(|o| o.affordance.clone())
+                    .collect::<Vec<_>>()
+            )
+        );
         if !self.at_validation_thresholds.is_empty() {
             out.push_str(
                 "\nAt the thresholds chosen on the validation rooms (the threshold, its F1 \
