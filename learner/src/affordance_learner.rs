@@ -70,6 +70,8 @@ pub struct UnetTrainingState {
 /// What one round of U-Net training did.
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct UnetRound {
+    /// Gradient steps the round took.
+    pub steps: usize,
     /// Mean training loss (masked BCE + Dice) of the round's steps.
     pub train_loss: f32,
     /// The trained network on validation.
@@ -217,6 +219,7 @@ impl AffordanceLearner {
         }
         let Evaluation { loss, iou, .. } = gate.candidate;
         Some(UnetRound {
+            steps: losses.len(),
             train_loss: losses.iter().sum::<f32>() / losses.len() as f32,
             candidate_loss: loss,
             candidate_iou: iou,

@@ -182,8 +182,14 @@ pub fn render(s: &StatusSnapshot, timings: &Timings) -> String {
     counter(
         &mut r,
         "unet_rounds",
-        "Rounds of U-Net training (a few steps each, after every episode's frames)",
+        "Rounds of U-Net training (a few steps each, after the episodes that arrived since the last round)",
         s.counters.unet_rounds,
+    );
+    counter(
+        &mut r,
+        "unet_steps",
+        "Gradient steps of U-Net training",
+        s.counters.unet_steps,
     );
     counter(
         &mut r,
@@ -525,6 +531,7 @@ mod tests {
         status.reject(proto::MessageKind::Rollout, "bad_magic");
         status.counters.last_update = Some(Default::default());
         status.counters.last_unet = Some(crate::affordance_learner::UnetRound {
+            steps: 8,
             train_loss: 0.5,
             candidate_loss: 0.5,
             candidate_iou: 0.5,

@@ -142,6 +142,9 @@ pub struct Counters {
     pub frames_skipped: u64,
     /// Rounds of U-Net training.
     pub unet_rounds: u64,
+    /// Gradient steps of U-Net training, over all rounds: against the
+    /// episodes received, how much the U-Net trains per episode.
+    pub unet_steps: u64,
     /// Latest U-Net round.
     pub last_unet: Option<UnetRound>,
 }

@@ -105,6 +105,7 @@ impl UnetWorker {
                         let mut status = shared.status();
                         status.timings.unet_round.observe(seconds);
                         status.counters.unet_rounds += 1;
+                        status.counters.unet_steps += round.steps as u64;
                         status.counters.last_unet = Some(round);
                         if round.replaced {
                             status.counters.unet_version += 1;

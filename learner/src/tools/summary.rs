@@ -1,5 +1,6 @@
 //! `learner summary`: a run's history as a table of means per span of
-//! environment steps (every episode metric, and the policy's entropy), so
+//! environment steps (every episode metric, the policy's entropy and the
+//! U-Net's gradient steps per episode), so
 //! that a long run, or two runs side by side, can be read without plotting:
 //! where the success rate peaked, when the policy stopped trying. Repeats of
 //! one setting (seeds) summarise as the runs' mean with their range.
@@ -62,6 +63,9 @@ pub struct SummaryRow {
     pub means: Vec<Option<Spread>>,
     /// Mean entropy of the policy updates in the span.
     pub entropy: Option<Spread>,
+    /// The U-Net's gradient steps in the span per episode that ended in it
+    /// (histories written before rounds recorded their steps: none).
+    pub unet_steps_per_episode: Option<Spread>,
 }
 
 /// A run's history, or repeats' histories, span by span.
@@ -82,6 +86,8 @@ struct SpanSums {
     /// Sum and count per metric.
     fields: BTreeMap<StatKey, (f64, usize)>,
     entropy: (f64, usize),
+    /// Gradient steps of the U-Net rounds that recorded them, and whether any did.
+    unet_steps: Option<u64>,
 }
 
 /// Means of `run_dir`'s history per `every` environment steps.
@@ -112,6 +118,11 @@ pub(crate) fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
                     span.entropy.1 += 1;
                 }
             }
+            Some("unet") => {
+                if let Some(steps) = record["round"]["steps"].as_u64() {
+                    *span.unet_steps.get_or_insert(0) += steps;
+                }
+            }
             _ => {}
         }
     }
@@ -136,6 +147,9 @@ pub(crate) fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
                 .map(|f| span.fields.get(f).and_then(|&sums| mean(sums)))
                 .collect(),
             entropy: mean(span.entropy),
+            unet_steps_per_episode: span
+                .unet_steps
+                .map(|steps| Spread::one(steps as f64 / span.episodes as f64)),
         })
         .collect();
     Ok(Summary {
@@ -186,6 +200,10 @@ pub fn summarize_repeats(run_dirs: &[PathBuf], every: u64) -> anyhow::Result<Sum
                 .map(|&f| Spread::of(span.iter().filter_map(|&(s, r)| field_mean(s, r, f))))
                 .collect(),
             entropy: Spread::of(span.iter().filter_map(|(_, r)| r.entropy.map(|e| e.mean))),
+            unet_steps_per_episode: Spread::of(
+                span.iter()
+                    .filter_map(|(_, r)| r.unet_steps_per_episode.map(|s| s.mean)),
+            ),
         });
     }
     anyhow::ensure!(
@@ -207,8 +225,8 @@ impl Summary {
         for field in &self.fields {
             let _ = write!(out, " {} |", field.name());
         }
-        out.push_str(" ppo entropy |\n|---|---|");
-        out.push_str(&"---|".repeat(self.fields.len() + 1));
+        out.push_str(" ppo entropy | U-Net steps per episode |\n|---|---|");
+        out.push_str(&"---|".repeat(self.fields.len() + 2));
         out.push('\n');
         let repeats = self.runs > 1;
         let cell = |v: Option<Spread>| match v {
@@ -227,7 +245,12 @@ impl Summary {
             for &v in &row.means {
                 let _ = write!(out, " {} |", cell(v));
             }
-            let _ = writeln!(out, " {} |", cell(row.entropy));
+            let _ = writeln!(
+                out,
+                " {} | {} |",
+                cell(row.entropy),
+                cell(row.unet_steps_per_episode)
+            );
         }
         out
     }
@@ -243,7 +266,8 @@ fn steps(n: u64) -> String {
 }
 
 impl From<&Summary> for Value {
-    /// One object per span: `means` per metric and `ppo_entropy`; over
+    /// One object per span: `means` per metric, `ppo_entropy` and
+    /// `unet_steps_per_episode`; over
     /// repeats also `ranges`, each metric's `[lowest, highest]` run mean.
     fn from(summary: &Summary) -> Value {
         let rows: Vec<Value> = summary
@@ -257,9 +281,12 @@ impl From<&Summary> for Value {
                     .iter()
                     .map(|f| f.name())
                     .zip(&row.means)
-                    .chain(std::iter::once(("ppo_entropy".into(), &row.entropy)));
+                    .chain([
+                        ("ppo_entropy".into(), &row.entropy),
+                        ("unet_steps_per_episode".into(), &row.unet_steps_per_episode),
+                    ]);
                 for (name, spread) in columns {
-                    if name != "ppo_entropy" {
+                    if name != "ppo_entropy" && name != "unet_steps_per_episode" {
                         means.insert(name.to_string(), json!(spread.map(|s| s.mean)));
                     }
                     ranges.insert(name.into_owned(), json!(spread.map(|s| [s.min, s.max])));
@@ -270,6 +297,7 @@ impl From<&Summary> for Value {
                     "episodes": row.episodes,
                     "means": means,
                     "ppo_entropy": row.entropy.map(|s| s.mean),
+                    "unet_steps_per_episode": row.unet_steps_per_episode.map(|s| s.mean),
                 });
                 if summary.runs > 1 {
                     object["runs"] = json!(summary.runs);
@@ -310,6 +338,9 @@ mod tests {
         history
             .record("ppo", 990, json!({"stats": {"entropy": 1.0}}))
             .unwrap();
+        history
+            .record("unet", 500, json!({"round": {"steps": 8}}))
+            .unwrap();
         history.record("unet", 1500, json!({"round": {}})).unwrap();
         episode(&mut history, 2500, 0.5, Some(0.1));
         drop(history);
@@ -338,25 +369,27 @@ mod tests {
             "only episodes that reported it"
         );
         assert_eq!(first.entropy, Some(Spread::one(1.5)));
+        assert_eq!(first.unet_steps_per_episode, Some(Spread::one(4.0)));
         let last = &summary.rows[1];
         assert_eq!((last.from_steps, last.to_steps), (2000, 2500));
         assert_eq!(last.entropy, None);
 
         let table = summary.markdown();
         assert!(table.starts_with(
-            "| steps | episodes | interaction_success_rate | interaction_attempt_rate | ppo entropy |"
+            "| steps | episodes | interaction_success_rate | interaction_attempt_rate | ppo entropy | U-Net steps per episode |"
         ));
         assert!(
-            table.contains("| 0–1 k | 2 | 0.200 | 0.200 | 1.500 |"),
+            table.contains("| 0–1 k | 2 | 0.200 | 0.200 | 1.500 | 4.000 |"),
             "{table}"
         );
         assert!(
-            table.contains("| 2 k–2500 | 1 | 0.500 | 0.100 | – |"),
+            table.contains("| 2 k–2500 | 1 | 0.500 | 0.100 | – | – |"),
             "{table}"
         );
         let json = Value::from(&summary);
         assert_eq!(json[1]["means"]["interaction_success_rate"], 0.5);
         assert_eq!(json[0]["ppo_entropy"], 1.5);
+        assert_eq!(json[0]["unet_steps_per_episode"], 4.0);
         assert!(json[0].get("ranges").is_none(), "one run has no range");
     }
 
@@ -399,7 +432,7 @@ mod tests {
         );
         let table = summary.markdown();
         assert!(
-            table.contains("| 0–700 | 2 | 0.200 (0.100–0.300) | 0.200 (0.200–0.200) | – |"),
+            table.contains("| 0–700 | 2 | 0.200 (0.100–0.300) | 0.200 (0.200–0.200) | – | – |"),
             "{table}"
         );
         let json = Value::from(&summary);

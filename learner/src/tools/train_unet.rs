@@ -272,7 +272,7 @@ pub fn train_unet(
             if let Some(round) = learner.train_round() {
                 report.rounds += 1;
                 report.rounds_replaced += usize::from(round.replaced);
-                report.steps += unet.steps_per_episode;
+                report.steps += round.steps;
             }
             let done = pass * files.len() + index + 1;
             if checkpoint_rounds.contains(&done) {
