@@ -187,11 +187,12 @@ impl AffordanceLearner {
         self.dataset.add_episode(episode, frames, &mut self.rng);
     }
 
-    /// Trains `steps_per_episode` steps on the training split, then gates
-    /// the result on validation; `None` without training frames.
-    pub fn train_round(&mut self) -> Option<UnetRound> {
+    /// Trains `steps_per_episode` steps for each of the `episodes` that
+    /// arrived since the last round on the training split, then gates the
+    /// result on validation; `None` without training frames.
+    pub fn train_round(&mut self, episodes: usize) -> Option<UnetRound> {
         let mut losses = Vec::new();
-        for _ in 0..self.settings.steps_per_episode {
+        for _ in 0..self.settings.steps_per_episode * episodes {
             let batch = self
                 .dataset
                 .sample_train(self.settings.batch_frames, &mut self.rng);
@@ -346,6 +347,30 @@ mod tests {
             (_, Message::Frames(view)) => checked_frames(&view, 2, 64),
             (_, other) => panic!("not frames: {other:?}"),
         }
+    }
+
+    #[test]
+    fn a_round_takes_the_steps_of_every_episode_that_arrived() {
+        let settings = UnetConfig {
+            steps_per_episode: 2,
+            batch_frames: 1,
+            validation_fraction: 0.0,
+            test_fraction: 0.0,
+            ..UnetConfig::default()
+        };
+        let device = Device::flex();
+        let mut learner = AffordanceLearner::new(1, &settings, 1, &device);
+        assert!(learner.train_round(1).is_none(), "nothing to train on yet");
+        let frame = LabelledFrame {
+            size: [16, 16],
+            rgbd: vec![0.5; 4 * 256],
+            labels: vec![1; 256],
+        };
+        for episode in 0..3 {
+            learner.add_episode(episode, vec![frame.clone()]);
+        }
+        assert_eq!(learner.train_round(3).map(|r| r.steps), Some(6));
+        assert_eq!(learner.train_round(1).map(|r| r.steps), Some(2));
     }
 
     #[test]

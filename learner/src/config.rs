@@ -123,7 +123,13 @@ pub struct UnetConfig {
     pub weight_decay: f32,
     /// Frames per gradient step.
     pub batch_frames: usize,
-    /// Gradient steps after each episode's frames arrive.
+    /// Gradient steps for each episode whose frames arrive. Episodes that
+    /// arrive together (an actor's environments end theirs at once) are
+    /// trained in one round of that many steps each; a trainer that cannot
+    /// keep up skips frames and counts them (`frames_skipped`). Before
+    /// 2026-11-29 a round took these steps however many episodes it
+    /// followed, so the U-Net took 1.8 steps per episode at 64 px on 2
+    /// cores and 2.2 at the paper's scale on a GPU (docs/ladder.md).
     pub steps_per_episode: usize,
     /// A training frame leaves the dataset after this many uses (the paper's 35).
     pub max_uses: u32,

@@ -66,6 +66,32 @@ fn capture(learner: &AffordanceLearner, slot: &Mutex<Option<UnetTrainingState>>)
     }
 }
 
+/// Counts the episodes whose frames arrived since the last round. An
+/// episode too large for one message comes in parts, one after another
+/// from its actor (`[transport] max_frames_bytes`; at 128 px a 600-step
+/// episode is about three), so a part counts only when its episode is not
+/// the one its actor sent last.
+#[derive(Debug, Default)]
+struct EpisodeCounter {
+    /// Per actor (the key's upper bits), the episode of its last part.
+    last: std::collections::HashMap<u64, u64>,
+    new: usize,
+}
+
+impl EpisodeCounter {
+    /// A part of episode `key` (`actor << 40 | episode`) arrived.
+    fn arrived(&mut self, key: u64) {
+        if self.last.insert(key >> 40, key) != Some(key) {
+            self.new += 1;
+        }
+    }
+
+    /// The episodes counted since the last call.
+    fn take(&mut self) -> usize {
+        std::mem::take(&mut self.new)
+    }
+}
+
 impl UnetWorker {
     /// Starts training `learner` on a thread of its own, with at most
     /// `capacity` frames waiting (at least one episode always may).
@@ -88,15 +114,22 @@ impl UnetWorker {
             .spawn(move || -> anyhow::Result<()> {
                 crate::thread_priority::lower_this_thread(nice);
                 // Ends when the loop drops its sender.
+                let mut episodes = EpisodeCounter::default();
                 while let Ok((episode, batch)) = inbox.recv() {
                     taken.fetch_sub(batch.len(), Ordering::Relaxed);
+                    episodes.arrived(episode);
                     learner.add_episode(episode, batch);
                     while let Ok((episode, batch)) = inbox.try_recv() {
                         taken.fetch_sub(batch.len(), Ordering::Relaxed);
+                        episodes.arrived(episode);
                         learner.add_episode(episode, batch);
                     }
                     let started = std::time::Instant::now();
-                    let Some(round) = learner.train_round() else {
+                    // Every episode that arrived gets its steps, however many
+                    // arrived together (an actor's environments end theirs at
+                    // once): the U-Net trains per episode, as configured, or
+                    // falls behind and skips frames (`frames_skipped`).
+                    let Some(round) = learner.train_round(episodes.take()) else {
                         continue;
                     };
                     let seconds = started.elapsed().as_secs_f64();
@@ -210,6 +243,20 @@ mod tests {
     use super::*;
     use crate::config::{LearnerConfig, UnetConfig};
     use crate::status::LearnerStatus;
+
+    #[test]
+    fn parts_of_one_episode_count_once_across_rounds() {
+        let mut counter = EpisodeCounter::default();
+        let key = |actor: u64, episode: u64| actor << 40 | episode;
+        counter.arrived(key(0, 5));
+        counter.arrived(key(1, 5));
+        counter.arrived(key(0, 5));
+        assert_eq!(counter.take(), 2, "two actors' episodes 5");
+        counter.arrived(key(0, 5));
+        counter.arrived(key(0, 6));
+        assert_eq!(counter.take(), 1, "the rest of an episode counted before");
+        assert_eq!(counter.take(), 0);
+    }
 
     #[test]
     fn a_failed_thread_is_seen_and_stop_returns_its_error() {
