@@ -187,12 +187,17 @@ impl AffordanceLearner {
         self.dataset.add_episode(episode, frames, &mut self.rng);
     }
 
-    /// Trains `steps_per_episode` steps for each of the `episodes` that
-    /// arrived since the last round on the training split, then gates the
+    /// Gradient steps owed for each episode that arrives (`[unet]
+    /// steps_per_episode`).
+    pub fn steps_per_episode(&self) -> usize {
+        self.settings.steps_per_episode
+    }
+
+    /// Trains `steps` gradient steps on the training split, then gates the
     /// result on validation; `None` without training frames.
-    pub fn train_round(&mut self, episodes: usize) -> Option<UnetRound> {
+    pub fn train_round(&mut self, steps: usize) -> Option<UnetRound> {
         let mut losses = Vec::new();
-        for _ in 0..self.settings.steps_per_episode * episodes {
+        for _ in 0..steps {
             let batch = self
                 .dataset
                 .sample_train(self.settings.batch_frames, &mut self.rng);
@@ -350,7 +355,7 @@ mod tests {
     }
 
     #[test]
-    fn a_round_takes_the_steps_of_every_episode_that_arrived() {
+    fn a_round_takes_the_steps_asked_for_once_there_are_frames() {
         let settings = UnetConfig {
             steps_per_episode: 2,
             batch_frames: 1,
@@ -360,7 +365,7 @@ mod tests {
         };
         let device = Device::flex();
         let mut learner = AffordanceLearner::new(1, &settings, 1, &device);
-        assert!(learner.train_round(1).is_none(), "nothing to train on yet");
+        assert!(learner.train_round(2).is_none(), "nothing to train on yet");
         let frame = LabelledFrame {
             size: [16, 16],
             rgbd: vec![0.5; 4 * 256],
@@ -369,8 +374,8 @@ mod tests {
         for episode in 0..3 {
             learner.add_episode(episode, vec![frame.clone()]);
         }
-        assert_eq!(learner.train_round(3).map(|r| r.steps), Some(6));
-        assert_eq!(learner.train_round(1).map(|r| r.steps), Some(2));
+        assert_eq!(learner.train_round(6).map(|r| r.steps), Some(6));
+        assert_eq!(learner.steps_per_episode(), 2);
     }
 
     #[test]

@@ -123,10 +123,10 @@ pub struct UnetConfig {
     pub weight_decay: f32,
     /// Frames per gradient step.
     pub batch_frames: usize,
-    /// Gradient steps for each episode whose frames arrive. Episodes that
-    /// arrive together (an actor's environments end theirs at once) are
-    /// trained in one round of that many steps each; a trainer that cannot
-    /// keep up skips frames and counts them (`frames_skipped`). Before
+    /// Gradient steps owed for each episode whose frames arrive, paid in
+    /// rounds of this many steps (each gated on validation), however many
+    /// episodes arrive together (an actor's environments end theirs at
+    /// once); a trainer that cannot keep up trains without pause. Before
     /// 2026-11-29 a round took these steps however many episodes it
     /// followed, so the U-Net took 1.8 steps per episode at 64 px on 2
     /// cores and 2.2 at the paper's scale on a GPU (docs/ladder.md).

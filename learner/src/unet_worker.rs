@@ -66,6 +66,12 @@ fn capture(learner: &AffordanceLearner, slot: &Mutex<Option<UnetTrainingState>>)
     }
 }
 
+/// Episodes whose steps the trainer may owe at once: enough for every
+/// environment of a large actor ending its episode together (32 at the
+/// paper's scale), bounded so that a trainer that cannot keep up does not
+/// train on after its frames have long moved on.
+const MAX_OWED_EPISODES: usize = 64;
+
 /// Counts the episodes whose frames arrived since the last round. An
 /// episode too large for one message comes in parts, one after another
 /// from its actor (`[transport] max_frames_bytes`; at 128 px a 600-step
@@ -113,25 +119,44 @@ impl UnetWorker {
             .name("unet-training".into())
             .spawn(move || -> anyhow::Result<()> {
                 crate::thread_priority::lower_this_thread(nice);
-                // Ends when the loop drops its sender.
+                // Every episode that arrives is owed `steps_per_episode`
+                // steps, however many arrive together (an actor's
+                // environments end theirs at once); they are paid in rounds
+                // of that many steps, each gated, taking in new frames
+                // between rounds. A trainer that cannot keep up trains all
+                // the time and forgets debt beyond `MAX_OWED_EPISODES`.
+                let per_episode = learner.steps_per_episode();
                 let mut episodes = EpisodeCounter::default();
-                while let Ok((episode, batch)) = inbox.recv() {
-                    taken.fetch_sub(batch.len(), Ordering::Relaxed);
-                    episodes.arrived(episode);
-                    learner.add_episode(episode, batch);
-                    while let Ok((episode, batch)) = inbox.try_recv() {
+                let mut owed = 0;
+                loop {
+                    // Ends when the loop drops its sender.
+                    if owed == 0 {
+                        let Ok((episode, batch)) = inbox.recv() else {
+                            break;
+                        };
                         taken.fetch_sub(batch.len(), Ordering::Relaxed);
                         episodes.arrived(episode);
                         learner.add_episode(episode, batch);
                     }
+                    loop {
+                        match inbox.try_recv() {
+                            Ok((episode, batch)) => {
+                                taken.fetch_sub(batch.len(), Ordering::Relaxed);
+                                episodes.arrived(episode);
+                                learner.add_episode(episode, batch);
+                            }
+                            Err(mpsc::TryRecvError::Empty) => break,
+                            Err(mpsc::TryRecvError::Disconnected) => return Ok(()),
+                        }
+                    }
+                    owed =
+                        (owed + per_episode * episodes.take()).min(per_episode * MAX_OWED_EPISODES);
                     let started = std::time::Instant::now();
-                    // Every episode that arrived gets its steps, however many
-                    // arrived together (an actor's environments end theirs at
-                    // once): the U-Net trains per episode, as configured, or
-                    // falls behind and skips frames (`frames_skipped`).
-                    let Some(round) = learner.train_round(episodes.take()) else {
+                    let Some(round) = learner.train_round(owed.min(per_episode)) else {
+                        owed = 0;
                         continue;
                     };
+                    owed = owed.saturating_sub(round.steps);
                     let seconds = started.elapsed().as_secs_f64();
                     capture(&learner, &slot);
                     let (env_steps, unet_version) = {

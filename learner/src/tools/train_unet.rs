@@ -269,7 +269,7 @@ pub fn train_unet(
             if !kept.is_empty() {
                 learner.add_episode((pass * files.len() + index) as u64, kept);
             }
-            if let Some(round) = learner.train_round(1) {
+            if let Some(round) = learner.train_round(unet.steps_per_episode) {
                 report.rounds += 1;
                 report.rounds_replaced += usize::from(round.replaced);
                 report.steps += round.steps;
