@@ -79,6 +79,12 @@ Options:
                     buffers overflow less, while training and actors share
                     the CPU as at one priority; 0 runs everything at the
                     script's own
+  --training-nice N the learner's training threads (PPO, U-Net) at niceness
+                    N, 0..19 (default: --actor-nice's). Below --actor-nice
+                    they run first: on a machine too small for both, the
+                    U-Net then trains its [unet] steps_per_episode for every
+                    episode and the actors take what is left (fewer steps
+                    per second; docs/decisions/0013-unet-steps-per-episode.md)
   --debug           use debug builds (faster to build, slower to run)
   --bin-dir DIR     use the learner and actor binaries in DIR; build nothing
   -h, --help        this help
@@ -99,7 +105,7 @@ ACTORS="" ENVS="" RUN_DIR="" RESUME=0 PORT=9464 PROFILE=release BIN="" SEED=0 MA
 # learner and read from there by every actor; RECORD_ARGS: this start's
 # recording, given to the actors directly.
 TASK_ARGS=() SETTINGS=() RECORD_ARGS=() LEARNER_DEVICE=() METHOD=ours ENV_KIND=sim
-LISTEN="" REMOTE=0 ZENOH_CONFIG=() ACTOR_NICE=10
+LISTEN="" REMOTE=0 ZENOH_CONFIG=() ACTOR_NICE=10 TRAINING_NICE=
 EXTRA=()
 while [[ $# -gt 0 ]]; do
   case "$1" in
@@ -129,6 +135,7 @@ while [[ $# -gt 0 ]]; do
     --remote-actors) REMOTE="${2:?--remote-actors needs a number}"; shift 2 ;;
     --zenoh-config) ZENOH_CONFIG=(--zenoh-config "$(cd "$(dirname "${2:?--zenoh-config needs a file}")" && pwd)/$(basename "$2")"); shift 2 ;;
     --actor-nice) ACTOR_NICE="${2:?--actor-nice needs a number}"; shift 2 ;;
+    --training-nice) TRAINING_NICE="${2:?--training-nice needs a number}"; shift 2 ;;
     --debug) PROFILE=debug; shift ;;
     --bin-dir) BIN="$(cd "${2:?--bin-dir needs a directory}" && pwd)"; shift 2 ;;
     -h|--help) usage; exit 0 ;;
@@ -150,6 +157,8 @@ ALL_ACTORS=$((ACTORS + REMOTE))
 [[ -z "$MAX_STEPS" || "$MAX_STEPS" =~ ^[1-9][0-9]*$ ]] || { echo "local.sh: --max-steps needs a positive integer, got '$MAX_STEPS'" >&2; exit 2; }
 [[ -z "$MAX_SECONDS" || "$MAX_SECONDS" =~ ^[1-9][0-9]*$ ]] || { echo "local.sh: --max-seconds needs a positive whole number of seconds, got '$MAX_SECONDS'" >&2; exit 2; }
 [[ "$ACTOR_NICE" =~ ^[0-9]+$ && "$ACTOR_NICE" -le 19 ]] || { echo "local.sh: --actor-nice needs an integer in 0..19, got '$ACTOR_NICE'" >&2; exit 2; }
+TRAINING_NICE="${TRAINING_NICE:-$ACTOR_NICE}"
+[[ "$TRAINING_NICE" =~ ^[0-9]+$ && "$TRAINING_NICE" -le 19 ]] || { echo "local.sh: --training-nice needs an integer in 0..19, got '$TRAINING_NICE'" >&2; exit 2; }
 [[ "$SEED" =~ ^[0-9]+$ ]] || { echo "local.sh: --seed needs a non-negative integer, got '$SEED'" >&2; exit 2; }
 [[ "$PROGRESS_EVERY" =~ ^[0-9]+$ ]] || { echo "local.sh: --progress-every needs a whole number of seconds, got '$PROGRESS_EVERY'" >&2; exit 2; }
 if [[ $RESUME -eq 1 && -z "$RUN_DIR" ]]; then
@@ -203,7 +212,7 @@ rm -f "$STOP_FILE" "$RUN_DIR/http.addr"
 
 # The learner's training threads at the actors' niceness: only its receive
 # loop runs before the actors (learner/src/thread_priority.rs).
-LEARNER_ARGS=(serve --service-prefix "$PREFIX" --max-actors "$ALL_ACTORS" --http-addr "127.0.0.1:$PORT" "${LEARNER_DEVICE[@]}" "${SETTINGS[@]}" --set "training_nice=$ACTOR_NICE")
+LEARNER_ARGS=(serve --service-prefix "$PREFIX" --max-actors "$ALL_ACTORS" --http-addr "127.0.0.1:$PORT" "${LEARNER_DEVICE[@]}" "${SETTINGS[@]}" --set "training_nice=$TRAINING_NICE")
 if [[ $RESUME -eq 1 ]]; then
   [[ ${#TASK_ARGS[@]} -eq 0 ]] || echo "local.sh: resuming: the run's saved task is used; ignoring ${TASK_ARGS[*]}" >&2
   LEARNER_ARGS+=(--resume "$RUN_DIR")
