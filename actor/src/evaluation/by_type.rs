@@ -7,8 +7,6 @@
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
-use super::report::ObjectTrial;
-
 /// One object type's trials, per affordance in plane order.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TypeRow {
@@ -22,27 +20,34 @@ pub struct TypeRow {
     pub predicted: Vec<f32>,
 }
 
+/// One object's trial as the table needs it: its type, and per affordance
+/// its predicted probability and whether it afforded it.
+pub type Tried<'a> = (&'a str, &'a [f32], &'a [bool]);
+
 /// The rows of `trials` by object type, most tried first (then by name).
-pub fn by_object_type(trials: &[ObjectTrial]) -> Vec<TypeRow> {
-    let mut groups: BTreeMap<&str, Vec<&ObjectTrial>> = BTreeMap::new();
-    for trial in trials {
-        groups.entry(&trial.object_type).or_default().push(trial);
+pub fn by_object_type<'a>(trials: impl IntoIterator<Item = Tried<'a>>) -> Vec<TypeRow> {
+    let mut groups: BTreeMap<&str, Vec<(&[f32], &[bool])>> = BTreeMap::new();
+    for (object_type, predicted, succeeded) in trials {
+        groups
+            .entry(object_type)
+            .or_default()
+            .push((predicted, succeeded));
     }
     let mut rows: Vec<TypeRow> = groups
         .into_iter()
         .map(|(object_type, group)| {
             let n = group.len() as f32;
-            let planes = group.iter().map(|t| t.succeeded.len()).min().unwrap_or(0);
-            let mean = |value: &dyn Fn(&ObjectTrial, usize) -> f32| -> Vec<f32> {
+            let planes = group.iter().map(|(_, s)| s.len()).min().unwrap_or(0);
+            let mean = |value: &dyn Fn(&[f32], &[bool], usize) -> f32| -> Vec<f32> {
                 (0..planes)
-                    .map(|k| group.iter().map(|t| value(t, k)).sum::<f32>() / n)
+                    .map(|k| group.iter().map(|(p, s)| value(p, s, k)).sum::<f32>() / n)
                     .collect()
             };
             TypeRow {
                 object_type: object_type.to_owned(),
                 objects: group.len(),
-                afforded: mean(&|t, k| f32::from(u8::from(t.succeeded[k]))),
-                predicted: mean(&|t, k| t.predicted.get(k).copied().unwrap_or(0.0)),
+                afforded: mean(&|_, s, k| f32::from(u8::from(s[k]))),
+                predicted: mean(&|p, _, k| p.get(k).copied().unwrap_or(0.0)),
             }
         })
         .collect();
@@ -77,20 +82,11 @@ pub fn markdown(rows: &[TypeRow], affordances: &[String]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::evaluation::ScoredBy;
 
-    fn trial(object_type: &str, predicted: f32, succeeded: bool) -> ObjectTrial {
-        ObjectTrial {
-            scene: "FloorPlan221".into(),
-            object: format!("{object_type}|1"),
-            object_type: object_type.into(),
-            pixels: 20,
-            distance_m: 0.5,
-            predicted: vec![predicted],
-            scored_by: ScoredBy::Trial,
-            succeeded: vec![succeeded],
-            failure: vec![None],
-        }
+    type Trial = (&'static str, [f32; 1], [bool; 1]);
+
+    fn trial(object_type: &'static str, predicted: f32, succeeded: bool) -> Trial {
+        (object_type, [predicted], [succeeded])
     }
 
     #[test]
@@ -102,7 +98,7 @@ mod tests {
             trial("Box", 0.9, true),
             trial("Box", 0.5, false),
         ];
-        let rows = by_object_type(&trials);
+        let rows = by_object_type(trials.iter().map(|(t, p, s)| (*t, &p[..], &s[..])));
         let names: Vec<&str> = rows.iter().map(|r| r.object_type.as_str()).collect();
         assert_eq!(names, ["Box", "Sofa", "Pillow"]);
         assert_eq!(rows[0].objects, 2);

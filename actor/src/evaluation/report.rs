@@ -536,7 +536,11 @@ impl Report {
             "\nTable 2 by object type (the share of the objects that afforded it, and the \
              network's mean prediction for them):\n\n{}",
             super::by_type::markdown(
-                &super::by_type::by_object_type(&self.trials),
+                &super::by_type::by_object_type(self.trials.iter().map(|t| (
+                    t.object_type.as_str(),
+                    t.predicted.as_slice(),
+                    t.succeeded.as_slice()
+                ))),
                 &self
                     .object
                     .iter()
