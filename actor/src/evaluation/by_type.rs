@@ -24,9 +24,12 @@ pub struct TypeRow {
 /// its predicted probability and whether it afforded it.
 pub type Tried<'a> = (&'a str, &'a [f32], &'a [bool]);
 
+/// One object's predictions and outcomes, per affordance.
+type Outcome<'a> = (&'a [f32], &'a [bool]);
+
 /// The rows of `trials` by object type, most tried first (then by name).
 pub fn by_object_type<'a>(trials: impl IntoIterator<Item = Tried<'a>>) -> Vec<TypeRow> {
-    let mut groups: BTreeMap<&str, Vec<(&[f32], &[bool])>> = BTreeMap::new();
+    let mut groups: BTreeMap<&str, Vec<Outcome>> = BTreeMap::new();
     for (object_type, predicted, succeeded) in trials {
         groups
             .entry(object_type)
@@ -38,16 +41,23 @@ pub fn by_object_type<'a>(trials: impl IntoIterator<Item = Tried<'a>>) -> Vec<Ty
         .map(|(object_type, group)| {
             let n = group.len() as f32;
             let planes = group.iter().map(|(_, s)| s.len()).min().unwrap_or(0);
-            let mean = |value: &dyn Fn(&[f32], &[bool], usize) -> f32| -> Vec<f32> {
-                (0..planes)
-                    .map(|k| group.iter().map(|(p, s)| value(p, s, k)).sum::<f32>() / n)
-                    .collect()
-            };
+            let afforded = (0..planes)
+                .map(|k| group.iter().filter(|(_, s)| s[k]).count() as f32 / n)
+                .collect();
+            let predicted = (0..planes)
+                .map(|k| {
+                    group
+                        .iter()
+                        .map(|(p, _)| p.get(k).copied().unwrap_or(0.0))
+                        .sum::<f32>()
+                        / n
+                })
+                .collect();
             TypeRow {
                 object_type: object_type.to_owned(),
                 objects: group.len(),
-                afforded: mean(&|_, s, k| f32::from(u8::from(s[k]))),
-                predicted: mean(&|p, _, k| p.get(k).copied().unwrap_or(0.0)),
+                afforded,
+                predicted,
             }
         })
         .collect();
