@@ -66,6 +66,19 @@ fn capture(learner: &AffordanceLearner, slot: &Mutex<Option<UnetTrainingState>>)
     }
 }
 
+/// Adds an arrived episode's frames to `learner`'s dataset, counting the
+/// episode and taking its frames off the `queued` count.
+fn take_in(
+    learner: &mut AffordanceLearner,
+    episodes: &mut EpisodeCounter,
+    queued: &AtomicUsize,
+    (episode, batch): Episode,
+) {
+    queued.fetch_sub(batch.len(), Ordering::Relaxed);
+    episodes.arrived(episode);
+    learner.add_episode(episode, batch);
+}
+
 /// Episodes whose steps the trainer may owe at once: enough for every
 /// environment of a large actor ending its episode together (32 at the
 /// paper's scale), bounded so that a trainer that cannot keep up does not
@@ -131,20 +144,14 @@ impl UnetWorker {
                 loop {
                     // Ends when the loop drops its sender.
                     if owed == 0 {
-                        let Ok((episode, batch)) = inbox.recv() else {
+                        let Ok(arrived) = inbox.recv() else {
                             break;
                         };
-                        taken.fetch_sub(batch.len(), Ordering::Relaxed);
-                        episodes.arrived(episode);
-                        learner.add_episode(episode, batch);
+                        take_in(&mut learner, &mut episodes, &taken, arrived);
                     }
                     loop {
                         match inbox.try_recv() {
-                            Ok((episode, batch)) => {
-                                taken.fetch_sub(batch.len(), Ordering::Relaxed);
-                                episodes.arrived(episode);
-                                learner.add_episode(episode, batch);
-                            }
+                            Ok(arrived) => take_in(&mut learner, &mut episodes, &taken, arrived),
                             Err(mpsc::TryRecvError::Empty) => break,
                             Err(mpsc::TryRecvError::Disconnected) => return Ok(()),
                         }
