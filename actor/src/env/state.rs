@@ -162,8 +162,8 @@ pub struct StateInputs<'a> {
     /// Whether the hand holds an object.
     pub holding: bool,
     /// Per affordance and grid cell the offered object's rating
-    /// ([`crate::env::actions::CellTargets::ratings`]); used only when the
-    /// state has the cell-ratings input.
+    /// ([`crate::env::actions::CellTargets::ratings`]); empty when the state
+    /// has no cell-ratings input.
     pub ratings: &'a [f32],
 }
 
@@ -202,11 +202,7 @@ pub fn build_state(config: &StateConfig, input: &StateInputs<'_>) -> State {
         local_map,
         history: history_vector(config, input.history),
         inventory: vec![f32::from(u8::from(input.holding))],
-        ratings: if config.ratings_len > 0 {
-            input.ratings.to_vec()
-        } else {
-            Vec::new()
-        },
+        ratings: input.ratings.to_vec(),
     }
 }
 

@@ -97,7 +97,11 @@ impl SimEnv {
                 &self.config.selection,
             ),
         };
-        let ratings = episode.targets.ratings(&self.config.affordances);
+        let ratings = if self.state_config.ratings_len > 0 {
+            episode.targets.ratings(&self.config.affordances)
+        } else {
+            Vec::new()
+        };
         let state = build_state(
             &self.state_config,
             &StateInputs {
