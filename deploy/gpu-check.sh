@@ -115,7 +115,7 @@ add "# GPU check" "" \
 if ! skipped agreement; then
   section "CPU/GPU agreement (gpu_matches_cpu)"
   # Without TF32 (cuDNN's default on libtorch): the test compares arithmetic,
-  # not precision modes (learner/nets/tests/gpu_matches_cpu.rs).
+  # not precision modes (nets/tests/gpu_matches_cpu.rs).
   if ! NVIDIA_TF32_OVERRIDE=0 limited 120 "$LOGS/agreement.log" "$BIN/gpu_matches_cpu" --test-threads 1 --nocapture; then
     add "FAILED:" '```' "$(tail -n 15 "$LOGS/agreement.log")" '```'
   elif grep -q '^skipping' "$LOGS/agreement.log"; then

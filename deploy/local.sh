@@ -73,18 +73,19 @@ Options:
   --zenoh-config FILE
                     the gateway's Zenoh config (JSON5): TLS certificates,
                     mutual TLS, access control; deploy/make-certs.sh writes one
-  --actor-nice N    run the actors, and the learner's training threads, at
-                    niceness N, 0..19 (default 10): where the actors fill every
-                    core, the learner's receive loop still runs first, so its
-                    buffers overflow less, while training and actors share
-                    the CPU as at one priority; 0 runs everything at the
-                    script's own
+  --actor-nice N    run the actors at niceness N, 0..19 (default 10): where
+                    they fill every core, the learner's receive loop and
+                    training threads still run first, so its buffers
+                    overflow less and the U-Net trains its [unet]
+                    steps_per_episode for every episode; 0 runs them at
+                    the script's own
   --training-nice N the learner's training threads (PPO, U-Net) at niceness
-                    N, 0..19 (default: --actor-nice's). Below --actor-nice
-                    they run first: on a machine too small for both, the
-                    U-Net then trains its [unet] steps_per_episode for every
-                    episode and the actors take what is left (fewer steps
-                    per second; docs/decisions/0013-unet-steps-per-episode.md)
+                    N, 0..19 (default 0: before the actors; on a machine
+                    too small for both the actors take what is left, fewer
+                    steps per second, docs/decisions/0013-unet-steps-per-
+                    episode.md). --training-nice 10 with the default
+                    --actor-nice shares the CPU between them as at one
+                    priority
   --debug           use debug builds (faster to build, slower to run)
   --bin-dir DIR     use the learner and actor binaries in DIR; build nothing
   -h, --help        this help
@@ -157,7 +158,7 @@ ALL_ACTORS=$((ACTORS + REMOTE))
 [[ -z "$MAX_STEPS" || "$MAX_STEPS" =~ ^[1-9][0-9]*$ ]] || { echo "local.sh: --max-steps needs a positive integer, got '$MAX_STEPS'" >&2; exit 2; }
 [[ -z "$MAX_SECONDS" || "$MAX_SECONDS" =~ ^[1-9][0-9]*$ ]] || { echo "local.sh: --max-seconds needs a positive whole number of seconds, got '$MAX_SECONDS'" >&2; exit 2; }
 [[ "$ACTOR_NICE" =~ ^[0-9]+$ && "$ACTOR_NICE" -le 19 ]] || { echo "local.sh: --actor-nice needs an integer in 0..19, got '$ACTOR_NICE'" >&2; exit 2; }
-TRAINING_NICE="${TRAINING_NICE:-$ACTOR_NICE}"
+TRAINING_NICE="${TRAINING_NICE:-0}"
 [[ "$TRAINING_NICE" =~ ^[0-9]+$ && "$TRAINING_NICE" -le 19 ]] || { echo "local.sh: --training-nice needs an integer in 0..19, got '$TRAINING_NICE'" >&2; exit 2; }
 [[ "$SEED" =~ ^[0-9]+$ ]] || { echo "local.sh: --seed needs a non-negative integer, got '$SEED'" >&2; exit 2; }
 [[ "$PROGRESS_EVERY" =~ ^[0-9]+$ ]] || { echo "local.sh: --progress-every needs a whole number of seconds, got '$PROGRESS_EVERY'" >&2; exit 2; }
@@ -210,8 +211,8 @@ PREFIX="afx-$(basename "$RUN_DIR" | tr -cd 'A-Za-z0-9_-')"
 STOP_FILE="$LOGS/.stopping"
 rm -f "$STOP_FILE" "$RUN_DIR/http.addr"
 
-# The learner's training threads at the actors' niceness: only its receive
-# loop runs before the actors (learner/src/thread_priority.rs).
+# The learner's training threads at --training-nice (0 by default: with its
+# receive loop, before the actors; learner/src/thread_priority.rs).
 LEARNER_ARGS=(serve --service-prefix "$PREFIX" --max-actors "$ALL_ACTORS" --http-addr "127.0.0.1:$PORT" "${LEARNER_DEVICE[@]}" "${SETTINGS[@]}" --set "training_nice=$TRAINING_NICE")
 if [[ $RESUME -eq 1 ]]; then
   [[ ${#TASK_ARGS[@]} -eq 0 ]] || echo "local.sh: resuming: the run's saved task is used; ignoring ${TASK_ARGS[*]}" >&2

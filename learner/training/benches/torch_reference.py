@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """The learning core's networks in PyTorch, timed like `cargo bench -p training`.
 
-Same architectures as `learner/nets` (policy: three conv encoders 8x8/4,
+Same architectures as `nets` (policy: three conv encoders 8x8/4,
 4x4/2, 3x3/2 + linear 64, MLPs for 1-D inputs, tanh heads (64, 32, out);
 U-Net: levels (24, 48, 92, 164), double 3x3 convs, max-pool, transposed
 convs), the same batch sizes and the same PPO update (4 epochs x 2

@@ -1,4 +1,4 @@
-//! The PyTorch module (`learner/nets/python/afx_torch.py`) loads a weights
+//! The PyTorch module (`nets/python/afx_torch.py`) loads a weights
 //! file by name and computes what the Rust forward passes compute: the
 //! U-Net's calibrated probabilities on one RGB-D frame (with unseen depth),
 //! and the policy's log-probabilities, value and GRU state over three steps,

@@ -21,7 +21,7 @@ newest checkpoint. The tensor table is in docs/pytorch.md.
 
 `python3 afx_torch.py --parity DIR` compares these networks with the Rust
 forward passes on the inputs and outputs a test wrote into DIR
-(`learner/nets/tests/pytorch_parity.rs`) and prints the largest differences.
+(`nets/tests/pytorch_parity.rs`) and prints the largest differences.
 Needs `pip install torch safetensors numpy`.
 """
 
