@@ -17,11 +17,11 @@
 use std::time::Instant;
 
 use learner::config::PolicyConfig;
-use learner::synthetic;
-use learner::train::{BatchBuilder, PolicyTrainer};
 use proto::{decode, Limits, Message, MessageHeader, TaskSpec};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
+use training::ppo_batcher::{BatchBuilder, PolicyTrainer};
+use training::synthetic;
 
 const CHUNK_STEPS: usize = 16;
 

@@ -2,8 +2,8 @@
 //! Loaded from TOML, overridden by CLI flags, printed at start and saved in
 //! the run directory.
 
-use nets::unet::ClassBalance;
 use serde::{Deserialize, Serialize};
+pub use training::config::{PolicyConfig, UnetConfig};
 use training::ppo::PpoConfig;
 use transport::TransportConfig;
 
@@ -83,79 +83,6 @@ impl Default for ValidationConfig {
     }
 }
 
-/// The policy's training: PPO's own settings (`[policy.ppo]`) and how the
-/// learner batches steps for it.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, documented::DocumentedFields)]
-#[serde(default, deny_unknown_fields)]
-pub struct PolicyConfig {
-    /// Environment steps (from any actors) per update. The paper used 8
-    /// actors × 600 steps; the default fits a 2-core machine's memory and
-    /// time at 128 × 128 (each step's observation is ~0.4 MB as floats).
-    pub batch_steps: usize,
-    /// Batches of steps that may wait for the PPO thread while it updates.
-    /// Beyond them the oldest steps are discarded and counted
-    /// (`rollout_steps_discarded`), which bounds the policy lag of what is
-    /// trained when the learner cannot keep up with the actors.
-    pub queue_batches: usize,
-    /// The run's seed: initial weights of both networks, minibatch
-    /// shuffling and the dataset split.
-    pub seed: u64,
-    /// Where PPO trains when not where the U-Net does (the learner's
-    /// `device`): `cpu` keeps the small policy on the CPU's own training
-    /// path (on every core of the rayon pool) while the U-Net trains on the
-    /// GPU.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub device: Option<String>,
-    /// PPO's settings (the paper's, i.e. IntExp's, values by default).
-    /// Configs written before 2026-11-29 held them in `[policy]` itself;
-    /// such files (a resumed run's config.toml) and `--set policy.KEY`
-    /// are read as before.
-    pub ppo: PpoConfig,
-}
-
-/// Affordance U-Net training on the global dataset of labelled frames.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, documented::DocumentedFields)]
-#[serde(default, deny_unknown_fields)]
-pub struct UnetConfig {
-    /// Adam learning rate.
-    pub learning_rate: f64,
-    /// L2 weight decay.
-    pub weight_decay: f32,
-    /// Frames per gradient step.
-    pub batch_frames: usize,
-    /// Gradient steps owed for each episode whose frames arrive, paid in
-    /// rounds of this many steps (each gated on validation), however many
-    /// episodes arrive together (an actor's environments end theirs at
-    /// once); a trainer that cannot keep up trains without pause. Before
-    /// 2026-11-29 a round took these steps however many episodes it
-    /// followed, so the U-Net took 1.8 steps per episode at 64 px on 2
-    /// cores and 2.2 at the paper's scale on a GPU (docs/ladder.md).
-    pub steps_per_episode: usize,
-    /// A training frame leaves the dataset after this many uses (the paper's 35).
-    pub max_uses: u32,
-    /// Frames held at most; the oldest go first.
-    pub max_frames: usize,
-    /// Share of new frames that go to validation.
-    pub validation_fraction: f64,
-    /// Share of new frames that go to test.
-    pub test_fraction: f64,
-    /// Newest validation frames the gate compares the networks on.
-    pub max_validation_frames: usize,
-    /// Frames the validation and the test split each keep; older ones move
-    /// to training (without a cap, held-out frames pile up while training
-    /// frames leave after their uses).
-    pub max_held_out_frames: usize,
-    /// How each affordance plane's loss weighs positive labels against
-    /// negative ones: "classes" (positives and negatives half each, so 0.5
-    /// means as likely as not) or "pixels" (the paper's: every labelled
-    /// pixel alike, so probabilities follow the labels' share of positives,
-    /// 2 to 5 in 1 000 pick-up pixels), or `{ positive-share = A }`
-    /// (positives A of it, negatives the rest). The validation gate and the
-    /// temperature weigh them the same way
-    /// (docs/decisions/0011-class-balanced-loss.md).
-    pub class_balance: ClassBalance,
-}
-
 impl Default for LearnerConfig {
     fn default() -> Self {
         Self {
@@ -172,38 +99,6 @@ impl Default for LearnerConfig {
             transport: TransportConfig::default(),
             actors: proto::ActorSettings::default(),
             validation: ValidationConfig::default(),
-        }
-    }
-}
-
-impl Default for PolicyConfig {
-    /// PPO's own defaults (`training::ppo::PpoConfig`, written once there)
-    /// and the learner's batching.
-    fn default() -> Self {
-        Self {
-            batch_steps: 128,
-            queue_batches: 2,
-            seed: 0,
-            device: None,
-            ppo: PpoConfig::default(),
-        }
-    }
-}
-
-impl Default for UnetConfig {
-    fn default() -> Self {
-        Self {
-            learning_rate: 1e-3,
-            weight_decay: 1e-4,
-            batch_frames: 8,
-            steps_per_episode: 8,
-            max_uses: 35,
-            max_frames: 4_000,
-            validation_fraction: 0.15,
-            test_fraction: 0.15,
-            max_validation_frames: 64,
-            max_held_out_frames: 256,
-            class_balance: ClassBalance::default(),
         }
     }
 }
@@ -402,6 +297,7 @@ fn set_dotted(table: &mut toml::Table, setting: &str) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nets::unet::ClassBalance;
 
     #[test]
     fn ppo_settings_of_the_old_flat_policy_table_are_read_into_policy_ppo() {

@@ -1,7 +1,9 @@
-//! The learner process as a library: configuration, validation of incoming
-//! messages, the policy update (PPO), U-Net training on labelled frames, checkpoints, the run's
-//! history (JSON lines and TensorBoard scalars), checkpoints scored on the validation rooms in the
-//! background, and the HTTP edge (live page, metrics, status).
+//! The learner process as a library: the service around the `training`
+//! crate: configuration, validation of incoming messages, the receive loop
+//! and the threads that train the policy and the U-Net, checkpoints, the
+//! run's history (JSON lines and TensorBoard scalars), checkpoints scored on
+//! the validation rooms in the background, and the HTTP edge (live page,
+//! metrics, status).
 //!
 //! It never runs a simulator or a map; it only sees what actors send through
 //! the `transport` crate, in the layouts of `proto`.
@@ -12,7 +14,6 @@
 //! links to them resolve.
 #![allow(rustdoc::private_intra_doc_links)]
 
-pub(crate) mod affordance_learner;
 pub(crate) mod checkpoint;
 pub mod config;
 pub mod config_docs;
@@ -23,10 +24,8 @@ pub(crate) mod prometheus;
 pub mod service;
 pub mod shared;
 pub mod status;
-pub mod synthetic;
 pub(crate) mod tensorboard;
 pub(crate) mod thread_priority;
 pub mod tools;
-pub mod train;
 pub(crate) mod unet_worker;
 pub(crate) mod validation_scorer;

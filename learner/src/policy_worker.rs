@@ -28,7 +28,7 @@ use training::optimizer_state::OptimizerState;
 
 use crate::history::History;
 use crate::shared::Shared;
-use crate::train::{BatchBuilder, PolicyTrainer};
+use training::ppo_batcher::{BatchBuilder, PolicyTrainer};
 
 /// One rollout message as it arrived, validated by the receive loop.
 struct QueuedChunk {

@@ -530,7 +530,7 @@ mod tests {
         let _ = status.accept(0, proto::MessageKind::Rollout, 1, 0);
         status.reject(proto::MessageKind::Rollout, "bad_magic");
         status.counters.last_update = Some(Default::default());
-        status.counters.last_unet = Some(crate::affordance_learner::UnetRound {
+        status.counters.last_unet = Some(training::affordance_learner::UnetRound {
             steps: 8,
             train_loss: 0.5,
             candidate_loss: 0.5,

@@ -12,7 +12,7 @@ use serde::Serialize;
 
 use training::ppo::PpoStats;
 
-use crate::affordance_learner::UnetRound;
+use training::affordance_learner::UnetRound;
 
 /// Per-actor book-keeping.
 #[derive(Debug, Clone)]

@@ -17,9 +17,9 @@ use std::thread::JoinHandle;
 use anyhow::Context;
 use training::affordance::LabelledFrame;
 
-use crate::affordance_learner::{AffordanceLearner, UnetTrainingState};
 use crate::history::History;
 use crate::shared::Shared;
+use training::affordance_learner::{AffordanceLearner, UnetTrainingState};
 
 /// One episode's frames, keyed uniquely over actors.
 type Episode = (u64, Vec<LabelledFrame>);

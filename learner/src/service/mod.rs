@@ -18,17 +18,17 @@ use proto::{decode, Join, JoinKey, Limits, Message, MessageKind};
 use serde::{Deserialize, Serialize};
 use transport::{Delivery, LearnerPorts};
 
-use crate::affordance_learner::{checked_frames, AffordanceLearner, UnetTrainingState};
 use crate::checkpoint;
 use crate::config::LearnerConfig;
 use crate::history::History;
 use crate::policy_worker::{PolicySnapshot, PolicyWorker, PublishedPolicy};
 use crate::shared::Shared;
 use crate::status::LearnerStatus;
-use crate::train::PolicyTrainer;
 use crate::unet_worker::{DeployedUnet, UnetWorker};
 use crate::validation_scorer::ValidationScorer;
+use training::affordance_learner::{checked_frames, AffordanceLearner, UnetTrainingState};
 use training::optimizer_state::OptimizerState;
+use training::ppo_batcher::PolicyTrainer;
 use transport::membership::{Joined, Membership, Sender};
 
 mod dispatch;

@@ -23,7 +23,7 @@ use crate::config::LearnerConfig;
 use crate::service::Trainers;
 use crate::shared::Shared;
 use crate::status::LearnerStatus;
-use crate::synthetic;
+use training::synthetic;
 
 /// How the synthetic actors feed the learner.
 #[derive(Debug, Clone)]

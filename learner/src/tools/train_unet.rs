@@ -7,7 +7,7 @@
 //! episode, the frames join the learner's own dataset (its split, its
 //! frame budget and uses), then `[unet] steps_per_episode` gradient steps,
 //! the validation gate and the temperature fit, exactly as
-//! [`crate::affordance_learner::AffordanceLearner`] does in a run. The
+//! [`training::affordance_learner::AffordanceLearner`] does in a run. The
 //! result is a directory that `actor evaluate --run-dir` scores: the
 //! dataset's `config.toml` and `checkpoints/<gradient steps>/` with the
 //! deployed U-Net and its temperature.
@@ -21,8 +21,8 @@ use proto::{LabelRung, Limits, Message, DATASET_EPISODES_DIR, DATASET_EPISODE_EX
 use serde::Serialize;
 use training::affordance::{LabelledFrame, UNKNOWN};
 
-use crate::affordance_learner::{checked_frames, AffordanceLearner};
 use crate::config::LearnerConfig;
+use training::affordance_learner::{checked_frames, AffordanceLearner};
 
 /// What to train on and how long.
 #[derive(Debug, Clone)]

@@ -4,15 +4,15 @@
 //! policy network. Chunks carry the behaviour policy's log-probabilities, so
 //! a chunk acted with a slightly older policy is corrected by the ratio.
 
+use crate::gae::gae;
+use crate::optimizer_state::{OptimizerState, OptimizerStateError};
+use crate::ppo::{Ppo, PpoBatch, PpoStats, Sequences};
 use burn::prelude::*;
 use nets::policy::{PolicyInput, PolicyNet};
 use nets::weights::{load_safetensors, to_safetensors, WeightsError};
 use proto::{ObsDtype, PolicyLayout, RolloutView, TaskSpec};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
-use training::gae::gae;
-use training::optimizer_state::{OptimizerState, OptimizerStateError};
-use training::ppo::{Ppo, PpoBatch, PpoStats, Sequences};
 
 use crate::config::PolicyConfig;
 
@@ -244,6 +244,17 @@ impl BatchBuilder {
     }
 }
 
+/// Why saved weights or optimiser state cannot continue this policy.
+#[derive(Debug, thiserror::Error)]
+pub enum RestoreError {
+    /// The weights do not load into this task's policy.
+    #[error("the policy's weights: {0}")]
+    Weights(#[from] WeightsError),
+    /// The optimiser's state does not fit the policy's parameters.
+    #[error("the policy's optimiser state: {0}")]
+    Optimizer(#[from] OptimizerStateError),
+}
+
 /// The policy network and its optimiser.
 pub struct PolicyTrainer {
     layout: PolicyLayout,
@@ -306,7 +317,7 @@ impl PolicyTrainer {
         bytes: Vec<u8>,
         version: u64,
         optimizer: Option<&OptimizerState>,
-    ) -> anyhow::Result<()> {
+    ) -> Result<(), RestoreError> {
         let mut net = PolicyNet::new(&self.layout, &self.device);
         load_safetensors(&mut net, bytes)?;
         let mut ppo = Ppo::new(net, *self.ppo.config(), &self.device);

@@ -3,6 +3,12 @@
 //! trains on the training split, and the trained network replaces the one
 //! the actors use only when it beats it on validation.
 
+use crate::affordance::{
+    predict_logits, Evaluation, LabelledFrame, UnetTrainer, UnetTrainingConfig, UNKNOWN,
+};
+use crate::dataset::{validation_gate, AffordanceDataset, DatasetConfig, Split};
+use crate::optimizer_state::{OptimizerState, OptimizerStateError};
+use crate::temperature::fit_weighted_temperature;
 use burn::prelude::*;
 use nets::unet::AffordanceUnet;
 use nets::unet_inference::UnetInference;
@@ -11,12 +17,6 @@ use proto::{FrameBatchView, LABEL_UNKNOWN};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use serde::Serialize;
-use training::affordance::{
-    predict_logits, Evaluation, LabelledFrame, UnetTrainer, UnetTrainingConfig, UNKNOWN,
-};
-use training::dataset::{validation_gate, AffordanceDataset, DatasetConfig, Split};
-use training::optimizer_state::{OptimizerState, OptimizerStateError};
-use training::temperature::fit_weighted_temperature;
 
 use crate::config::UnetConfig;
 
