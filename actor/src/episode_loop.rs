@@ -19,18 +19,22 @@ use crate::env::affordance_model::AffordanceModel;
 use crate::env::threads::PolicyPass;
 use crate::env::{lockstep, Environment, EpisodeEnd, Observation, StepOutcome};
 
+mod backoff;
 mod chunks;
 mod free_running;
 mod loop_clock;
 mod policy;
 mod rejected_weights;
+mod slot;
 
+use backoff::Backoff;
 use chunks::{new_chunk, push_obs, restart_chunk, split_frames};
 use policy::{
     act_batch, choose, forward_batch, hidden_values, load_weights, step_of_thread_pass, Acted,
     LoadedWeights, Policy,
 };
 use rejected_weights::RejectedWeights;
+use slot::{envs_of, ChunkClose, RunningEpisode, Slot};
 
 /// Settings of one actor's loop.
 #[derive(Debug, Clone)]
@@ -84,83 +88,6 @@ fn episode_seed(process_seed: u64, actor_id: u32, episode: u64) -> u64 {
     process_seed
         .wrapping_add(episode.wrapping_mul(1_000_003))
         .wrapping_add(u64::from(actor_id))
-}
-
-/// Back-off after rollouts the learner had no room for: its queue for this
-/// actor was full, so it is not keeping up. Producing more would only be
-/// discarded, and it would keep this actor's queue full, where the learner
-/// (which serves its senders in a fixed order) might never reach the others.
-/// Sleeps 1 ms after the first drop in a row, doubling to at most 64 ms; a
-/// delivered chunk resets it. Simulator actors are far slower than the
-/// learner and rarely see it; a fast fixture is paced to the learner.
-#[derive(Debug, Default)]
-struct Backoff {
-    sleep: Option<Duration>,
-}
-
-impl Backoff {
-    fn after(&mut self, delivery: Delivery) {
-        self.sleep = match delivery {
-            Delivery::Delivered(_) => None,
-            Delivery::Dropped => {
-                let sleep = self.sleep.map_or(Duration::from_millis(1), |s| {
-                    (s * 2).min(Duration::from_millis(64))
-                });
-                std::thread::sleep(sleep);
-                Some(sleep)
-            }
-        };
-    }
-}
-
-/// One environment of the actor and its running episode.
-struct Slot {
-    env: Box<dyn Environment>,
-    /// `None` once the actor starts no more episodes here.
-    episode: Option<RunningEpisode>,
-}
-
-/// The bookkeeping of one running episode.
-struct RunningEpisode {
-    id: u64,
-    steps: u32,
-    episode_return: f32,
-    started: Instant,
-    /// The actor's steps (all environments) when the episode started.
-    actor_steps_at_start: u64,
-    observation: Observation,
-    /// The GRU state before the next step; `None` = zeros (episode start).
-    hidden: Option<Vec<f32>>,
-    chunk: RolloutChunk,
-}
-
-/// How a rollout chunk that goes out now ends.
-#[derive(Debug, Clone, Copy, PartialEq)]
-enum ChunkClose {
-    /// With its episode's last step (nothing to bootstrap from).
-    EpisodeEnd,
-    /// Mid-episode: it bootstraps from the critic's value of the episode's
-    /// next observation, given here when the policy's pass that chose the
-    /// next action made it already (otherwise the loop runs the critic).
-    Cut(Option<f32>),
-}
-
-impl ChunkClose {
-    /// How a chunk closes after a step that ended its episode or not
-    /// (`done`); `next_value` is the critic's value of the observation
-    /// that step led to, if known.
-    fn after(done: bool, next_value: Option<f32>) -> Self {
-        if done {
-            ChunkClose::EpisodeEnd
-        } else {
-            ChunkClose::Cut(next_value)
-        }
-    }
-}
-
-/// The environments of `slots`, for [`lockstep`].
-fn envs_of<'a>(slots: &'a mut [&mut Slot]) -> Vec<&'a mut (dyn Environment + 'static)> {
-    slots.iter_mut().map(|s| s.env.as_mut()).collect()
 }
 
 /// What the loop keeps between steps besides the slots.
