@@ -17,7 +17,7 @@ use nalgebra::{Point3, Vector3};
 
 use crate::camera::Intrinsics;
 use crate::layer::{CachedReader, Layer};
-use crate::render::sdf_with_gradient;
+use crate::sdf_sample::sdf_with_gradient;
 use crate::Pose;
 
 mod normal_equations;

@@ -21,6 +21,7 @@ mod map;
 pub mod mesh;
 pub mod projection;
 pub mod render;
+mod sdf_sample;
 pub mod segmentation;
 
 pub use camera::{scaled_px, Frame, Intrinsics, REFERENCE_PIXELS};

@@ -18,7 +18,7 @@ use super::{Map, ObjectId};
 use crate::icp::TrackingOutcome;
 use crate::labels::ObjectLabels;
 use crate::layer::CachedReader;
-use crate::render::sdf_at;
+use crate::sdf_sample::sdf_at;
 use crate::segmentation::Segmentation;
 
 impl Map {

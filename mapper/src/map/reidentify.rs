@@ -26,7 +26,7 @@ use crate::association::Segment;
 use crate::camera::Frame;
 use crate::icp::{align, evaluate, refine_against_sdf, Fit, MotionModel, SegmentView};
 use crate::layer::CachedReader;
-use crate::render::sdf_at;
+use crate::sdf_sample::sdf_at;
 use crate::Pose;
 
 /// Headings (turns about the world's up direction) each alignment starts
