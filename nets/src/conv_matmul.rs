@@ -2,11 +2,11 @@
 //!
 //! burn's CPU backend computes a convolution, and the gradient of its
 //! weights, through a general im2col that re-indexes every element; in a PPO
-//! update those two took 87 % of the learner's training thread. Its GPU
+//! update those two took most of the learner's training thread. Its GPU
 //! backend (wgpu, no autotuning) runs a direct convolution whose weight
 //! gradient gives each thread one weight and a loop over every output of the
-//! batch: 57 % of a PPO update's GPU time, a 1 024-step update at 128 px 56
-//! times PyTorch's (docs/decisions/0006-cpu-kernels.md). A valid convolution with kernel
+//! batch: most of a PPO update's GPU time, many times PyTorch's (the
+//! profiles are in docs/decisions/0006-cpu-kernels.md). A valid convolution with kernel
 //! `k` and stride `s` is the same as cutting the input into `s × s` blocks
 //! (space to depth) and convolving the blocks with a `⌈k/s⌉ × ⌈k/s⌉` kernel
 //! at stride 1: one matrix product of the blocks with every tap, then a sum

@@ -3,8 +3,8 @@
 //! Why it exists: an actor runs the U-Net on every frame, and on the CPU that
 //! pass was most of a step. burn's CPU backend turns each 3 × 3 convolution
 //! into a channels-last copy, an im2col copy and a GEMM, and a profile of the
-//! 64-pixel U-Net put 40 % of the time in those copies and 7 % in zeroing new
-//! buffers, against 42 % in the GEMM itself. Here:
+//! 64-pixel U-Net put about as much time in those copies and in zeroing new
+//! buffers as in the GEMM itself (docs/decisions/0006-cpu-kernels.md). Here:
 //! - every activation lives in a zero-bordered channels-first buffer, so no
 //!   convolution needs a padding copy;
 //! - a 3 × 3 convolution over an even-sided image uses Winograd's

@@ -2,10 +2,11 @@
 //! all: read as the difference of two readings, like
 //! [`super::unet_batcher::batch_times`].
 //!
-//! Why it exists: one actor process steps 843 environment steps/s at 128 px
-//! on an H200 alone, yet the whole system there took 591 (learner beside
-//! it) while the actor's loop thread and its U-Net batching thread were
-//! both far from busy. Each environment's step is its own work (acting,
+//! Why it exists: one actor process alone steps faster at 128 px on an H200
+//! than the whole system there with the learner beside it
+//! (docs/performance.md, "One actor" and "The whole system"), while the
+//! actor's loop thread and its U-Net batching thread were both far from
+//! busy. Each environment's step is its own work (acting,
 //! rendering, mapping, the state, the policy's pass) and its waits (a
 //! render's read-back, its frame's U-Net batch); a free-running actor says
 //! how long each took on average when it stops, so that a run beside the

@@ -3,9 +3,9 @@
 //! Why: in lock-step ([`super::lockstep`]) every step of every environment
 //! waits for the slowest one. On the CPU, where each environment runs its
 //! U-Net pass on its own thread anyway, that wait is most of what two
-//! environments lose against two cores: over a 600-step `ours` episode at
-//! 64 px the slower of two environments took 12 % longer per step than
-//! their mean (env bench). [`EnvThreads`] hands each environment its next
+//! environments lose against two cores: over a 600-step `ours` episode the
+//! slower of two environments takes longer per step than their mean (the
+//! env bench; docs/performance.md, "One actor"). [`EnvThreads`] hands each environment its next
 //! reset, step or episode end as soon as its last one is done, and the
 //! caller books whichever finishes first; an episode's end (labelling, tens
 //! of milliseconds) no longer holds up the others either.

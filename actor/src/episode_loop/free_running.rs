@@ -36,8 +36,8 @@ enum Phase {
 /// (docs/performance.md, "One actor"): on the VM's CPU two free-running
 /// environments make about what two in lock-step make; on an H200 at
 /// 128 px with 16 and 32 environments, the U-Net's frames batched by one
-/// thread (`crate::env::unet_batcher`), free-running makes 1.2–1.8× the
-/// steps (docs/notebook/2026-11-27-gpu-check-free-running.md).
+/// thread (`crate::env::unet_batcher`), free-running makes clearly more
+/// steps.
 pub(super) fn suits(actor: &Actor<'_>, envs: usize) -> bool {
     envs > 1 && actor.policy.cpu.is_some()
 }

@@ -52,8 +52,9 @@ pub struct UnetConfig {
     /// episodes arrive together (an actor's environments end theirs at
     /// once); a trainer that cannot keep up trains without pause. Before
     /// 2026-11-29 a round took these steps however many episodes it
-    /// followed, so the U-Net took 1.8 steps per episode at 64 px on 2
-    /// cores and 2.2 at the paper's scale on a GPU (docs/ladder.md).
+    /// followed, so the U-Net took about two steps per episode, at 64 px on
+    /// 2 cores as at the paper's scale on a GPU
+    /// (docs/decisions/0013-unet-steps-per-episode.md).
     pub steps_per_episode: usize,
     /// A training frame leaves the dataset after this many uses (the paper's 35).
     pub max_uses: u32,

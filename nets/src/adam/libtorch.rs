@@ -11,11 +11,9 @@
 //! updates all parameters at once; what this saves on a GPU is the next GPU
 //! check's `adam_steps` figure). Here the same arithmetic is 8 libtorch operations a
 //! parameter (10 with weight decay), called on libtorch's tensors directly.
-//! `cargo bench -p nets --bench adam_steps` measures a step against burn's;
-//! on libtorch's CPU device with the U-Net's 36 tensors cut to one element
-//! each (the host's cost of issuing a step, the arithmetic left out) ours
-//! took 0.65–0.81 of burn's time on the 2-core VM
-//! (docs/notebook/2026-11-28-adam-on-libtorch.md).
+//! `cargo bench -p nets --bench adam_steps` measures a step against burn's
+//! (docs/performance.md, "The learner"; on libtorch's CPU device ours takes
+//! less of the host's time to issue a step).
 //!
 //! The arithmetic is burn's `Adam` with optional weight decay (L2, added to
 //! the gradient): the moments of a parameter, their step count and the new

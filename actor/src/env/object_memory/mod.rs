@@ -152,7 +152,8 @@ pub(crate) fn object_memory(
 /// room to lift it, nothing under the pixel) learnt nothing about it; the
 /// robot knows this from its own arm, and labelling such objects negative
 /// taught the U-Net that reachable pickupable objects cannot be picked up
-/// (56 % of a trained policy's failed pick-ups were beyond reach).
+/// (most of a trained policy's failed pick-ups were beyond reach:
+/// docs/ladder.md, "Selection within reach").
 pub(crate) fn tells_the_affordance(outcome: &Outcome) -> bool {
     outcome.success
         || outcome
