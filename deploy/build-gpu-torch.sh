@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Builds the learner and the actor on libtorch (burn's `tch` backend on CUDA,
-# `nets/gpu-torch`; docs/decisions/0010-libtorch-on-a-gpu.md). See --help.
+# `nets/gpu-torch` and `training/gpu-torch`; docs/decisions/0010-libtorch-on-a-gpu.md). See --help.
 set -euo pipefail
 
 usage() {
@@ -70,7 +70,7 @@ targets=(-p learner -p actor --bins)
 [[ $CHECKS -eq 0 ]] || targets+=(-p training -p nets -p gateway --bench learning --bench env_steps --bench unet_inference --bench ppo_batches --bench adam_steps --test gpu_matches_cpu)
 mkdir -p "$OUT"
 # Every executable cargo builds, with its target's name (a bench's or test's is hashed).
-cargo build --release --features nets/gpu-torch "${targets[@]}" --message-format=json-render-diagnostics \
+cargo build --release --features nets/gpu-torch,training/gpu-torch "${targets[@]}" --message-format=json-render-diagnostics \
   | python3 -c '
 import json, sys
 for line in sys.stdin:

@@ -36,13 +36,14 @@ and writes every result into one Markdown report.
 
 DIR holds the binaries built here with a GPU backend, FEATURE being nets/gpu
 (burn's wgpu backend) or nets/gpu-torch (libtorch on CUDA; needs LIBTORCH at
-build time, see docs/decisions/0010-libtorch-on-a-gpu.md):
-  cargo build --release -p learner -p actor --features FEATURE
-  cargo build --release -p training --bench learning --features FEATURE
+build time, see docs/decisions/0010-libtorch-on-a-gpu.md), and TRAINING the
+same with training/gpu-torch added for libtorch (the trainers' own steps):
+  cargo build --release -p learner -p actor --features TRAINING
+  cargo build --release -p training --bench learning --bench adam_steps --features TRAINING
   cargo build --release -p nets --test gpu_matches_cpu --features FEATURE
   cargo build --release -p actor --bench env_steps --features FEATURE
-  cargo build --release -p nets --bench unet_inference --bench adam_steps --features FEATURE
-  cargo build --release -p learner --bench ppo_batches --features FEATURE
+  cargo build --release -p nets --bench unet_inference --features FEATURE
+  cargo build --release -p learner --bench ppo_batches --features TRAINING
   cargo build --release -p gateway
 (copy target/release/{learner,actor,gateway} and the deps/learning-*, deps/gpu_matches_cpu-*,
 deps/env_steps-*, deps/unet_inference-*, deps/adam_steps-*, deps/ppo_batches-* executables
@@ -140,7 +141,7 @@ if ! skipped training; then
     add "$(grep -E '^\|' "$LOGS/torch-unet-inference.log" || echo "PyTorch's: not run: $(tail -n 1 "$LOGS/torch-unet-inference.log")")"
   fi
   if [[ -x "$BIN/adam_steps" ]]; then
-    add "" "One Adam step, the trainers' (nets::adam) against burn's (adam_steps):" ""
+    add "" "One Adam step, the trainers' (training::adam) against burn's (adam_steps):" ""
     AFX_DEVICE=gpu AFX_REPEATS=30 limited 60 "$LOGS/adam-steps.log" "$BIN/adam_steps"
     add "$(grep -E '^\|' "$LOGS/adam-steps.log" || echo "FAILED: $(tail -n 3 "$LOGS/adam-steps.log" | tr '\n' ' ')")"
   fi

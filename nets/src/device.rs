@@ -34,7 +34,7 @@ pub enum DeviceError {
     #[error("unknown device {0:?}: use `cpu` or `gpu`")]
     Unknown(String),
     /// This binary was built without the GPU backend.
-    #[error("this build has no GPU backend: rebuild with `--features nets/gpu` (needs a Vulkan driver at run time) or `--features nets/gpu-torch` (needs libtorch with CUDA), or use `--device cpu`")]
+    #[error("this build has no GPU backend: rebuild with `--features nets/gpu` (needs a Vulkan driver at run time) or `--features nets/gpu-torch,training/gpu-torch` (needs libtorch with CUDA; deploy/build-gpu-torch.sh), or use `--device cpu`")]
     NotBuilt,
     /// The GPU backend found no usable adapter.
     #[error("no usable GPU: {0}; use `--device cpu`")]
@@ -51,6 +51,9 @@ pub fn open_device(choice: DeviceChoice) -> Result<Device, DeviceError> {
         DeviceChoice::Gpu => open_gpu(),
     }
 }
+
+/// Whether this build has the libtorch backend (`gpu-torch`).
+pub const LIBTORCH: bool = cfg!(feature = "gpu-torch");
 
 /// The GPU backend's build options in this binary, for benchmark reports:
 /// `cpu only`, `libtorch (CUDA)`, or `wgpu` followed by the `gpu-*`

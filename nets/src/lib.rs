@@ -23,19 +23,13 @@
 //! - [`weights`]: either network to and from safetensors bytes;
 //! - [`device`]: `--device cpu|gpu` at run time;
 //! - [`sample`]: the masked categorical draw the actor acts with;
-//! - [`adam`]: the trainers' Adam, burn's but on libtorch a few libtorch
-//!   operations a parameter (`adam::libtorch`);
-//! - [`libtorch_ops`]: the gradient clipping's per-parameter operations as
-//!   one libtorch call each.
 
-pub mod adam;
 mod conv_matmul;
 #[cfg(feature = "gpu-torch")]
 pub mod cuda_wait;
 pub mod device;
 mod kernels;
 mod layers;
-pub mod libtorch_ops;
 mod masked_categorical;
 pub mod policy;
 pub mod unet;

@@ -1,8 +1,8 @@
 //! Training and evaluating the affordance U-Net on labelled frames.
 
+use crate::adam::{Adam, AdamSettings};
 use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
-use nets::adam::{Adam, AdamSettings};
 use nets::unet::{masked_bce_dice, AffordanceUnet, ClassBalance};
 use nets::unet_inference::UnetInference;
 

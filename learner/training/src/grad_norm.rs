@@ -6,7 +6,7 @@
 //! parameter, as this module first did) made every minibatch wait for the
 //! GPU some fifty times; now the caller reads it when it wants the figure.
 //! On libtorch each tensor's squared norm and scaling are one libtorch call
-//! each (`nets::libtorch_ops`), not burn's two.
+//! each (`training::libtorch_ops`), not burn's two.
 
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::GradientsParams;
@@ -21,7 +21,7 @@ struct SquaredNorms<'a> {
 impl ModuleVisitor for SquaredNorms<'_> {
     fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
         if let Some(g) = self.grads.get::<D>(param.id) {
-            let squared = nets::libtorch_ops::squared_norm(&g);
+            let squared = crate::libtorch_ops::squared_norm(&g);
             self.parts.push(squared.unwrap_or_else(|| g.square().sum()));
         }
     }
@@ -36,7 +36,7 @@ struct Scale<'a> {
 impl ModuleVisitor for Scale<'_> {
     fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
         if let Some(g) = self.grads.remove::<D>(param.id) {
-            let scaled = nets::libtorch_ops::scaled(&g, &self.factor)
+            let scaled = crate::libtorch_ops::scaled(&g, &self.factor)
                 .unwrap_or_else(|| g * self.factor.clone().reshape([1; D]));
             self.grads.register(param.id, scaled);
         }
@@ -115,7 +115,7 @@ mod tests {
         clips_on(&Device::flex());
     }
 
-    /// The same through libtorch's calls (`nets::libtorch_ops`).
+    /// The same through libtorch's calls (`training::libtorch_ops`).
     #[cfg(feature = "gpu-torch")]
     #[test]
     #[allow(deprecated)]

@@ -5,14 +5,24 @@
 //! settings of both. Independent of the simulator, the map and the
 //! transport (the learner's service drives it); tested on synthetic tasks.
 
+pub mod adam;
 pub mod affordance;
 pub mod affordance_learner;
 pub mod config;
 pub mod dataset;
 pub mod gae;
 pub mod grad_norm;
+pub mod libtorch_ops;
 pub mod optimizer_state;
 pub mod ppo;
 pub mod ppo_batcher;
 pub mod synthetic;
 pub mod temperature;
+
+// Networks on libtorch train with libtorch's own steps (`adam::libtorch`,
+// `libtorch_ops`), which this crate's `gpu-torch` builds: a binary built
+// with `nets/gpu-torch` alone would train with burn's slower ones.
+const _: () = assert!(
+    !nets::device::LIBTORCH || cfg!(feature = "gpu-torch"),
+    "nets is built with gpu-torch: build training with it too (--features nets/gpu-torch,training/gpu-torch, as deploy/build-gpu-torch.sh does)"
+);

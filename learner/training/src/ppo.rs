@@ -4,10 +4,10 @@
 //! policy that acted (the *behaviour* policy), so data from a slightly older
 //! policy is handled by the importance ratio; the update reports how old it was.
 
+use crate::adam::{Adam, AdamSettings};
 use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use burn::tensor::{Bool, Int};
-use nets::adam::{Adam, AdamSettings};
 use nets::policy::{PolicyInput, PolicyNet};
 use rand::seq::SliceRandom;
 use rand::Rng;

@@ -249,7 +249,7 @@ fn ppo_solves_a_masked_contextual_bandit_and_random_does_not() {
 }
 
 /// The same on libtorch, where the optimiser and the gradient clipping take
-/// libtorch's own calls (`nets::adam`, `nets::libtorch_ops`).
+/// libtorch's own calls (`training::adam`, `training::libtorch_ops`).
 #[cfg(feature = "gpu-torch")]
 #[test]
 #[allow(deprecated)]

@@ -1,5 +1,5 @@
-//! `cargo bench -p nets --bench adam_steps`: one Adam step of the trainers'
-//! optimiser (`nets::adam::Adam`) against burn's own Adam, alternated, over
+//! `cargo bench -p training --bench adam_steps`: one Adam step of the trainers'
+//! optimiser (`training::adam::Adam`) against burn's own Adam, alternated, over
 //! the parameters the learner trains: the U-Net's (with its weight decay),
 //! the `ours` task's policy at 128 px, and the U-Net's 36 tensors cut to one
 //! element each. The last row leaves almost no arithmetic, so it is the
@@ -20,9 +20,9 @@ use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::decay::WeightDecayConfig;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
-use nets::adam::{Adam, AdamSettings};
 use nets::policy::PolicyNet;
 use nets::unet::AffordanceUnet;
+use training::adam::{Adam, AdamSettings};
 
 /// One-element stand-ins for a network's parameters.
 #[derive(Module, Debug)]

@@ -11,7 +11,7 @@
 //! updates all parameters at once; what this saves on a GPU is the next GPU
 //! check's `adam_steps` figure). Here the same arithmetic is 8 libtorch operations a
 //! parameter (10 with weight decay), called on libtorch's tensors directly.
-//! `cargo bench -p nets --bench adam_steps` measures a step against burn's
+//! `cargo bench -p training --bench adam_steps` measures a step against burn's
 //! (docs/performance.md, "The learner"; on libtorch's CPU device ours takes
 //! less of the host's time to issue a step).
 //!
