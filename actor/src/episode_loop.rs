@@ -71,6 +71,9 @@ pub struct LoopSummary {
     pub unet_version: u64,
     /// Weights messages refused as invalid (the actor kept its weights).
     pub weights_rejected: u64,
+    /// Seconds spent waiting for the learner's U-Net to catch up
+    /// ([`proto::WEIGHTS_META_HOLD`]).
+    pub held_s: f64,
 }
 
 /// The seed of this process's random choices: the `base` seed, moved on by
@@ -217,6 +220,33 @@ impl<'a> Actor<'a> {
     }
 
     /// The id of the next episode to start; `None` once `max_episodes` have started.
+    /// Waits, stepping nothing, while the newest weights say that the
+    /// learner's U-Net owes too many episodes ([`proto::WEIGHTS_META_HOLD`]),
+    /// taking newer weights meanwhile; returns at once when `stop` is set.
+    /// Gives the run's environment steps of the newest weights taken, if
+    /// any. Called where every ended episode's frames have gone out, so the
+    /// U-Net has what it needs to catch up.
+    fn wait_while_held(&mut self, stop: &AtomicBool) -> anyhow::Result<Option<u64>> {
+        let mut steps = None;
+        if !self.policy.hold {
+            return Ok(steps);
+        }
+        let started = Instant::now();
+        if self.summary.held_s == 0.0 {
+            eprintln!(
+                "actor {}: waiting for the learner's U-Net to catch up (its [unet] \
+                 hold_actors_beyond_episodes; further waits are only counted)",
+                self.settings.actor_id
+            );
+        }
+        while self.policy.hold && !stop.load(Ordering::Relaxed) {
+            std::thread::sleep(Duration::from_millis(10));
+            steps = self.refresh_weights()?.or(steps);
+        }
+        self.summary.held_s += started.elapsed().as_secs_f64();
+        Ok(steps)
+    }
+
     fn next_episode_id(&mut self) -> Option<u64> {
         if self
             .settings
@@ -556,7 +586,8 @@ pub fn run(
         actor.start_episodes(slots.iter_mut().collect())?;
     }
     while slots.iter().any(|s| s.episode.is_some()) {
-        if let Some(steps) = actor.refresh_weights()? {
+        let taken = actor.refresh_weights()?;
+        if let Some(steps) = actor.wait_while_held(stop)?.or(taken) {
             for slot in &mut slots {
                 slot.env.set_global_steps(steps);
             }

@@ -433,7 +433,7 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
         envs, model, &mut ports, &transport, &settings, &device, &stop,
     )?;
     eprintln!(
-        "actor {}: stopped after {} episodes, {} steps; {} messages delivered, {} dropped; policy version {}, U-Net version {}; {} weights messages refused",
+        "actor {}: stopped after {} episodes, {} steps; {} messages delivered, {} dropped; policy version {}, U-Net version {}; {} weights messages refused; {:.0} s waiting for the learner's U-Net",
         actor_id,
         summary.episodes,
         summary.steps,
@@ -441,7 +441,8 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
         summary.dropped,
         summary.policy_version,
         summary.unet_version,
-        summary.weights_rejected
+        summary.weights_rejected,
+        summary.held_s
     );
     Ok(())
 }

@@ -212,6 +212,13 @@ impl LearnerConfig {
             "unet.batch_frames, unet.max_uses and unet.max_frames must be >= 1"
         );
         anyhow::ensure!(
+            u.hold_actors_beyond_episodes < training::config::MAX_OWED_EPISODES,
+            "unet.hold_actors_beyond_episodes must be below {} (the debt the U-Net may owe at \
+             all; 0 never holds the actors back), got {}",
+            training::config::MAX_OWED_EPISODES,
+            u.hold_actors_beyond_episodes
+        );
+        anyhow::ensure!(
             u.validation_fraction >= 0.0
                 && u.test_fraction >= 0.0
                 && u.validation_fraction + u.test_fraction < 1.0,

@@ -191,6 +191,24 @@ pub fn render(s: &StatusSnapshot, timings: &Timings) -> String {
         "Gradient steps of U-Net training",
         s.counters.unet_steps,
     );
+    gauge(
+        &mut r,
+        "unet_owed_steps",
+        "Gradient steps the U-Net owes the episodes that arrived",
+        s.counters.unet_owed_steps as f64,
+    );
+    gauge(
+        &mut r,
+        "actors_held",
+        "1 while the actors are told to wait for the U-Net to catch up",
+        if s.counters.actors_held { 1.0 } else { 0.0 },
+    );
+    counter(
+        &mut r,
+        "actor_holds",
+        "Times the actors were told to wait for the U-Net",
+        s.counters.actor_holds,
+    );
     counter(
         &mut r,
         "messages_dropped",

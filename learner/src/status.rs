@@ -145,6 +145,14 @@ pub struct Counters {
     /// Gradient steps of U-Net training, over all rounds: against the
     /// episodes received, how much the U-Net trains per episode.
     pub unet_steps: u64,
+    /// Gradient steps the U-Net owes the episodes that arrived (its debt
+    /// after the newest round or arrival).
+    pub unet_owed_steps: u64,
+    /// Whether the actors are told to wait for the U-Net (`[unet]
+    /// hold_actors_beyond_episodes`): it owes more than that.
+    pub actors_held: bool,
+    /// Times the actors were told to wait for the U-Net.
+    pub actor_holds: u64,
     /// Latest U-Net round.
     pub last_unet: Option<UnetRound>,
 }

@@ -20,6 +20,7 @@ use training::affordance::LabelledFrame;
 use crate::history::History;
 use crate::shared::Shared;
 use training::affordance_learner::{AffordanceLearner, UnetTrainingState};
+use training::config::MAX_OWED_EPISODES;
 
 /// One episode's frames, keyed uniquely over actors.
 type Episode = (u64, Vec<LabelledFrame>);
@@ -78,12 +79,6 @@ fn take_in(
     episodes.arrived(episode);
     learner.add_episode(episode, batch);
 }
-
-/// Episodes whose steps the trainer may owe at once: enough for every
-/// environment of a large actor ending its episode together (32 at the
-/// paper's scale), bounded so that a trainer that cannot keep up does not
-/// train on after its frames have long moved on.
-const MAX_OWED_EPISODES: usize = 64;
 
 /// Counts the episodes whose frames arrived since the last round. An
 /// episode too large for one message comes in parts, one after another
@@ -158,12 +153,15 @@ impl UnetWorker {
                     }
                     owed =
                         (owed + per_episode * episodes.take()).min(per_episode * MAX_OWED_EPISODES);
+                    shared.status().counters.unet_owed_steps = owed as u64;
                     let started = std::time::Instant::now();
                     let Some(round) = learner.train_round(owed.min(per_episode)) else {
                         owed = 0;
+                        shared.status().counters.unet_owed_steps = 0;
                         continue;
                     };
                     owed = owed.saturating_sub(round.steps);
+                    shared.status().counters.unet_owed_steps = owed as u64;
                     let seconds = started.elapsed().as_secs_f64();
                     capture(&learner, &slot);
                     let (env_steps, unet_version) = {

@@ -54,6 +54,6 @@ pub use stats::{AffordanceStat, EpisodeStats, StatField, StatKey};
 pub use task::{Affordance, EnvKind, PolicyLayout, RewardWeights, TaskError, TaskSpec};
 pub use validation::{AffordanceScores, ValidationScores, VALIDATION_DIR};
 pub use weights::{
-    WeightsBlob, WeightsView, WEIGHTS_META_ENV_STEPS, WEIGHTS_META_TEMPERATURE,
+    WeightsBlob, WeightsView, WEIGHTS_META_ENV_STEPS, WEIGHTS_META_HOLD, WEIGHTS_META_TEMPERATURE,
     WEIGHTS_POLICY_PREFIX, WEIGHTS_TAG_LEN, WEIGHTS_UNET_PREFIX,
 };

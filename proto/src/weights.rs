@@ -36,6 +36,11 @@ pub const WEIGHTS_UNET_PREFIX: &str = "unet.";
 pub const WEIGHTS_META_ENV_STEPS: &str = "env_steps";
 /// Header metadata key: temperature calibrating the U-Net's logits (`sigmoid(logit / T)`).
 pub const WEIGHTS_META_TEMPERATURE: &str = "unet_temperature";
+/// Header metadata key, present ("1") while the learner's U-Net owes more
+/// gradient steps than its `[unet] hold_actors_beyond_episodes` allow: the
+/// actors wait, starting and stepping nothing, until weights without it
+/// arrive.
+pub const WEIGHTS_META_HOLD: &str = "hold";
 
 /// The signature of `safetensors` sent under a header with these versions
 /// and sequence.

@@ -141,7 +141,8 @@ fn drive(
         clock.waited += asleep.elapsed();
         finished.extend(threads.finished()?);
         let version = actor.policy.policy_version;
-        if let Some(steps) = clock.time(Chore::Weights, || actor.refresh_weights())? {
+        let taken = clock.time(Chore::Weights, || actor.refresh_weights())?;
+        if let Some(steps) = actor.wait_while_held(stop)?.or(taken) {
             threads.set_global_steps(steps)?;
         }
         if actor.policy.policy_version != version {

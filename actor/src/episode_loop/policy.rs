@@ -10,7 +10,8 @@ use nets::policy::{CpuPolicy, CpuPolicyStep, PolicyInput, PolicyLayout, PolicyNe
 use nets::sample;
 use nets::weights::{load_safetensors, unbundle};
 use proto::{
-    WEIGHTS_META_ENV_STEPS, WEIGHTS_META_TEMPERATURE, WEIGHTS_POLICY_PREFIX, WEIGHTS_UNET_PREFIX,
+    WEIGHTS_META_ENV_STEPS, WEIGHTS_META_HOLD, WEIGHTS_META_TEMPERATURE, WEIGHTS_POLICY_PREFIX,
+    WEIGHTS_UNET_PREFIX,
 };
 use rayon::prelude::*;
 use transport::{ActorPorts, ReceivedMessage};
@@ -32,6 +33,8 @@ pub(super) struct Policy {
     /// The run's environment steps over all actors when the learner sent
     /// these weights, if it said.
     pub(super) env_steps: Option<u64>,
+    /// The learner said to wait for its U-Net ([`proto::WEIGHTS_META_HOLD`]).
+    pub(super) hold: bool,
 }
 
 /// What one weights message holds for the actor: the policy, and the
@@ -98,6 +101,7 @@ pub(super) fn load_weights(
         policy_version: header.policy_version,
         unet_version: header.unet_version,
         env_steps,
+        hold: metadata.contains_key(WEIGHTS_META_HOLD),
     };
     Ok(LoadedWeights { policy, unet })
 }
@@ -311,6 +315,7 @@ mod tests {
             policy_version: 1,
             unet_version: 0,
             env_steps: None,
+            hold: false,
         };
         let observations: Vec<Observation> = (0..3)
             .map(|k| Observation {
@@ -400,6 +405,7 @@ mod tests {
                 policy_version: 1,
                 unet_version: 0,
                 env_steps: None,
+                hold: false,
             };
             let (with_cpu, burn_only) = (policy(cpu), policy(None));
             let observations: Vec<Observation> = (0..2)
@@ -448,6 +454,7 @@ mod tests {
             policy_version: 3,
             unet_version: 0,
             env_steps: None,
+            hold: false,
         };
         let observation = Observation {
             features: (0..layout.obs_len())

@@ -165,15 +165,37 @@ impl Learner {
         }
     }
 
+    /// Whether the actors must wait for the U-Net: it owes the steps of more
+    /// than `[unet] hold_actors_beyond_episodes` episodes (never when that
+    /// is 0, or without a U-Net). Counts each new hold.
+    pub(super) fn actors_held(&self) -> bool {
+        let unet = &self.shared.config.unet;
+        let mut status = self.shared.status();
+        let counters = &mut status.counters;
+        let held = self.unet_worker.is_some()
+            && unet.hold_actors_beyond_episodes > 0
+            && counters.unet_owed_steps
+                > (unet.hold_actors_beyond_episodes * unet.steps_per_episode) as u64;
+        if held && !counters.actors_held {
+            counters.actor_holds += 1;
+        }
+        counters.actors_held = held;
+        held
+    }
+
     pub(super) fn publish_weights(&mut self) -> anyhow::Result<()> {
         let policy_version = self.policy.version;
         let unet_version = self.unet.as_ref().map_or(0, |unet| unet.version);
-        let blob = self.weights_blob(&self.policy.weights)?;
+        let hold = self.actors_held();
+        let blob = self.weights_blob(&self.policy.weights, hold)?;
         match self
             .ports
             .publish_weights(policy_version, unet_version, &blob)?
         {
-            Delivery::Delivered(_) => self.shared.status().counters.weights_published += 1,
+            Delivery::Delivered(_) => {
+                self.shared.status().counters.weights_published += 1;
+                self.hold_sent = Some(hold);
+            }
             Delivery::Dropped => tracing::debug!(
                 policy_version,
                 "weights pool busy; the next publish carries newer weights"
@@ -183,13 +205,17 @@ impl Learner {
     }
 
     /// Both networks in one safetensors blob, names prefixed `policy.` and
-    /// `unet.`: `policy` (safetensors bytes) and the deployed U-Net.
-    pub(super) fn weights_blob(&self, policy: &[u8]) -> anyhow::Result<Vec<u8>> {
+    /// `unet.`: `policy` (safetensors bytes) and the deployed U-Net; `hold`
+    /// tells the actors to wait for the U-Net.
+    pub(super) fn weights_blob(&self, policy: &[u8], hold: bool) -> anyhow::Result<Vec<u8>> {
         let mut parts: Vec<(&str, &[u8])> = vec![(proto::WEIGHTS_POLICY_PREFIX, policy)];
         let mut metadata = std::collections::HashMap::from([(
             proto::WEIGHTS_META_ENV_STEPS.to_string(),
             self.shared.status().counters.env_steps.to_string(),
         )]);
+        if hold {
+            metadata.insert(proto::WEIGHTS_META_HOLD.to_string(), "1".to_string());
+        }
         if let Some(unet) = &self.unet {
             parts.push((proto::WEIGHTS_UNET_PREFIX, &unet.weights));
             metadata.insert(

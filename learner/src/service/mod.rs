@@ -114,6 +114,9 @@ pub struct Learner {
     /// The deployed U-Net (weights, temperature, version), broadcast and
     /// checkpointed.
     unet: Option<DeployedUnet>,
+    /// Whether the newest weights the actors got tell them to wait for the
+    /// U-Net (`None` before the first delivered publish).
+    hold_sent: Option<bool>,
     affordances: usize,
     /// Which publishers speak for which actor id.
     membership: Membership,
@@ -156,6 +159,7 @@ impl Learner {
             checkpoint_requested: false,
             unet_worker: None,
             unet: None,
+            hold_sent: None,
             affordances,
             membership: Membership::new(join_key),
             warned: HashSet::new(),
@@ -343,6 +347,15 @@ impl Learner {
                 .and_then(UnetWorker::take_deployed)
             {
                 self.unet = Some(unet);
+                self.publish_weights()?;
+            }
+            // Actors learn that they must wait for the U-Net, or may go on,
+            // only from weights: sent again when that changes (and until
+            // delivered, or held actors would wait for ever).
+            if self
+                .hold_sent
+                .is_some_and(|sent| sent != self.actors_held())
+            {
                 self.publish_weights()?;
             }
             if last_maintenance.elapsed() > Duration::from_millis(250) {

@@ -45,7 +45,7 @@ impl Learner {
             }
         };
         // The snapshot's weights: the broadcast may already be newer.
-        let weights = self.weights_blob(&policy.weights)?;
+        let weights = self.weights_blob(&policy.weights, false)?;
         let counters_json = serde_json::to_vec_pretty(&counters)?;
         let adam = &policy.optimizer;
         let adam_parameters = adam.parameter_list_json();

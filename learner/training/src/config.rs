@@ -7,6 +7,13 @@ use serde::{Deserialize, Serialize};
 
 use crate::ppo::PpoConfig;
 
+/// Episodes whose steps the U-Net's trainer may owe at once: enough for
+/// every environment of a large actor ending its episode together (32 at
+/// the paper's scale), bounded so that a trainer that cannot keep up does
+/// not train on after its frames have long moved on (debt beyond it is
+/// forgiven).
+pub const MAX_OWED_EPISODES: usize = 64;
+
 /// The policy's training: PPO's own settings (`[policy.ppo]`) and how the
 /// learner batches steps for it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, documented::DocumentedFields)]
@@ -56,6 +63,14 @@ pub struct UnetConfig {
     /// 2 cores as at the paper's scale on a GPU
     /// (docs/decisions/0013-unet-steps-per-episode.md).
     pub steps_per_episode: usize,
+    /// Episodes whose steps the U-Net may owe before the actors wait: while
+    /// it owes more, every actor pauses (the weights it is sent say so)
+    /// until the U-Net has caught up, so that it trains its
+    /// `steps_per_episode` for every episode on a machine too small for
+    /// both (docs/decisions/0013-unet-steps-per-episode.md). 0 never holds
+    /// the actors back: a U-Net that cannot keep up then trains fewer
+    /// steps per episode.
+    pub hold_actors_beyond_episodes: usize,
     /// A training frame leaves the dataset after this many uses (the paper's 35).
     pub max_uses: u32,
     /// Frames held at most; the oldest go first.
@@ -102,6 +117,7 @@ impl Default for UnetConfig {
             weight_decay: 1e-4,
             batch_frames: 8,
             steps_per_episode: 8,
+            hold_actors_beyond_episodes: 8,
             max_uses: 35,
             max_frames: 4_000,
             validation_fraction: 0.15,
