@@ -433,7 +433,7 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
         envs, model, &mut ports, &transport, &settings, &device, &stop,
     )?;
     eprintln!(
-        "actor {}: stopped after {} episodes, {} steps; {} messages delivered, {} dropped; policy version {}, U-Net version {}; {} weights messages refused; {:.0} s waiting for the learner's U-Net",
+        "actor {}: stopped after {} episodes, {} steps; {} messages delivered, {} dropped; policy version {}, U-Net version {}; {:.0} s waiting for the learner's U-Net; {} weights messages refused",
         actor_id,
         summary.episodes,
         summary.steps,
@@ -441,8 +441,8 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
         summary.dropped,
         summary.policy_version,
         summary.unet_version,
-        summary.weights_rejected,
-        summary.held_s
+        summary.held_s,
+        summary.weights_rejected
     );
     Ok(())
 }
