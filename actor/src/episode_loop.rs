@@ -219,7 +219,6 @@ impl<'a> Actor<'a> {
         }
     }
 
-    /// The id of the next episode to start; `None` once `max_episodes` have started.
     /// Waits, stepping nothing, while the newest weights say that the
     /// learner's U-Net owes too many episodes ([`proto::WEIGHTS_META_HOLD`]),
     /// taking newer weights meanwhile; returns at once when `stop` is set.
@@ -247,6 +246,7 @@ impl<'a> Actor<'a> {
         Ok(steps)
     }
 
+    /// The id of the next episode to start; `None` once `max_episodes` have started.
     fn next_episode_id(&mut self) -> Option<u64> {
         if self
             .settings
