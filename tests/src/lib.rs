@@ -27,6 +27,15 @@ pub fn bin(name: &str) -> PathBuf {
     path
 }
 
+/// The shared data directory (iTHOR rooms and the object catalogue) beside
+/// the repository, as the simulator actors of these tests read it.
+pub fn shared_data_dir() -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data")
+        .display()
+        .to_string()
+}
+
 /// A unique scratch directory under the target directory.
 pub fn scratch_dir(test: &str) -> PathBuf {
     let exe = std::env::current_exe().expect("test executable path");

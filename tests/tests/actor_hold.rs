@@ -8,14 +8,7 @@
 
 use std::time::Duration;
 
-use system_tests::{scratch_dir, start_actor, wait_for, Learner, Process};
-
-fn data_dir() -> String {
-    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data")
-        .display()
-        .to_string()
-}
+use system_tests::{scratch_dir, shared_data_dir, start_actor, wait_for, Learner, Process};
 
 #[test]
 fn actors_wait_for_a_unet_that_owes_too_much_and_go_on_when_it_has_caught_up() {
@@ -45,7 +38,7 @@ fn actors_wait_for_a_unet_that_owes_too_much_and_go_on_when_it_has_caught_up() {
         dir.join("learner.log"),
     );
     let run_config = run_dir.join("config.toml").display().to_string();
-    let data = data_dir();
+    let data = shared_data_dir();
     let mut actor: Process = start_actor(
         0,
         &prefix,

@@ -8,14 +8,7 @@
 
 use std::time::Duration;
 
-use system_tests::{scratch_dir, start_actor, wait_for, Learner, Process};
-
-fn data_dir() -> String {
-    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data")
-        .display()
-        .to_string()
-}
+use system_tests::{scratch_dir, shared_data_dir, start_actor, wait_for, Learner, Process};
 
 /// The highest `… version N` an actor's log reports after `marker`.
 fn newest_version(actor: &Process, marker: &str) -> Option<u64> {
@@ -66,7 +59,7 @@ fn closed_loop(method: &str) {
         dir.join("learner.log"),
     );
     let run_config = run_dir.join("config.toml").display().to_string();
-    let data = data_dir();
+    let data = shared_data_dir();
     let mut actors: Vec<Process> = (0..2)
         .map(|id| {
             let envs = (id + 1).to_string();

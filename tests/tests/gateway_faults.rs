@@ -201,10 +201,7 @@ fn a_simulator_actor_on_another_host_trains_the_unet_and_gets_its_weights() {
     );
     let prefix = format!("afx_gsa_{pid}");
     let pair = start_pair(&dir, &run_dir, &prefix);
-    let data = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data")
-        .display()
-        .to_string();
+    let data = system_tests::shared_data_dir();
     let config = pair.host_config.display().to_string();
     let mut actor = start_actor(
         0,
