@@ -148,8 +148,8 @@ pub struct Counters {
     /// Gradient steps the U-Net owes the episodes that arrived (its debt
     /// after the newest round or arrival).
     pub unet_owed_steps: u64,
-    /// Whether the actors are told to wait for the U-Net (`[unet]
-    /// hold_actors_beyond_episodes`): it owes more than that.
+    /// Whether the newest weights delivered tell the actors to wait for the
+    /// U-Net (`[unet] hold_actors_beyond_episodes`: it owes more than that).
     pub actors_held: bool,
     /// Times the actors were told to wait for the U-Net.
     pub actor_holds: u64,

@@ -167,33 +167,30 @@ impl Learner {
 
     /// Whether the actors must wait for the U-Net: it owes the steps of more
     /// than `[unet] hold_actors_beyond_episodes` episodes (never when that
-    /// is 0, or without a U-Net). Counts each new hold.
-    pub(super) fn actors_held(&self) -> bool {
+    /// is 0, or without a U-Net).
+    pub(super) fn unet_owes_too_much(&self) -> bool {
         let unet = &self.shared.config.unet;
-        let mut status = self.shared.status();
-        let counters = &mut status.counters;
-        let held = self.unet_worker.is_some()
+        self.unet_worker.is_some()
             && unet.hold_actors_beyond_episodes > 0
-            && counters.unet_owed_steps
-                > (unet.hold_actors_beyond_episodes * unet.steps_per_episode) as u64;
-        if held && !counters.actors_held {
-            counters.actor_holds += 1;
-        }
-        counters.actors_held = held;
-        held
+            && self.shared.status().counters.unet_owed_steps
+                > (unet.hold_actors_beyond_episodes * unet.steps_per_episode) as u64
     }
 
     pub(super) fn publish_weights(&mut self) -> anyhow::Result<()> {
         let policy_version = self.policy.version;
         let unet_version = self.unet.as_ref().map_or(0, |unet| unet.version);
-        let hold = self.actors_held();
+        let hold = self.unet_owes_too_much();
         let blob = self.weights_blob(&self.policy.weights, hold)?;
         match self
             .ports
             .publish_weights(policy_version, unet_version, &blob)?
         {
             Delivery::Delivered(_) => {
-                self.shared.status().counters.weights_published += 1;
+                let mut status = self.shared.status();
+                let counters = &mut status.counters;
+                counters.weights_published += 1;
+                counters.actor_holds += u64::from(hold && !counters.actors_held);
+                counters.actors_held = hold;
                 self.hold_sent = Some(hold);
             }
             Delivery::Dropped => tracing::debug!(

@@ -354,7 +354,7 @@ impl Learner {
             // delivered, or held actors would wait for ever).
             if self
                 .hold_sent
-                .is_some_and(|sent| sent != self.actors_held())
+                .is_some_and(|sent| sent != self.unet_owes_too_much())
             {
                 self.publish_weights()?;
             }
