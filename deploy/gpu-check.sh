@@ -174,9 +174,9 @@ fi
 
 if ! skipped actor && [[ -x "$BIN/env_steps" ]]; then
   section "One actor process at 128 px, GPU renderer (env_steps)"
-  # 32 environments in lock-step and free-running (the actor's way since
-  # issue 40's free-running GPU actor; at 128 px more environments than
-  # cores pay), 1 for scale; the paper's 600-step episodes, over which the
+  # 32 environments as the actor runs them (each on its own thread, the
+  # U-Net's frames in a batching thread's batches; at 128 px more
+  # environments than cores pay), 1 for scale; the paper's 600-step episodes, over which the
   # map fills the room and its and the state's cost per step grows (3.3x
   # and 2.1x from 60 steps, docs/notebook/2026-11-27-actor-loop-chores.md).
   AFX_DEVICE=gpu AFX_DATA="$DATA" AFX_CASES=none AFX_ENVS=1,32 AFX_STEPS=600 AFX_ENVS_PX=128 AFX_ENVS_RENDERER=gpu \

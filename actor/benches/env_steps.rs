@@ -11,22 +11,18 @@
 //!
 //! A second table steps several environments in one process (`actor --envs
 //! N`) through a whole episode, each step with the policy's forward pass as
-//! the actor runs it (the actions themselves stay random): in lock-step (on
-//! a GPU the U-Net over all their frames in one batch, on the CPU each
-//! environment's U-Net pass on its own thread) and free-running as the
-//! actor runs them (`actor::env::threads`: each environment on its own
-//! thread, running the policy's pass on its own observations; on a GPU the
-//! U-Net in one batching thread's batches, `actor::env::unet_batcher`), and
-//! for comparison free-running with the policy's passes on the caller's
-//! thread. It reports
+//! the actor runs it (the actions themselves stay random): as the actor runs
+//! them (`actor::sampling`: each environment on its own thread, running the
+//! policy's pass on its own observations; on a GPU the U-Net in one
+//! batching thread's batches, `actor::sampling::unet_batcher`), and for
+//! comparison with the policy's passes on the caller's thread. It reports
 //! steps/s per process and per environment, then the episode's end
 //! (labelling, in parallel) and steps/s per process with that end included,
 //! and how many cores the process kept busy while stepping (its CPU time
 //! over the wall time): near the machine's count, the run is bound by the
-//! CPU and only less work per step makes it faster. The free-running rows
-//! also say what the environments' steps were made of
-//! (`actor::env::step_phases`), as a free-running actor's last lines do
-//! beside the learner.
+//! CPU and only less work per step makes it faster. The rows also say what
+//! the environments' steps were made of (`actor::env::step_phases`), as an
+//! actor's last lines do beside the learner.
 //!
 //! `AFX_DEVICE=gpu` runs the U-Net on the GPU (a build with
 //! `--features nets/gpu`); `AFX_DATA` points at the shared data directory
@@ -42,7 +38,7 @@
 //! paper's 128 px on a GPU machine is `AFX_ENVS_PX=128 AFX_ENVS_RENDERER=gpu`.
 //! `AFX_ENVS_INFERENCE=batched` runs the second table as on a GPU (the
 //! U-Net's frames in batches) with the U-Net on the CPU; `AFX_UNET_BATCHERS=2`
-//! gives the free-running rows two batching threads (their "busy" share is
+//! gives the rows two batching threads (their "busy" share is
 //! then the two threads' time added up).
 
 use std::sync::{Arc, RwLock};
@@ -51,12 +47,12 @@ use std::time::{Duration, Instant};
 use actor::env::actions::random_allowed_action;
 use actor::env::actions::ActionSpace;
 use actor::env::affordance_model::AffordanceModel;
-use actor::env::lockstep::{self, reset_all, step_all, Inference};
 use actor::env::sim_env::{SimEnv, SimEnvConfig, StepTimings};
 use actor::env::step_phases::{step_phases, StepPhases};
-use actor::env::threads::{Done, EnvThreads, PolicyPass, Task};
-use actor::env::unet_batcher::{batch_times, BatchTimes};
 use actor::env::{Environment, FlatSimEnv, Observation};
+use actor::sampling::env_threads::{Done, EnvThreads, PolicyPass, Task};
+use actor::sampling::unet_batcher::{batch_times, BatchTimes};
+use actor::sampling::Inference;
 use burn::prelude::*;
 use mapper::Affordance;
 use nets::policy::{CpuPolicy, PolicyInput, PolicyLayout, PolicyNet};
@@ -268,10 +264,10 @@ fn sim_env(
 }
 
 /// Several environments per process (CPU renderer and 64 px unless
-/// [`several_envs_setting`] says otherwise), one whole
-/// episode with the policy's forward pass every step, in lock-step and (on
-/// the CPU) free-running: steps/s of the process and of each environment,
-/// the episode's end, and steps/s of the process with the end included.
+/// [`several_envs_setting`] says otherwise), one whole episode with the
+/// policy's forward pass every step, as the actor runs them: steps/s of the
+/// process and of each environment, the episode's end, and steps/s of the
+/// process with the end included.
 fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
     let counts = std::env::var("AFX_ENVS").unwrap_or_else(|_| "1,2".into());
     if counts.trim() == "none" {
@@ -290,7 +286,7 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
     let inference = several_envs_inference(device);
     println!();
     println!("Several environments per process, {renderer_choice:?} renderer, U-Net inference {inference:?}:");
-    println!("| method | px | environments | stepped | steps/s per process | steps/s per environment | episode end | steps/s per process, end included | CPU cores busy (of {}) | lock-step, per round: policy / first halves (slowest environment's, mean) / U-Net / second halves; free-running: the U-Net's batches (on a GPU), what the steps were made of |", cores());
+    println!("| method | px | environments | stepped | steps/s per process | steps/s per environment | episode end | steps/s per process, end included | CPU cores busy (of {}) | the U-Net's batches (on a GPU); what the steps were made of |", cores());
     println!("|---|---|---|---|---|---|---|---|---|---|");
     for method in [Method::Ours, Method::NomapSeg] {
         for &n in &counts {
@@ -313,6 +309,7 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
             let envs = new_envs();
             let layout = envs[0].layout().clone();
             let space = envs[0].inner().action_space().clone();
+            let mut unused = Some(envs);
             let net = PolicyNet::new(&layout, device);
             // As the actor: the CPU's own pass on every device.
             let cpu = CpuPolicy::from_network(&net, &layout).map(Arc::new);
@@ -339,33 +336,18 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
                     (n * steps) as f64 / (timed.stepping + timed.end).as_secs_f64(),
                 );
             };
-            let (times, policy, phases) = bench.lockstep(envs);
-            let ms = |d: Duration| d.as_secs_f64() * 1e3 / phases.rounds.max(1) as f64;
-            let phases = if phases.rounds == 0 {
-                "—".to_string() // per environment: no halves to time apart
-            } else {
-                format!(
-                    "{:.1} / {:.1} (slowest environment {:.1}, mean {:.1}) / {:.1} / {:.1} ms",
-                    policy.as_secs_f64() * 1e3 / episode_steps() as f64,
-                    ms(phases.first_halves),
-                    ms(phases.slowest_first_halves),
-                    ms(phases.each_first_half) / n as f64,
-                    ms(phases.unet),
-                    ms(phases.second_halves)
-                )
-            };
-            row("lock-step", times, phases);
-            // Free-running as the actor runs it (the policy's passes on the
+            // As the actor runs them (the policy's passes on the
             // environments' threads), and with the passes on this thread as
             // before 2026-11-27's second change, for comparison.
             for (passes_on_threads, stepped) in [
-                (true, "free-running"),
-                (false, "free-running, policy on the loop's thread"),
+                (true, "as the actor"),
+                (false, "the policy on the loop's thread"),
             ] {
-                if n == 1 {
+                if n == 1 && !passes_on_threads {
                     break;
                 }
-                let (timed, batches, phases) = bench.free_running(new_envs(), passes_on_threads);
+                let envs = unused.take().unwrap_or_else(new_envs);
+                let (timed, batches, phases) = bench.free_running(envs, passes_on_threads);
                 // The U-Net's batches ("—": on each environment's thread),
                 // then what the steps were made of, as an actor's last
                 // lines say it beside the learner.
@@ -390,53 +372,6 @@ struct SeveralEnvs<'a> {
 }
 
 impl SeveralEnvs<'_> {
-    /// One episode of `envs` in lock-step: the stepping and the episode's
-    /// end; the policy's passes in all; the steps' phases (resets not
-    /// included).
-    fn lockstep(&self, mut envs: Vec<FlatSimEnv>) -> (Timed, Duration, lockstep::PhaseTimes) {
-        let model = self.model.read().unwrap();
-        let mut refs: Vec<&mut FlatSimEnv> = envs.iter_mut().collect();
-        let seeds: Vec<u64> = (1..=refs.len() as u64).collect();
-        let mut observations =
-            reset_all(&mut refs, &seeds, model.as_ref(), self.inference).expect("reset");
-        let mut rng = StdRng::seed_from_u64(1);
-        let start = Instant::now();
-        let cpu_before = process_cpu_time();
-        let before = lockstep::phase_times();
-        let mut policy = Duration::ZERO;
-        for _ in 0..episode_steps() {
-            let passed = Instant::now();
-            policy_pass(
-                self.policy,
-                self.layout,
-                &observations,
-                self.device,
-                self.inference,
-            );
-            policy += passed.elapsed();
-            let actions: Vec<u32> = observations
-                .iter()
-                .map(|o| random_allowed_action(self.space, &o.action_mask, 0.5, &mut rng) as u32)
-                .collect();
-            observations = step_all(&mut refs, &actions, model.as_ref(), self.inference)
-                .expect("step")
-                .into_iter()
-                .map(|(_, o)| o)
-                .collect();
-        }
-        let stepping = start.elapsed();
-        let cpu = cpu_since(cpu_before);
-        let phases = lockstep::phase_times().since(&before);
-        let end_started = Instant::now();
-        refs.par_iter_mut()
-            .enumerate()
-            .map(|(i, env)| env.finish_episode(i as u64))
-            .collect::<anyhow::Result<Vec<_>>>()
-            .expect("the episode's end");
-        let end = end_started.elapsed();
-        (Timed { stepping, cpu, end }, policy, phases)
-    }
-
     /// One episode of each of `envs`, free-running as the actor runs them:
     /// the policy's CPU pass on the environments' threads when
     /// `passes_on_threads` (and the policy has one), else on this thread over
@@ -580,9 +515,10 @@ fn cores() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
-/// The policy's forward pass over `observations`, as the actor runs it each
-/// lock-step: one pass over all of them, or one per observation and thread
-/// on the CPU (its own pass where it has one, burn's otherwise). A fresh
+/// The policy's forward pass over `observations`, as the actor's loop runs
+/// the passes its environments' threads did not make: one pass over all of
+/// them, or one per observation and thread on the CPU (its own pass where
+/// it has one, burn's otherwise). A fresh
 /// episode's recurrent state (zeros) for GRU policies.
 fn policy_pass(
     (policy, cpu): &(PolicyNet, Option<Arc<CpuPolicy>>),

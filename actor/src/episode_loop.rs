@@ -6,35 +6,34 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{PoisonError, RwLock, RwLockReadGuard};
 use std::time::{Duration, Instant};
 
-use anyhow::{bail, ensure, Context};
+use anyhow::{bail, ensure};
 use burn::prelude::*;
 use proto::{EpisodeStats, RolloutChunk, StatField};
 use rand::rngs::SmallRng;
 use rand::{Rng, SeedableRng};
 use transport::{ActorPorts, Delivery, TransportConfig};
 
-use rayon::prelude::*;
-
 use crate::env::affordance_model::AffordanceModel;
-use crate::env::threads::PolicyPass;
-use crate::env::{lockstep, Environment, EpisodeEnd, Observation, StepOutcome};
+use crate::env::{Environment, EpisodeEnd, Observation, StepOutcome};
+use crate::sampling::env_threads::PolicyPass;
+use crate::sampling::Inference;
 
 mod backoff;
 mod chunks;
-mod free_running;
 mod loop_clock;
 mod policy;
 mod rejected_weights;
-mod slot;
+mod running_episode;
+mod scheduler;
 
 use backoff::Backoff;
 use chunks::{new_chunk, push_obs, restart_chunk, split_frames};
 use policy::{
-    act_batch, choose, forward_batch, hidden_values, load_weights, step_of_thread_pass, Acted,
-    LoadedWeights, Policy,
+    choose, forward_batch, hidden_values, load_weights, step_of_thread_pass, Acted, LoadedWeights,
+    Policy,
 };
 use rejected_weights::RejectedWeights;
-use slot::{envs_of, ChunkClose, RunningEpisode, Slot};
+use running_episode::{ChunkClose, RunningEpisode};
 
 /// Settings of one actor's loop.
 #[derive(Debug, Clone)]
@@ -93,22 +92,22 @@ fn episode_seed(process_seed: u64, actor_id: u32, episode: u64) -> u64 {
         .wrapping_add(u64::from(actor_id))
 }
 
-/// What the loop keeps between steps besides the slots.
+/// What the loop keeps between steps besides the environments.
 struct Actor<'a> {
     ports: &'a mut ActorPorts,
     transport: &'a TransportConfig,
     settings: &'a LoopSettings,
     device: &'a Device,
-    /// The U-Net, shared with the threads of free-running environments
-    /// (`free_running`), which read it while the loop may load new weights.
+    /// The U-Net, shared with the environments' threads, which read it
+    /// while the loop may load new weights.
     model: &'a RwLock<Option<AffordanceModel>>,
     /// How the networks see the environments' inputs (suited to `device`).
-    inference: lockstep::Inference,
+    inference: Inference,
     policy: Policy,
     seed: u64,
     rng: SmallRng,
     summary: LoopSummary,
-    /// Episodes started over all slots (their ids).
+    /// Episodes started over all environments (their ids).
     started: u64,
     backoff: Backoff,
     rejected_weights: RejectedWeights,
@@ -126,19 +125,14 @@ impl<'a> Actor<'a> {
     }
 
     /// One action for each of `inputs` (observation, recurrent state),
-    /// drawn from the policy with this loop's random numbers.
-    fn act(&mut self, inputs: &[(&Observation, Option<&[f32]>)]) -> anyhow::Result<Vec<Acted>> {
-        let uniforms: Vec<f32> = inputs.iter().map(|_| self.rng.random::<f32>()).collect();
-        act_batch(&self.policy, inputs, &uniforms, self.device, self.inference)
-    }
-
-    /// As [`Self::act`] (the same draws), taking the policy's pass over an
-    /// observation from `passes` where its environment's thread made one
-    /// with the current policy; the others (passes of a policy that new
-    /// weights replaced meanwhile, a few per update) run here, one at a
-    /// time: spread over rayon's threads they would compete with the
+    /// drawn from the policy with this loop's random numbers, taking the
+    /// policy's pass over an observation from `passes` where its
+    /// environment's thread made one with the current policy; the others
+    /// (passes of a policy that new weights replaced meanwhile, a few per
+    /// update, or of a policy without the CPU's own pass) run here, one at
+    /// a time: spread over rayon's threads they would compete with the
     /// environments' own.
-    fn act_with_passes(
+    fn act(
         &mut self,
         inputs: &[(&Observation, Option<&[f32]>)],
         passes: Vec<Option<PolicyPass>>,
@@ -316,83 +310,6 @@ impl<'a> Actor<'a> {
         (full || outcome.done || stopping).then_some(outcome.done)
     }
 
-    /// Starts the next episode in each of `slots` (resets in parallel, the
-    /// first frames through the U-Net in one batch); a slot gets none once
-    /// `max_episodes` have started.
-    fn start_episodes(&mut self, slots: Vec<&mut Slot>) -> anyhow::Result<()> {
-        let mut starting = Vec::new();
-        for slot in slots {
-            match self.next_episode_id() {
-                Some(id) => starting.push((slot, id)),
-                None => slot.episode = None,
-            }
-        }
-        let (mut slots, ids): (Vec<&mut Slot>, Vec<u64>) = starting.into_iter().unzip();
-        let seeds: Vec<u64> = ids.iter().map(|&id| self.seed_of(id)).collect();
-        let observations = lockstep::reset_all(
-            &mut envs_of(&mut slots),
-            &seeds,
-            self.read_model().as_ref(),
-            self.inference,
-        )?;
-        for ((slot, id), observation) in slots.into_iter().zip(ids).zip(observations) {
-            slot.episode = Some(self.begin_episode(id, observation));
-        }
-        Ok(())
-    }
-
-    /// One step of every slot with a running episode: the policy over all
-    /// observations in one batch, the actions in parallel, the U-Net over
-    /// all new frames in one batch. Full chunks go to the learner; ended
-    /// episodes (or all, once `stopping`) are finished and reported.
-    /// Returns the slots whose episodes ended.
-    fn step_all<'s>(
-        &mut self,
-        slots: &'s mut [Slot],
-        stopping: bool,
-    ) -> anyhow::Result<Vec<&'s mut Slot>> {
-        let mut running: Vec<&mut Slot> =
-            slots.iter_mut().filter(|s| s.episode.is_some()).collect();
-        let acted = {
-            let inputs: Vec<_> = running
-                .iter()
-                .filter_map(|s| s.episode.as_ref())
-                .map(|e| (&e.observation, e.hidden.as_deref()))
-                .collect();
-            self.act(&inputs)?
-        };
-        let actions: Vec<u32> = acted.iter().map(|a| a.action).collect();
-        let (outcomes, observations): (Vec<StepOutcome>, Vec<Observation>) = lockstep::step_all(
-            &mut envs_of(&mut running),
-            &actions,
-            self.read_model().as_ref(),
-            self.inference,
-        )?
-        .into_iter()
-        .unzip();
-        // The slots whose chunk goes out now, and whether their episode ended.
-        let mut closing = Vec::with_capacity(running.len());
-        for (((slot, acted), outcome), observation) in running
-            .iter_mut()
-            .zip(acted)
-            .zip(&outcomes)
-            .zip(observations)
-        {
-            let episode = slot.episode.as_mut().context("a running episode")?;
-            if let Some(done) = self.record_step(episode, acted, outcome, observation, stopping) {
-                closing.push((episode, ChunkClose::after(done, None)));
-            }
-        }
-        self.close_chunks(closing)?;
-        let ended: Vec<&mut Slot> = running
-            .into_iter()
-            .zip(&outcomes)
-            .filter(|(_, o)| o.done || stopping)
-            .map(|(slot, _)| slot)
-            .collect();
-        self.finish_episodes(ended)
-    }
-
     /// Sends the chunks of `episodes`, each closed as its [`ChunkClose`]
     /// says: those cut mid-episode whose bootstrap value is not known yet get
     /// the critic's value of their next observation, in one batch.
@@ -426,30 +343,6 @@ impl<'a> Actor<'a> {
         Ok(())
     }
 
-    /// Ends the episodes of `ended` (labelling in parallel) and sends their
-    /// labelled frames and stats.
-    fn finish_episodes<'s>(
-        &mut self,
-        ended: Vec<&'s mut Slot>,
-    ) -> anyhow::Result<Vec<&'s mut Slot>> {
-        let mut finishing: Vec<(&mut Slot, RunningEpisode)> = ended
-            .into_iter()
-            .filter_map(|slot| slot.episode.take().map(|e| (slot, e)))
-            .collect();
-        // Read before the environment lets go of the episode.
-        let scenes: Vec<u32> = finishing.iter().map(|(s, _)| s.env.scene_index()).collect();
-        let ends: Vec<EpisodeEnd> = finishing
-            .par_iter_mut()
-            .map(|(slot, episode)| slot.env.finish_episode(episode.id))
-            .collect::<anyhow::Result<_>>()?;
-        let mut slots = Vec::new();
-        for (((slot, episode), end), scene) in finishing.into_iter().zip(ends).zip(scenes) {
-            self.publish_end(&episode, end, scene)?;
-            slots.push(slot);
-        }
-        Ok(slots)
-    }
-
     /// Sends an ended episode's labelled frames and stats (`scene`: the
     /// scene it ran in).
     fn publish_end(
@@ -481,10 +374,10 @@ impl<'a> Actor<'a> {
 }
 
 /// Runs episodes in every environment of `envs` until `stop` is set or
-/// `max_episodes` are done: free-running where that pays
-/// (`free_running::suits`), in lock-step otherwise. `model` is the affordance
-/// U-Net for environments with a camera (it takes the learner's new
-/// U-Nets); environments without one need none.
+/// `max_episodes` are done, each environment on a thread of its own
+/// ([`scheduler`]). `model` is the affordance U-Net for environments with a
+/// camera (it takes the learner's new U-Nets); environments without one
+/// need none.
 pub fn run(
     envs: Vec<Box<dyn Environment>>,
     model: Option<AffordanceModel>,
@@ -548,13 +441,10 @@ pub fn run(
         policy.unet_version,
         envs.len()
     );
-    let mut slots: Vec<Slot> = envs
-        .into_iter()
-        .map(|env| Slot { env, episode: None })
-        .collect();
+    let mut envs = envs;
     if let Some(steps) = policy.env_steps {
-        for slot in &mut slots {
-            slot.env.set_global_steps(steps);
+        for env in &mut envs {
+            env.set_global_steps(steps);
         }
     }
     let seed = process_seed(settings.seed, policy.env_steps.unwrap_or(0));
@@ -563,7 +453,7 @@ pub fn run(
         transport,
         settings,
         device,
-        inference: lockstep::Inference::for_device(device),
+        inference: Inference::for_device(device),
         model: &model,
         policy,
         seed,
@@ -573,31 +463,7 @@ pub fn run(
         backoff: Backoff::default(),
         rejected_weights,
     };
-    if free_running::suits(&actor, slots.len()) {
-        eprintln!(
-            "actor {}: the environments run free, each on its own thread",
-            settings.actor_id
-        );
-        let envs = slots.into_iter().map(|s| s.env).collect();
-        free_running::run(&mut actor, envs, stop)?;
-        return Ok(actor.summary());
-    }
-    if !stop.load(Ordering::Relaxed) {
-        actor.start_episodes(slots.iter_mut().collect())?;
-    }
-    while slots.iter().any(|s| s.episode.is_some()) {
-        let taken = actor.refresh_weights()?;
-        if let Some(steps) = actor.wait_while_held(stop)?.or(taken) {
-            for slot in &mut slots {
-                slot.env.set_global_steps(steps);
-            }
-        }
-        let stopping = stop.load(Ordering::Relaxed);
-        let ended = actor.step_all(&mut slots, stopping)?;
-        if !stopping && !stop.load(Ordering::Relaxed) {
-            actor.start_episodes(ended)?;
-        }
-    }
+    scheduler::run(&mut actor, envs, stop)?;
     Ok(actor.summary())
 }
 
@@ -689,9 +555,8 @@ mod tests {
     /// A chunk cut mid-episode bootstraps from the critic's value of the
     /// episode's next observation, which the next chunk's first step carries
     /// as its value (one policy version throughout); an episode's last chunk
-    /// bootstraps from nothing. In lock-step (one environment) and
-    /// free-running (two, where the pass that chose the next action gives
-    /// the value).
+    /// bootstraps from nothing; with one environment and with two (the
+    /// pass that chose the next action gives the value).
     #[test]
     fn a_cut_chunk_bootstraps_from_the_value_its_next_step_carries() {
         for envs in [1, 2] {

@@ -21,4 +21,5 @@ pub mod ladder_labels;
 pub mod mapping;
 pub(crate) mod recording;
 pub mod results;
+pub mod sampling;
 pub mod sim_view;

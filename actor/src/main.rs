@@ -129,11 +129,10 @@ struct RunArgs {
     #[arg(long)]
     max_episodes: Option<u64>,
     /// Environments this actor runs side by side, each on a thread of its
-    /// own. On a GPU they step in lock-step and the U-Net and the policy see
-    /// all their frames in one batch: batches are how one actor process
-    /// keeps it busy. On a CPU this uses more cores, like more actors would;
-    /// for methods with a map (their steps' times vary) the environments
-    /// run free, none waiting for the others. Default: [actors] envs, else 1.
+    /// own and none waiting for the others. On a GPU the U-Net sees their
+    /// frames in batches: batches are how one actor process keeps it busy.
+    /// On a CPU this uses more cores, like more actors would. Default:
+    /// [actors] envs, else 1.
     #[arg(long, value_parser = clap::value_parser!(u16).range(1..=256))]
     envs: Option<u16>,
     /// Seconds to wait for the learner's first weights before giving up.

@@ -4,7 +4,11 @@
 use actor::env::actions::{random_allowed_action, PolicyAction};
 use actor::env::affordance_model::AffordanceModel;
 use actor::env::sim_env::{ActionOutcome, SimEnv, SimEnvConfig, SimObservation};
+use actor::env::step_phases::step_phases;
 use actor::env::Environment;
+use actor::sampling::env_threads::{Done, EnvThreads, Task};
+use actor::sampling::unet_batcher::batch_times;
+use actor::sampling::Inference;
 use foxglove::messages::{CameraCalibration, FrameTransform, Grid, RawImage, SceneUpdate};
 use foxglove::Decode;
 use mapper::Affordance;
@@ -16,6 +20,7 @@ use sim::ithor::SceneSet;
 use sim::profile::RobotProfile;
 use sim::renderer::{Renderer, RendererChoice};
 use sim::scenes::SceneSource;
+use std::sync::RwLock;
 
 const AFFORDANCES: [Affordance; 2] = [Affordance::PickUp, Affordance::Push];
 
@@ -492,44 +497,60 @@ fn methods_without_a_map_fit_their_layout_and_label_from_interaction_points() {
 }
 
 /// `seeds.len()` environments of `task` stepped together for `steps` steps
-/// (random allowed actions, a generator per environment seeded like it):
-/// every environment's observations.
+/// on the actor's threads (random allowed actions, a generator per
+/// environment seeded like it): every environment's observations.
 fn play_together(
     task: &proto::TaskSpec,
-    model: &AffordanceModel,
+    model: &RwLock<Option<AffordanceModel>>,
     seeds: &[u64],
     steps: usize,
-    inference: actor::env::lockstep::Inference,
+    inference: Inference,
 ) -> Vec<Vec<actor::env::Observation>> {
-    use actor::env::lockstep::{reset_all, step_all};
-    let mut envs: Vec<_> = seeds
+    let envs: Vec<actor::env::FlatSimEnv> = seeds
         .iter()
         .map(|_| actor::env::FlatSimEnv::new(environment(steps), task).unwrap())
         .collect();
+    let spaces: Vec<_> = envs
+        .iter()
+        .map(|e| e.inner().action_space().clone())
+        .collect();
     let mut rngs: Vec<StdRng> = seeds.iter().map(|&s| StdRng::seed_from_u64(s)).collect();
-    let mut refs: Vec<&mut actor::env::FlatSimEnv> = envs.iter_mut().collect();
-    let mut observations = reset_all(&mut refs, seeds, Some(model), inference).unwrap();
-    let mut traces: Vec<Vec<_>> = observations.iter().map(|o| vec![o.clone()]).collect();
-    for _ in 0..steps {
-        let actions: Vec<u32> = (0..seeds.len())
-            .map(|i| {
-                let space = refs[i].inner().action_space();
-                random_allowed_action(space, &observations[i].action_mask, 0.5, &mut rngs[i]) as u32
-            })
+    let mut traces: Vec<Vec<actor::env::Observation>> = vec![Vec::new(); seeds.len()];
+    std::thread::scope(|scope| {
+        let boxed = envs
+            .into_iter()
+            .map(|e| Box::new(e) as Box<dyn Environment>)
             .collect();
-        let results = step_all(&mut refs, &actions, Some(model), inference).unwrap();
-        observations = results.into_iter().map(|(_, o)| o).collect();
-        for (trace, o) in traces.iter_mut().zip(&observations) {
-            trace.push(o.clone());
+        let threads = EnvThreads::start(scope, boxed, model, inference);
+        for (index, &seed) in seeds.iter().enumerate() {
+            threads.send(index, Task::Reset(seed)).unwrap();
         }
-    }
+        let mut running = seeds.len();
+        while running > 0 {
+            let (index, done) = threads.next().unwrap();
+            let observation = match done {
+                Done::Reset(observation, _) | Done::Step(_, observation, _) => observation,
+                Done::Finish { .. } => panic!("no episode was ended"),
+            };
+            traces[index].push(observation.clone());
+            if traces[index].len() > steps {
+                running -= 1;
+                continue;
+            }
+            let mask = &observation.action_mask;
+            let action = random_allowed_action(&spaces[index], mask, 0.5, &mut rngs[index]);
+            threads
+                .send(index, Task::Step(action as u32, None))
+                .unwrap();
+        }
+    });
     traces
 }
 
 #[test]
-fn environments_in_lock_step_play_exactly_the_episodes_they_play_alone() {
+fn environments_on_the_actors_threads_play_exactly_the_episodes_they_play_alone() {
     let steps = 10;
-    let model = unet();
+    let model = RwLock::new(Some(unet()));
     let task = proto::TaskSpec {
         method: Method::Ours,
         affordances: AFFORDANCES.to_vec(),
@@ -540,14 +561,15 @@ fn environments_in_lock_step_play_exactly_the_episodes_they_play_alone() {
     // Each environment alone, its actions drawn from its own generator.
     let mut alone = Vec::new();
     for &seed in &seeds {
+        let model = model.read().unwrap();
         let mut env = actor::env::FlatSimEnv::new(environment(steps), &task).unwrap();
         let mut rng = StdRng::seed_from_u64(seed);
-        let mut observation = env.reset(seed, Some(&model)).unwrap();
+        let mut observation = env.reset(seed, model.as_ref()).unwrap();
         let mut trace = vec![observation.clone()];
         for _ in 0..steps {
             let space = env.inner().action_space();
             let action = random_allowed_action(space, &observation.action_mask, 0.5, &mut rng);
-            let (outcome, next) = env.step(action as u32, Some(&model)).unwrap();
+            let (outcome, next) = env.step(action as u32, model.as_ref()).unwrap();
             trace.push(next.clone());
             observation = next;
             assert!(outcome.reward.is_finite());
@@ -556,29 +578,33 @@ fn environments_in_lock_step_play_exactly_the_episodes_they_play_alone() {
     }
     assert!(alone[0] != alone[1], "two seeds, two episodes");
     // Together, each with its U-Net pass on its own thread (the CPU's way):
-    // exactly the same episodes.
-    use actor::env::lockstep::Inference;
+    // exactly the same episodes, each step's phases timed.
+    let phases_before = step_phases();
     let threaded = play_together(&task, &model, &seeds, steps, Inference::PerEnvironment);
     for (i, (a, b)) in alone.iter().zip(&threaded).enumerate() {
         assert!(
             a == b,
-            "environment {i} played another episode in lock-step"
+            "environment {i} played another episode on its thread"
         );
     }
-    // Together, the U-Net over both frames in one pass (the GPU's way): a
-    // batch may round differently in the last bits, so the state may differ
-    // by a byte level; the masks, and so the actions, are the same.
-    let before = actor::env::lockstep::phase_times();
-    let batched = play_together(&task, &model, &seeds, steps, Inference::Batched);
-    // Its reset and steps were timed, phase by phase (other tests of this
-    // binary may add rounds of their own meanwhile).
-    let phases = actor::env::lockstep::phase_times().since(&before);
-    assert!(phases.rounds > steps as u64, "{phases:?}");
+    // (Other tests of this binary may add steps of their own meanwhile.)
+    let phases = step_phases().since(&phases_before);
+    assert!(phases.steps >= (seeds.len() * steps) as u64, "{phases:?}");
     assert!(
-        [phases.first_halves, phases.unet, phases.second_halves]
+        [phases.acting, phases.unet, phases.state]
             .iter()
             .all(|d| !d.is_zero()),
         "{phases:?}"
+    );
+    // Together, the frames through the batching thread (the GPU's way): a
+    // batch may round differently in the last bits, so the state may differ
+    // by a byte level; the masks, and so the actions, are the same.
+    let batches_before = batch_times();
+    let batched = play_together(&task, &model, &seeds, steps, Inference::Batched);
+    let batches = batch_times().since(&batches_before);
+    assert!(
+        batches.frames >= (seeds.len() * (steps + 1)) as u64,
+        "{batches:?}"
     );
     for (i, (a, b)) in alone.iter().zip(&batched).enumerate() {
         for (step, (x, y)) in a.iter().zip(b).enumerate() {

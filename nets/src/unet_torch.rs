@@ -5,7 +5,7 @@
 //! in between.
 //!
 //! Why it exists: an actor on a GPU sends every camera frame through the
-//! U-Net, in batches of one thread (`actor::env::unet_batcher`), which
+//! U-Net, in batches of one thread (`actor::sampling::unet_batcher`), which
 //! bounds the process's steps per second. On an H200 at 128 px a call
 //! through libtorch's own calls is faster than burn's at every batch size
 //! (`cargo bench -p nets --bench unet_inference`; docs/performance.md,

@@ -4,7 +4,6 @@
 use burn::prelude::*;
 use nets::unet::AffordanceUnet;
 use nets::unet_inference::UnetInference;
-use rayon::prelude::*;
 
 /// The U-Net the actor infers with, and its calibration.
 #[derive(Debug)]
@@ -55,33 +54,11 @@ impl AffordanceModel {
 
     /// Per affordance, the `h · w` probability plane of one frame.
     pub fn predict(&self, frame: &CameraFrame<'_>) -> Vec<Vec<f32>> {
-        self.predict_batch(std::slice::from_ref(frame))
+        let input = network_input(frame);
+        self.logits(&[&input], frame.height, frame.width)
             .pop()
+            .map(|logits| logits.probabilities())
             .unwrap_or_default()
-    }
-
-    /// [`AffordanceModel::predict`] for several frames of one size (on a GPU
-    /// in one forward pass; the inputs and probabilities on every core).
-    ///
-    /// # Panics
-    /// If the frames differ in size: an actor's environments share one task.
-    pub(crate) fn predict_batch(&self, frames: &[CameraFrame<'_>]) -> Vec<Vec<Vec<f32>>> {
-        let Some(first) = frames.first() else {
-            return Vec::new();
-        };
-        let (height, width) = (first.height, first.width);
-        assert!(
-            frames
-                .iter()
-                .all(|f| (f.height, f.width) == (height, width)),
-            "frames of one batch share a size"
-        );
-        let inputs: Vec<Vec<f32>> = frames.par_iter().map(network_input).collect();
-        let inputs: Vec<&[f32]> = inputs.iter().map(Vec::as_slice).collect();
-        self.logits(&inputs, height, width)
-            .par_iter()
-            .map(Logits::probabilities)
-            .collect()
     }
 
     /// The network's output for `inputs` ([`network_input`]s of frames of
@@ -98,6 +75,20 @@ impl AffordanceModel {
                 temperature: self.temperature,
             })
             .collect()
+    }
+}
+
+/// The U-Net's planes for an environment's camera `frame`, as its
+/// observation takes them: none without a camera, an error for a frame with
+/// no U-Net to see it.
+pub fn planes_for(
+    frame: Option<CameraFrame<'_>>,
+    model: Option<&AffordanceModel>,
+) -> anyhow::Result<Vec<Vec<f32>>> {
+    match (frame, model) {
+        (None, _) => Ok(Vec::new()),
+        (Some(frame), Some(model)) => Ok(model.predict(&frame)),
+        (Some(_), None) => anyhow::bail!("this environment's camera frames need the U-Net"),
     }
 }
 
@@ -218,9 +209,15 @@ mod tests {
                 width: w,
             })
             .collect();
-        // One burn pass over three frames (the GPU's way) against each
-        // frame alone through the CPU path.
-        let one_pass = model.predict_batch(&frames);
+        // One burn pass over three frames (the GPU's way, as the batching
+        // thread makes it) against each frame alone through the CPU path.
+        let inputs: Vec<Vec<f32>> = frames.iter().map(network_input).collect();
+        let inputs: Vec<&[f32]> = inputs.iter().map(Vec::as_slice).collect();
+        let one_pass: Vec<Vec<Vec<f32>>> = model
+            .logits(&inputs, h, w)
+            .iter()
+            .map(Logits::probabilities)
+            .collect();
         assert_eq!(one_pass.len(), 3);
         for (k, frame) in frames.iter().enumerate() {
             let alone = cpu.predict(frame);

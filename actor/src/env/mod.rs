@@ -5,17 +5,13 @@ pub mod affordance_model;
 mod bandit_fixture;
 pub(crate) mod episode_metrics;
 mod flat_sim_env;
-pub mod lockstep;
-mod named_thread;
 pub(crate) mod object_memory;
 pub mod reward;
 pub mod sim_env;
 pub mod state;
 pub mod step_phases;
-pub mod threads;
-mod time_tally;
+pub(crate) mod time_tally;
 mod training_rooms;
-pub mod unet_batcher;
 
 pub use bandit_fixture::BanditFixture;
 pub use flat_sim_env::FlatSimEnv;
@@ -23,7 +19,6 @@ pub use training_rooms::training_rooms;
 
 use std::time::Duration;
 
-use anyhow::Context;
 use proto::{FrameBatch, PolicyLayout, StatKey};
 
 use affordance_model::{AffordanceModel, CameraFrame};
@@ -104,9 +99,9 @@ pub trait Environment: Send {
     where
         Self: Sized,
     {
-        let inference = lockstep::Inference::PerEnvironment;
-        let mut observations = lockstep::reset_all(&mut [self], &[seed], model, inference)?;
-        observations.pop().context("a reset observes")
+        self.begin_reset(seed)?;
+        let planes = affordance_model::planes_for(self.camera_frame(), model)?;
+        self.observe(planes)
     }
 
     /// Both halves of a step, `model` seeing the camera frame (an
@@ -119,8 +114,8 @@ pub trait Environment: Send {
     where
         Self: Sized,
     {
-        let inference = lockstep::Inference::PerEnvironment;
-        let mut steps = lockstep::step_all(&mut [self], &[action], model, inference)?;
-        steps.pop().context("a step observes")
+        let outcome = self.begin_step(action)?;
+        let planes = affordance_model::planes_for(self.camera_frame(), model)?;
+        Ok((outcome, self.observe(planes)?))
     }
 }

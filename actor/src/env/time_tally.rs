@@ -1,6 +1,6 @@
 //! A process-wide running total of time, for the counters benchmarks and
 //! an actor's last lines read as the difference of two readings (the
-//! lock-step phases, the U-Net's batches, the environments' steps).
+//! U-Net's batches, the environments' steps).
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;

@@ -17,8 +17,9 @@ use rayon::prelude::*;
 use transport::{ActorPorts, ReceivedMessage};
 
 use crate::env::affordance_model::AffordanceModel;
-use crate::env::threads::PolicyPass;
-use crate::env::{lockstep, Observation};
+use crate::env::Observation;
+use crate::sampling::env_threads::PolicyPass;
+use crate::sampling::Inference;
 
 /// The broadcast policy the actor acts with.
 pub(super) struct Policy {
@@ -134,9 +135,9 @@ pub(super) fn forward_batch(
     policy: &Policy,
     inputs: &[(&Observation, Option<&[f32]>)],
     device: &Device,
-    inference: lockstep::Inference,
+    inference: Inference,
 ) -> anyhow::Result<Vec<PolicyStep>> {
-    let per_observation = policy.cpu.is_some() || inference == lockstep::Inference::PerEnvironment;
+    let per_observation = policy.cpu.is_some() || inference == Inference::PerEnvironment;
     if inputs.len() > 1 && per_observation {
         return inputs
             .par_iter()
@@ -240,18 +241,6 @@ fn masked(mut log_probs: Vec<f32>, mask: &[u8]) -> Vec<f32> {
     log_probs
 }
 
-/// One action per environment sampled from the policy in one batch; the
-/// `uniforms` decide the draws.
-pub(super) fn act_batch(
-    policy: &Policy,
-    inputs: &[(&Observation, Option<&[f32]>)],
-    uniforms: &[f32],
-    device: &Device,
-    inference: lockstep::Inference,
-) -> anyhow::Result<Vec<Acted>> {
-    choose(forward_batch(policy, inputs, device, inference)?, uniforms)
-}
-
 /// One action per policy step, sampled as the `uniforms` decide.
 pub(super) fn choose(steps: Vec<PolicyStep>, uniforms: &[f32]) -> anyhow::Result<Vec<Acted>> {
     anyhow::ensure!(
@@ -340,13 +329,7 @@ mod tests {
         // One pass over the batch (as on a GPU) against one per environment.
         let batched = forward(&policy, &inputs, &device).unwrap();
         assert_eq!(batched.len(), 3);
-        let threaded = forward_batch(
-            &policy,
-            &inputs,
-            &device,
-            lockstep::Inference::PerEnvironment,
-        )
-        .unwrap();
+        let threaded = forward_batch(&policy, &inputs, &device, Inference::PerEnvironment).unwrap();
         assert_eq!(threaded.len(), 3);
         let close = |a: f32, b: f32| (a == b) || (a - b).abs() < 1e-5;
         for (k, (input, together)) in inputs.iter().zip(&batched).enumerate() {

@@ -4,13 +4,11 @@
 //! waiting in one forward pass. The environments' threads make the inputs
 //! and the probabilities, so the batching thread does nothing but the pass.
 //!
-//! Why: in lock-step ([`super::lockstep`]) a GPU sees all environments'
-//! frames in one batch, but every step of every environment waits for the
-//! slowest one, and no environment works while the U-Net runs. Here nobody
-//! waits at a barrier, and the batches size themselves: while one batch
-//! runs, the frames of the environments that finish their first halves
-//! meanwhile queue up for the next, so the busier the U-Net, the larger its
-//! batches.
+//! Why: a GPU's batch of frames costs little more than one frame, and
+//! nobody waits at a barrier for a batch to fill: the batches size
+//! themselves. While one batch runs, the frames of the environments that
+//! finish their first halves meanwhile queue up for the next, so the
+//! busier the U-Net, the larger its batches.
 //!
 //! `AFX_UNET_BATCHERS=2` (up to 4) starts that many batching threads on one
 //! queue, each taking every frame waiting when it is free: one batch's
@@ -27,9 +25,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Context};
 
-use super::affordance_model::{network_input, AffordanceModel, CameraFrame, Logits};
 use super::named_thread::spawn_named;
-use super::time_tally::TimeTally;
+use crate::env::affordance_model::{network_input, AffordanceModel, CameraFrame, Logits};
+use crate::env::time_tally::TimeTally;
 
 /// A frame's logits (or why there are none).
 type Reply = Result<Logits, String>;

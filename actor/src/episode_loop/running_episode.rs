@@ -1,18 +1,11 @@
-//! An environment of the actor with its running episode, and how a rollout
-//! chunk that goes out closes.
+//! A running episode's bookkeeping, and how a rollout chunk that goes out
+//! closes.
 
 use std::time::Instant;
 
 use proto::RolloutChunk;
 
-use crate::env::{Environment, Observation};
-
-/// One environment of the actor and its running episode.
-pub(super) struct Slot {
-    pub(super) env: Box<dyn Environment>,
-    /// `None` once the actor starts no more episodes here.
-    pub(super) episode: Option<RunningEpisode>,
-}
+use crate::env::Observation;
 
 /// The bookkeeping of one running episode.
 pub(super) struct RunningEpisode {
@@ -50,9 +43,4 @@ impl ChunkClose {
             ChunkClose::Cut(next_value)
         }
     }
-}
-
-/// The environments of `slots`, for [`crate::env::lockstep`].
-pub(super) fn envs_of<'a>(slots: &'a mut [&mut Slot]) -> Vec<&'a mut (dyn Environment + 'static)> {
-    slots.iter_mut().map(|s| s.env.as_mut()).collect()
 }

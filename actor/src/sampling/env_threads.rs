@@ -1,19 +1,13 @@
 //! Environments on threads of their own, none waiting for the others.
 //!
-//! Why: in lock-step ([`super::lockstep`]) every step of every environment
-//! waits for the slowest one. On the CPU, where each environment runs its
-//! U-Net pass on its own thread anyway, that wait is most of what two
-//! environments lose against two cores: over a 600-step `ours` episode the
-//! slower of two environments takes longer per step than their mean (the
-//! env bench; docs/performance.md, "One actor"). [`EnvThreads`] hands each environment its next
-//! reset, step or episode end as soon as its last one is done, and the
-//! caller books whichever finishes first; an episode's end (labelling, tens
-//! of milliseconds) no longer holds up the others either.
+//! [`EnvThreads`] hands each environment its next reset, step or episode end
+//! as soon as its last one is done, and the caller books whichever finishes
+//! first: no step waits for the slowest environment's, and an episode's end
+//! (labelling, tens of milliseconds) holds up no other environment.
 //!
 //! Each environment's thread runs in a rayon pool of one thread, so that the
-//! map's parallel loops inside a step stay on that thread (as they did when
-//! a lock-step environment ran on a worker of the shared pool) instead of
-//! handing work to a pool whose threads compete with the environments.
+//! map's parallel loops inside a step stay on that thread instead of handing
+//! work to a pool whose threads compete with the environments.
 //!
 //! The U-Net sees each camera frame on its environment's thread
 //! ([`Inference::PerEnvironment`], the CPU) or in the batches of one thread
@@ -36,12 +30,12 @@ use std::time::Instant;
 use anyhow::{anyhow, Context};
 use nets::policy::{CpuPolicy, CpuPolicyStep};
 
-use super::affordance_model::AffordanceModel;
-use super::lockstep::Inference;
 use super::named_thread::spawn_named;
-use super::step_phases::{self, StepPhases};
 use super::unet_batcher::{self, UnetClient};
-use super::{Environment, EpisodeEnd, Observation, StepOutcome};
+use super::Inference;
+use crate::env::affordance_model::{planes_for, AffordanceModel};
+use crate::env::step_phases::{self, StepPhases};
+use crate::env::{Environment, EpisodeEnd, Observation, StepOutcome};
 
 /// Work for an environment.
 #[derive(Debug, Clone, PartialEq)]
@@ -198,17 +192,16 @@ enum Unet<'env> {
 impl Unet<'_> {
     /// The planes for `env`'s camera frame (none without a camera).
     fn planes_for(&self, env: &dyn Environment) -> anyhow::Result<Vec<Vec<f32>>> {
-        let Some(frame) = env.camera_frame() else {
-            return Ok(Vec::new());
-        };
-        match self {
-            Unet::OnThisThread(model) => Ok(model
-                .read()
-                .unwrap_or_else(PoisonError::into_inner)
-                .as_ref()
-                .context("this environment's camera frames need the U-Net")?
-                .predict(&frame)),
-            Unet::Batched(client) => client.predict(&frame),
+        match (self, env.camera_frame()) {
+            (_, None) => Ok(Vec::new()),
+            (Unet::OnThisThread(model), frame) => planes_for(
+                frame,
+                model
+                    .read()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .as_ref(),
+            ),
+            (Unet::Batched(client), Some(frame)) => client.predict(&frame),
         }
     }
 }

@@ -1,10 +1,11 @@
-//! The loop over free-running environments ([`EnvThreads`]): this thread
-//! keeps the bookkeeping, the policy and the learner's ports, and gives each
-//! environment its next task as soon as its last one is done.
+//! The actor's one scheduler: its environments run on threads of their own
+//! ([`EnvThreads`], `crate::sampling`); this thread keeps the bookkeeping,
+//! the policy and the learner's ports, and gives each environment its next
+//! task as soon as its last one is done.
 //!
-//! Unlike lock-step, which environment starts which episode (and so draws
+//! With several environments, which one starts which episode (and so draws
 //! which random numbers) depends on timing; each episode's reset seed is
-//! still its id's.
+//! still its id's, and with one environment a run is what its seeds make.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -12,9 +13,9 @@ use std::time::Instant;
 use super::loop_clock::{Chore, LoopClock};
 use super::{Acted, Actor, ChunkClose, RunningEpisode};
 use crate::env::step_phases::step_phases;
-use crate::env::threads::{Done, EnvThreads, PolicyPass, Task};
-use crate::env::unet_batcher::batch_times;
 use crate::env::{Environment, Observation, StepOutcome};
+use crate::sampling::env_threads::{Done, EnvThreads, PolicyPass, Task};
+use crate::sampling::unet_batcher::batch_times;
 
 /// Where an environment is, as the loop sees it.
 enum Phase {
@@ -28,21 +29,7 @@ enum Phase {
     Finishing(RunningEpisode),
 }
 
-/// Whether `envs` environments should run free: several of them, and a
-/// policy with the CPU's own pass (`nets::policy::CpuPolicy`), which the
-/// environments' threads run on their observations (a GRU's state goes
-/// with each step's task). Free-running, nobody waits for the slowest
-/// environment at a barrier. Measured with the env bench, policy included
-/// (docs/performance.md, "One actor"): on the VM's CPU two free-running
-/// environments make about what two in lock-step make; on an H200 at
-/// 128 px with 16 and 32 environments, the U-Net's frames batched by one
-/// thread (`crate::env::unet_batcher`), free-running makes clearly more
-/// steps.
-pub(super) fn suits(actor: &Actor<'_>, envs: usize) -> bool {
-    envs > 1 && actor.policy.cpu.is_some()
-}
-
-/// Runs `envs` free-running until `stop` is set or `max_episodes` are done.
+/// Runs `envs` until `stop` is set or `max_episodes` are done.
 pub(super) fn run(
     actor: &mut Actor<'_>,
     envs: Vec<Box<dyn Environment>>,
@@ -186,7 +173,7 @@ fn drive(
             let passes = waiting.iter_mut().map(|w| w.pass.take()).collect();
             let inputs: Vec<_> = waiting.iter().map(Waiting::input).collect();
             let acted = clock.time(Chore::Actions, || -> anyhow::Result<_> {
-                let acted = actor.act_with_passes(&inputs, passes)?;
+                let acted = actor.act(&inputs, passes)?;
                 anyhow::ensure!(acted.len() == waiting.len(), "the policy acted for each");
                 for (w, acted) in waiting.iter().zip(&acted) {
                     threads.send(w.index, Task::Step(acted.action, acted.hidden.clone()))?;
