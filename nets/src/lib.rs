@@ -16,9 +16,7 @@
 //! - `unet_conv_cpu`: the U-Net's 3 × 3 convolutions with their ReLU as
 //!   one differentiable operation on the CPU (its training step);
 //! - `unet_torch` (`gpu-torch`): the U-Net's inference pass straight on
-//!   libtorch;
-//! - `unet_train_torch` (`gpu-torch`): the same pass as one differentiable
-//!   operation whose backward step is libtorch's (the U-Net's training step);
+//!   libtorch (which `training::unet_train_torch` trains through);
 //! - [`unet_inference`]: which of these a device gets;
 //! - [`weights`]: either network to and from safetensors bytes;
 //! - [`device`]: `--device cpu|gpu` at run time;
@@ -38,8 +36,6 @@ pub mod unet_cpu;
 pub mod unet_inference;
 #[cfg(feature = "gpu-torch")]
 pub mod unet_torch;
-#[cfg(feature = "gpu-torch")]
-mod unet_train_torch;
 pub mod weights;
 
 pub use masked_categorical::sample;

@@ -99,7 +99,7 @@ impl AffordanceUnet {
     /// then per decoder level, deep to shallow, the transposed convolution
     /// and its two convolutions, then the head.
     #[cfg(feature = "gpu-torch")]
-    pub(crate) fn layers(&self) -> Vec<(Tensor<4>, Option<Tensor<1>>)> {
+    pub fn layers(&self) -> Vec<(Tensor<4>, Option<Tensor<1>>)> {
         let params = |layer: &Conv2d| (layer.weight.val(), layer.bias.as_ref().map(|b| b.val()));
         let mut layers = Vec::new();
         for level in &self.down {
@@ -115,20 +115,12 @@ impl AffordanceUnet {
     }
 
     /// `[batch, channels, h, w]` → logits `[batch, affordances, h, w]`
-    /// (apply a sigmoid, after the learner's temperature scaling, for probabilities).
-    /// Training on libtorch, the whole pass is one operation with
-    /// libtorch's own backward step (`unet_train_torch`).
+    /// (apply a sigmoid, after the learner's temperature scaling, for
+    /// probabilities), one layer after another, each the backend's
+    /// operations (on the CPU the 3 × 3 convolutions `unet_conv_cpu`'s).
+    /// Training on libtorch takes the whole pass as one operation instead
+    /// (`training::unet_train_torch`).
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        #[cfg(feature = "gpu-torch")]
-        if let Some(out) = crate::unet_train_torch::forward(|| self.layers(), &x) {
-            return out;
-        }
-        self.forward_layer_by_layer(x)
-    }
-
-    /// [`AffordanceUnet::forward`] one layer after another, each the
-    /// backend's operations.
-    pub(crate) fn forward_layer_by_layer(&self, x: Tensor<4>) -> Tensor<4> {
         let mut skips = Vec::with_capacity(3);
         let mut x = self.down[0].forward(x);
         for level in &self.down[1..] {

@@ -120,7 +120,7 @@ impl TorchUnet {
 /// How many tensors [`forward`] takes for the U-Net's layers: a weight and
 /// a bias for each of its 8 encoder and 6 decoder 3 × 3 convolutions, 3
 /// transposed convolutions and the 1 × 1 head.
-pub(crate) const LAYER_TENSORS: usize = 2 * (8 + 6 + 3 + 1);
+pub const LAYER_TENSORS: usize = 2 * (8 + 6 + 3 + 1);
 
 /// The U-Net's forward pass on libtorch, `[n, channels, h, w]` → logits
 /// `[n, outputs, h, w]`, from its layers' weights and biases in
@@ -128,7 +128,7 @@ pub(crate) const LAYER_TENSORS: usize = 2 * (8 + 6 + 3 + 1);
 ///
 /// # Panics
 /// If `layers` is not [`LAYER_TENSORS`] long.
-pub(crate) fn forward<T: Borrow<tch::Tensor>>(layers: &[T], x: &tch::Tensor) -> tch::Tensor {
+pub fn forward<T: Borrow<tch::Tensor>>(layers: &[T], x: &tch::Tensor) -> tch::Tensor {
     assert_eq!(layers.len(), LAYER_TENSORS, "the U-Net's layer tensors");
     let mut next = 0;
     let mut layer = || {

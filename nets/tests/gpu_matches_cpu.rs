@@ -1,7 +1,10 @@
 //! The same weights give the same outputs, and one training step the same
 //! new weights, on the CPU and the GPU backend (within float tolerance).
 //! Built only with `--features gpu` or `--features gpu-torch`; skipped with
-//! a message where no GPU is usable.
+//! a message where no GPU is usable. The U-Net's step here is its own
+//! forward pass (burn's operations); the trainer's one-operation pass on
+//! libtorch (`training::unet_train_torch`) is held to that pass by its unit
+//! test.
 //!
 //! On libtorch run it with `NVIDIA_TF32_OVERRIDE=0` (as `deploy/gpu-check.sh`
 //! does): cuDNN convolutions use TF32 by default, as in PyTorch and in the

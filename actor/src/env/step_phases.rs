@@ -1,6 +1,6 @@
 //! Where the environments' threads of this process spent their steps, in
 //! all: read as the difference of two readings, like
-//! [`super::unet_batcher::batch_times`].
+//! [`crate::sampling::unet_batcher::batch_times`].
 //!
 //! Why it exists: one actor process alone steps faster at 128 px on an H200
 //! than the whole system there with the learner beside it

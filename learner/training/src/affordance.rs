@@ -8,6 +8,16 @@ use nets::unet_inference::UnetInference;
 
 use crate::optimizer_state::{OptimizerState, OptimizerStateError};
 
+/// The U-Net's logits for a training step: on libtorch the whole pass as
+/// one operation with libtorch's backward (`unet_train_torch`), else its
+/// forward pass.
+fn logits(net: &AffordanceUnet, x: Tensor<4>) -> Tensor<4> {
+    #[cfg(feature = "gpu-torch")]
+    return crate::unet_train_torch::logits(net, x);
+    #[cfg(not(feature = "gpu-torch"))]
+    net.forward(x)
+}
+
 /// Label value of a pixel no interaction or annotation says anything about.
 pub const UNKNOWN: u8 = 255;
 
@@ -115,7 +125,7 @@ impl UnetTrainer {
     /// One gradient step on `frames`; returns the loss before the step.
     pub fn step(&mut self, frames: &[&LabelledFrame]) -> f32 {
         let (x, y, known) = batch_tensors(frames, &self.device);
-        let loss = masked_bce_dice(self.net.forward(x), y, known, self.config.class_balance);
+        let loss = masked_bce_dice(logits(&self.net, x), y, known, self.config.class_balance);
         let value = loss.clone();
         let grads = GradientsParams::from_grads(loss.backward(), &self.net);
         self.net = self

@@ -18,6 +18,8 @@ pub mod ppo;
 pub mod ppo_batcher;
 pub mod synthetic;
 pub mod temperature;
+#[cfg(feature = "gpu-torch")]
+mod unet_train_torch;
 
 // Networks on libtorch train with libtorch's own steps (`adam::libtorch`,
 // `libtorch_ops`), which this crate's `gpu-torch` builds: a binary built

@@ -71,7 +71,7 @@ fn the_unet_overfits_sixteen_labelled_frames() {
 }
 
 /// The same on libtorch: the U-Net as one libtorch operation
-/// (`nets::unet_train_torch`) and the optimiser's libtorch calls (`training::adam`).
+/// (`training::unet_train_torch`) and the optimiser's libtorch calls (`training::adam`).
 #[cfg(feature = "gpu-torch")]
 #[test]
 #[allow(deprecated)]

@@ -14,6 +14,10 @@
 //! respect to those leaves, which is exactly the operation's
 //! vector-Jacobian product, computed by the kernels PyTorch itself trains
 //! with. Only the loss and the optimiser stay burn's.
+//!
+//! It lives with the trainer, not with the network: only a training step
+//! takes it (`UnetTrainer::step`, through [`logits`]);
+//! inference and everything else run `AffordanceUnet::forward`.
 
 // burn 0.22 marks libtorch deprecated; chosen all the same
 // (docs/decisions/0010-libtorch-on-a-gpu.md).
@@ -29,7 +33,8 @@ use burn_autodiff::checkpoint::strategy::NoCheckpointing;
 use burn_autodiff::grads::Gradients;
 use burn_autodiff::ops::{Backward, Ops, OpsKind};
 
-use crate::unet_torch::{forward as unet_forward, LAYER_TENSORS};
+use nets::unet::AffordanceUnet;
+use nets::unet_torch::{forward as unet_forward, LAYER_TENSORS};
 
 /// The autodiff backend a training step's tensors live on with libtorch.
 type Tracked = Autodiff<LibTorch>;
@@ -51,11 +56,20 @@ fn chosen() -> bool {
     })
 }
 
+/// `net`'s logits for `x`: as one operation where `x` and the network are
+/// tracked on libtorch, else `AffordanceUnet::forward`.
+pub(crate) fn logits(net: &AffordanceUnet, x: Tensor<4>) -> Tensor<4> {
+    match forward(|| net.layers(), &x) {
+        Some(out) => out,
+        None => net.forward(x),
+    }
+}
+
 /// The U-Net's logits for `x` as one operation, from its layers' weights
 /// and biases (`layers` gives them, `AffordanceUnet::layers`; asked only
 /// once `x` is known to be tracked on libtorch), when `x` and the layers are
 /// tracked on libtorch; `None` otherwise.
-pub(crate) fn forward(
+fn forward(
     layers: impl FnOnce() -> Vec<(Tensor<4>, Option<Tensor<1>>)>,
     x: &Tensor<4>,
 ) -> Option<Tensor<4>> {
@@ -139,8 +153,6 @@ impl Backward<LibTorch, INPUTS> for WholeUnet {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::test_support::largest_difference;
-    use crate::unet::AffordanceUnet;
     use burn::tensor::Distribution;
 
     /// The largest difference between two tensors, and the second's scale.
@@ -148,7 +160,12 @@ mod tests {
         let a: Vec<f32> = a.into_data().try_to_vec().unwrap();
         let b: Vec<f32> = b.into_data().try_to_vec().unwrap();
         let scale = b.iter().fold(0f32, |m, v| m.max(v.abs()));
-        (largest_difference(&a, &b), scale)
+        let largest = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max);
+        (largest, scale)
     }
 
     /// Values, and the gradients of the images and of every layer's weight
@@ -163,7 +180,7 @@ mod tests {
         let x_ours = input.clone().detach().require_grad();
         let ours = forward(|| net.layers(), &x_ours).expect("tracked on libtorch");
         let x_burn = input.detach().require_grad();
-        let burns = net.forward_layer_by_layer(x_burn.clone());
+        let burns = net.forward(x_burn.clone());
         let (diff, scale) = difference(ours.clone(), burns.clone());
         assert!(
             scale > 0.01 && diff <= 1e-5 * scale,
@@ -204,7 +221,7 @@ mod tests {
     }
 
     #[test]
-    fn without_autodiff_it_leaves_the_pass_to_the_layers() {
+    fn without_autodiff_it_leaves_the_pass_to_the_network() {
         let net = AffordanceUnet::new(4, 2, &Device::libtorch());
         let x = Tensor::<4>::zeros([1, 4, 8, 8], &Device::libtorch());
         assert!(forward(|| net.layers(), &x).is_none());
