@@ -37,6 +37,27 @@ impl LabelledFrame {
     pub fn affordances(&self) -> usize {
         self.labels.len() / (self.size[0] * self.size[1])
     }
+
+    /// The frame mirrored left to right: every plane's rows reversed, the
+    /// labels with the image.
+    pub fn mirrored(&self) -> LabelledFrame {
+        let width = self.size[1];
+        let mirror = |planes: &[f32]| -> Vec<f32> {
+            planes
+                .chunks(width)
+                .flat_map(|row| row.iter().rev().copied())
+                .collect()
+        };
+        LabelledFrame {
+            size: self.size,
+            rgbd: mirror(&self.rgbd),
+            labels: self
+                .labels
+                .chunks(width)
+                .flat_map(|row| row.iter().rev().copied())
+                .collect(),
+        }
+    }
 }
 
 /// Settings of U-Net training.
@@ -204,5 +225,37 @@ pub fn evaluate(
             inter as f32 / union as f32
         },
         labelled_pixels: labelled,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_mirrored_frame_has_each_row_reversed_in_every_plane_labels_with_it() {
+        // 2 × 3 pixels, 4 image planes and 2 label planes, each value its
+        // own: (plane, row, column) read back from where it lands.
+        let (h, w) = (2, 3);
+        let frame = LabelledFrame {
+            size: [h, w],
+            rgbd: (0..4 * h * w).map(|i| i as f32).collect(),
+            labels: (0..2 * h * w).map(|i| i as u8).collect(),
+        };
+        let mirrored = frame.mirrored();
+        for plane in 0..4 {
+            for row in 0..h {
+                for col in 0..w {
+                    let at = |c: usize| (plane * h + row) * w + c;
+                    assert_eq!(mirrored.rgbd[at(col)], frame.rgbd[at(w - 1 - col)]);
+                    if plane < 2 {
+                        assert_eq!(mirrored.labels[at(col)], frame.labels[at(w - 1 - col)]);
+                    }
+                }
+            }
+        }
+        assert_ne!(mirrored.rgbd, frame.rgbd);
+        let back = mirrored.mirrored();
+        assert_eq!((back.rgbd, back.labels), (frame.rgbd, frame.labels));
     }
 }

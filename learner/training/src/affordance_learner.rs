@@ -15,7 +15,7 @@ use nets::unet_inference::UnetInference;
 use nets::weights::{load_safetensors, to_safetensors, WeightsError};
 use proto::{FrameBatchView, LABEL_UNKNOWN};
 use rand::rngs::StdRng;
-use rand::SeedableRng;
+use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
 use crate::config::UnetConfig;
@@ -204,7 +204,18 @@ impl AffordanceLearner {
             if batch.is_empty() {
                 break;
             }
-            let refs: Vec<&LabelledFrame> = batch.iter().map(|f| f.as_ref()).collect();
+            let mirrored: Vec<Option<LabelledFrame>> = batch
+                .iter()
+                .map(|f| {
+                    let mirror = self.settings.mirror_frames && self.rng.random_bool(0.5);
+                    mirror.then(|| f.mirrored())
+                })
+                .collect();
+            let refs: Vec<&LabelledFrame> = batch
+                .iter()
+                .zip(&mirrored)
+                .map(|(f, m)| m.as_ref().unwrap_or(f))
+                .collect();
             losses.push(self.trainer.step(&refs));
         }
         if losses.is_empty() {

@@ -94,6 +94,13 @@ pub struct UnetConfig {
     /// temperature weigh them the same way
     /// (docs/decisions/0011-class-balanced-loss.md).
     pub class_balance: ClassBalance,
+    /// Mirror each training frame left to right (its labels with it) with
+    /// probability one half each time a batch takes it: the same rooms seen
+    /// from the other side, so that more gradient steps on the few frames
+    /// that show a successful pick-up teach what a pickable object looks
+    /// like rather than those frames (docs/ladder.md). Off by default, as in
+    /// the paper, which mentions no augmentation.
+    pub mirror_frames: bool,
 }
 
 impl Default for PolicyConfig {
@@ -125,6 +132,7 @@ impl Default for UnetConfig {
             max_validation_frames: 64,
             max_held_out_frames: 256,
             class_balance: ClassBalance::default(),
+            mirror_frames: false,
         }
     }
 }
