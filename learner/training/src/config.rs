@@ -61,7 +61,9 @@ pub struct UnetConfig {
     /// 2026-11-29 a round took these steps however many episodes it
     /// followed, so the U-Net took about two steps per episode, at 64 px on
     /// 2 cores as at the paper's scale on a GPU
-    /// (docs/decisions/0013-unet-steps-per-episode.md).
+    /// (docs/decisions/0013-unet-steps-per-episode.md). 16 since 2026-11-29
+    /// (8 before): per pixel the network learns pick up and push better
+    /// (docs/ladder.md, "Sixteen steps an episode").
     pub steps_per_episode: usize,
     /// Episodes whose steps the U-Net may owe before the actors wait: while
     /// it owes more, every actor pauses (the weights it is sent say so)
@@ -123,7 +125,7 @@ impl Default for UnetConfig {
             learning_rate: 1e-3,
             weight_decay: 1e-4,
             batch_frames: 8,
-            steps_per_episode: 8,
+            steps_per_episode: 16,
             hold_actors_beyond_episodes: 8,
             max_uses: 35,
             max_frames: 4_000,
