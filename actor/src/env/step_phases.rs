@@ -8,7 +8,7 @@
 //! actor's loop thread and its U-Net batching thread were both far from
 //! busy. Each environment's step is its own work (acting,
 //! rendering, mapping, the state, the policy's pass) and its waits (a
-//! render's read-back, its frame's U-Net batch); a free-running actor says
+//! render's read-back, its frame's U-Net batch); an actor says
 //! how long each took on average when it stops, so that a run beside the
 //! learner tells which of them grew.
 

@@ -1,4 +1,4 @@
-//! Where the free-running loop's thread spends its time: waiting for its
+//! Where the episode loop's thread spends its time: waiting for its
 //! environments, or on one of its chores, reported per step when the loop
 //! ends.
 

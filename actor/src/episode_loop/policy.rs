@@ -26,7 +26,7 @@ pub(super) struct Policy {
     pub(super) net: PolicyNet,
     /// The same weights for the CPU's own pass (`nets::policy::CpuPolicy`),
     /// used on every device where the policy has one (shared with the
-    /// free-running environments' threads, which run it too).
+    /// environments' threads, which run it too).
     pub(super) cpu: Option<Arc<CpuPolicy>>,
     pub(super) layout: PolicyLayout,
     pub(super) policy_version: u64,

@@ -1,4 +1,4 @@
-//! One U-Net for free-running environments on a GPU: each environment's
+//! One U-Net for the environments' threads on a GPU: each environment's
 //! thread hands its camera frame (as the network's input) to a batching
 //! thread and waits for its logits; the batching thread runs every frame
 //! waiting in one forward pass. The environments' threads make the inputs
