@@ -41,23 +41,20 @@ impl LabelledFrame {
     /// The frame mirrored left to right: every plane's rows reversed, the
     /// labels with the image.
     pub fn mirrored(&self) -> LabelledFrame {
-        let width = self.size[1];
-        let mirror = |planes: &[f32]| -> Vec<f32> {
-            planes
-                .chunks(width)
-                .flat_map(|row| row.iter().rev().copied())
-                .collect()
-        };
         LabelledFrame {
             size: self.size,
-            rgbd: mirror(&self.rgbd),
-            labels: self
-                .labels
-                .chunks(width)
-                .flat_map(|row| row.iter().rev().copied())
-                .collect(),
+            rgbd: rows_reversed(&self.rgbd, self.size[1]),
+            labels: rows_reversed(&self.labels, self.size[1]),
         }
     }
+}
+
+/// `planes` (rows of `width` values) with every row reversed.
+fn rows_reversed<T: Copy>(planes: &[T], width: usize) -> Vec<T> {
+    planes
+        .chunks(width)
+        .flat_map(|row| row.iter().rev().copied())
+        .collect()
 }
 
 /// Settings of U-Net training.
