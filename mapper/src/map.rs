@@ -50,74 +50,75 @@ pub enum MapError {
     UnknownObject(ObjectId),
 }
 
-/// Map settings; the defaults are those the map was measured with
-/// (docs/notebook/2026-11-22-mapper.md).
+/// The map's configuration: the run's `[task.map]` settings (the one
+/// definition of every setting a run can change) and tracking's gates, which
+/// a run does not set. The parameters of integration and association follow
+/// from the settings ([`MapConfig::integration`], [`MapConfig::association`]),
+/// with the values the voxel size implies; the defaults are those the map was
+/// measured with (docs/notebook/2026-11-22-mapper.md).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MapConfig {
-    /// Voxel edge of object volumes, metres.
-    pub voxel_size_m: f32,
-    /// Voxel edge of the background volume (floor, walls), metres. Coarser
-    /// than objects: the background only occludes and feeds 2-D occupancy
-    /// maps, it is planar, and at 0.08 m it costs an eighth of the voxels
-    /// (it is most of what a room-scale frame sees).
-    pub background_voxel_size_m: f32,
-    /// Integration settings (truncation, weights, depth range).
-    pub integration: IntegrationParams,
-    /// Association settings.
-    pub association: AssociationParams,
-    /// Tracking settings (objects that moved).
+    /// The run's map settings.
+    pub settings: proto::MapSettings,
+    /// Tracking settings (objects that moved); they scale with the voxel.
     pub tracking: TrackingParams,
-    /// Where instance masks come from.
-    pub segmentation: Segmentation,
-    /// An object predicted visible (at least `miss_min_rendered_px` pixels)
-    /// but not matched this many frames in a row is deleted.
-    pub max_misses: u32,
-    /// Rendered pixels that make an object "expected to be seen" (of a
-    /// 128 × 128 frame, scaled by [`Intrinsics::scaled_px`]).
-    pub miss_min_rendered_px: usize,
 }
 
 impl Default for MapConfig {
     /// The run config's defaults ([`proto::MapSettings`]).
     fn default() -> Self {
-        Self::from_settings(&proto::MapSettings::default())
+        Self::from_settings(proto::MapSettings::default())
     }
 }
 
 impl MapConfig {
-    /// The map a run's `[task.map]` describes: its settings, and the values
-    /// that follow from the voxel size (the free-space margin is one voxel,
-    /// measured and rendered depth agree within two voxels but at least 3 cm,
-    /// tracking's gates scale with it).
-    pub fn from_settings(settings: &proto::MapSettings) -> Self {
-        let voxel_size_m = settings.voxel_size_m;
+    /// The map a run's `[task.map]` describes, with tracking's gates scaled
+    /// to its voxel.
+    pub fn from_settings(settings: proto::MapSettings) -> Self {
         Self {
-            voxel_size_m,
-            background_voxel_size_m: settings.background_voxel_size_m,
-            integration: IntegrationParams {
-                truncation_m: settings.truncation_m,
-                max_weight: settings.max_weight,
-                min_depth_m: settings.min_depth_m,
-                max_depth_m: settings.max_depth_m,
-                free_space_margin_m: voxel_size_m,
-            },
-            association: AssociationParams {
-                min_segment_px: settings.min_segment_px,
-                new_object_min_px: settings.new_object_min_px,
-                min_iou: settings.min_iou,
-                min_coverage: settings.min_coverage,
-                depth_tolerance_m: (2.0 * voxel_size_m).max(0.03),
-                min_containment: settings.min_containment,
-            },
-            tracking: TrackingParams::for_voxel(voxel_size_m),
-            segmentation: match settings.segmentation {
-                proto::MapSegmentation::GroundTruth => Segmentation::Provided,
-                proto::MapSegmentation::Geometric => {
-                    Segmentation::Geometric(GeometricParams::default())
-                }
-            },
-            max_misses: settings.max_misses,
-            miss_min_rendered_px: settings.miss_min_rendered_px,
+            settings,
+            tracking: TrackingParams::for_voxel(settings.voxel_size_m),
+        }
+    }
+
+    /// Integration's parameters: the free-space margin is one voxel.
+    pub fn integration(&self) -> IntegrationParams {
+        let s = &self.settings;
+        IntegrationParams {
+            truncation_m: s.truncation_m,
+            max_weight: s.max_weight,
+            min_depth_m: s.min_depth_m,
+            max_depth_m: s.max_depth_m,
+            free_space_margin_m: s.voxel_size_m,
+        }
+    }
+
+    /// Association's parameters.
+    pub fn association(&self) -> AssociationParams {
+        let s = &self.settings;
+        AssociationParams {
+            min_segment_px: s.min_segment_px,
+            new_object_min_px: s.new_object_min_px,
+            min_iou: s.min_iou,
+            min_coverage: s.min_coverage,
+            depth_tolerance_m: self.depth_tolerance_m(),
+            min_containment: s.min_containment,
+        }
+    }
+
+    /// How far measured and rendered depth may differ and still agree: two
+    /// voxels, but at least 3 cm.
+    pub fn depth_tolerance_m(&self) -> f32 {
+        (2.0 * self.settings.voxel_size_m).max(0.03)
+    }
+
+    /// Where instance masks come from.
+    pub fn segmentation(&self) -> Segmentation {
+        match self.settings.segmentation {
+            proto::MapSegmentation::GroundTruth => Segmentation::Provided,
+            proto::MapSegmentation::Geometric => {
+                Segmentation::Geometric(GeometricParams::default())
+            }
         }
     }
 }
@@ -195,7 +196,7 @@ impl Map {
     pub fn new(config: MapConfig) -> Self {
         Self {
             config,
-            background: Layer::new(config.background_voxel_size_m),
+            background: Layer::new(config.settings.background_voxel_size_m),
             objects: BTreeMap::new(),
             next_id: 1,
             last_timings: IntegrateTimings::default(),
@@ -246,10 +247,10 @@ impl Map {
         if let Some(class) = frame.class {
             check_len("class image", class.len(), &k)?;
         }
-        let params = self.config.integration;
+        let params = self.config.integration();
         let started = std::time::Instant::now();
         let geometric;
-        let instance = match self.config.segmentation {
+        let instance = match self.config.segmentation() {
             Segmentation::Provided => frame.instance,
             Segmentation::Geometric(p) => {
                 geometric = segment_geometric(&k, frame.depth_m, &frame.t_world_camera, &p);
@@ -260,7 +261,7 @@ impl Map {
             instance,
             frame.depth_m,
             |d| params.valid_depth(d),
-            k.scaled_px(self.config.association.min_segment_px),
+            k.scaled_px(self.config.settings.min_segment_px),
         );
         let far_m = self.visible_depth_limits(frame);
         let rendered = self.render_objects(&frame.t_world_camera, &k, Some(&far_m));
@@ -272,7 +273,7 @@ impl Map {
             &segments,
             &rendered,
             frame.depth_m,
-            &self.config.association,
+            &self.config.association(),
         );
 
         let associated_at = std::time::Instant::now();
@@ -280,7 +281,7 @@ impl Map {
         let tracked_at = std::time::Instant::now();
         let merged = self.merge_copies(&candidates, &matches, &failed);
 
-        let new_object_min_px = k.scaled_px(self.config.association.new_object_min_px);
+        let new_object_min_px = k.scaled_px(self.config.settings.new_object_min_px);
         let mut owner = vec![0u32; k.pixels()];
         let mut matched: BTreeMap<ObjectId, usize> = BTreeMap::new();
         for (segment, matched_id) in segments.iter().zip(&matches) {
@@ -411,7 +412,7 @@ impl Map {
         depth_m: &[f32],
         failed: &BTreeSet<ObjectId>,
     ) -> Placement {
-        let tolerance = self.config.association.depth_tolerance_m;
+        let tolerance = self.config.depth_tolerance_m();
         let (mut behind, mut on_map) = (0, 0);
         let mut holders: BTreeMap<u32, usize> = BTreeMap::new();
         for &px in &segment.pixels {
@@ -462,7 +463,7 @@ impl Map {
                 Translation3::from(centroid),
                 UnitQuaternion::identity(),
             ),
-            volume: Layer::new(self.config.voxel_size_m),
+            volume: Layer::new(self.config.settings.voxel_size_m),
             class_histogram: BTreeMap::new(),
             observations: 0,
             misses: 0,
@@ -486,7 +487,7 @@ impl Map {
         instance: &[u32],
         owner: &[u32],
     ) -> BTreeMap<u32, usize> {
-        let tolerance = self.config.association.depth_tolerance_m;
+        let tolerance = self.config.depth_tolerance_m();
         let mut glimpsed = BTreeMap::new();
         for (px, &id) in rendered.ids.iter().enumerate() {
             if id != 0
@@ -513,8 +514,8 @@ impl Map {
         visible: &BTreeMap<u32, usize>,
         glimpsed: &BTreeMap<u32, usize>,
     ) {
-        let max_misses = self.config.max_misses;
-        let min_px = k.scaled_px(self.config.miss_min_rendered_px);
+        let max_misses = self.config.settings.max_misses;
+        let min_px = k.scaled_px(self.config.settings.miss_min_rendered_px);
         for object in self.objects.values_mut() {
             let id = object.id.0;
             if matched.contains_key(&object.id) {

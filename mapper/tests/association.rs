@@ -159,7 +159,7 @@ fn an_object_hidden_behind_an_unmapped_surface_is_not_missed() {
         frame.ids.iter().all(|&i| i == 0),
         "the screen hides everything"
     );
-    for _ in 0..=MapConfig::default().max_misses + 2 {
+    for _ in 0..=MapConfig::default().settings.max_misses + 2 {
         map.integrate(&frame.frame()).unwrap();
     }
     let ids_after: BTreeSet<_> = map.objects().keys().copied().collect();
@@ -318,10 +318,10 @@ fn ids_stay_consistent_with_geometric_segmentation() {
         half: Vector3::new(4.0, 0.05, 1.2),
         id: 0,
     });
-    let config = MapConfig {
-        segmentation: "geometric".parse().unwrap(),
-        ..MapConfig::default()
-    };
+    let config = MapConfig::from_settings(proto::MapSettings {
+        segmentation: proto::MapSegmentation::Geometric,
+        ..Default::default()
+    });
     let mut map = Map::new(config);
     // Per true instance: the map id holding most of its pixels, per frame.
     let mut majority: BTreeMap<u32, BTreeSet<u32>> = BTreeMap::new();
@@ -496,7 +496,7 @@ fn a_deleted_object_keeps_its_labels_for_the_frames_that_showed_it() {
     // The box is gone (carried away unseen); the map sees it missing.
     let without: Vec<Shape> = shapes.into_iter().filter(|s| s.id() != 13).collect();
     let empty = OwnedFrame::capture(&without, pose, k128());
-    for _ in 0..=MapConfig::default().max_misses + 1 {
+    for _ in 0..=MapConfig::default().settings.max_misses + 1 {
         map.integrate(&empty.frame()).unwrap();
     }
     assert!(map.object(id).is_none(), "the missing box was deleted");
@@ -591,7 +591,7 @@ fn an_object_glimpsed_as_a_sliver_is_not_deleted() {
         (10..20).contains(&sliver) && rendered >= 50,
         "sliver {sliver} px, model {rendered} px: not the case tested"
     );
-    for _ in 0..=MapConfig::default().max_misses + 2 {
+    for _ in 0..=MapConfig::default().settings.max_misses + 2 {
         map.integrate(&frame.frame()).unwrap();
     }
     assert!(map.object(id).is_some(), "the glimpsed object was deleted");
@@ -606,7 +606,7 @@ fn a_small_object_is_mapped_at_the_papers_resolution_and_at_a_quarter_of_it() {
         id: 7,
     }];
     let pose = look_at(Point3::new(0.0, 0.0, 0.9), Point3::new(1.0, 0.0, 0.05));
-    let defaults = MapConfig::default().association;
+    let defaults = MapConfig::default().settings;
     for size in [128, 64] {
         let frame = OwnedFrame::capture(&book, pose, Intrinsics::from_fov(size, size, 90.0));
         let pixels: Vec<usize> = (0..frame.ids.len())

@@ -972,7 +972,7 @@ fn a_lost_object_is_found_only_in_its_own_class() {
             // Gone again, so that the next frame sees a segment no object matches.
             let empty: Vec<Shape> = std::iter::once(floor()).chain(statics()).collect();
             let frame = OwnedFrame::capture(&empty, views[0], k128());
-            for _ in 0..=MapConfig::default().max_misses {
+            for _ in 0..=MapConfig::default().settings.max_misses {
                 map.integrate(&frame.frame()).unwrap();
             }
         }

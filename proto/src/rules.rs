@@ -4,8 +4,8 @@
 //! run uses the same ones, a resumed run keeps them, and `learner
 //! print-config` shows each with its default. Values of the map that follow
 //! from these (the free-space margin, the depth tolerance of association,
-//! tracking's gates) are derived from them where the map is built
-//! (`mapper::MapConfig::from_settings`).
+//! tracking's gates) are derived from them by the map (`mapper::MapConfig`,
+//! which holds these settings as they are).
 
 use serde::{Deserialize, Serialize};
 

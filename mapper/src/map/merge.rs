@@ -35,7 +35,7 @@ impl Map {
         failed: &BTreeSet<ObjectId>,
     ) -> BTreeSet<ObjectId> {
         let mut merged = BTreeSet::new();
-        if !matches!(self.config.segmentation, Segmentation::Provided) {
+        if !matches!(self.config.segmentation(), Segmentation::Provided) {
             return merged;
         }
         let matched: BTreeSet<u32> = matches.iter().flatten().copied().collect();
@@ -100,7 +100,7 @@ impl Map {
         let (Some(kept), Some(copied)) = (self.objects.get(&keep), self.objects.get(&copy)) else {
             return false;
         };
-        let voxel = self.config.voxel_size_m;
+        let voxel = self.config.settings.voxel_size_m;
         let t_keep_copy = kept.t_world_object.inverse() * copied.t_world_object;
         let mut reader = CachedReader::new(&kept.volume);
         let (mut compared, mut agreeing) = (0usize, 0usize);

@@ -115,7 +115,7 @@ impl Map {
             }
             let model = object
                 .volume
-                .surface_samples(2.0 * self.config.voxel_size_m);
+                .surface_samples(2.0 * self.config.settings.voxel_size_m);
             if model.len() < params.min_inliers {
                 continue;
             }
@@ -178,7 +178,7 @@ impl Map {
                     &object.volume,
                     &coarse,
                     &view,
-                    self.config.integration.truncation_m,
+                    self.config.settings.truncation_m,
                     &params,
                     motion,
                 );

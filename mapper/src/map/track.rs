@@ -163,8 +163,8 @@ impl Map {
         let depth_m = frame.depth_m;
         let min_px = frame
             .intrinsics
-            .scaled_px(self.config.association.min_segment_px);
-        let tol = self.config.association.depth_tolerance_m;
+            .scaled_px(self.config.settings.min_segment_px);
+        let tol = self.config.depth_tolerance_m();
         let mut segment_of = vec![usize::MAX; depth_m.len()];
         for (s, segment) in segments.iter().enumerate() {
             for &px in &segment.pixels {
@@ -207,7 +207,7 @@ impl Map {
             for px in pixels {
                 let d = depth_m[px];
                 let nothing_seen = !(d.is_finite() && d > 0.0);
-                if !nothing_seen && !self.config.integration.valid_depth(d) {
+                if !nothing_seen && !self.config.integration().valid_depth(d) {
                     continue;
                 }
                 let d = if nothing_seen { f32::INFINITY } else { d };
@@ -387,7 +387,7 @@ impl Map {
             &predicted,
             &k,
             id.0,
-            self.config.integration.min_depth_m,
+            self.config.settings.min_depth_m,
             &mut silhouette,
             Pixels::All,
         );
@@ -448,7 +448,7 @@ impl Map {
 
         let model = object
             .volume
-            .surface_samples(2.0 * self.config.voxel_size_m);
+            .surface_samples(2.0 * self.config.settings.voxel_size_m);
         let (mask, normals) = mask_and_normals(&k, frame.depth_m, &segments[chosen].pixels);
         let view = SegmentView {
             k: &k,
@@ -462,7 +462,7 @@ impl Map {
                 &object.volume,
                 &coarse,
                 &view,
-                self.config.integration.truncation_m,
+                self.config.settings.truncation_m,
                 &params,
                 motion,
             );

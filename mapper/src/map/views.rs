@@ -47,8 +47,8 @@ impl Map {
         render_layers(
             &self.objects_in_camera(t_world_camera),
             k,
-            self.config.integration.min_depth_m,
-            self.config.voxel_size_m,
+            self.config.settings.min_depth_m,
+            self.config.settings.voxel_size_m,
             far_m,
         )
     }
@@ -61,8 +61,8 @@ impl Map {
     /// integration never touches occluded voxels. Pixels without a usable
     /// depth measurement limit nothing.
     pub(super) fn visible_depth_limits(&self, frame: &Frame<'_>) -> Vec<f32> {
-        let params = self.config.integration;
-        let margin = self.config.association.depth_tolerance_m + self.config.voxel_size_m;
+        let params = self.config.integration();
+        let margin = self.config.depth_tolerance_m() + self.config.settings.voxel_size_m;
         frame
             .depth_m
             .iter()
@@ -88,7 +88,7 @@ impl Map {
             &t_camera_world,
             k,
             0,
-            self.config.integration.min_depth_m,
+            self.config.settings.min_depth_m,
             &mut background,
             Pixels::All,
         );
@@ -98,7 +98,7 @@ impl Map {
             .zip(target.ids.iter_mut())
             .zip(&background.depth_m)
         {
-            if *bd + self.config.association.depth_tolerance_m < *d {
+            if *bd + self.config.depth_tolerance_m() < *d {
                 *d = *bd;
                 *id = 0;
             }
@@ -115,7 +115,7 @@ impl Map {
     /// World-frame points of an object's surface (observed voxels within half a voxel).
     pub fn object_surface_points(&self, id: ObjectId) -> Result<Vec<Point3<f32>>, MapError> {
         let object = self.objects.get(&id).ok_or(MapError::UnknownObject(id))?;
-        let band = self.config.voxel_size_m * 0.5;
+        let band = self.config.settings.voxel_size_m * 0.5;
         Ok(object
             .volume
             .near_surface_voxels(band)

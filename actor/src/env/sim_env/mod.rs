@@ -105,7 +105,7 @@ impl SimEnvConfig {
             reward: task.reward,
             selection: task.selection,
             selection_confidence: task.selection_confidence,
-            map: MapConfig::from_settings(&task.map),
+            map: MapConfig::from_settings(task.map),
             balanced_frames: task.balanced_frames,
             background_negative: task.labels_background(),
             confidence_after_steps: Some(task.confidence_after_steps),
@@ -422,15 +422,16 @@ mod tests {
         assert_eq!(config.selection_confidence, 0.2);
         assert_eq!(config.confidence, task.confidence);
         assert_eq!(config.sphere, task.sphere);
-        assert_eq!(config.map, MapConfig::from_settings(&task.map));
-        assert_eq!(config.map.voxel_size_m, 0.05);
-        assert_eq!(config.map.max_misses, 4);
+        assert_eq!(config.map, MapConfig::from_settings(task.map));
+        assert_eq!(config.map.settings.voxel_size_m, 0.05);
+        assert_eq!(config.map.settings.max_misses, 4);
         assert!(matches!(
-            config.map.segmentation,
+            config.map.segmentation(),
             mapper::Segmentation::Geometric(_)
         ));
         assert_eq!(
-            config.map.integration.free_space_margin_m, 0.05,
+            config.map.integration().free_space_margin_m,
+            0.05,
             "derived from the voxel size"
         );
         let defaults = SimEnvConfig::from_task(&TaskSpec::default());
