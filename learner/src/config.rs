@@ -487,6 +487,11 @@ mod tests {
             nets::unet::ClassBalance::Pixels,
             "the paper's loss"
         );
+        assert!(!paper.unet.mirror_frames, "no augmentation in the paper");
+        assert!(
+            LearnerConfig::default().unet.mirror_frames,
+            "the project's default"
+        );
         let small = preset("small-cpu.toml");
         assert_eq!((small.task.image_size, small.task.episode_steps), (64, 100));
         let scale = preset("paper-scale.toml");
