@@ -1,8 +1,12 @@
-//! No two source files of a crate import each other, directly or in a loop:
-//! modules form layers, so each can be read (and changed) knowing only the
-//! ones below it. A file's imports are its `crate::…` and `super::…` paths
-//! outside comments and outside its `#[cfg(test)]` tail; a path counts as
-//! naming the longest module it starts with.
+//! The source tree stays readable in small pieces. No two source files of a
+//! crate import each other, directly or in a loop: modules form layers, so
+//! each can be read (and changed) knowing only the ones below it. A file's
+//! imports are its `crate::…` and `super::…` paths outside comments and
+//! outside its `#[cfg(test)]` tail; a path counts as naming the longest
+//! module it starts with. And no source file holds more than
+//! [`MAX_LINES_BEFORE_TESTS`] lines before its `#[cfg(test)]` tail: a file
+//! that grows past it holds more than one job (style.md: small modules with
+//! one job).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -203,4 +207,45 @@ fn the_check_finds_a_loop_of_three() {
     let mut without = graph.clone();
     without.get_mut("c").unwrap().clear();
     assert_eq!(find_cycle(&without), None);
+}
+
+/// The most lines a crate's source file may hold before its tests.
+const MAX_LINES_BEFORE_TESTS: usize = 600;
+
+/// Lines of a file before its `#[cfg(test)]` tail (all of them without one).
+fn lines_before_tests(text: &str) -> usize {
+    text.lines()
+        .take_while(|line| line.trim() != "#[cfg(test)]")
+        .count()
+}
+
+#[test]
+fn no_source_file_grows_past_its_limit_before_its_tests() {
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let mut too_long = Vec::new();
+    let mut files = 0;
+    for src in crate_sources(&repo) {
+        let mut paths = Vec::new();
+        rust_files(&src, &mut paths);
+        for path in paths {
+            files += 1;
+            let text = std::fs::read_to_string(&path).expect("readable source");
+            let lines = lines_before_tests(&text);
+            if lines > MAX_LINES_BEFORE_TESTS {
+                too_long.push(format!("{} ({lines} lines)", path.display()));
+            }
+        }
+    }
+    assert!(files > 100, "found only {files} source files");
+    assert!(
+        too_long.is_empty(),
+        "over {MAX_LINES_BEFORE_TESTS} lines before their tests (split each by job): {too_long:?}"
+    );
+}
+
+#[test]
+fn lines_before_tests_stop_at_the_test_module() {
+    let text = "fn a() {}\n\nfn b() {}\n#[cfg(test)]\nmod tests {\n}\n";
+    assert_eq!(lines_before_tests(text), 3);
+    assert_eq!(lines_before_tests("fn a() {}\nfn b() {}\n"), 2);
 }
