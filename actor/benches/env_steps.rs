@@ -131,6 +131,11 @@ struct Case {
 }
 
 fn main() {
+    // As the actor binary does: freed memory stays in the process.
+    assert!(
+        actor::heap::keep_freed_memory(),
+        "the allocator refused the actor's settings"
+    );
     if std::env::var_os("LP_NUM_THREADS").is_none() {
         std::env::set_var("LP_NUM_THREADS", "1");
     }
@@ -160,6 +165,7 @@ fn main() {
     println!("| method | px | renderer | steps/s | reset | sim | render | map | U-Net | state |");
     println!("|---|---|---|---|---|---|---|---|---|---|");
     let mut map_splits = Vec::new();
+    let mut work_rows = Vec::new();
     let steps = episode_steps();
     for Case {
         method,
@@ -187,14 +193,18 @@ fn main() {
         let mut observation = env.reset(1, &model).expect("reset");
         let reset = reset_started.elapsed();
         let mut stages: Vec<StepTimings> = Vec::with_capacity(steps);
+        let mut walls: Vec<Duration> = Vec::with_capacity(steps);
         let start = Instant::now();
         for _ in 0..steps {
             let action =
                 random_allowed_action(env.action_space(), &observation.mask, 0.5, &mut rng);
+            let step_started = Instant::now();
             observation = env.step(action, &model).expect("step").1;
+            walls.push(step_started.elapsed());
             stages.push(env.last_timings());
         }
         let elapsed = start.elapsed();
+        work_rows.push(work_row(&row, &stages, &walls));
         let ms = |f: fn(&StepTimings) -> Duration| {
             median(stages.iter().map(f).collect()).as_secs_f64() * 1e3
         };
@@ -211,13 +221,14 @@ fn main() {
         );
         if method == Method::Ours {
             let stage = |f: fn(&mapper::IntegrateTimings) -> f64| {
-                let times = stages
-                    .iter()
-                    .map(|t| Duration::from_secs_f64(f(&t.map_stages)));
-                median(times.collect()).as_secs_f64() * 1e3
+                let times: Vec<f64> = stages.iter().map(|t| f(&t.map_stages)).collect();
+                let mean = times.iter().sum::<f64>() / times.len() as f64;
+                let times = times.into_iter().map(Duration::from_secs_f64);
+                let median = median(times.collect()).as_secs_f64();
+                format!("{:.2} / {:.2}", median * 1e3, mean * 1e3)
             };
             map_splits.push(format!(
-                "| {} | {image_size} | {:.2} ms | {:.2} ms | {:.2} ms | {:.2} ms | {:.2} ms | {:.2} ms |",
+                "| {} | {image_size} | {} ms | {} ms | {} ms | {} ms | {} ms | {} ms |",
                 method.as_str(),
                 stage(|m| m.render_s),
                 stage(|m| m.associate_s),
@@ -229,7 +240,7 @@ fn main() {
         }
     }
     println!();
-    println!("The map's own split of its column (medians per stage):");
+    println!("The map's own split of its column (median / mean per stage):");
     println!(
         "| method | px | render | association | tracking | objects | background | book-keeping |"
     );
@@ -237,7 +248,38 @@ fn main() {
     for line in map_splits {
         println!("{line}");
     }
+    println!();
+    println!(
+        "The environment's work a step outside the U-Net and the render, means over the \
+         episode (re-identification's bursts and the map's growth count in a mean, not in a \
+         median; \"rest\" is the step's time outside its timed parts; with RAYON_NUM_THREADS=1 \
+         the map's time is its CPU time):"
+    );
+    println!("| case | sim | map | state | rest | outside U-Net and render |");
+    println!("|---|---|---|---|---|---|");
+    for line in work_rows {
+        println!("{line}");
+    }
     several_envs_table(&data, &device);
+}
+
+/// A row of the work table: the means over an episode of each timed part
+/// of a step and of what its wall time holds besides them.
+fn work_row(case: &str, stages: &[StepTimings], walls: &[Duration]) -> String {
+    let mean = |xs: &mut dyn Iterator<Item = Duration>| {
+        xs.map(|d| d.as_secs_f64()).sum::<f64>() * 1e3 / stages.len().max(1) as f64
+    };
+    let sim = mean(&mut stages.iter().map(|t| t.sim));
+    let map = mean(&mut stages.iter().map(|t| t.map));
+    let state = mean(&mut stages.iter().map(|t| t.state));
+    let outside = mean(
+        &mut stages
+            .iter()
+            .zip(walls)
+            .map(|(t, wall)| wall.saturating_sub(t.unet + t.render)),
+    );
+    let rest = outside - sim - map - state;
+    format!("| {case} | {sim:.2} ms | {map:.2} ms | {state:.2} ms | {rest:.2} ms | **{outside:.2} ms** |")
 }
 
 /// An environment of `method` at `image_size` px in the test rooms.

@@ -175,6 +175,7 @@ struct RunArgs {
 }
 
 fn main() -> anyhow::Result<()> {
+    let heap_kept = actor::heap::keep_freed_memory();
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
@@ -185,6 +186,11 @@ fn main() -> anyhow::Result<()> {
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     transport::init_iceoryx_logging();
+    if !heap_kept {
+        tracing::warn!(
+            "the C allocator refused to keep freed memory: steps may fault pages in afresh"
+        );
+    }
     let cli = Cli::parse();
     match cli.command {
         Some(Command::SimView(args)) => sim_view(args),
