@@ -5,8 +5,8 @@
 //! outside its `#[cfg(test)]` tail; a path counts as naming the longest
 //! module it starts with. And no source file holds more than
 //! [`MAX_LINES_BEFORE_TESTS`] lines before its `#[cfg(test)]` tail: a file
-//! that grows past it holds more than one job (style.md: small modules with
-//! one job).
+//! that grows past it holds more than one job, and small modules with one
+//! job each are how this tree is kept.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
