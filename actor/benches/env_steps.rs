@@ -266,17 +266,15 @@ fn main() {
 /// A row of the work table: the means over an episode of each timed part
 /// of a step and of what its wall time holds besides them.
 fn work_row(case: &str, stages: &[StepTimings], walls: &[Duration]) -> String {
-    let mean = |xs: &mut dyn Iterator<Item = Duration>| {
-        xs.map(|d| d.as_secs_f64()).sum::<f64>() * 1e3 / stages.len().max(1) as f64
-    };
-    let sim = mean(&mut stages.iter().map(|t| t.sim));
-    let map = mean(&mut stages.iter().map(|t| t.map));
-    let state = mean(&mut stages.iter().map(|t| t.state));
-    let outside = mean(
-        &mut stages
+    let mean_ms = |total: Duration| total.as_secs_f64() * 1e3 / stages.len().max(1) as f64;
+    let part = |f: fn(&StepTimings) -> Duration| mean_ms(stages.iter().map(f).sum());
+    let (sim, map, state) = (part(|t| t.sim), part(|t| t.map), part(|t| t.state));
+    let outside = mean_ms(
+        stages
             .iter()
             .zip(walls)
-            .map(|(t, wall)| wall.saturating_sub(t.unet + t.render)),
+            .map(|(t, wall)| wall.saturating_sub(t.unet + t.render))
+            .sum(),
     );
     let rest = outside - sim - map - state;
     format!("| {case} | {sim:.2} ms | {map:.2} ms | {state:.2} ms | {rest:.2} ms | **{outside:.2} ms** |")
