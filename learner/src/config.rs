@@ -224,6 +224,12 @@ impl LearnerConfig {
                 && u.validation_fraction + u.test_fraction < 1.0,
             "unet.validation_fraction + unet.test_fraction must be in 0..1"
         );
+        anyhow::ensure!(
+            (0.0..1.0).contains(&u.weight_average),
+            "unet.weight_average must be in 0..1 (the share of the average each step keeps; 0 \
+             deploys the latest weights), got {}",
+            u.weight_average
+        );
         anyhow::ensure!(self.keep_checkpoints >= 1, "keep_checkpoints must be >= 1");
         anyhow::ensure!(
             self.transport.max_actors >= 1,

@@ -63,6 +63,9 @@ impl Learner {
                 (UNET_OPTIMIZER_RECORD, &unet.optimizer.record[..]),
                 (UNET_OPTIMIZER_PARAMETERS, &unet_parameters[..]),
             ]);
+            if let Some(average) = &unet.average {
+                files.push((UNET_AVERAGE, average));
+            }
         }
         let dir = checkpoint::write(
             &self.checkpoint_dir,
@@ -94,6 +97,10 @@ const POLICY_OPTIMIZER_PARAMETERS: &str = "policy_optimizer_parameters.json";
 
 /// Checkpoint file: the U-Net in training (not yet through the validation gate).
 const UNET_CANDIDATE: &str = "unet_candidate.safetensors";
+
+/// Checkpoint file: the average of the U-Net's recent weights, when the run
+/// averages them (`[unet] weight_average`).
+const UNET_AVERAGE: &str = "unet_average.safetensors";
 
 /// Checkpoint file: the U-Net's Adam state (burn's record).
 const UNET_OPTIMIZER_RECORD: &str = "unet_optimizer.bpk";
@@ -181,6 +188,7 @@ pub fn resume(
                 let state = UnetTrainingState {
                     candidate: candidate.clone(),
                     optimizer,
+                    average: loaded.files.get(UNET_AVERAGE).cloned(),
                 };
                 affordance.restore_training(&state).with_context(|| {
                     format!(

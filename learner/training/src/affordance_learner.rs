@@ -9,6 +9,7 @@ use crate::affordance::{
 use crate::dataset::{validation_gate, AffordanceDataset, DatasetConfig, Split};
 use crate::optimizer_state::{OptimizerState, OptimizerStateError};
 use crate::temperature::fit_weighted_temperature;
+use crate::weight_average::WeightAverage;
 use burn::prelude::*;
 use nets::unet::AffordanceUnet;
 use nets::unet_inference::UnetInference;
@@ -65,6 +66,9 @@ pub struct UnetTrainingState {
     pub candidate: Vec<u8>,
     /// Its optimiser's state.
     pub optimizer: OptimizerState,
+    /// The average of its recent weights (safetensors), when the run
+    /// averages them (`[unet] weight_average`).
+    pub average: Option<Vec<u8>>,
 }
 
 /// What one round of U-Net training did.
@@ -93,6 +97,9 @@ pub struct UnetRound {
 /// The U-Net being trained, the deployed one, and the dataset.
 pub struct AffordanceLearner {
     trainer: UnetTrainer,
+    /// The average of the trained weights, which the gate compares with
+    /// the deployed network instead of the latest weights.
+    average: Option<WeightAverage<AffordanceUnet>>,
     deployed: AffordanceUnet,
     dataset: AffordanceDataset,
     settings: UnetConfig,
@@ -158,6 +165,7 @@ impl AffordanceLearner {
         let net = AffordanceUnet::new(4, affordances, device);
         Self {
             trainer: UnetTrainer::new(net.clone(), Self::training(settings), device),
+            average: Self::average_from(&net, settings),
             deployed: net,
             dataset: AffordanceDataset::new(DatasetConfig {
                 max_uses: settings.max_uses,
@@ -172,6 +180,15 @@ impl AffordanceLearner {
             rng: StdRng::seed_from_u64(seed ^ 0x05ee_da11),
             temperature: 1.0,
         }
+    }
+
+    /// A fresh average starting at `net`, when the run averages weights.
+    fn average_from(
+        net: &AffordanceUnet,
+        settings: &UnetConfig,
+    ) -> Option<WeightAverage<AffordanceUnet>> {
+        (settings.weight_average > 0.0)
+            .then(|| WeightAverage::new(net.clone(), settings.weight_average))
     }
 
     fn training(settings: &UnetConfig) -> UnetTrainingConfig {
@@ -217,11 +234,17 @@ impl AffordanceLearner {
                 .map(|(f, m)| m.as_ref().unwrap_or(f))
                 .collect();
             losses.push(self.trainer.step(&refs));
+            if let Some(average) = &mut self.average {
+                average.update(&self.trainer.inference_net(&self.device));
+            }
         }
         if losses.is_empty() {
             return None;
         }
-        let candidate = self.trainer.inference_net(&self.device);
+        let candidate = match &self.average {
+            Some(average) => average.average().clone(),
+            None => self.trainer.inference_net(&self.device),
+        };
         let gate = validation_gate(
             &candidate,
             &self.deployed,
@@ -304,6 +327,10 @@ impl AffordanceLearner {
         Ok(UnetTrainingState {
             candidate: to_safetensors(&self.trainer.inference_net(&self.device))?,
             optimizer: self.trainer.optimizer_state()?,
+            average: match &self.average {
+                Some(average) => Some(to_safetensors(average.average())?),
+                None => None,
+            },
         })
     }
 
@@ -316,9 +343,23 @@ impl AffordanceLearner {
     ) -> Result<(), TrainingStateError> {
         let mut net = AffordanceUnet::new(4, self.affordances, &self.device);
         load_safetensors(&mut net, state.candidate.clone())?;
-        let mut trainer = UnetTrainer::new(net, Self::training(&self.settings), &self.device);
+        let mut trainer =
+            UnetTrainer::new(net.clone(), Self::training(&self.settings), &self.device);
         trainer.restore_optimizer(&state.optimizer)?;
+        let average = match (&state.average, self.settings.weight_average > 0.0) {
+            (Some(bytes), true) => {
+                let mut average = AffordanceUnet::new(4, self.affordances, &self.device);
+                load_safetensors(&mut average, bytes.clone())?;
+                Some(WeightAverage::resumed(
+                    average,
+                    self.settings.weight_average,
+                ))
+            }
+            // Saved without an average: it starts at the saved weights.
+            _ => Self::average_from(&net, &self.settings),
+        };
         self.trainer = trainer;
+        self.average = average;
         Ok(())
     }
 
@@ -330,6 +371,7 @@ impl AffordanceLearner {
         let mut net = AffordanceUnet::new(4, self.affordances, &self.device);
         load_safetensors(&mut net, bytes)?;
         self.trainer = UnetTrainer::new(net.clone(), Self::training(&self.settings), &self.device);
+        self.average = Self::average_from(&net, &self.settings);
         self.deployed = net;
         Ok(())
     }
@@ -387,6 +429,65 @@ mod tests {
         }
         assert_eq!(learner.train_round(6).map(|r| r.steps), Some(6));
         assert_eq!(learner.steps_per_episode(), 2);
+    }
+
+    /// Every parameter's values, in the visiting order.
+    struct Values(Vec<f32>);
+
+    impl burn::module::ModuleVisitor for Values {
+        fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<D>>) {
+            self.0
+                .extend(param.val().into_data().to_vec::<f32>().expect("floats"));
+        }
+    }
+
+    #[test]
+    fn an_averaging_learner_gates_its_average_and_keeps_it_through_a_checkpoint() {
+        let settings = |weight_average| UnetConfig {
+            batch_frames: 1,
+            validation_fraction: 0.0,
+            test_fraction: 0.0,
+            weight_average,
+            ..UnetConfig::default()
+        };
+        let device = Device::flex();
+        let frame = LabelledFrame {
+            size: [16, 16],
+            rgbd: vec![0.5; 4 * 256],
+            labels: vec![1; 256],
+        };
+        let trained = |weight_average| {
+            let mut learner = AffordanceLearner::new(1, &settings(weight_average), 1, &device);
+            learner.add_episode(0, vec![frame.clone()]);
+            learner.train_round(3).expect("frames to train on");
+            learner
+        };
+        let plain = trained(0.0);
+        assert!(plain.training_state().unwrap().average.is_none());
+
+        let averaging = trained(0.9);
+        let state = averaging.training_state().unwrap();
+        let average = state.average.clone().expect("the average in the state");
+
+        let mut resumed = AffordanceLearner::new(1, &settings(0.9), 2, &device);
+        resumed.restore_training(&state).unwrap();
+        let again = resumed.training_state().unwrap();
+        let weights = |bytes: &Vec<u8>| {
+            let mut net = AffordanceUnet::new(4, 1, &device);
+            load_safetensors(&mut net, bytes.clone()).unwrap();
+            let mut values = Values(Vec::new());
+            net.visit(&mut values);
+            values.0
+        };
+        assert!(
+            weights(again.average.as_ref().unwrap()) == weights(&average),
+            "the average restored"
+        );
+        assert!(
+            weights(&again.candidate) == weights(&state.candidate),
+            "the latest weights restored"
+        );
+        assert!(weights(&average) != weights(&state.candidate));
     }
 
     #[test]

@@ -105,6 +105,14 @@ pub struct UnetConfig {
     /// (docs/decisions/0014-mirrored-training-frames.md); the paper mentions
     /// no augmentation (`configs/paper.toml` turns it off).
     pub mirror_frames: bool,
+    /// Gate and deploy an average of the U-Net's recent weights rather than
+    /// its latest: each gradient step keeps this share of the average and
+    /// adds the rest of the step's weights (0.999 averages over about the
+    /// last thousand steps; 0 deploys the latest weights). The average
+    /// does not swing from one step to the next the way the weights of a
+    /// network trained on a few positive frames do
+    /// (`training::weight_average`).
+    pub weight_average: f64,
 }
 
 impl Default for PolicyConfig {
@@ -137,6 +145,7 @@ impl Default for UnetConfig {
             max_held_out_frames: 256,
             class_balance: ClassBalance::default(),
             mirror_frames: true,
+            weight_average: 0.0,
         }
     }
 }

@@ -20,6 +20,7 @@ pub mod synthetic;
 pub mod temperature;
 #[cfg(feature = "gpu-torch")]
 mod unet_train_torch;
+pub mod weight_average;
 
 // Networks on libtorch train with libtorch's own steps (`adam::libtorch`,
 // `libtorch_ops`), which this crate's `gpu-torch` builds: a binary built
