@@ -133,7 +133,7 @@ struct Case {
 fn main() {
     // As the actor binary does: freed memory stays in the process.
     assert!(
-        actor::heap::keep_freed_memory(),
+        nets::heap::keep_freed_memory(),
         "the allocator refused the actor's settings"
     );
     if std::env::var_os("LP_NUM_THREADS").is_none() {

@@ -16,7 +16,6 @@ pub mod env;
 pub mod episode_loop;
 pub mod evaluation;
 pub mod frame_scores;
-pub mod heap;
 pub mod labeler;
 pub mod ladder_labels;
 pub mod mapping;

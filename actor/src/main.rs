@@ -175,7 +175,7 @@ struct RunArgs {
 }
 
 fn main() -> anyhow::Result<()> {
-    let heap_kept = actor::heap::keep_freed_memory();
+    let heap_kept = nets::heap::keep_freed_memory();
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()

@@ -276,6 +276,7 @@ fn parse_value<T: serde::de::DeserializeOwned>(flag: &str, value: &str) -> anyho
 }
 
 fn main() -> anyhow::Result<()> {
+    let heap_kept = nets::heap::keep_freed_memory();
     tracing_subscriber::fmt()
         .with_env_filter(
             EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info")),
@@ -285,6 +286,11 @@ fn main() -> anyhow::Result<()> {
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     transport::init_iceoryx_logging();
+    if !heap_kept {
+        tracing::warn!(
+            "the C allocator refused to keep freed memory: training steps may fault pages in afresh"
+        );
+    }
     match Cli::parse().command {
         Command::Serve(args) => serve(args),
         Command::PrintConfig => {

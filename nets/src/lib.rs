@@ -20,12 +20,14 @@
 //! - [`unet_inference`]: which of these a device gets;
 //! - [`weights`]: either network to and from safetensors bytes;
 //! - [`device`]: `--device cpu|gpu` at run time;
+//! - [`heap`]: the C allocator kept from returning each step's memory;
 //! - [`sample`]: the masked categorical draw the actor acts with;
 
 mod conv_matmul;
 #[cfg(feature = "gpu-torch")]
 pub mod cuda_wait;
 pub mod device;
+pub mod heap;
 mod kernels;
 mod layers;
 mod masked_categorical;

@@ -1,15 +1,18 @@
-//! The C allocator's settings for an actor process.
+//! The C allocator's settings for the actor and learner processes.
 //!
-//! Every environment step allocates and frees a few MiB: the state's planes,
-//! the observation's bytes and features, the camera frame and the map's
-//! per-frame buffers. With glibc's defaults, blocks that large are handed
+//! Both allocate and free a few MiB at every step: an actor's environment
+//! step its state's planes, the observation's bytes and features, the camera
+//! frame and the map's per-frame buffers; the learner's U-Net and PPO steps
+//! their tensors and batches. With glibc's defaults, blocks that large are handed
 //! back to the kernel when freed (the free top of a heap above the trim
 //! threshold is trimmed, and blocks above the mmap threshold are unmapped),
 //! so the next step touches fresh pages, and each page faults in, zeroed, by
-//! the kernel: at 128 px a noticeable share of a step's CPU time, most of it
-//! in the state (docs/performance.md, the actor's work per step). Keeping
-//! freed memory in the process removes that cost; the heap then holds its
-//! high-water mark, a few MiB per environment.
+//! the kernel: at 128 px a noticeable share of an actor's step, most of it
+//! in the state (docs/performance.md, the actor's work per step), and of the
+//! learner's training steps. Keeping freed memory in the process removes
+//! that cost; the heap then holds its high-water mark (a few MiB per
+//! environment, the largest batch's tensors in the learner). Lives in
+//! `nets`, the crate both binaries share that is about their steps' work.
 
 /// Blocks up to this size come from the heap, not from a mapping of their
 /// own (the upper limit `mallopt(3)` documents for 64-bit systems).
