@@ -148,7 +148,8 @@ impl RolloutChunk {
 /// of these from vectorising, about three times slower.
 #[inline]
 pub fn unit_to_byte(v: f32) -> u8 {
-    // `max` first: it returns 0 for NaN, so NaN gives 0.
+    // Not `clamp`, which keeps NaN: `max` returns 0 for it.
+    #[allow(clippy::manual_clamp)]
     let scaled = v.max(0.0).min(1.0) * 255.0;
     // SAFETY: `scaled` is finite and within 0..=255, which an i32 holds.
     let whole = unsafe { scaled.to_int_unchecked::<i32>() };

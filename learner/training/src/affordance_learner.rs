@@ -437,7 +437,7 @@ mod tests {
     impl burn::module::ModuleVisitor for Values {
         fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<D>>) {
             self.0
-                .extend(param.val().into_data().to_vec::<f32>().expect("floats"));
+                .extend(param.val().into_data().try_to_vec::<f32>().expect("floats"));
         }
     }
 

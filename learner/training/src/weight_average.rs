@@ -126,7 +126,7 @@ mod tests {
         net.visit(&mut flat);
         flat.values
             .into_iter()
-            .flat_map(|t| t.into_data().to_vec::<f32>().expect("floats"))
+            .flat_map(|t| t.into_data().try_to_vec::<f32>().expect("floats"))
             .collect()
     }
 
