@@ -43,7 +43,7 @@ fn closed_loop(method: &str) {
         format!(
             "[task]\nenv = \"sim\"\nmethod = \"{method}\"\naffordances = [\"pick_up\", \"push\"]\nimage_size = 64\nepisode_steps = 16\nbalanced_frames = false\nconfidence_after_steps = 0\nmemory_size = 32\n\
              [policy]\nbatch_steps = 16\nepochs = 2\n\
-             [unet]\nsteps_per_episode = 3\nbatch_frames = 4\nvalidation_fraction = 0.5\ntest_fraction = 0.0\n\
+             [unet]\nsteps_per_episode = 3\nbatch_frames = 4\nvalidation_fraction = 0.5\ntest_fraction = 0.0\nweight_average = 0.9\n\
              [transport]\nservice_prefix = \"{prefix}\"\nmax_actors = 2\n"
         ),
     )
@@ -230,8 +230,8 @@ fn closed_loop(method: &str) {
     }
 }
 
-/// The final checkpoint holds the U-Net in training and its Adam state, and
-/// `--resume` continues U-Net training from them.
+/// The final checkpoint holds the U-Net in training, its Adam state and its
+/// weight average, and `--resume` continues U-Net training from them.
 fn resume_continues_unet_training(
     config: &std::path::Path,
     run_dir: &std::path::Path,
@@ -254,6 +254,7 @@ fn resume_continues_unet_training(
         "unet_candidate.safetensors",
         "unet_optimizer.bpk",
         "unet_optimizer_parameters.json",
+        "unet_average.safetensors",
     ] {
         assert!(
             newest.join(file).exists(),
@@ -273,8 +274,8 @@ fn resume_continues_unet_training(
     );
     let log = learner.process.log_text();
     assert!(
-        log.contains("U-Net training state restored"),
-        "the U-Net's training state was not restored:\n{log}"
+        log.contains("U-Net training state restored, with its weight average"),
+        "the U-Net's training state and its weight average were not restored:\n{log}"
     );
     learner.process.signal(libc::SIGINT);
     let exit = learner

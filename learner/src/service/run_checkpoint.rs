@@ -196,7 +196,11 @@ pub fn resume(
                         loaded.dir.display()
                     )
                 })?;
-                unet_training = "state restored";
+                unet_training = if state.average.is_some() && affordance.averages_weights() {
+                    "state restored, with its weight average"
+                } else {
+                    "state restored"
+                };
             }
             _ => {
                 tracing::warn!(

@@ -204,6 +204,12 @@ impl AffordanceLearner {
         self.dataset.add_episode(episode, frames, &mut self.rng);
     }
 
+    /// Whether the gate takes an average of the recent weights (`[unet]
+    /// weight_average`) rather than the latest.
+    pub fn averages_weights(&self) -> bool {
+        self.average.is_some()
+    }
+
     /// Gradient steps owed for each episode that arrives (`[unet]
     /// steps_per_episode`).
     pub fn steps_per_episode(&self) -> usize {
