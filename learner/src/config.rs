@@ -225,6 +225,12 @@ impl LearnerConfig {
             "unet.validation_fraction + unet.test_fraction must be in 0..1"
         );
         anyhow::ensure!(
+            (0.0..1.0).contains(&u.rare_positive_share),
+            "unet.rare_positive_share must be in 0..1 (0: the cap drops every frame oldest \
+             first), got {}",
+            u.rare_positive_share
+        );
+        anyhow::ensure!(
             (0.0..1.0).contains(&u.weight_average),
             "unet.weight_average must be in 0..1 (the share of the average each step keeps; 0 \
              deploys the latest weights), got {}",

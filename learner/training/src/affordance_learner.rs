@@ -173,6 +173,7 @@ impl AffordanceLearner {
                 validation_fraction: settings.validation_fraction,
                 test_fraction: settings.test_fraction,
                 max_held_out: settings.max_held_out_frames,
+                rare_positive_share: settings.rare_positive_share,
             }),
             settings: settings.clone(),
             affordances,

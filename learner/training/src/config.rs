@@ -77,6 +77,13 @@ pub struct UnetConfig {
     pub max_uses: u32,
     /// Frames held at most; the oldest go first.
     pub max_frames: usize,
+    /// Frames with positive labels of an affordance that has positives in
+    /// fewer than this share of the training frames are the last that
+    /// `max_frames` drops (they still leave after `max_uses`); 0 drops
+    /// every frame oldest first. Successful pick-ups are rare (a few dozen
+    /// in 10 k steps at 64 px) and get rarer as the policy tries less, so
+    /// the newest frames alone hold only the last few of them.
+    pub rare_positive_share: f64,
     /// Share of new frames that go to validation.
     pub validation_fraction: f64,
     /// Share of new frames that go to test.
@@ -139,6 +146,7 @@ impl Default for UnetConfig {
             hold_actors_beyond_episodes: 8,
             max_uses: 35,
             max_frames: 4_000,
+            rare_positive_share: 0.0,
             validation_fraction: 0.15,
             test_fraction: 0.15,
             max_validation_frames: 64,

@@ -3,6 +3,12 @@
 //! with a bound on memory. Each held-out split keeps only its newest frames:
 //! older ones move to training, so held-out data stays recent and bounded
 //! while training frames, which leave after their uses, keep coming.
+//!
+//! The cap can spare the frames that show an affordance's rare positives
+//! (`rare_positive_share`): a pick-up succeeds a few dozen times in 10 k
+//! steps, and the newest frames alone (dropped oldest first) hold only the
+//! last few successes, so the network forgets the earlier ones as the policy
+//! tries less (docs/ladder.md, "An average of the recent weights").
 
 use std::collections::VecDeque;
 use std::sync::Arc;
@@ -26,6 +32,12 @@ pub struct DatasetConfig {
     pub test_fraction: f64,
     /// Frames each held-out split keeps; beyond it the oldest move to training.
     pub max_held_out: usize,
+    /// The cap spares training frames with positive labels of an affordance
+    /// that has positives in fewer than this share of the training frames
+    /// (they still leave after their uses); 0 spares none. Self-limiting:
+    /// once an affordance's positive frames reach the share, the cap drops
+    /// them oldest first like any other.
+    pub rare_positive_share: f64,
 }
 
 impl Default for DatasetConfig {
@@ -36,6 +48,7 @@ impl Default for DatasetConfig {
             validation_fraction: 0.15,
             test_fraction: 0.15,
             max_held_out: 512,
+            rare_positive_share: 0.0,
         }
     }
 }
@@ -57,6 +70,20 @@ struct Entry {
     episode: u64,
     frame: Arc<LabelledFrame>,
     uses: u32,
+    /// Bit `a` set: the frame has a positive label for affordance `a`.
+    positives: u64,
+}
+
+/// The affordances (as bits, the first 64) with a positive label in `frame`.
+fn positive_planes(frame: &LabelledFrame) -> u64 {
+    let pixels = frame.size[0] * frame.size[1];
+    frame
+        .labels
+        .chunks(pixels.max(1))
+        .take(64)
+        .enumerate()
+        .filter(|(_, plane)| plane.contains(&1))
+        .fold(0, |bits, (a, _)| bits | 1 << a)
 }
 
 /// Counters a user would watch.
@@ -68,6 +95,9 @@ pub struct DatasetCounters {
     pub evicted_after_uses: u64,
     /// Frames dropped (oldest first) to stay under `max_frames`.
     pub evicted_by_cap: u64,
+    /// Times the cap passed over a frame with rare positives to drop a
+    /// newer one (`rare_positive_share`).
+    pub spared_by_cap: u64,
     /// Held-out frames moved to training when their split was full.
     pub moved_to_train: u64,
 }
@@ -124,6 +154,7 @@ impl AffordanceDataset {
             };
             let entry = Entry {
                 episode,
+                positives: positive_planes(&frame),
                 frame: Arc::new(frame),
                 uses: 0,
             };
@@ -149,19 +180,48 @@ impl AffordanceDataset {
     }
 
     /// Drops the oldest frames (training first, then validation, then test)
-    /// until the total fits `max_frames`.
+    /// until the total fits `max_frames`; training frames with rare
+    /// positives go after every other training frame.
     fn enforce_cap(&mut self) {
         while self.train.len() + self.validation.len() + self.test.len() > self.config.max_frames {
-            let dropped = self
-                .train
-                .pop_front()
-                .or_else(|| self.validation.pop_front())
-                .or_else(|| self.test.pop_front());
+            let rare = self.rare_affordances();
+            let dropped = match self.train.iter().position(|e| e.positives & rare == 0) {
+                Some(i) => {
+                    self.counters.spared_by_cap += u64::from(i > 0);
+                    self.train.remove(i)
+                }
+                None => self.train.pop_front(),
+            }
+            .or_else(|| self.validation.pop_front())
+            .or_else(|| self.test.pop_front());
             if dropped.is_none() {
                 break;
             }
             self.counters.evicted_by_cap += 1;
         }
+    }
+
+    /// The affordances (as bits) whose positive labels are in fewer than
+    /// `rare_positive_share` of the training frames, among those that have
+    /// any.
+    fn rare_affordances(&self) -> u64 {
+        if self.config.rare_positive_share <= 0.0 {
+            return 0;
+        }
+        let mut counts = [0usize; 64];
+        for entry in &self.train {
+            let mut bits = entry.positives;
+            while bits != 0 {
+                counts[bits.trailing_zeros() as usize] += 1;
+                bits &= bits - 1;
+            }
+        }
+        let limit = self.config.rare_positive_share * self.train.len() as f64;
+        counts
+            .iter()
+            .enumerate()
+            .filter(|&(_, &c)| c > 0 && (c as f64) < limit)
+            .fold(0, |bits, (a, _)| bits | 1 << a)
     }
 
     /// Draws up to `n` distinct training frames uniformly, counts one use for

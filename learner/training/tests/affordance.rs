@@ -490,3 +490,71 @@ fn unet_training_resumed_with_the_saved_adam_state_continues_the_same_optimisati
         "{err}"
     );
 }
+
+/// A frame whose first plane (pick up) is positive where `pick_up` says and
+/// whose second (push) is positive everywhere.
+fn two_plane_frame(tag: f32, pick_up: bool) -> LabelledFrame {
+    let mut labels = vec![u8::from(pick_up); 64];
+    labels.extend([1; 64]);
+    LabelledFrame {
+        size: [8, 8],
+        rgbd: vec![tag; 4 * 64],
+        labels,
+    }
+}
+
+#[test]
+fn the_cap_drops_rare_positives_last_until_they_reach_their_share() {
+    let mut rng = StdRng::seed_from_u64(8);
+    let config = |rare_positive_share| DatasetConfig {
+        max_frames: 100,
+        validation_fraction: 0.0,
+        test_fraction: 0.0,
+        rare_positive_share,
+        ..DatasetConfig::default()
+    };
+    let (mut plain, mut sparing) = (
+        AffordanceDataset::new(config(0.0)),
+        AffordanceDataset::new(config(0.25)),
+    );
+    // 60 episodes of 10 frames; one frame in each of the first 20 episodes
+    // shows a pick-up (its tag the episode), push positives everywhere.
+    for episode in 0..60u64 {
+        let frames: Vec<LabelledFrame> = (0..10)
+            .map(|i| two_plane_frame(episode as f32, i == 0 && episode < 20))
+            .collect();
+        plain.add_episode(episode, frames.clone(), &mut rng);
+        sparing.add_episode(episode, frames, &mut rng);
+    }
+    let pick_ups = |data: &AffordanceDataset| {
+        data.frames(Split::Train)
+            .iter()
+            .filter(|f| f.labels[..64].contains(&1))
+            .map(|f| f.rgbd[0] as u64)
+            .collect::<Vec<_>>()
+    };
+    assert!(
+        pick_ups(&plain).is_empty(),
+        "oldest first: the pick-ups are gone"
+    );
+    // Push positives are in every frame, so they are never rare; the 20
+    // pick-up frames stay, under their share of 25 of the 100 frames.
+    assert_eq!(pick_ups(&sparing), (0..20).collect::<Vec<_>>());
+    assert_eq!(sparing.sizes().0, 100);
+    assert!(sparing.counters().spared_by_cap > 0);
+
+    // Rare no more: with 40 pick-up frames the share caps them at 25.
+    let mut crowded = AffordanceDataset::new(config(0.25));
+    for episode in 0..60u64 {
+        let frames: Vec<LabelledFrame> = (0..10)
+            .map(|i| two_plane_frame(episode as f32, i < 2 && episode < 20))
+            .collect();
+        crowded.add_episode(episode, frames, &mut rng);
+    }
+    let kept = pick_ups(&crowded);
+    assert_eq!(kept.len(), 25, "{kept:?}");
+    assert!(
+        kept.iter().all(|&e| e >= 7),
+        "the oldest went first: {kept:?}"
+    );
+}
