@@ -72,7 +72,7 @@ pub struct UnetTrainingState {
 }
 
 /// What one round of U-Net training did.
-#[derive(Debug, Clone, Copy, Serialize)]
+#[derive(Debug, Clone, Serialize)]
 pub struct UnetRound {
     /// Gradient steps the round took.
     pub steps: usize,
@@ -92,6 +92,8 @@ pub struct UnetRound {
     pub temperature: f32,
     /// Frames in the dataset: train, validation, test.
     pub frames: (usize, usize, usize),
+    /// Training frames with a positive label, per affordance.
+    pub positive_frames: Vec<usize>,
 }
 
 /// The U-Net being trained, the deployed one, and the dataset.
@@ -275,6 +277,7 @@ impl AffordanceLearner {
             replaced: gate.replace,
             temperature: self.temperature,
             frames: self.dataset.sizes(),
+            positive_frames: self.dataset.positive_frames(self.affordances),
         })
     }
 

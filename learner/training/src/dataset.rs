@@ -201,6 +201,19 @@ impl AffordanceDataset {
         }
     }
 
+    /// Training frames with a positive label, per affordance (the first
+    /// `affordances`): how many of its rare positives the U-Net trains on.
+    pub fn positive_frames(&self, affordances: usize) -> Vec<usize> {
+        (0..affordances.min(64))
+            .map(|a| {
+                self.train
+                    .iter()
+                    .filter(|e| e.positives >> a & 1 == 1)
+                    .count()
+            })
+            .collect()
+    }
+
     /// The affordances (as bits) whose positive labels are in fewer than
     /// `rare_positive_share` of the training frames, among those that have
     /// any.

@@ -540,6 +540,8 @@ fn the_cap_drops_rare_positives_last_until_they_reach_their_share() {
     // Push positives are in every frame, so they are never rare; the 20
     // pick-up frames stay, under their share of 25 of the 100 frames.
     assert_eq!(pick_ups(&sparing), (0..20).collect::<Vec<_>>());
+    assert_eq!(sparing.positive_frames(2), vec![20, 100]);
+    assert_eq!(plain.positive_frames(2), vec![0, 100]);
     assert_eq!(sparing.sizes().0, 100);
     assert!(sparing.counters().spared_by_cap > 0);
 
