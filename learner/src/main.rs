@@ -51,8 +51,10 @@ enum Command {
         #[arg(long, default_value_t = 20)]
         window: usize,
     },
-    /// Print a run's history as a table: the mean of every episode metric and
-    /// the policy's entropy per span of environment steps (Markdown, or JSON).
+    /// Print a run's history as a table: the mean of every episode metric,
+    /// the policy's entropy, the U-Net's gradient steps per episode and what
+    /// its dataset held (training frames, and those with positives per
+    /// affordance) per span of environment steps (Markdown, or JSON).
     Summary {
         /// A run directory (holds history.jsonl). Repeat it for repeats of
         /// one setting (seeds): each cell is then the runs' mean with their

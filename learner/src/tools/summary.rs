@@ -1,6 +1,7 @@
 //! `learner summary`: a run's history as a table of means per span of
-//! environment steps (every episode metric, the policy's entropy and the
-//! U-Net's gradient steps per episode), so
+//! environment steps (every episode metric, the policy's entropy, the
+//! U-Net's gradient steps per episode and what its dataset held: training
+//! frames, and those with positives per affordance), so
 //! that a long run, or two runs side by side, can be read without plotting:
 //! where the success rate peaked, when the policy stopped trying. Repeats of
 //! one setting (seeds) summarise as the runs' mean with their range.
@@ -10,7 +11,7 @@ use std::path::{Path, PathBuf};
 
 use std::collections::BTreeMap;
 
-use proto::StatKey;
+use proto::{Affordance, StatKey};
 use serde_json::{json, Value};
 
 use crate::history::read_records;
@@ -66,6 +67,13 @@ pub struct SummaryRow {
     /// The U-Net's gradient steps in the span per episode that ended in it
     /// (histories written before rounds recorded their steps: none).
     pub unet_steps_per_episode: Option<Spread>,
+    /// The U-Net's training frames at the span's last round (histories
+    /// written before rounds recorded their frames: none).
+    pub unet_training_frames: Option<Spread>,
+    /// Of those, the frames with positives, per affordance in
+    /// [`Affordance::ALL`] order (histories written before rounds recorded
+    /// them: none).
+    pub unet_positive_frames: Vec<Option<Spread>>,
 }
 
 /// A run's history, or repeats' histories, span by span.
@@ -88,6 +96,10 @@ struct SpanSums {
     entropy: (f64, usize),
     /// Gradient steps of the U-Net rounds that recorded them, and whether any did.
     unet_steps: Option<u64>,
+    /// The last round's training frames and its frames with positives per
+    /// affordance, where recorded.
+    unet_training_frames: Option<u64>,
+    unet_positive_frames: Option<Vec<u64>>,
 }
 
 /// Means of `run_dir`'s history per `every` environment steps.
@@ -119,8 +131,16 @@ pub(crate) fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
                 }
             }
             Some("unet") => {
-                if let Some(steps) = record["round"]["steps"].as_u64() {
+                let round = &record["round"];
+                if let Some(steps) = round["steps"].as_u64() {
                     *span.unet_steps.get_or_insert(0) += steps;
+                }
+                if let Some(training) = round["frames"][0].as_u64() {
+                    span.unet_training_frames = Some(training);
+                }
+                if let Some(positives) = round["positive_frames"].as_array() {
+                    span.unet_positive_frames =
+                        Some(positives.iter().filter_map(Value::as_u64).collect());
                 }
             }
             _ => {}
@@ -150,6 +170,16 @@ pub(crate) fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
             unet_steps_per_episode: span
                 .unet_steps
                 .map(|steps| Spread::one(steps as f64 / span.episodes as f64)),
+            unet_training_frames: span.unet_training_frames.map(|n| Spread::one(n as f64)),
+            unet_positive_frames: Affordance::ALL
+                .iter()
+                .map(|a| {
+                    let counts = span.unet_positive_frames.as_ref()?;
+                    counts
+                        .get(a.code() as usize)
+                        .map(|&n| Spread::one(n as f64))
+                })
+                .collect(),
         })
         .collect();
     Ok(Summary {
@@ -204,6 +234,18 @@ pub fn summarize_repeats(run_dirs: &[PathBuf], every: u64) -> anyhow::Result<Sum
                 span.iter()
                     .filter_map(|(_, r)| r.unet_steps_per_episode.map(|s| s.mean)),
             ),
+            unet_training_frames: Spread::of(
+                span.iter()
+                    .filter_map(|(_, r)| r.unet_training_frames.map(|s| s.mean)),
+            ),
+            unet_positive_frames: (0..Affordance::COUNT)
+                .map(|a| {
+                    Spread::of(
+                        span.iter()
+                            .filter_map(|(_, r)| r.unet_positive_frames[a].map(|s| s.mean)),
+                    )
+                })
+                .collect(),
         });
     }
     anyhow::ensure!(
@@ -225,8 +267,12 @@ impl Summary {
         for field in &self.fields {
             let _ = write!(out, " {} |", field.name());
         }
-        out.push_str(" ppo entropy | U-Net steps per episode |\n|---|---|");
-        out.push_str(&"---|".repeat(self.fields.len() + 2));
+        out.push_str(" ppo entropy | U-Net steps per episode | U-Net training frames |");
+        for affordance in Affordance::ALL {
+            let _ = write!(out, " … with {} positives |", affordance.as_str());
+        }
+        out.push_str("\n|---|---|");
+        out.push_str(&"---|".repeat(self.fields.len() + 3 + Affordance::COUNT));
         out.push('\n');
         let repeats = self.runs > 1;
         let cell = |v: Option<Spread>| match v {
@@ -245,12 +291,17 @@ impl Summary {
             for &v in &row.means {
                 let _ = write!(out, " {} |", cell(v));
             }
-            let _ = writeln!(
+            let _ = write!(
                 out,
-                " {} | {} |",
+                " {} | {} | {} |",
                 cell(row.entropy),
-                cell(row.unet_steps_per_episode)
+                cell(row.unet_steps_per_episode),
+                cell(row.unet_training_frames)
             );
+            for &v in &row.unet_positive_frames {
+                let _ = write!(out, " {} |", cell(v));
+            }
+            out.push('\n');
         }
         out
     }
@@ -266,40 +317,48 @@ fn steps(n: u64) -> String {
 }
 
 impl From<&Summary> for Value {
-    /// One object per span: `means` per metric, `ppo_entropy` and
-    /// `unet_steps_per_episode`; over
-    /// repeats also `ranges`, each metric's `[lowest, highest]` run mean.
+    /// One object per span: `means` per metric, `ppo_entropy`,
+    /// `unet_steps_per_episode`, `unet_training_frames` and
+    /// `unet_positive_frames` (by affordance); over repeats also `ranges`,
+    /// each of these' `[lowest, highest]` run mean.
     fn from(summary: &Summary) -> Value {
+        let mean = |spread: &Option<Spread>| json!(spread.map(|s| s.mean));
+        let range = |spread: &Option<Spread>| json!(spread.map(|s| [s.min, s.max]));
         let rows: Vec<Value> = summary
             .rows
             .iter()
             .map(|row| {
                 let mut means = serde_json::Map::new();
                 let mut ranges = serde_json::Map::new();
-                let columns = summary
-                    .fields
-                    .iter()
-                    .map(|f| f.name())
-                    .zip(&row.means)
-                    .chain([
-                        ("ppo_entropy".into(), &row.entropy),
-                        ("unet_steps_per_episode".into(), &row.unet_steps_per_episode),
-                    ]);
-                for (name, spread) in columns {
-                    if name != "ppo_entropy" && name != "unet_steps_per_episode" {
-                        means.insert(name.to_string(), json!(spread.map(|s| s.mean)));
-                    }
-                    ranges.insert(name.into_owned(), json!(spread.map(|s| [s.min, s.max])));
+                for (name, spread) in summary.fields.iter().map(|f| f.name()).zip(&row.means) {
+                    means.insert(name.to_string(), mean(spread));
+                    ranges.insert(name.into_owned(), range(spread));
                 }
+                let by_affordance = |value: &dyn Fn(&Option<Spread>) -> Value| {
+                    let pairs = Affordance::ALL.iter().zip(&row.unet_positive_frames);
+                    Value::Object(pairs.map(|(a, s)| (a.as_str().into(), value(s))).collect())
+                };
                 let mut object = json!({
                     "from_steps": row.from_steps,
                     "to_steps": row.to_steps,
                     "episodes": row.episodes,
                     "means": means,
-                    "ppo_entropy": row.entropy.map(|s| s.mean),
-                    "unet_steps_per_episode": row.unet_steps_per_episode.map(|s| s.mean),
+                    "ppo_entropy": mean(&row.entropy),
+                    "unet_steps_per_episode": mean(&row.unet_steps_per_episode),
+                    "unet_training_frames": mean(&row.unet_training_frames),
+                    "unet_positive_frames": by_affordance(&mean),
                 });
                 if summary.runs > 1 {
+                    ranges.insert("ppo_entropy".into(), range(&row.entropy));
+                    ranges.insert(
+                        "unet_steps_per_episode".into(),
+                        range(&row.unet_steps_per_episode),
+                    );
+                    ranges.insert(
+                        "unet_training_frames".into(),
+                        range(&row.unet_training_frames),
+                    );
+                    ranges.insert("unet_positive_frames".into(), by_affordance(&range));
                     object["runs"] = json!(summary.runs);
                     object["ranges"] = Value::Object(ranges);
                 }
@@ -341,6 +400,15 @@ mod tests {
         history
             .record("unet", 500, json!({"round": {"steps": 8}}))
             .unwrap();
+        // The span's last round says what the dataset held at its end.
+        let round = json!({"steps": 2, "frames": [40, 5, 5], "positive_frames": [3, 30]});
+        history
+            .record("unet", 600, json!({"round": round}))
+            .unwrap();
+        let round = json!({"frames": [50, 5, 5], "positive_frames": [4, 35]});
+        history
+            .record("unet", 800, json!({"round": round}))
+            .unwrap();
         history.record("unet", 1500, json!({"round": {}})).unwrap();
         episode(&mut history, 2500, 0.5, Some(0.1));
         drop(history);
@@ -369,27 +437,42 @@ mod tests {
             "only episodes that reported it"
         );
         assert_eq!(first.entropy, Some(Spread::one(1.5)));
-        assert_eq!(first.unet_steps_per_episode, Some(Spread::one(4.0)));
+        assert_eq!(first.unet_steps_per_episode, Some(Spread::one(5.0)));
+        assert_eq!(first.unet_training_frames, Some(Spread::one(50.0)));
+        assert_eq!(
+            first.unet_positive_frames,
+            [Some(Spread::one(4.0)), Some(Spread::one(35.0))]
+        );
         let last = &summary.rows[1];
         assert_eq!((last.from_steps, last.to_steps), (2000, 2500));
         assert_eq!(last.entropy, None);
+        assert_eq!(last.unet_positive_frames, [None, None]);
 
         let table = summary.markdown();
         assert!(table.starts_with(
-            "| steps | episodes | interaction_success_rate | interaction_attempt_rate | ppo entropy | U-Net steps per episode |"
+            "| steps | episodes | interaction_success_rate | interaction_attempt_rate | ppo entropy \
+             | U-Net steps per episode | U-Net training frames | … with pick_up positives \
+             | … with push positives |\n|---|---|---|---|---|---|---|---|---|\n"
         ));
         assert!(
-            table.contains("| 0–1 k | 2 | 0.200 | 0.200 | 1.500 | 4.000 |"),
+            table.contains(
+                "| 0–1 k | 2 | 0.200 | 0.200 | 1.500 | 5.000 | 50.000 | 4.000 | 35.000 |"
+            ),
             "{table}"
         );
         assert!(
-            table.contains("| 2 k–2500 | 1 | 0.500 | 0.100 | – | – |"),
+            table.contains("| 2 k–2500 | 1 | 0.500 | 0.100 | – | – | – | – | – |"),
             "{table}"
         );
         let json = Value::from(&summary);
         assert_eq!(json[1]["means"]["interaction_success_rate"], 0.5);
         assert_eq!(json[0]["ppo_entropy"], 1.5);
-        assert_eq!(json[0]["unet_steps_per_episode"], 4.0);
+        assert_eq!(json[0]["unet_steps_per_episode"], 5.0);
+        assert_eq!(json[0]["unet_training_frames"], 50.0);
+        assert_eq!(
+            json[0]["unet_positive_frames"],
+            json!({"pick_up": 4.0, "push": 35.0})
+        );
         assert!(json[0].get("ranges").is_none(), "one run has no range");
     }
 
@@ -413,6 +496,16 @@ mod tests {
                 for &(steps, success, attempts) in *episodes {
                     episode(&mut history, steps, success, attempts);
                 }
+                // Datasets of 10 and 20 training frames, 1 and 3 of them
+                // with pick-up positives (seed C: none recorded).
+                if let Some(k) = ["a", "b"].iter().position(|n| n == name) {
+                    let k = k as u64;
+                    let round =
+                        json!({"frames": [10 + 10 * k, 1, 1], "positive_frames": [1 + 2 * k, 5]});
+                    history
+                        .record("unet", 100, json!({"round": round}))
+                        .unwrap();
+                }
                 dir
             })
             .collect();
@@ -432,7 +525,10 @@ mod tests {
         );
         let table = summary.markdown();
         assert!(
-            table.contains("| 0–700 | 2 | 0.200 (0.100–0.300) | 0.200 (0.200–0.200) | – | – |"),
+            table.contains(
+                "| 0–700 | 2 | 0.200 (0.100–0.300) | 0.200 (0.200–0.200) | – | – \
+                 | 15.000 (10.000–20.000) | 2.000 (1.000–3.000) | 5.000 (5.000–5.000) |"
+            ),
             "{table}"
         );
         let json = Value::from(&summary);
@@ -440,6 +536,14 @@ mod tests {
         assert_eq!(
             json[0]["ranges"]["interaction_success_rate"],
             json!([0.1, 0.3])
+        );
+        assert_eq!(
+            json[0]["ranges"]["unet_positive_frames"]["pick_up"],
+            json!([1.0, 3.0])
+        );
+        assert_eq!(
+            json[0]["ranges"]["unet_training_frames"],
+            json!([10.0, 20.0])
         );
 
         assert_eq!(
