@@ -226,7 +226,7 @@ impl<'a> Actor<'a> {
         }
         let started = Instant::now();
         if self.summary.held_s == 0.0 {
-            eprintln!(
+            tracing::info!(
                 "actor {}: waiting for the learner's U-Net to catch up (its [unet] \
                  hold_actors_beyond_episodes; further waits are only counted)",
                 self.settings.actor_id
@@ -394,7 +394,7 @@ pub fn run(
         envs.iter().all(|e| *e.layout() == layout),
         "an actor's environments share one task"
     );
-    eprintln!(
+    tracing::info!(
         "actor {}: waiting up to {:.0} s for weights on service prefix {:?}",
         settings.actor_id,
         settings.weights_timeout.as_secs_f64(),
@@ -434,7 +434,7 @@ pub fn run(
         }
     };
     let model = RwLock::new(model);
-    eprintln!(
+    tracing::info!(
         "actor {}: got policy version {}, U-Net version {}; {} environment(s)",
         settings.actor_id,
         policy.policy_version,

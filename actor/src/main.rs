@@ -176,16 +176,7 @@ struct RunArgs {
 
 fn main() -> anyhow::Result<()> {
     let heap_kept = nets::heap::keep_freed_memory();
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
-        .with_writer(std::io::stderr)
-        // Colour codes only for a terminal: logs written to files stay plain text.
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .init();
-    transport::init_iceoryx_logging();
+    transport::init_logging("info");
     if !heap_kept {
         tracing::warn!(
             "the C allocator refused to keep freed memory: steps may fault pages in afresh"
@@ -385,7 +376,7 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
     if let Some(prefix) = &cli.learner {
         transport.service_prefix = prefix.clone();
     }
-    eprintln!(
+    tracing::info!(
         "actor {}: {}; task {:?} {} {:?} at {} px; {} environment(s) on {}, seed {}, rooms {:?}, \
          profile {}, renderer {:?}, data {}",
         actor_id,
@@ -437,7 +428,7 @@ fn run_actor(cli: RunArgs) -> anyhow::Result<()> {
     let summary = run(
         envs, model, &mut ports, &transport, &settings, &device, &stop,
     )?;
-    eprintln!(
+    tracing::info!(
         "actor {}: stopped after {} episodes, {} steps; {} messages delivered, {} dropped; policy version {}, U-Net version {}; {:.0} s waiting for the learner's U-Net; {} weights messages refused",
         actor_id,
         summary.episodes,

@@ -12,7 +12,6 @@ use learner::config::LearnerConfig;
 use learner::service::{resume, Trainers};
 use learner::shared::Shared;
 use learner::status::LearnerStatus;
-use tracing_subscriber::EnvFilter;
 
 #[derive(Parser)]
 #[command(version, about = "The learner of the affordance-exploration service", long_about = None)]
@@ -279,15 +278,7 @@ fn parse_value<T: serde::de::DeserializeOwned>(flag: &str, value: &str) -> anyho
 
 fn main() -> anyhow::Result<()> {
     let heap_kept = nets::heap::keep_freed_memory();
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info")),
-        )
-        .with_writer(std::io::stderr)
-        // Colour codes only for a terminal: logs written to files stay plain text.
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .init();
-    transport::init_iceoryx_logging();
+    transport::init_logging("info");
     if !heap_kept {
         tracing::warn!(
             "the C allocator refused to keep freed memory: training steps may fault pages in afresh"
@@ -418,8 +409,8 @@ fn load_config(args: &ServeArgs, run_dir: &Path) -> anyhow::Result<LearnerConfig
     if args.resume.is_some() && saved.exists() {
         let (resumed, ignored) = config.for_resume(&LearnerConfig::from_toml_file(&saved)?);
         for what in ignored {
-            eprintln!(
-                "learner: resuming keeps the run's {what} from {} (its checkpoints were made \
+            tracing::warn!(
+                "resuming keeps the run's {what} from {} (its checkpoints were made \
                  for it); the one given is ignored",
                 saved.display()
             );
@@ -484,7 +475,7 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         .and_then(|n| n.to_str())
         .unwrap_or("run")
         .to_string();
-    eprintln!("learner config (run {run_id}):\n{}", config.to_toml());
+    tracing::info!("learner config (run {run_id}):\n{}", config.to_toml());
     tracing::info!("{}", config.transport.describe());
 
     let checkpoint_dir = run_dir.join("checkpoints");
@@ -497,8 +488,8 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
     let mut status = LearnerStatus::new(run_id);
     if args.resume.is_some() && !resume(&checkpoint_dir, &mut trainers, &mut status)? {
         let aside = set_aside_history(&run_dir)?;
-        eprintln!(
-            "learner: {} has no checkpoint (its learner stopped before writing one): starting \
+        tracing::warn!(
+            "{} has no checkpoint (its learner stopped before writing one): starting \
              the run afresh in the same directory, with its config.toml{}",
             run_dir.display(),
             aside.map_or(String::new(), |to| format!(
@@ -532,7 +523,7 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
 
     let training = learner::service::spawn(shared.clone(), trainers, checkpoint_dir)?;
     std::fs::write(run_dir.join("http.addr"), addr.to_string()).context("writing http.addr")?;
-    println!("metrics: http://{addr}/metrics  status: http://{addr}/api/status");
+    tracing::info!("metrics: http://{addr}/metrics  status: http://{addr}/api/status");
 
     let http_shared = shared.clone();
     runtime.block_on(async move {
@@ -564,6 +555,10 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
     })?;
     match training.join() {
         Ok(result) => result.context("the training loop failed"),
-        Err(_) => bail!("the training loop panicked"),
+        Err(_) => bail!(
+            "the training loop panicked (its message is in the log above, unless the log \
+             could not be written: is the disk full?); continue the run from its newest \
+             checkpoint with --resume"
+        ),
     }
 }

@@ -88,8 +88,12 @@ impl Process {
         Self { child, log }
     }
 
-    /// The log so far.
+    /// The log so far (empty when the log is no regular file, e.g.
+    /// `/dev/full`, whose reads never end).
     pub fn log_text(&self) -> String {
+        if !std::fs::metadata(&self.log).is_ok_and(|m| m.is_file()) {
+            return String::new();
+        }
         std::fs::read_to_string(&self.log).unwrap_or_default()
     }
 

@@ -86,7 +86,7 @@ pub(super) fn load_weights(
                 .with_weights(bytes, temperature)
                 .context("loading the learner's U-Net")?,
         );
-        eprintln!(
+        tracing::info!(
             "actor: loaded U-Net version {} (temperature {temperature:.3})",
             header.unet_version
         );

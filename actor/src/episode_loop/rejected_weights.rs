@@ -36,7 +36,7 @@ impl RejectedWeights {
                 || "still waiting for valid weights".to_string(),
                 |v| format!("keeping policy version {v}"),
             );
-            eprintln!(
+            tracing::warn!(
                 "actor {actor_id}: skipped a weights message ({error:#}); {keeping}; \
                  further messages of this kind are only counted"
             );

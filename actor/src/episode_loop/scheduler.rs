@@ -45,7 +45,7 @@ pub(super) fn run(
         drive(actor, &threads, stop)
         // Dropping `threads` ends them; the scope waits for them.
     })?;
-    eprintln!(
+    tracing::info!(
         "actor {}: {}",
         actor.settings.actor_id,
         clock.report(started.elapsed(), actor.summary.steps - steps_before)
@@ -56,12 +56,12 @@ pub(super) fn run(
         .since(&batches_before)
         .describe(started.elapsed())
     {
-        eprintln!("actor {}: {unet}", actor.settings.actor_id);
+        tracing::info!("actor {}: {unet}", actor.settings.actor_id);
     }
     // And what its environments' steps were made of: their own work, or
     // waiting (for a render's read-back, for their frame's U-Net batch).
     if let Some(phases) = step_phases().since(&phases_before).describe() {
-        eprintln!("actor {}: {phases}", actor.settings.actor_id);
+        tracing::info!("actor {}: {phases}", actor.settings.actor_id);
     }
     Ok(())
 }

@@ -432,10 +432,20 @@ impl Learner {
     }
 }
 
+/// Asks the whole process to stop when dropped: the receive loop holds one,
+/// so that its end, by error or by panic, ends the process too.
+struct StopOnExit(Arc<Shared>);
+
+impl Drop for StopOnExit {
+    fn drop(&mut self) {
+        self.0.shutdown.store(true, Ordering::Relaxed);
+    }
+}
+
 /// Starts the learner on a thread of its own and returns once its
 /// shared-memory services are open. iceoryx2 ports are not `Send`, so the
 /// thread opens its own; the history goes into the run directory. The
-/// thread sets `shutdown` when it ends, whatever the reason.
+/// thread sets `shutdown` when it ends, whatever the reason (a panic too).
 pub fn spawn(
     shared: Arc<Shared>,
     trainers: Trainers,
@@ -450,6 +460,10 @@ pub fn spawn(
     let thread = std::thread::Builder::new()
         .name("receive-loop".into())
         .spawn(move || {
+            // However the loop ends, a panic included, the process stops:
+            // the HTTP endpoint must not go on serving a run that no longer
+            // trains.
+            let _stop = StopOnExit(shared.clone());
             let ports = match LearnerPorts::open(&shared.config.transport, join_key.clone()) {
                 Ok(ports) => ports,
                 Err(e) => {
@@ -458,7 +472,7 @@ pub fn spawn(
                 }
             };
             let _ = opened_tx.send(Ok(()));
-            let result = History::open(&shared.run_dir).and_then(|history| {
+            History::open(&shared.run_dir).and_then(|history| {
                 Learner::new(
                     shared.clone(),
                     ports,
@@ -468,9 +482,7 @@ pub fn spawn(
                     join_key,
                 )
                 .run()
-            });
-            shared.shutdown.store(true, Ordering::Relaxed);
-            result
+            })
         })
         .context("starting the learner thread")?;
     opened_rx

@@ -19,6 +19,7 @@ mod config;
 mod error;
 mod join_key;
 mod learner_side;
+mod logging;
 pub mod membership;
 mod services;
 mod wakeup;
@@ -30,6 +31,7 @@ pub use config::TransportConfig;
 pub use error::{TransportError, SLOTS_TAKEN_EXIT};
 pub use join_key::{load_or_create_join_key, read_join_key, JoinKeyFileError, JOIN_KEY_FILE};
 pub use learner_side::{LearnerPorts, ReceivedMessage};
+pub use logging::init_logging;
 pub use wakeup::Wakeup;
 pub use weights_side::{WeightsSubscriber, WeightsTap};
 
@@ -110,9 +112,4 @@ pub(crate) fn loan_copy(
         std::ptr::copy_nonoverlapping(bytes.as_ptr(), buf.as_mut_ptr().cast::<u8>(), bytes.len());
         Some(sample.assume_init())
     }
-}
-
-/// Quietens iceoryx2's own logger to warnings unless `IOX2_LOG_LEVEL` says otherwise.
-pub fn init_iceoryx_logging() {
-    iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Warn);
 }
