@@ -51,7 +51,8 @@ enum Command {
         window: usize,
     },
     /// Print a run's history as a table: the mean of every episode metric,
-    /// the policy's entropy, the U-Net's gradient steps per episode and what
+    /// successes per thousand steps per affordance, the policy's entropy,
+    /// the U-Net's gradient steps per episode and what
     /// its dataset held (training frames, and those with positives per
     /// affordance) per span of environment steps (Markdown, or JSON).
     Summary {

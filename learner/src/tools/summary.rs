@@ -1,7 +1,8 @@
 //! `learner summary`: a run's history as a table of means per span of
-//! environment steps (every episode metric, the policy's entropy, the
-//! U-Net's gradient steps per episode and what its dataset held: training
-//! frames, and those with positives per affordance), so
+//! environment steps (every episode metric, successes per thousand steps
+//! per affordance, the policy's entropy, the U-Net's gradient steps per
+//! episode and what its dataset held: training frames, and those with
+//! positives per affordance), so
 //! that a long run, or two runs side by side, can be read without plotting:
 //! where the success rate peaked, when the policy stopped trying. Repeats of
 //! one setting (seeds) summarise as the runs' mean with their range.
@@ -11,7 +12,7 @@ use std::path::{Path, PathBuf};
 
 use std::collections::BTreeMap;
 
-use proto::{Affordance, StatKey};
+use proto::{Affordance, AffordanceStat, StatKey};
 use serde_json::{json, Value};
 
 use crate::history::read_records;
@@ -62,6 +63,11 @@ pub struct SummaryRow {
     /// Mean of each of [`Summary::fields`] over the span's episodes that
     /// reported it.
     pub means: Vec<Option<Spread>>,
+    /// Successful attempts per thousand steps of the span's episodes, per
+    /// affordance in [`Affordance::ALL`] order (each success labels an
+    /// object positive: how fast positives enter the data); none without
+    /// an episode that reported the affordance's attempts.
+    pub successes_per_kilostep: Vec<Option<Spread>>,
     /// Mean entropy of the policy updates in the span.
     pub entropy: Option<Spread>,
     /// The U-Net's gradient steps in the span per episode that ended in it
@@ -93,6 +99,9 @@ struct SpanSums {
     episodes: usize,
     /// Sum and count per metric.
     fields: BTreeMap<StatKey, (f64, usize)>,
+    /// Per affordance: successes and steps of the episodes that reported
+    /// its attempts.
+    successes: [(f64, f64); Affordance::COUNT],
     entropy: (f64, usize),
     /// Gradient steps of the U-Net rounds that recorded them, and whether any did.
     unet_steps: Option<u64>,
@@ -116,6 +125,17 @@ pub(crate) fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
         match record["kind"].as_str() {
             Some("episode") => {
                 span.episodes += 1;
+                let steps = record["steps"].as_f64().unwrap_or(0.0);
+                let stats = &record["stats"];
+                for (a, sums) in Affordance::ALL.iter().zip(&mut span.successes) {
+                    let rate = |stat| stats[StatKey::Affordance(*a, stat).name().as_ref()].as_f64();
+                    if let Some(attempts) = rate(AffordanceStat::AttemptRate) {
+                        // An episode without attempts reports no success rate.
+                        let success = rate(AffordanceStat::SuccessRate).unwrap_or(0.0);
+                        sums.0 += attempts * steps * success;
+                        sums.1 += steps;
+                    }
+                }
                 for key in StatKey::all() {
                     if let Some(v) = record["stats"][key.name().as_ref()].as_f64() {
                         let (sum, n) = span.fields.entry(key).or_default();
@@ -165,6 +185,13 @@ pub(crate) fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
             means: fields
                 .iter()
                 .map(|f| span.fields.get(f).and_then(|&sums| mean(sums)))
+                .collect(),
+            successes_per_kilostep: span
+                .successes
+                .iter()
+                .map(|&(successes, steps)| {
+                    (steps > 0.0).then(|| Spread::one(1000.0 * successes / steps))
+                })
                 .collect(),
             entropy: mean(span.entropy),
             unet_steps_per_episode: span
@@ -229,6 +256,14 @@ pub fn summarize_repeats(run_dirs: &[PathBuf], every: u64) -> anyhow::Result<Sum
                 .iter()
                 .map(|&f| Spread::of(span.iter().filter_map(|&(s, r)| field_mean(s, r, f))))
                 .collect(),
+            successes_per_kilostep: (0..Affordance::COUNT)
+                .map(|a| {
+                    Spread::of(
+                        span.iter()
+                            .filter_map(|(_, r)| r.successes_per_kilostep[a].map(|s| s.mean)),
+                    )
+                })
+                .collect(),
             entropy: Spread::of(span.iter().filter_map(|(_, r)| r.entropy.map(|e| e.mean))),
             unet_steps_per_episode: Spread::of(
                 span.iter()
@@ -267,12 +302,15 @@ impl Summary {
         for field in &self.fields {
             let _ = write!(out, " {} |", field.name());
         }
+        for affordance in Affordance::ALL {
+            let _ = write!(out, " {} successes per 1 k steps |", affordance.as_str());
+        }
         out.push_str(" ppo entropy | U-Net steps per episode | U-Net training frames |");
         for affordance in Affordance::ALL {
             let _ = write!(out, " … with {} positives |", affordance.as_str());
         }
         out.push_str("\n|---|---|");
-        out.push_str(&"---|".repeat(self.fields.len() + 3 + Affordance::COUNT));
+        out.push_str(&"---|".repeat(self.fields.len() + 3 + 2 * Affordance::COUNT));
         out.push('\n');
         let repeats = self.runs > 1;
         let cell = |v: Option<Spread>| match v {
@@ -288,7 +326,7 @@ impl Summary {
                 steps(row.to_steps),
                 row.episodes
             );
-            for &v in &row.means {
+            for &v in row.means.iter().chain(&row.successes_per_kilostep) {
                 let _ = write!(out, " {} |", cell(v));
             }
             let _ = write!(
@@ -317,10 +355,11 @@ fn steps(n: u64) -> String {
 }
 
 impl From<&Summary> for Value {
-    /// One object per span: `means` per metric, `ppo_entropy`,
-    /// `unet_steps_per_episode`, `unet_training_frames` and
-    /// `unet_positive_frames` (by affordance); over repeats also `ranges`,
-    /// each of these' `[lowest, highest]` run mean.
+    /// One object per span: `means` per metric, `successes_per_kilostep`
+    /// (by affordance), `ppo_entropy`, `unet_steps_per_episode`,
+    /// `unet_training_frames` and `unet_positive_frames` (by affordance);
+    /// over repeats also `ranges`, each of these' `[lowest, highest]` run
+    /// mean.
     fn from(summary: &Summary) -> Value {
         let mean = |spread: &Option<Spread>| json!(spread.map(|s| s.mean));
         let range = |spread: &Option<Spread>| json!(spread.map(|s| [s.min, s.max]));
@@ -334,19 +373,21 @@ impl From<&Summary> for Value {
                     means.insert(name.to_string(), mean(spread));
                     ranges.insert(name.into_owned(), range(spread));
                 }
-                let by_affordance = |value: &dyn Fn(&Option<Spread>) -> Value| {
-                    let pairs = Affordance::ALL.iter().zip(&row.unet_positive_frames);
-                    Value::Object(pairs.map(|(a, s)| (a.as_str().into(), value(s))).collect())
-                };
+                let by_affordance =
+                    |spreads: &[Option<Spread>], value: &dyn Fn(&Option<Spread>) -> Value| {
+                        let pairs = Affordance::ALL.iter().zip(spreads);
+                        Value::Object(pairs.map(|(a, s)| (a.as_str().into(), value(s))).collect())
+                    };
                 let mut object = json!({
                     "from_steps": row.from_steps,
                     "to_steps": row.to_steps,
                     "episodes": row.episodes,
                     "means": means,
+                    "successes_per_kilostep": by_affordance(&row.successes_per_kilostep, &mean),
                     "ppo_entropy": mean(&row.entropy),
                     "unet_steps_per_episode": mean(&row.unet_steps_per_episode),
                     "unet_training_frames": mean(&row.unet_training_frames),
-                    "unet_positive_frames": by_affordance(&mean),
+                    "unet_positive_frames": by_affordance(&row.unet_positive_frames, &mean),
                 });
                 if summary.runs > 1 {
                     ranges.insert("ppo_entropy".into(), range(&row.entropy));
@@ -358,7 +399,14 @@ impl From<&Summary> for Value {
                         "unet_training_frames".into(),
                         range(&row.unet_training_frames),
                     );
-                    ranges.insert("unet_positive_frames".into(), by_affordance(&range));
+                    ranges.insert(
+                        "unet_positive_frames".into(),
+                        by_affordance(&row.unet_positive_frames, &range),
+                    );
+                    ranges.insert(
+                        "successes_per_kilostep".into(),
+                        by_affordance(&row.successes_per_kilostep, &range),
+                    );
                     object["runs"] = json!(summary.runs);
                     object["ranges"] = Value::Object(ranges);
                 }
@@ -450,18 +498,19 @@ mod tests {
 
         let table = summary.markdown();
         assert!(table.starts_with(
-            "| steps | episodes | interaction_success_rate | interaction_attempt_rate | ppo entropy \
+            "| steps | episodes | interaction_success_rate | interaction_attempt_rate \
+             | pick_up successes per 1 k steps | push successes per 1 k steps | ppo entropy \
              | U-Net steps per episode | U-Net training frames | … with pick_up positives \
-             | … with push positives |\n|---|---|---|---|---|---|---|---|---|\n"
+             | … with push positives |\n|---|---|---|---|---|---|---|---|---|---|---|\n"
         ));
         assert!(
             table.contains(
-                "| 0–1 k | 2 | 0.200 | 0.200 | 1.500 | 5.000 | 50.000 | 4.000 | 35.000 |"
+                "| 0–1 k | 2 | 0.200 | 0.200 | – | – | 1.500 | 5.000 | 50.000 | 4.000 | 35.000 |"
             ),
             "{table}"
         );
         assert!(
-            table.contains("| 2 k–2500 | 1 | 0.500 | 0.100 | – | – | – | – | – |"),
+            table.contains("| 2 k–2500 | 1 | 0.500 | 0.100 | – | – | – | – | – | – | – |"),
             "{table}"
         );
         let json = Value::from(&summary);
@@ -526,7 +575,7 @@ mod tests {
         let table = summary.markdown();
         assert!(
             table.contains(
-                "| 0–700 | 2 | 0.200 (0.100–0.300) | 0.200 (0.200–0.200) | – | – \
+                "| 0–700 | 2 | 0.200 (0.100–0.300) | 0.200 (0.200–0.200) | – | – | – | – \
                  | 15.000 (10.000–20.000) | 2.000 (1.000–3.000) | 5.000 (5.000–5.000) |"
             ),
             "{table}"
@@ -553,6 +602,36 @@ mod tests {
         let error = summarize_repeats(&dirs[1..], 1000).unwrap_err().to_string();
         assert!(error.contains("share no span"), "{error}");
         assert!(summarize_repeats(&[], 1000).is_err());
+    }
+
+    #[test]
+    fn successes_per_thousand_steps_count_each_episodes_attempts_that_succeeded() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut history = History::open(dir.path()).unwrap();
+        // 0.2 attempts a step over 100 steps, a quarter of them successes: 5.
+        let tried = json!({"pick_up_attempt_rate": 0.2, "pick_up_success_rate": 0.25});
+        history
+            .record("episode", 100, json!({"steps": 100, "stats": tried}))
+            .unwrap();
+        // No attempt, so no success rate: 0 successes in 100 more steps.
+        let idle = json!({"pick_up_attempt_rate": 0.0});
+        history
+            .record("episode", 200, json!({"steps": 100, "stats": idle}))
+            .unwrap();
+        drop(history);
+
+        let summary = summarize(dir.path(), 1000).unwrap();
+        let row = &summary.rows[0];
+        assert_eq!(
+            row.successes_per_kilostep,
+            [Some(Spread::one(25.0)), None],
+            "5 successes in 200 steps; push never reported"
+        );
+        let json = Value::from(&summary);
+        assert_eq!(
+            json[0]["successes_per_kilostep"],
+            json!({"pick_up": 25.0, "push": null})
+        );
     }
 
     #[test]
