@@ -264,6 +264,11 @@ pub struct Layer {
     /// asks for them several times a frame for every object it renders,
     /// and most objects are not touched in a frame.
     bounds: OnceLock<Bounds>,
+    /// [`Layer::surface_centres`], worked out on first use and forgotten
+    /// whenever a block may change: the policy's state projects every
+    /// placed object's surface each step, and most objects are not touched
+    /// in a step.
+    surface_centres: OnceLock<Vec<Point3<f32>>>,
 }
 
 /// A layer's two boxes, as [`Layer::block_bounds`] and
@@ -281,6 +286,7 @@ impl Layer {
             voxel_size_m,
             blocks: FxHashMap::default(),
             bounds: OnceLock::new(),
+            surface_centres: OnceLock::new(),
         }
     }
 
@@ -317,7 +323,7 @@ impl Layer {
 
     /// The block at `b`, allocated if missing.
     pub fn block_mut_or_insert(&mut self, b: BlockIndex) -> &mut Block {
-        self.bounds.take();
+        self.forget_derived();
         self.blocks.entry(b).or_default()
     }
 
@@ -336,9 +342,35 @@ impl Layer {
         }))
     }
 
+    /// The centres of the voxels of every block's [`Layer::surface_mask`]
+    /// (layer frame), block by block in index order: the points a placed
+    /// object's surface projects from. Worked out once and kept until a
+    /// block may change.
+    pub fn surface_centres(&self) -> &[Point3<f32>] {
+        self.surface_centres.get_or_init(|| {
+            let masks: Vec<(BlockIndex, SurfaceMask)> = self
+                .block_indices()
+                .into_iter()
+                .filter_map(|b| self.surface_mask(b).map(|m| (b, m)))
+                .collect();
+            // One allocation of the right size, not one per doubling.
+            let mut centres = Vec::with_capacity(masks.iter().map(|(_, m)| m.count()).sum());
+            for (b, mask) in masks {
+                mask.for_each_offset(|o| centres.push(self.voxel_center(VoxelIndex::join(b, o))));
+            }
+            centres
+        })
+    }
+
+    /// Forgets what is worked out from the blocks, before one may change.
+    fn forget_derived(&mut self) {
+        self.bounds.take();
+        self.surface_centres.take();
+    }
+
     /// Frees the block at `b` (a no-op if it is not allocated).
     pub fn remove_block(&mut self, b: BlockIndex) {
-        self.bounds.take();
+        self.forget_derived();
         self.blocks.remove(&b);
     }
 
@@ -635,6 +667,32 @@ mod tests {
         set(&mut layer, [3, 4, 5], 0.02);
         set(&mut layer, [-9, 4, 20], 0.02);
         assert_eq!(layer.crossing_bounds(), None);
+    }
+
+    #[test]
+    fn surface_centres_follow_the_voxels_as_they_change() {
+        let s = 0.04;
+        let mut layer = Layer::new(s);
+        let set = |layer: &mut Layer, v: [i32; 3], sdf: f32| {
+            let (b, o) = VoxelIndex(v).split();
+            layer.block_mut_or_insert(b).update(|voxels| {
+                voxels[o] = Voxel { sdf, weight: 1.0 };
+                1
+            });
+        };
+        assert!(layer.surface_centres().is_empty());
+        // On the surface: its centre. Far from it (free space): nothing.
+        set(&mut layer, [3, 4, 5], 0.0);
+        set(&mut layer, [-9, 4, 20], 0.5);
+        let at = |v: [i32; 3]| Layer::new(s).voxel_center(VoxelIndex(v));
+        assert_eq!(layer.surface_centres(), [at([3, 4, 5])]);
+        // A second surface voxel, in a block earlier in index order, is
+        // seen although the first answer was kept...
+        set(&mut layer, [-9, 4, 20], 0.01);
+        assert_eq!(layer.surface_centres(), [at([-9, 4, 20]), at([3, 4, 5])]);
+        // ...and a removed block's centres go with it.
+        layer.remove_block(VoxelIndex([-9, 4, 20]).split().0);
+        assert_eq!(layer.surface_centres(), [at([3, 4, 5])]);
     }
 
     #[test]

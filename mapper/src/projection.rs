@@ -109,7 +109,9 @@ impl Map {
     /// object ([`crate::MapObject::is_placed`]; the centres of observed
     /// voxels within one voxel of the surface). Each block keeps which of
     /// its voxels those are until its voxels change
-    /// ([`crate::Layer::surface_mask`]); the background's (whose frame is
+    /// ([`crate::Layer::surface_mask`]), and each object's layer their
+    /// centres until any of its blocks may change
+    /// ([`crate::Layer::surface_centres`]); the background's (whose frame is
     /// the world's) stay as those masks, so that occupancy marks each of a
     /// block's columns once, however many voxels it holds.
     pub fn surface_points(&self) -> SurfacePoints<'_> {
@@ -122,20 +124,9 @@ impl Map {
             .collect();
         let mut objects = Vec::new();
         for object in self.objects().values().filter(|o| o.is_placed()) {
-            let volume = &object.volume;
-            let masks: Vec<(BlockIndex, SurfaceMask)> = volume
-                .block_indices()
-                .into_iter()
-                .filter_map(|b| volume.surface_mask(b).map(|m| (b, m)))
+            let points: Vec<Point3<f32>> = (object.volume.surface_centres().iter())
+                .map(|centre| object.t_world_object * centre)
                 .collect();
-            // One allocation of the right size, not one per doubling.
-            let mut points = Vec::with_capacity(masks.iter().map(|(_, m)| m.count()).sum());
-            for (b, mask) in masks {
-                mask.for_each_offset(|o| {
-                    let centre = volume.voxel_center(VoxelIndex::join(b, o));
-                    points.push(object.t_world_object * centre);
-                });
-            }
             if !points.is_empty() {
                 objects.push(PointGroup::new(object, points));
             }
