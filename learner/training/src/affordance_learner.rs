@@ -6,7 +6,7 @@
 use crate::affordance::{
     predict_logits, Evaluation, LabelledFrame, UnetTrainer, UnetTrainingConfig, UNKNOWN,
 };
-use crate::dataset::{validation_gate, AffordanceDataset, DatasetConfig, Split};
+use crate::dataset::{validation_gate, AffordanceDataset, DatasetConfig};
 use crate::optimizer_state::{OptimizerState, OptimizerStateError};
 use crate::temperature::fit_weighted_temperature;
 use crate::weight_average::WeightAverage;
@@ -176,6 +176,7 @@ impl AffordanceLearner {
                 test_fraction: settings.test_fraction,
                 max_held_out: settings.max_held_out_frames,
                 rare_positive_share: settings.rare_positive_share,
+                split_by_episode: settings.split_by_episode,
             }),
             settings: settings.clone(),
             affordances,
@@ -286,14 +287,13 @@ impl AffordanceLearner {
     /// calibrated probabilities; with balanced classes, each plane's
     /// classes weigh half, as in training.
     fn fit_temperature(&self, net: &AffordanceUnet) -> f32 {
-        let frames = self.dataset.frames(Split::Validation);
-        let newest = &frames[frames
-            .len()
-            .saturating_sub(self.settings.max_validation_frames)..];
+        let newest = self
+            .dataset
+            .gate_frames(self.settings.max_validation_frames);
         let net = UnetInference::new(net.clone(), &self.device);
         // Per plane: logits and labels of its labelled pixels.
         let mut planes = vec![(Vec::new(), Vec::new()); self.affordances];
-        for frame in newest {
+        for frame in &newest {
             let predicted = predict_logits(&net, frame);
             let pixels = frame.size[0] * frame.size[1];
             for (plane, (logits, labels)) in planes.iter_mut().enumerate() {

@@ -86,6 +86,18 @@ pub struct UnetConfig {
     /// (docs/ladder.md, "An average of the recent weights"). Off by default
     /// until whole runs are measured.
     pub rare_positive_share: f64,
+    /// Hold out whole episodes: every frame of an episode goes to the split
+    /// its episode draws (with `validation_fraction` and `test_fraction`),
+    /// so that the gate and the temperature judge the network on episodes
+    /// it never trained on, and the validation frames the gate compares are
+    /// spread over the held-out episodes rather than the newest. Off (each
+    /// frame draws its own split; the paper splits "the newly generated
+    /// dataset" of each episode, which allows either) until whole runs are
+    /// measured: with frames drawn one by one, a validation frame's
+    /// neighbours in its episode are training frames, so the gate cannot
+    /// see a network learning its training rooms by heart (docs/ladder.md,
+    /// "Whole episodes held out").
+    pub split_by_episode: bool,
     /// Share of new frames that go to validation.
     pub validation_fraction: f64,
     /// Share of new frames that go to test.
@@ -152,6 +164,7 @@ impl Default for UnetConfig {
             max_uses: 35,
             max_frames: 4_000,
             rare_positive_share: 0.0,
+            split_by_episode: false,
             validation_fraction: 0.15,
             test_fraction: 0.15,
             max_validation_frames: 64,

@@ -39,6 +39,12 @@ pub struct DatasetConfig {
     /// once an affordance's positive frames reach the share, the cap drops
     /// them oldest first like any other.
     pub rare_positive_share: f64,
+    /// Every frame of an episode goes to the split its episode draws, so
+    /// that held-out frames come from episodes the network never trained
+    /// on; otherwise each frame draws its own, and a validation frame's
+    /// neighbours in its episode, nearly the same picture, are training
+    /// frames.
+    pub split_by_episode: bool,
 }
 
 impl Default for DatasetConfig {
@@ -50,6 +56,7 @@ impl Default for DatasetConfig {
             test_fraction: 0.15,
             max_held_out: 512,
             rare_positive_share: 0.0,
+            split_by_episode: false,
         }
     }
 }
@@ -73,6 +80,16 @@ struct Entry {
     uses: u32,
     /// Bit `a` set: the frame has a positive label for affordance `a`.
     positives: u64,
+}
+
+/// A number in `[0, 1)` fixed by `episode` (splitmix64's finaliser): the
+/// split draw of every frame of the episode, in whichever part it arrives.
+fn unit_of(episode: u64) -> f64 {
+    let mut z = episode.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^= z >> 31;
+    (z >> 11) as f64 / (1u64 << 53) as f64
 }
 
 /// The affordances (as bits, the first 64) with a positive label in `frame`.
@@ -144,8 +161,10 @@ impl AffordanceDataset {
         rng: &mut impl Rng,
     ) -> Vec<Split> {
         let mut splits = Vec::with_capacity(frames.len());
+        // An episode sent in parts draws the same for each part.
+        let episode_draw = self.config.split_by_episode.then(|| unit_of(episode));
         for frame in frames {
-            let u: f64 = rng.random();
+            let u: f64 = episode_draw.unwrap_or_else(|| rng.random());
             let split = if u < self.config.validation_fraction {
                 Split::Validation
             } else if u < self.config.validation_fraction + self.config.test_fraction {
@@ -256,6 +275,30 @@ impl AffordanceDataset {
         out
     }
 
+    /// Up to `n` validation frames for the gate and the temperature: the
+    /// newest, or, when whole episodes are held out, frames spread evenly
+    /// over the split (the newest `n` would be one or two episodes, one or
+    /// two rooms).
+    pub fn gate_frames(&self, n: usize) -> Vec<Arc<LabelledFrame>> {
+        let frames = &self.validation;
+        let len = frames.len();
+        if !self.config.split_by_episode || len <= n {
+            return frames
+                .iter()
+                .skip(len.saturating_sub(n))
+                .map(|e| e.frame.clone())
+                .collect();
+        }
+        // The i-th of n evenly spaced, the newest last.
+        (0..n)
+            .map(|i| {
+                frames[len - 1 - (n - 1 - i) * (len - 1) / (n - 1).max(1)]
+                    .frame
+                    .clone()
+            })
+            .collect()
+    }
+
     /// Frames of one split.
     pub fn frames(&self, split: Split) -> Vec<Arc<LabelledFrame>> {
         let part = match split {
@@ -298,9 +341,8 @@ pub fn validation_gate(
     balance: ClassBalance,
     device: &Device,
 ) -> GateDecision {
-    let frames = dataset.frames(Split::Validation);
-    let newest = &frames[frames.len().saturating_sub(max_frames)..];
-    let refs: Vec<&LabelledFrame> = newest.iter().map(|f| f.as_ref()).collect();
+    let frames = dataset.gate_frames(max_frames);
+    let refs: Vec<&LabelledFrame> = frames.iter().map(|f| f.as_ref()).collect();
     let candidate = evaluate(candidate, &refs, balance, device);
     let deployed = evaluate(deployed, &refs, balance, device);
     GateDecision {

@@ -560,3 +560,81 @@ fn the_cap_drops_rare_positives_last_until_they_reach_their_share() {
         "the oldest went first: {kept:?}"
     );
 }
+
+#[test]
+fn whole_episodes_are_held_out_and_the_gate_sees_several_of_them() {
+    let mut rng = StdRng::seed_from_u64(9);
+    let config = |split_by_episode| DatasetConfig {
+        validation_fraction: 0.3,
+        test_fraction: 0.2,
+        max_held_out: 1_000,
+        split_by_episode,
+        ..DatasetConfig::default()
+    };
+    let (mut by_episode, mut by_frame) = (
+        AffordanceDataset::new(config(true)),
+        AffordanceDataset::new(config(false)),
+    );
+    // 200 episodes of 10 frames, each sent in two parts; a frame's tag is
+    // its episode.
+    for episode in 0..200u64 {
+        for _part in 0..2 {
+            let frames: Vec<LabelledFrame> = (0..5)
+                .map(|_| two_plane_frame(episode as f32, false))
+                .collect();
+            by_episode.add_episode(episode, frames.clone(), &mut rng);
+            by_frame.add_episode(episode, frames, &mut rng);
+        }
+    }
+    let episodes = |data: &AffordanceDataset, split| {
+        let mut tags: Vec<u64> = data
+            .frames(split)
+            .iter()
+            .map(|f| f.rgbd[0] as u64)
+            .collect();
+        tags.sort_unstable();
+        tags.dedup();
+        tags
+    };
+    let (train, validation, test) = (
+        episodes(&by_episode, Split::Train),
+        episodes(&by_episode, Split::Validation),
+        episodes(&by_episode, Split::Test),
+    );
+    // Every episode's ten frames, both parts, in one split alone...
+    assert_eq!(train.len() + validation.len() + test.len(), 200);
+    for (split, tags) in [
+        (Split::Train, &train),
+        (Split::Validation, &validation),
+        (Split::Test, &test),
+    ] {
+        assert_eq!(by_episode.frames(split).len(), 10 * tags.len());
+    }
+    // ...drawn with the configured shares (binomial, 200 draws: ±4 sd).
+    assert!(
+        (60 - 26..=60 + 26).contains(&validation.len()),
+        "{validation:?}"
+    );
+    assert!((40 - 23..=40 + 23).contains(&test.len()), "{test:?}");
+    // Drawn frame by frame, most episodes have frames in every split.
+    let shared = episodes(&by_frame, Split::Validation)
+        .iter()
+        .filter(|e| episodes(&by_frame, Split::Train).contains(e))
+        .count();
+    assert!(shared > 100, "{shared}");
+
+    // The gate's 16 frames span the held-out episodes, the newest last;
+    // frame by frame, the newest 16.
+    let gate: Vec<u64> = (by_episode.gate_frames(16).iter())
+        .map(|f| f.rgbd[0] as u64)
+        .collect();
+    let mut distinct = gate.clone();
+    distinct.dedup();
+    assert!(distinct.len() >= 12, "{gate:?}");
+    assert_eq!(gate.first(), validation.first(), "{gate:?}");
+    assert_eq!(gate.last(), validation.last(), "{gate:?}");
+    let newest: Vec<u64> = (by_frame.gate_frames(16).iter())
+        .map(|f| f.rgbd[0] as u64)
+        .collect();
+    assert!(newest.iter().all(|&e| e >= 190), "{newest:?}");
+}
