@@ -7,9 +7,9 @@
 //! The cap can spare the frames that show an affordance's rare positives
 //! (`rare_positive_share`): a pick-up succeeds a few dozen times in 10 k
 //! steps, and the newest frames alone (dropped oldest first) hold only the
-//! last few successes, fewer as the policy tries less, which may be why the
-//! network's ranking falls late in a run (docs/ladder.md, "An average of the
-//! recent weights").
+//! last few successes, fewer as the policy tries less. Keeping them did not
+//! stop the network's ranking from falling late in a run, and ranked objects
+//! worse (docs/ladder.md, "Rare positives kept"); off by default.
 
 use std::collections::VecDeque;
 use std::sync::Arc;
