@@ -32,7 +32,7 @@ where
         .finish()
 }
 
-/// Installs [`subscriber`] on stderr for the whole process (colour codes
+/// Installs that subscriber on stderr for the whole process (colour codes
 /// only on a terminal, so that log files stay plain text) and quietens
 /// iceoryx2's own logger to warnings unless `IOX2_LOG_LEVEL` says otherwise.
 /// Call it once, first thing in `main`.
