@@ -634,17 +634,19 @@ mod tests {
         assert_eq!(layer.voxel_of(&c), VoxelIndex([-1, 0, 2]));
     }
 
+    /// Makes voxel `v` observed with `sdf`.
+    fn set(layer: &mut Layer, v: [i32; 3], sdf: f32) {
+        let (b, o) = VoxelIndex(v).split();
+        layer.block_mut_or_insert(b).update(|voxels| {
+            voxels[o] = Voxel { sdf, weight: 1.0 };
+            1
+        });
+    }
+
     #[test]
     fn crossing_bounds_follow_the_voxels_behind_surfaces_as_they_change() {
         let s = 0.04;
         let mut layer = Layer::new(s);
-        let set = |layer: &mut Layer, v: [i32; 3], sdf: f32| {
-            let (b, o) = VoxelIndex(v).split();
-            layer.block_mut_or_insert(b).update(|voxels| {
-                voxels[o] = Voxel { sdf, weight: 1.0 };
-                1
-            });
-        };
         // Observed free space only: no crossing anywhere.
         set(&mut layer, [3, 4, 5], 0.05);
         assert_eq!(layer.crossing_bounds(), None);
@@ -673,13 +675,6 @@ mod tests {
     fn surface_centres_follow_the_voxels_as_they_change() {
         let s = 0.04;
         let mut layer = Layer::new(s);
-        let set = |layer: &mut Layer, v: [i32; 3], sdf: f32| {
-            let (b, o) = VoxelIndex(v).split();
-            layer.block_mut_or_insert(b).update(|voxels| {
-                voxels[o] = Voxel { sdf, weight: 1.0 };
-                1
-            });
-        };
         assert!(layer.surface_centres().is_empty());
         // On the surface: its centre. Far from it (free space): nothing.
         set(&mut layer, [3, 4, 5], 0.0);

@@ -248,6 +248,15 @@ pub fn summarize_repeats(run_dirs: &[PathBuf], every: u64) -> anyhow::Result<Sum
             let column = summary.fields.iter().position(|&f| f == field)?;
             row.means[column].map(|spread| spread.mean)
         };
+        // One column over the runs: the spread of their means.
+        let over_runs = |column: &dyn Fn(&SummaryRow) -> Option<Spread>| {
+            Spread::of(span.iter().filter_map(|(_, r)| column(r).map(|s| s.mean)))
+        };
+        let per_affordance = |columns: &dyn Fn(&SummaryRow) -> &Vec<Option<Spread>>| {
+            (0..Affordance::COUNT)
+                .map(|a| over_runs(&|r| columns(r)[a]))
+                .collect()
+        };
         rows.push(SummaryRow {
             from_steps: row.from_steps,
             to_steps: span.iter().map(|(_, r)| r.to_steps).min().unwrap_or(0),
@@ -256,31 +265,11 @@ pub fn summarize_repeats(run_dirs: &[PathBuf], every: u64) -> anyhow::Result<Sum
                 .iter()
                 .map(|&f| Spread::of(span.iter().filter_map(|&(s, r)| field_mean(s, r, f))))
                 .collect(),
-            successes_per_kilostep: (0..Affordance::COUNT)
-                .map(|a| {
-                    Spread::of(
-                        span.iter()
-                            .filter_map(|(_, r)| r.successes_per_kilostep[a].map(|s| s.mean)),
-                    )
-                })
-                .collect(),
-            entropy: Spread::of(span.iter().filter_map(|(_, r)| r.entropy.map(|e| e.mean))),
-            unet_steps_per_episode: Spread::of(
-                span.iter()
-                    .filter_map(|(_, r)| r.unet_steps_per_episode.map(|s| s.mean)),
-            ),
-            unet_training_frames: Spread::of(
-                span.iter()
-                    .filter_map(|(_, r)| r.unet_training_frames.map(|s| s.mean)),
-            ),
-            unet_positive_frames: (0..Affordance::COUNT)
-                .map(|a| {
-                    Spread::of(
-                        span.iter()
-                            .filter_map(|(_, r)| r.unet_positive_frames[a].map(|s| s.mean)),
-                    )
-                })
-                .collect(),
+            successes_per_kilostep: per_affordance(&|r: &SummaryRow| &r.successes_per_kilostep),
+            entropy: over_runs(&|r| r.entropy),
+            unet_steps_per_episode: over_runs(&|r| r.unet_steps_per_episode),
+            unet_training_frames: over_runs(&|r| r.unet_training_frames),
+            unet_positive_frames: per_affordance(&|r: &SummaryRow| &r.unet_positive_frames),
         });
     }
     anyhow::ensure!(
