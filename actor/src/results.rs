@@ -6,6 +6,7 @@
 mod history;
 mod page;
 mod paper;
+mod paper_settings;
 
 pub use history::{HistorySummary, Tenth};
 pub use page::render;

@@ -87,9 +87,7 @@ pub fn render(comparison: &Comparison, curves: Option<&str>) -> String {
         out,
         "- **Runs**: {} × seeds {:?}, {} environment steps each (`deploy/local.sh {}`), \
          {wall_h:.1} h of training in all on {}.\n\
-         - **Confidence labels** from step {} ({:.0} % of the budget: the paper switches them \
-         on at 400 k steps of its ~1 M, so every evaluated `ours` network has both of its \
-         labelling mechanisms).\n\
+         - **Confidence labels**: {}.\n\
          - **Model selection**: every run's kept checkpoints were scored on the validation rooms \
          (FloorPlan221–225, {} views each), and the best of them (by {}) is the only one scored \
          on the test rooms (FloorPlan226–230), once. No setting was chosen on test scores. \
@@ -105,8 +103,7 @@ pub fn render(comparison: &Comparison, curves: Option<&str>) -> String {
         m.steps,
         m.local_options,
         m.machine,
-        m.confidence_after_steps,
-        100.0 * m.confidence_after_steps as f64 / m.steps.max(1) as f64,
+        confidence_line(m.confidence_after_steps, m.steps),
         m.val_views_per_scene,
         crate::evaluation::SELECTION_RULE,
         first.frames,
@@ -531,11 +528,39 @@ fn differences(out: &mut String, comparison: &Comparison) {
          of the image) rather than the paper's 611 manually steered frames; Table 2 tries every \
          object from the nearest position that reaches it, and judges objects no position \
          reaches by the simulator's rules (the paper placed the robot in front of each of its \
-         236 objects).\n",
+         236 objects).\n\
+         - **Settings that differ from `configs/paper.toml`** (the paper's method as written; \
+         the reasons are in docs/decisions/): {}.\n",
         m.local_options,
         m.steps,
-        reward_line(comparison.first_config.as_deref())
+        reward_line(comparison.first_config.as_deref()),
+        settings_line(comparison.first_config.as_deref())
     );
+}
+
+/// When the `ours` runs' confidence labels started, if they did.
+fn confidence_line(after_steps: u64, steps: u64) -> String {
+    if after_steps >= steps {
+        return "off (`deploy/reproduce.sh --confidence-fraction off`): while the network \
+                over-calls, labels by confidence cost the ranking (docs/ladder.md), so the \
+                evaluated `ours` networks learnt from interaction labels alone"
+            .to_string();
+    }
+    format!(
+        "from step {after_steps} ({:.0} % of the budget: the paper switches them on at 400 k \
+         steps of its ~1 M, so every evaluated `ours` network has both of its labelling \
+         mechanisms)",
+        100.0 * after_steps as f64 / steps.max(1) as f64
+    )
+}
+
+/// The first run's settings that `configs/paper.toml` sets otherwise.
+fn settings_line(config: Option<&str>) -> String {
+    match config.and_then(super::paper_settings::differences_from_paper) {
+        None => "unknown (the first run has no readable config.toml)".to_string(),
+        Some(lines) if lines.is_empty() => "none".to_string(),
+        Some(lines) => lines.join("; "),
+    }
 }
 
 /// The reward weights the runs trained with, as the first run's
