@@ -3,6 +3,7 @@
 //! that turn with the agent.
 
 use actor::env::actions::{ActionSpace, Selection};
+use actor::env::reach::horizontal_distances;
 use actor::env::state::{build_state, ActionHistory, State, StateConfig, StateInputs};
 use actor::mapping::{class_image, instance_classes, intrinsics, map_frame};
 use mapper::{Affordance, Map, MapConfig, ObjectId, Outcome};
@@ -45,12 +46,16 @@ fn observe(
     let map_ids = map.integrate(&map_frame(&camera, &frame, &class)).unwrap();
     let a = sim.agent();
     let probabilities = vec![vec![0.25; frame.ids.len()]; AFFORDANCES.len()];
+    let horizontal_m = horizontal_distances(
+        &frame.depth_m,
+        &intrinsics(&camera),
+        &camera.t_world_camera,
+        (a.x, a.y),
+    );
     let inputs = StateInputs {
         rgb: &frame.rgb,
-        depth_m: &frame.depth_m,
+        horizontal_m: &horizontal_m,
         map_ids: &map_ids,
-        t_world_camera: &camera.t_world_camera,
-        intrinsics: &intrinsics(&camera),
         agent: (a.x, a.y, a.yaw_deg.to_radians()),
         floor_z: sim.scene().floor_top_m,
         reach_m: sim.profile().reach_m,

@@ -105,15 +105,17 @@ impl Map {
         self.surface_points().project(kind, grid)
     }
 
-    /// World-frame surface points of the background and of every placed
-    /// object ([`crate::MapObject::is_placed`]; the centres of observed
-    /// voxels within one voxel of the surface). Each block keeps which of
-    /// its voxels those are until its voxels change
+    /// The surface points of the background and of every placed object
+    /// ([`crate::MapObject::is_placed`]; the centres of observed voxels
+    /// within one voxel of the surface). Each block keeps which of its
+    /// voxels those are until its voxels change
     /// ([`crate::Layer::surface_mask`]), and each object's layer their
     /// centres until any of its blocks may change
-    /// ([`crate::Layer::surface_centres`]); the background's (whose frame is
-    /// the world's) stay as those masks, so that occupancy marks each of a
-    /// block's columns once, however many voxels it holds.
+    /// ([`crate::Layer::surface_centres`]): an object's are borrowed in its
+    /// frame and moved into the world's as they are rasterised; the
+    /// background's (whose frame is the world's) stay as those masks, so
+    /// that occupancy marks each of a block's columns once, however many
+    /// voxels it holds.
     pub fn surface_points(&self) -> SurfacePoints<'_> {
         let background = self.background();
         let background_blocks = background
@@ -122,15 +124,10 @@ impl Map {
             .filter_map(|b| background.surface_mask(b).map(|m| (b, m)))
             .filter(|(_, m)| m.count() > 0)
             .collect();
-        let mut objects = Vec::new();
-        for object in self.objects().values().filter(|o| o.is_placed()) {
-            let points: Vec<Point3<f32>> = (object.volume.surface_centres().iter())
-                .map(|centre| object.t_world_object * centre)
-                .collect();
-            if !points.is_empty() {
-                objects.push(PointGroup::new(object, points));
-            }
-        }
+        let objects = (self.objects().values())
+            .filter(|o| o.is_placed())
+            .filter_map(PointGroup::new)
+            .collect();
         SurfacePoints {
             background: background_blocks,
             background_layer: background,
@@ -139,30 +136,46 @@ impl Map {
     }
 }
 
-/// One object's surface points and the box they span on the floor plane,
-/// so that a grid can skip the whole object.
+/// One object's surface points (its frame; moved into the world's as they
+/// are rasterised, so that no step copies them) and a box on the floor
+/// plane that holds them, so that a grid can skip the whole object.
 #[derive(Debug, Clone)]
 struct PointGroup<'a> {
     object: &'a MapObject,
-    /// World frame.
-    points: Vec<Point3<f32>>,
+    /// The object's frame ([`crate::Layer::surface_centres`], kept by its layer).
+    points: &'a [Point3<f32>],
     lo: [f32; 2],
     hi: [f32; 2],
 }
 
 impl<'a> PointGroup<'a> {
-    fn new(object: &'a MapObject, points: Vec<Point3<f32>>) -> Self {
+    /// `None` for an object without surface points.
+    fn new(object: &'a MapObject) -> Option<Self> {
+        let points = object.volume.surface_centres();
+        // Every surface voxel's centre lies in the layer's blocks: the
+        // world box of those blocks' eight corners holds them all.
+        let (min, max) = object
+            .volume
+            .block_bounds()
+            .filter(|_| !points.is_empty())?;
         let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
-        for p in &points {
-            lo = [lo[0].min(p.x), lo[1].min(p.y)];
-            hi = [hi[0].max(p.x), hi[1].max(p.y)];
+        for corner in 0..8 {
+            let pick = |bit: usize, a: f32, b: f32| if corner >> bit & 1 == 0 { a } else { b };
+            let c = object.t_world_object
+                * Point3::new(
+                    pick(0, min.x, max.x),
+                    pick(1, min.y, max.y),
+                    pick(2, min.z, max.z),
+                );
+            lo = [lo[0].min(c.x), lo[1].min(c.y)];
+            hi = [hi[0].max(c.x), hi[1].max(c.y)];
         }
-        Self {
+        Some(Self {
             object,
             points,
             lo,
             hi,
-        }
+        })
     }
 }
 
@@ -191,12 +204,42 @@ impl SurfacePoints<'_> {
     /// in the order asked: a point's cell is worked out once per distinct
     /// grid, however many projections share that grid.
     pub fn project_all(&self, requests: &[(ProjectionKind, GridSpec)]) -> Vec<Vec<f32>> {
+        let mut out: Vec<Vec<f32>> = (requests.iter())
+            .map(|(_, grid)| vec![0.0; grid.cells * grid.cells])
+            .collect();
+        let mut planes: Vec<&mut [f32]> = out.iter_mut().map(Vec::as_mut_slice).collect();
+        self.project_all_into(requests, &mut planes);
+        out
+    }
+
+    /// [`SurfacePoints::project_all`] into planes the caller holds (one per
+    /// request, in order, each `cells × cells` of its request's grid; every
+    /// cell is written), so that a caller assembling many planes into one
+    /// buffer copies none of them.
+    ///
+    /// # Panics
+    ///
+    /// If `planes` and `requests` differ in number, or a plane in size from
+    /// its grid.
+    pub fn project_all_into(
+        &self,
+        requests: &[(ProjectionKind, GridSpec)],
+        planes: &mut [&mut [f32]],
+    ) {
+        assert_eq!(planes.len(), requests.len(), "one plane per request");
+        for (plane, (_, grid)) in planes.iter().zip(requests) {
+            assert_eq!(
+                plane.len(),
+                grid.cells * grid.cells,
+                "a plane of its grid's size"
+            );
+        }
         let mut raster = Raster::new(requests);
         raster.mark_background(self.background_layer, &self.background);
         for group in &self.objects {
             raster.mark_object(group);
         }
-        raster.planes(requests)
+        raster.write_planes(planes);
     }
 }
 
@@ -312,21 +355,34 @@ impl Raster {
 
     /// Marks an object's points in every projection that [`shows`] it:
     /// occupancy (which shows every object) only where a point lies within
-    /// its heights, the label kinds wherever it stands.
+    /// its heights, the label kinds wherever it stands. Each point is moved
+    /// into the world once, whatever number of grids it is marked on.
     fn mark_object(&mut self, group: &PointGroup<'_>) {
-        let covering = |s: &&mut Slot| s.locator.may_cover(group.lo, group.hi);
-        for slot in self.slots.iter_mut().filter(covering) {
+        // Per grid that may hold the object: the bits it shows everywhere,
+        // and each occupancy bit with its heights.
+        let mut marking = Vec::new();
+        for slot in &mut self.slots {
+            if !slot.locator.may_cover(group.lo, group.hi) {
+                continue;
+            }
             let by_height = slot.height_bands();
             let always = (slot.planes.iter().enumerate())
                 .filter(|(_, (_, kind))| !matches!(kind, ProjectionKind::Occupancy { .. }))
                 .filter(|(_, (_, kind))| shows(group.object, *kind))
                 .fold(0u64, |always, (bit, _)| always | 1 << bit);
-            if always == 0 && by_height.is_empty() {
-                continue;
+            if always != 0 || !by_height.is_empty() {
+                marking.push((slot, always, by_height));
             }
-            for p in group.points.iter() {
-                let mut mask = always;
-                for (bit, heights) in &by_height {
+        }
+        if marking.is_empty() {
+            return;
+        }
+        let t_world_object = &group.object.t_world_object;
+        for centre in group.points {
+            let p = t_world_object * centre;
+            for (slot, always, by_height) in &mut marking {
+                let mut mask = *always;
+                for (bit, heights) in by_height.iter() {
                     if heights.contains(&p.z) {
                         mask |= bit;
                     }
@@ -341,32 +397,34 @@ impl Raster {
         }
     }
 
-    /// The projections, in the order of `requests`.
-    fn planes(self, requests: &[(ProjectionKind, GridSpec)]) -> Vec<Vec<f32>> {
-        let mut out: Vec<Vec<f32>> = requests.iter().map(|_| Vec::new()).collect();
+    /// Writes each projection into its request's plane.
+    fn write_planes(self, planes: &mut [&mut [f32]]) {
         for slot in self.slots {
             for (bit, (index, _)) in slot.planes.iter().enumerate() {
-                out[*index] = slot
-                    .bits
-                    .iter()
-                    .map(|b| f32::from(u8::from(b >> bit & 1 == 1)))
-                    .collect();
+                for (cell, bits) in planes[*index].iter_mut().zip(&slot.bits) {
+                    *cell = f32::from(u8::from(bits >> bit & 1 == 1));
+                }
             }
         }
-        out
     }
 }
 
 /// Marks the cells of visited positions (world x / y) on `grid`.
 pub fn visited(positions: &[Point2<f32>], grid: &GridSpec) -> Vec<f32> {
     let mut out = vec![0.0; grid.cells * grid.cells];
+    mark_visited(positions, grid, &mut out);
+    out
+}
+
+/// [`visited`] into a plane the caller holds (`cells × cells`, every cell written).
+pub fn mark_visited(positions: &[Point2<f32>], grid: &GridSpec, plane: &mut [f32]) {
+    plane.fill(0.0);
     let locator = CellLocator::new(grid);
     for p in positions {
         if let Some(c) = locator.cell_of(p.x, p.y) {
-            out[c] = 1.0;
+            plane[c] = 1.0;
         }
     }
-    out
 }
 
 #[cfg(test)]

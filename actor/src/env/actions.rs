@@ -20,7 +20,7 @@
 //!
 //! With the task's `selection.within_reach` (the default) every method
 //! selects from the pixels within the robot's reach alone
-//! ([`beyond_reach_hidden`]): a cell whose objects all lie beyond reach is
+//! ([`super::reach::beyond_reach_hidden`]): a cell whose objects all lie beyond reach is
 //! masked, and the robot aims at the part of an object it can reach. The
 //! paper's grid offers every object in view, and half of a run's pick-up
 //! attempts then failed out of reach and taught nothing (docs/decisions/0012-selection-within-reach.md).
@@ -206,40 +206,6 @@ impl CellTargets {
             .map(|(a, cell)| self.target(a, cell).map_or(0.0, |t| t.rating))
             .collect()
     }
-}
-
-/// The object-id image `ids` with every pixel whose surface point lies
-/// beyond `reach_m` horizontally from the agent's axis at `agent_xy` set to
-/// 0 (no object), as is every pixel without a valid depth: what selection
-/// may choose from when it offers only objects within reach. The point is
-/// the depth back-projected through `intrinsics` and `t_world_camera`, the
-/// same point and distance by which the simulator judges reach.
-pub(crate) fn beyond_reach_hidden(
-    ids: &[u32],
-    depth_m: &[f32],
-    intrinsics: &mapper::Intrinsics,
-    t_world_camera: &nalgebra::Isometry3<f32>,
-    agent_xy: (f32, f32),
-    reach_m: f32,
-) -> Vec<u32> {
-    let width = intrinsics.width.max(1);
-    ids.iter()
-        .zip(depth_m)
-        .enumerate()
-        .map(|(p, (&id, &z))| {
-            if id == 0 || !(z.is_finite() && z > 0.0) {
-                return 0;
-            }
-            let world =
-                t_world_camera * intrinsics.back_project((p % width) as f32, (p / width) as f32, z);
-            let horizontal = (world.x - agent_xy.0).hypot(world.y - agent_xy.1);
-            if horizontal <= reach_m {
-                id
-            } else {
-                0
-            }
-        })
-        .collect()
 }
 
 /// Pixel statistics of one object in a frame.
@@ -665,63 +631,5 @@ mod tests {
                 );
             }
         }
-    }
-
-    #[test]
-    fn selection_within_reach_hides_what_the_simulator_calls_out_of_reach() {
-        use sim::agent::{AgentState, Failure, Simulator};
-        let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-            .join("../../shared/data/ithor-livingrooms");
-        let scene = sim::ithor::load_scene(&dir.join("FloorPlan221.json")).unwrap();
-        let profile = sim::profile::RobotProfile::load("default").unwrap();
-        let centre = scene.floor_min + (scene.floor_max - scene.floor_min) / 2.0;
-        let (x, y) =
-            sim::randomise::reachable_nearest(&scene, &profile, centre.x, centre.y).unwrap();
-        let (mut near, mut far) = (0, 0);
-        for (yaw_deg, horizon_deg) in [(0.0, 30.0), (90.0, 0.0), (180.0, 30.0), (270.0, 60.0)] {
-            let agent = AgentState {
-                x,
-                y,
-                yaw_deg,
-                horizon_deg,
-            };
-            let sim = Simulator::new(scene.clone(), profile.clone(), agent, 32).unwrap();
-            let camera = sim.camera();
-            let frame = sim.render_cpu();
-            let shown = |reach_m: f32| {
-                beyond_reach_hidden(
-                    &frame.ids,
-                    &frame.depth_m,
-                    &crate::mapping::intrinsics(&camera),
-                    &camera.t_world_camera,
-                    (x, y),
-                    reach_m,
-                )
-            };
-            let (inner, outer) = (shown(profile.reach_m - 0.05), shown(profile.reach_m + 0.05));
-            let shown = shown(profile.reach_m);
-            // The simulator's own judgement, pixel by pixel, away from the
-            // reach's edge (where a pixel's ray and its depth's
-            // back-projection may fall either side).
-            for p in (0..frame.ids.len()).filter(|&p| frame.ids[p] != 0 && inner[p] == outer[p]) {
-                let (u, v) = (p % frame.width, p / frame.width);
-                let outcome = sim.clone().push(u, v);
-                let out_of_reach = matches!(outcome.failure, Some(Failure::OutOfReach { .. }));
-                assert_eq!(
-                    shown[p] == 0,
-                    out_of_reach,
-                    "pixel ({u}, {v}) at yaw {yaw_deg}, horizon {horizon_deg}: {outcome:?}"
-                );
-                if out_of_reach {
-                    far += 1;
-                } else {
-                    near += 1;
-                }
-            }
-        }
-        assert!(
-            near > 50 && far > 50,
-            "{near} pixels within reach, {far} beyond"
-        );
     }
 }

@@ -6,6 +6,7 @@ mod bandit_fixture;
 pub(crate) mod episode_metrics;
 mod flat_sim_env;
 pub(crate) mod object_memory;
+pub mod reach;
 pub mod reward;
 pub mod sim_env;
 pub mod state;

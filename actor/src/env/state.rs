@@ -26,8 +26,8 @@
 
 use std::collections::VecDeque;
 
-use mapper::projection::{visited, SurfacePoints};
-use mapper::{Affordance, GridSpec, Map, ObjectId, Pose, ProjectionKind};
+use mapper::projection::{mark_visited, SurfacePoints};
+use mapper::{Affordance, GridSpec, Map, ObjectId, ProjectionKind};
 use nalgebra::Point2;
 use proto::{Method, HISTORY_STEPS};
 
@@ -137,14 +137,11 @@ impl ActionHistory {
 pub struct StateInputs<'a> {
     /// Row-major RGB of the frame.
     pub rgb: &'a [u8],
-    /// Z-depth of the frame, metres.
-    pub depth_m: &'a [f32],
+    /// Each pixel's horizontal distance from the agent's axis, metres
+    /// ([`crate::env::reach::horizontal_distances`]; infinite without a depth).
+    pub horizontal_m: &'a [f32],
     /// Object id per pixel for this frame (map ids for `ours`).
     pub map_ids: &'a [u32],
-    /// Where the camera is.
-    pub t_world_camera: &'a Pose,
-    /// Intrinsics of the frame.
-    pub intrinsics: &'a mapper::Intrinsics,
     /// The agent on the floor: x, y (metres) and heading (radians from +x).
     pub agent: (f32, f32, f32),
     /// The floor's height, metres.
@@ -207,39 +204,27 @@ pub fn build_state(config: &StateConfig, input: &StateInputs<'_>) -> State {
 }
 
 fn camera_planes(config: &StateConfig, input: &StateInputs<'_>, map: Option<&Map>) -> Vec<f32> {
-    let n = input.depth_m.len();
-    let mut out = Vec::with_capacity(config.camera_channels() * n);
-    for c in 0..3 {
-        out.extend(
-            input
-                .rgb
-                .iter()
-                .skip(c)
-                .step_by(3)
-                .map(|&b| f32::from(b) / 255.0),
-        );
+    let n = input.horizontal_m.len();
+    let mut out = vec![0.0; config.camera_channels() * n];
+    // The planes in the order of the doc comment above, each written in place.
+    let mut planes = out.chunks_exact_mut(n.max(1));
+    let mut next_plane = || planes.next().expect("camera_channels counts every plane");
+    for channel in 0..3 {
+        let pixels = input.rgb.chunks_exact(3);
+        for (d, pixel) in next_plane().iter_mut().zip(pixels) {
+            *d = f32::from(pixel[channel]) / 255.0;
+        }
     }
-    let k = input.intrinsics;
-    let (ax, ay, _) = input.agent;
-    let distance = config.method.spec().distance;
-    out.extend(
-        input
-            .depth_m
-            .iter()
-            .enumerate()
-            .filter(|_| distance)
-            .map(|(p, &z)| {
-                if !(z.is_finite() && z > 0.0) {
-                    return 1.0;
-                }
-                let world = input.t_world_camera
-                    * k.back_project((p % k.width) as f32, (p / k.width) as f32, z);
-                let horizontal = ((world.x - ax).powi(2) + (world.y - ay).powi(2)).sqrt();
-                (horizontal / (2.0 * input.reach_m)).min(1.0)
-            }),
-    );
+    if config.method.spec().distance {
+        let scale = 1.0 / (2.0 * input.reach_m);
+        for (d, &h) in next_plane().iter_mut().zip(input.horizontal_m) {
+            *d = (h * scale).min(1.0);
+        }
+    }
     for plane in input.probabilities.iter().take(config.affordances.len()) {
-        out.extend(plane.iter().map(|p| p.clamp(0.0, 1.0)));
+        for (d, &p) in next_plane().iter_mut().zip(plane) {
+            *d = p.clamp(0.0, 1.0);
+        }
     }
     let Some(map) = map else {
         return out;
@@ -258,25 +243,19 @@ fn camera_planes(config: &StateConfig, input: &StateInputs<'_>, map: Option<&Map
                 .filter(|o| o.labels.interacted(affordance))
                 .and_then(|o| o.labels.label(affordance))
         };
+        let (success, failure) = (next_plane(), next_plane());
         let mut last: Option<(u32, Option<bool>)> = None;
-        let labels: Vec<Option<bool>> = input
-            .map_ids
-            .iter()
-            .map(|&id| match last {
+        for (p, &id) in input.map_ids.iter().enumerate().take(n) {
+            let label = match last {
                 Some((seen, label)) if seen == id => label,
                 _ => {
                     let label = label_of(id);
                     last = Some((id, label));
                     label
                 }
-            })
-            .collect();
-        for wanted in [true, false] {
-            out.extend(
-                labels
-                    .iter()
-                    .map(|&label| f32::from(u8::from(label == Some(wanted)))),
-            );
+            };
+            success[p] = f32::from(u8::from(label == Some(true)));
+            failure[p] = f32::from(u8::from(label == Some(false)));
         }
     }
     out
@@ -315,16 +294,17 @@ fn map_planes(
         .iter()
         .flat_map(|g| kinds.iter().map(|&k| (k, *g)))
         .collect();
-    let mut projections = surface.project_all(&requests).into_iter();
-    let mut planes = |grid: &GridSpec| {
-        let mut out = visited(input.visited, grid);
-        for plane in projections.by_ref().take(kinds.len()) {
-            out.extend(plane);
-        }
-        out
-    };
-    let global = planes(&grids[0]);
-    let local = planes(&grids[1]);
+    // Each map: the visited plane, then its projections, written in place.
+    let side = config.map_cells * config.map_cells;
+    let mut maps: [Vec<f32>; 2] = std::array::from_fn(|_| vec![0.0; (1 + kinds.len()) * side]);
+    let mut projections: Vec<&mut [f32]> = Vec::with_capacity(requests.len());
+    for (map, grid) in maps.iter_mut().zip(&grids) {
+        let (visited_plane, rest) = map.split_at_mut(side);
+        mark_visited(input.visited, grid, visited_plane);
+        projections.extend(rest.chunks_exact_mut(side));
+    }
+    surface.project_all_into(&requests, &mut projections);
+    let [global, local] = maps;
     (global, local)
 }
 

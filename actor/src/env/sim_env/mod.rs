@@ -36,12 +36,12 @@ use sim::renderer::Renderer;
 use sim::scenes::SceneSource;
 
 use crate::env::actions::{
-    beyond_reach_hidden, cell_targets, centred_target, ActionSpace, CellTargets, PolicyAction,
-    Selection,
+    cell_targets, centred_target, ActionSpace, CellTargets, PolicyAction, Selection,
 };
 use crate::env::affordance_model::{AffordanceModel, CameraFrame};
 use crate::env::episode_metrics::EpisodeMetrics;
 use crate::env::object_memory::{object_memory, Interaction, MemoryRules, ObjectMemory};
+use crate::env::reach::{beyond_reach_hidden, horizontal_distances};
 use crate::env::reward::{RewardTracker, RewardWeights, StepEvent};
 use crate::env::state::{build_state, ActionHistory, State, StateConfig, StateInputs};
 use crate::frame_scores::ground_truth_planes;

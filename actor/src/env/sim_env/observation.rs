@@ -67,16 +67,15 @@ impl SimEnv {
         let k = intrinsics(&camera);
         let agent = episode.sim.agent();
         let holding = episode.sim.held().is_some();
+        let horizontal_m = horizontal_distances(
+            &frame.depth_m,
+            &k,
+            &camera.t_world_camera,
+            (agent.x, agent.y),
+        );
         let reachable_ids;
         let selectable: &[u32] = if self.config.selection.within_reach {
-            reachable_ids = beyond_reach_hidden(
-                &map_ids,
-                &frame.depth_m,
-                &k,
-                &camera.t_world_camera,
-                (agent.x, agent.y),
-                self.profile.reach_m,
-            );
+            reachable_ids = beyond_reach_hidden(&map_ids, &horizontal_m, self.profile.reach_m);
             &reachable_ids
         } else {
             &map_ids
@@ -106,10 +105,8 @@ impl SimEnv {
             &self.state_config,
             &StateInputs {
                 rgb: &frame.rgb,
-                depth_m: &frame.depth_m,
+                horizontal_m: &horizontal_m,
                 map_ids: &map_ids,
-                t_world_camera: &camera.t_world_camera,
-                intrinsics: &k,
                 agent: (agent.x, agent.y, agent.yaw_deg.to_radians()),
                 floor_z: episode.sim.scene().floor_top_m,
                 reach_m: self.profile.reach_m,
