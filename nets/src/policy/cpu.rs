@@ -2,10 +2,11 @@
 //!
 //! Why it exists: an actor runs the policy on every step, and on the CPU
 //! burn's pass over `ours`' three conv encoders (about 15 MFLOP at 64 px)
-//! took a millisecond or more: the time goes to per-operation overhead (tensor allocation, layout copies), not to
-//! arithmetic. Here each convolution is one im2col copy and one GEMM, the
-//! rest (dense layers, the GRU of the methods with memory) plain loops over
-//! weights copied out once.
+//! took a millisecond or more: the time goes to per-operation overhead
+//! (tensor allocation, layout copies), not to arithmetic. Here each
+//! convolution is a few GEMMs straight over the input's stride phases
+//! ([`Conv`]), the rest (dense layers, the GRU of the methods with memory)
+//! plain loops over weights copied out once.
 //!
 //! The arithmetic is the network's own: [`CpuPolicy::forward`] equals
 //! [`PolicyNet::forward`] to float rounding (tested below).
