@@ -22,7 +22,7 @@ pub use report::{
 };
 pub use selection::{recorded_scores, Candidate, Selection, RULE as SELECTION_RULE};
 pub(crate) use test_views::test_views;
-pub use weights::{checkpoint_steps, load_checkpoint_unet, CheckpointUnet};
+pub use weights::{checkpoint_steps, load_checkpoint_unet, unet_has_trained, CheckpointUnet};
 
 use anyhow::Context;
 use proto::Affordance;

@@ -166,10 +166,28 @@ pub(crate) fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
         let name = format!("an untrained U-Net (seed {seed})");
         run(&model, &scenes, args.views_per_scene, &name)?
     } else if args.select {
-        let steps = actor::evaluation::checkpoint_steps(&args.run_dir)?;
+        let mut steps = actor::evaluation::checkpoint_steps(&args.run_dir)?;
         anyhow::ensure!(
             !steps.is_empty(),
             "{} has no checkpoint to choose from",
+            args.run_dir.display()
+        );
+        let mut untrained = Vec::new();
+        for &step in &steps {
+            if !actor::evaluation::unet_has_trained(&args.run_dir, step)? {
+                untrained.push(step);
+            }
+        }
+        if !untrained.is_empty() {
+            eprintln!(
+                "evaluate: passing over checkpoint(s) {untrained:?}: their U-Net has not trained \
+                 yet (an untrained network is a floor, scored with --untrained, not a result)"
+            );
+            steps.retain(|step| !untrained.contains(step));
+        }
+        anyhow::ensure!(
+            !steps.is_empty(),
+            "no checkpoint of {} holds a U-Net that has trained: train longer before choosing",
             args.run_dir.display()
         );
         let val = load_rooms(SceneSet::Val)?;

@@ -9,8 +9,8 @@ use serde::{Deserialize, Serialize};
 
 /// What the selection maximises, in words (every report that used it says so).
 pub const RULE: &str = "the mean over affordances of Table 1's median pixel F1 and Table 2's \
-                        F1 on the validation rooms (an undefined score counts 0); a tie goes to \
-                        the later checkpoint";
+                        F1 on the validation rooms (an undefined score counts 0), among the \
+                        checkpoints whose U-Net has trained; a tie goes to the later checkpoint";
 
 /// One checkpoint's validation scores.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

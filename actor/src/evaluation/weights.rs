@@ -34,6 +34,31 @@ pub fn checkpoint_steps(run_dir: &Path) -> anyhow::Result<Vec<u64>> {
     Ok(steps)
 }
 
+/// Whether checkpoint `step` of `run_dir` holds a U-Net that has trained:
+/// its `counters.json` says `unet_version` ≥ 1. An untrained network is a
+/// floor every report gives beside the scores, not a result of the run, and
+/// where a method's trained networks score below calling everything
+/// afforded, the untrained one (which does just that at 0.5) would win the
+/// choice of a checkpoint; so `evaluate --select` passes over it. A
+/// checkpoint without counters (older runs) counts as trained.
+pub fn unet_has_trained(run_dir: &Path, step: u64) -> anyhow::Result<bool> {
+    let path = run_dir
+        .join("checkpoints")
+        .join(step.to_string())
+        .join("counters.json");
+    let text = match std::fs::read_to_string(&path) {
+        Ok(text) => text,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(true),
+        Err(e) => return Err(e).with_context(|| format!("reading {}", path.display())),
+    };
+    let counters: serde_json::Value = serde_json::from_str(&text)
+        .with_context(|| format!("{} is not JSON (a damaged checkpoint?)", path.display()))?;
+    Ok(counters
+        .get("unet_version")
+        .and_then(serde_json::Value::as_u64)
+        .is_none_or(|version| version >= 1))
+}
+
 /// Reads the U-Net of `run_dir/checkpoints/<step>/weights.safetensors`,
 /// the newest step when `step` is `None`.
 pub fn load_checkpoint_unet(run_dir: &Path, step: Option<u64>) -> anyhow::Result<CheckpointUnet> {
@@ -67,4 +92,37 @@ pub fn load_checkpoint_unet(run_dir: &Path, step: Option<u64>) -> anyhow::Result
         weights,
         temperature,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_checkpoint_whose_unet_never_trained_is_told_apart() {
+        let run = tempfile::tempdir().unwrap();
+        let run = run.path();
+        for (step, counters) in [
+            (180, Some(r#"{"env_steps": 180, "unet_version": 0}"#)),
+            (8996, Some(r#"{"env_steps": 8996, "unet_version": 26}"#)),
+            (9000, None),
+        ] {
+            let dir = run.join("checkpoints").join(step.to_string());
+            std::fs::create_dir_all(&dir).unwrap();
+            if let Some(text) = counters {
+                std::fs::write(dir.join("counters.json"), text).unwrap();
+            }
+        }
+        let trained: Vec<bool> = [180, 8996, 9000]
+            .iter()
+            .map(|&step| unet_has_trained(run, step).unwrap())
+            .collect();
+        std::fs::write(run.join("checkpoints/180/counters.json"), "{").unwrap();
+        let damaged = unet_has_trained(run, 180);
+        assert_eq!(trained, [false, true, true]);
+        assert!(
+            damaged.is_err(),
+            "a damaged checkpoint is an error, not a guess"
+        );
+    }
 }
