@@ -425,7 +425,10 @@ pub fn align(
 /// is unknown (any of the cell's eight voxels unobserved), truncated, or
 /// beyond the inlier distance are left out. Converges only from within about
 /// the truncation distance, which is why [`align`] runs first. Stays within
-/// `motion`.
+/// `motion`. Stops early when a step undoes the last one: counted over `ours`
+/// episodes, a quarter of re-identification's refinements cycled between two
+/// poses or slid across a surface until the last iteration, and the cycles
+/// were a third of them (docs/notebook/2026-11-30-policy-pass-phases.md).
 pub fn refine_against_sdf(
     layer: &Layer,
     start: &Pose,
@@ -451,6 +454,7 @@ pub fn refine_against_sdf(
         .fold(Vector3::zeros(), |sum, p| sum + p.coords)
         / points.len().max(1) as f32;
     let mut reader = CachedReader::new(layer);
+    let mut last_step: Option<(Pose, f32)> = None;
     for _ in 0..params.max_iterations {
         let t_object_camera = t.inverse();
         let mut equations = NormalEquations::new(Point3::from(centre_camera));
@@ -474,6 +478,15 @@ pub fn refine_against_sdf(
         if size < 1e-6 {
             break;
         }
+        // A step that undoes the last one: the refinement cycles between
+        // two poses and would until the last iteration.
+        if let Some((last, last_size)) = last_step {
+            let (moved_m, turned_deg) = motion_size(&(step * last));
+            if moved_m.max(turned_deg.to_radians()) < 0.1 * size.min(last_size) {
+                break;
+            }
+        }
+        last_step = Some((step, size));
     }
     t
 }
