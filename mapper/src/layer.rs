@@ -195,15 +195,21 @@ impl SurfaceMask {
             .fold(0, |columns, (_, level)| columns | level)
     }
 
-    /// Calls `f(offset)` for every marked voxel, in offset order (x fastest,
-    /// then y, then z).
+    /// Calls `f(offset)` for every marked voxel a column at a time: the
+    /// marked voxels of one x and y together, z rising, the columns in
+    /// offset order (x fastest, then y). A voxel column of an upright
+    /// object falls in one cell of a floor grid, so a rasteriser can look
+    /// that cell up once.
     #[inline]
-    pub fn for_each_offset(&self, mut f: impl FnMut(usize)) {
-        for (z, &level) in self.0.iter().enumerate() {
-            let mut bits = level;
-            while bits != 0 {
-                f(z * LEVEL_VOXELS + bits.trailing_zeros() as usize);
-                bits &= bits - 1;
+    pub fn for_each_offset_by_column(&self, mut f: impl FnMut(usize)) {
+        let mut columns = self.columns(u8::MAX);
+        while columns != 0 {
+            let column = columns.trailing_zeros() as usize;
+            columns &= columns - 1;
+            for (z, &level) in self.0.iter().enumerate() {
+                if level >> column & 1 == 1 {
+                    f(z * LEVEL_VOXELS + column);
+                }
             }
         }
     }
@@ -343,9 +349,10 @@ impl Layer {
     }
 
     /// The centres of the voxels of every block's [`Layer::surface_mask`]
-    /// (layer frame), block by block in index order: the points a placed
-    /// object's surface projects from. Worked out once and kept until a
-    /// block may change.
+    /// (layer frame), block by block in index order and a voxel column at
+    /// a time within a block ([`SurfaceMask::for_each_offset_by_column`]):
+    /// the points a placed object's surface projects from. Worked out once
+    /// and kept until a block may change.
     pub fn surface_centres(&self) -> &[Point3<f32>] {
         self.surface_centres.get_or_init(|| {
             let masks: Vec<(BlockIndex, SurfaceMask)> = self
@@ -356,7 +363,9 @@ impl Layer {
             // One allocation of the right size, not one per doubling.
             let mut centres = Vec::with_capacity(masks.iter().map(|(_, m)| m.count()).sum());
             for (b, mask) in masks {
-                mask.for_each_offset(|o| centres.push(self.voxel_center(VoxelIndex::join(b, o))));
+                mask.for_each_offset_by_column(|o| {
+                    centres.push(self.voxel_center(VoxelIndex::join(b, o)))
+                });
             }
             centres
         })
@@ -563,6 +572,16 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_mask_visits_its_voxels_a_column_at_a_time() {
+        let mut levels = [0u64; BLOCK_EDGE as usize];
+        levels[0] = 1 << 3 | 1 << 8; // columns 3 and 8 at z 0
+        levels[2] = 1 << 3; // column 3 at z 2
+        let mut offsets = Vec::new();
+        SurfaceMask(levels).for_each_offset_by_column(|o| offsets.push(o));
+        assert_eq!(offsets, [3, 2 * LEVEL_VOXELS + 3, 8]);
+    }
+
+    #[test]
     fn a_surface_mask_marks_the_voxels_near_the_surface_and_forgets_them_on_change() {
         let mut layer = Layer::new(0.1);
         let b = BlockIndex([0, -1, 2]);
@@ -589,8 +608,11 @@ mod tests {
         let mask = layer.surface_mask(b).expect("an allocated block");
         assert_eq!(mask.count(), 3);
         let mut offsets = Vec::new();
-        mask.for_each_offset(|o| offsets.push(o));
-        assert_eq!(offsets, near, "in offset order");
+        mask.for_each_offset_by_column(|o| offsets.push(o));
+        assert_eq!(
+            offsets, near,
+            "a column at a time, the columns in offset order"
+        );
         // Columns: (3, 0) at z 0, (0, 1) at z 1, (7, 7) at z 7.
         assert_eq!(mask.columns(0b1), 1 << 3);
         assert_eq!(mask.columns(0b10), 1 << 8);

@@ -378,21 +378,32 @@ impl Raster {
             return;
         }
         let t_world_object = &group.object.t_world_object;
+        // Turned about z alone, the object moves its points' x and y
+        // whatever their z: the points of one voxel column (consecutive,
+        // `Layer::surface_centres`) get the same world x and y, so the same
+        // cell on every grid, looked up once.
+        let rotation = &t_world_object.rotation;
+        let upright = rotation.i == 0.0 && rotation.j == 0.0;
+        let mut column = None;
+        let mut cells = vec![None; marking.len()];
         for centre in group.points {
             let p = t_world_object * centre;
-            for (slot, always, by_height) in &mut marking {
+            let same_column = upright && column == Some((centre.x, centre.y));
+            column = Some((centre.x, centre.y));
+            for ((slot, always, by_height), cell) in marking.iter_mut().zip(&mut cells) {
+                if !same_column {
+                    *cell = slot.locator.cell_of(p.x, p.y);
+                }
+                let Some(c) = *cell else {
+                    continue;
+                };
                 let mut mask = *always;
                 for (bit, heights) in by_height.iter() {
                     if heights.contains(&p.z) {
                         mask |= bit;
                     }
                 }
-                if mask == 0 {
-                    continue;
-                }
-                if let Some(c) = slot.locator.cell_of(p.x, p.y) {
-                    slot.bits[c] |= mask;
-                }
+                slot.bits[c] |= mask;
             }
         }
     }
