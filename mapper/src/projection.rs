@@ -359,7 +359,8 @@ impl Raster {
     /// into the world once, whatever number of grids it is marked on.
     fn mark_object(&mut self, group: &PointGroup<'_>) {
         // Per grid that may hold the object: the bits it shows everywhere,
-        // and each occupancy bit with its heights.
+        // each occupancy bit with its heights, and the cell of the current
+        // voxel column.
         let mut marking = Vec::new();
         for slot in &mut self.slots {
             if !slot.locator.may_cover(group.lo, group.hi) {
@@ -371,7 +372,7 @@ impl Raster {
                 .filter(|(_, (_, kind))| shows(group.object, *kind))
                 .fold(0u64, |always, (bit, _)| always | 1 << bit);
             if always != 0 || !by_height.is_empty() {
-                marking.push((slot, always, by_height));
+                marking.push((slot, always, by_height, None));
             }
         }
         if marking.is_empty() {
@@ -385,12 +386,11 @@ impl Raster {
         let rotation = &t_world_object.rotation;
         let upright = rotation.i == 0.0 && rotation.j == 0.0;
         let mut column = None;
-        let mut cells = vec![None; marking.len()];
         for centre in group.points {
             let p = t_world_object * centre;
             let same_column = upright && column == Some((centre.x, centre.y));
             column = Some((centre.x, centre.y));
-            for ((slot, always, by_height), cell) in marking.iter_mut().zip(&mut cells) {
+            for (slot, always, by_height, cell) in &mut marking {
                 if !same_column {
                     *cell = slot.locator.cell_of(p.x, p.y);
                 }
