@@ -569,7 +569,7 @@ fn policy_pass(
 ) {
     if let Some(cpu) = cpu {
         let pass = |o: &Observation| {
-            std::hint::black_box(cpu.forward(&o.features, &o.action_mask, None));
+            std::hint::black_box(o.cpu_pass(cpu, None));
         };
         // One observation stays on this thread, as in the actor's `forward_batch`.
         match observations {
@@ -582,7 +582,7 @@ fn policy_pass(
         let n = batch.len();
         let features: Vec<f32> = batch
             .iter()
-            .flat_map(|o| o.features.iter().copied())
+            .flat_map(|o| o.values.floats().into_owned())
             .collect();
         let masks: Vec<u8> = batch
             .iter()

@@ -5,7 +5,7 @@ use actor::env::actions::{random_allowed_action, PolicyAction};
 use actor::env::affordance_model::AffordanceModel;
 use actor::env::sim_env::{ActionOutcome, SimEnv, SimEnvConfig, SimObservation};
 use actor::env::step_phases::step_phases;
-use actor::env::Environment;
+use actor::env::{Environment, ObservationValues};
 use actor::sampling::env_threads::{Done, EnvThreads, Task};
 use actor::sampling::unet_batcher::batch_times;
 use actor::sampling::Inference;
@@ -456,14 +456,11 @@ fn methods_without_a_map_fit_their_layout_and_label_from_interaction_points() {
         let mut observation = env.reset(3, Some(&model)).unwrap();
         let mut interactions = 0;
         for _ in 0..steps {
-            assert_eq!(observation.features.len(), layout.obs_len(), "{method:?}");
-            // The bytes the rollout carries are the features' own.
-            let bytes: Vec<u8> = observation
-                .features
-                .iter()
-                .map(|&v| proto::unit_to_byte(v))
-                .collect();
-            assert_eq!(observation.bytes.as_ref(), Some(&bytes), "{method:?}");
+            // The environment makes the bytes the rollout carries.
+            let ObservationValues::Bytes(bytes) = &observation.values else {
+                panic!("{method:?}: an environment's observation in floats");
+            };
+            assert_eq!(bytes.len(), layout.obs_len(), "{method:?}");
             let space = env.inner().action_space();
             let action = random_allowed_action(space, &observation.action_mask, 0.5, &mut rng);
             let is_interaction = matches!(
@@ -610,9 +607,10 @@ fn environments_on_the_actors_threads_play_exactly_the_episodes_they_play_alone(
         for (step, (x, y)) in a.iter().zip(b).enumerate() {
             assert_eq!(x.action_mask, y.action_mask, "environment {i}, step {step}");
             let worst = x
-                .features
+                .values
+                .floats()
                 .iter()
-                .zip(&y.features)
+                .zip(y.values.floats().iter())
                 .map(|(p, q)| (p - q).abs())
                 .fold(0.0f32, f32::max);
             assert!(

@@ -45,7 +45,7 @@ pub use method::{LabelSource, Method, MethodSpec, Selection, GRID_CELLS, HISTORY
 pub use payload::Payload;
 pub use rollout::{
     byte_to_unit, obs_bytes_from_f32, unit_to_byte, ObsDtype, RolloutChunk, RolloutView,
-    MAX_ACTIONS, MAX_STEPS,
+    BYTE_UNITS, MAX_ACTIONS, MAX_STEPS,
 };
 pub use rules::{
     CellPreference, ConfidenceRule, MapSegmentation, MapSettings, SelectionRule, SphereRule,

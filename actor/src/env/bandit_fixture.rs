@@ -53,11 +53,7 @@ impl BanditFixture {
         let right = self.context % self.n_actions;
         let masked = (right + 1 + self.rng.random_range(0..self.n_actions - 1)) % self.n_actions;
         action_mask[masked] = 0;
-        Observation {
-            features,
-            action_mask,
-            bytes: None,
-        }
+        Observation::of_floats(features, action_mask)
     }
 }
 

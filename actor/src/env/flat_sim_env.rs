@@ -13,7 +13,7 @@ use proto::{PolicyLayout, TaskSpec};
 
 use super::affordance_model::CameraFrame;
 use super::sim_env::{SimEnv, SimObservation};
-use super::{Environment, EpisodeEnd, Observation, StepOutcome};
+use super::{Environment, EpisodeEnd, Observation, ObservationValues, StepOutcome};
 
 /// [`SimEnv`] as an [`Environment`].
 pub struct FlatSimEnv {
@@ -63,9 +63,8 @@ impl FlatSimEnv {
             bytes.extend(part.iter().map(|&v| proto::unit_to_byte(v)));
         }
         Observation {
-            features: bytes.iter().map(|&b| proto::byte_to_unit(b)).collect(),
+            values: ObservationValues::Bytes(bytes),
             action_mask: o.mask,
-            bytes: Some(bytes),
         }
     }
 }

@@ -20,6 +20,7 @@ pub use training_rooms::training_rooms;
 
 use std::time::Duration;
 
+use nets::policy::{CpuPolicy, CpuPolicyStep};
 use proto::{FrameBatch, PolicyLayout, StatKey};
 
 use affordance_model::{AffordanceModel, CameraFrame};
@@ -27,17 +28,68 @@ use affordance_model::{AffordanceModel, CameraFrame};
 /// What the policy sees after a reset or a step.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Observation {
-    /// Flat observation features, the layout's `obs_len` long (for a byte
-    /// layout, multiples of 1/255 in 0..1: exactly what travels).
-    pub features: Vec<f32>,
+    /// The flat observation, the layout's `obs_len` values.
+    pub values: ObservationValues,
     /// One byte per action, 1 = allowed; at least one is allowed.
     pub action_mask: Vec<u8>,
-    /// The features as bytes (`proto::unit_to_byte`), when the environment
-    /// made them while rounding its features to byte levels: the loop's
-    /// thread, which every environment waits for between its steps, then
-    /// copies them into a byte layout's rollout instead of converting 426 k
-    /// values a step at 128 px. `None`: the loop converts.
-    pub bytes: Option<Vec<u8>>,
+}
+
+impl Observation {
+    /// An observation of float values.
+    pub fn of_floats(features: Vec<f32>, action_mask: Vec<u8>) -> Self {
+        Self {
+            values: ObservationValues::Floats(features),
+            action_mask,
+        }
+    }
+
+    /// `net`'s CPU pass over this observation from recurrent state `hidden`.
+    pub fn cpu_pass(&self, net: &CpuPolicy, hidden: Option<&[f32]>) -> CpuPolicyStep {
+        match &self.values {
+            ObservationValues::Floats(v) => net.forward(v, &self.action_mask, hidden),
+            ObservationValues::Bytes(v) => net.forward(v, &self.action_mask, hidden),
+        }
+    }
+}
+
+/// An observation's values as the environment made them.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ObservationValues {
+    /// Values as the network reads them (a byte layout's, multiples of 1/255
+    /// in 0..1).
+    Floats(Vec<f32>),
+    /// A byte layout's bytes (`proto::unit_to_byte` of each value; the
+    /// network reads `proto::byte_to_unit` of each): exactly what travels,
+    /// so that neither the environment nor the loop's thread, which every
+    /// environment waits for between its steps, expands 426 k values a step
+    /// at 128 px into floats or converts them back.
+    Bytes(Vec<u8>),
+}
+
+impl ObservationValues {
+    /// How many values.
+    pub fn len(&self) -> usize {
+        match self {
+            Self::Floats(v) => v.len(),
+            Self::Bytes(v) => v.len(),
+        }
+    }
+
+    /// True when there are none.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The values as the network reads them.
+    pub fn floats(&self) -> std::borrow::Cow<'_, [f32]> {
+        match self {
+            Self::Floats(v) => v.into(),
+            Self::Bytes(v) => v
+                .iter()
+                .map(|&b| proto::BYTE_UNITS[usize::from(b)])
+                .collect(),
+        }
+    }
 }
 
 /// What an action did, known before the next observation.

@@ -4,7 +4,7 @@
 use nets::policy::PolicyLayout;
 use proto::{FrameBatch, FrameSlices, ObsDtype, RolloutChunk};
 
-use crate::env::Observation;
+use crate::env::{Observation, ObservationValues};
 
 /// Most steps a new chunk reserves room for: chunks may be set to thousands
 /// of steps (`proto::MAX_STEPS`), which at 128 px would reserve gigabytes
@@ -58,17 +58,17 @@ pub(super) fn restart_chunk(chunk: &mut RolloutChunk, first_step: u32, start_hid
     chunk.dones.clear();
 }
 
-/// Appends an observation in the chunk's element type (for bytes, those
-/// the environment made, if it did).
+/// Appends an observation in the chunk's element type (a byte layout's
+/// bytes as the environment made them, if it did).
 pub(super) fn push_obs(chunk: &mut RolloutChunk, observation: &Observation) {
-    match (chunk.obs_dtype, &observation.bytes) {
-        (ObsDtype::U8, Some(bytes)) => chunk.obs.extend_from_slice(bytes),
-        (ObsDtype::U8, None) => chunk
+    match (chunk.obs_dtype, &observation.values) {
+        (ObsDtype::U8, ObservationValues::Bytes(bytes)) => chunk.obs.extend_from_slice(bytes),
+        (ObsDtype::U8, ObservationValues::Floats(features)) => chunk
             .obs
-            .extend(observation.features.iter().map(|&v| proto::unit_to_byte(v))),
-        (ObsDtype::F32, _) => chunk
+            .extend(features.iter().map(|&v| proto::unit_to_byte(v))),
+        (ObsDtype::F32, values) => chunk
             .obs
-            .extend(observation.features.iter().flat_map(|v| v.to_le_bytes())),
+            .extend(values.floats().iter().flat_map(|v| v.to_le_bytes())),
     }
 }
 
@@ -102,26 +102,25 @@ mod tests {
         };
         let features = vec![0.0, 0.5, 1.0];
         let mut chunk = new_chunk(1, 0, &layout, Vec::new(), 2);
-        let converted = Observation {
-            features: features.clone(),
-            action_mask: vec![1, 1],
-            bytes: None,
-        };
+        let converted = Observation::of_floats(features.clone(), vec![1, 1]);
         push_obs(&mut chunk, &converted);
         assert_eq!(chunk.obs, [0, 128, 255]);
-        // Bytes from the environment go in as they are (these differ from
-        // the features, so a chunk that converted would tell).
+        // Bytes from the environment go in as they are.
         let made = Observation {
-            bytes: Some(vec![7, 8, 9]),
-            ..converted
+            values: ObservationValues::Bytes(vec![7, 8, 255]),
+            ..converted.clone()
         };
         push_obs(&mut chunk, &made);
-        assert_eq!(chunk.obs, [0, 128, 255, 7, 8, 9]);
-        // A float layout carries the features whatever the bytes.
+        assert_eq!(chunk.obs, [0, 128, 255, 7, 8, 255]);
+        // A float layout carries the values the network reads.
         chunk.obs_dtype = ObsDtype::F32;
         chunk.obs.clear();
-        push_obs(&mut chunk, &made);
+        push_obs(&mut chunk, &converted);
         assert_eq!(chunk.obs, proto::obs_bytes_from_f32(&features));
+        chunk.obs.clear();
+        push_obs(&mut chunk, &made);
+        let units = [7, 8, 255].map(proto::byte_to_unit);
+        assert_eq!(chunk.obs, proto::obs_bytes_from_f32(&units));
     }
 
     #[test]

@@ -158,16 +158,16 @@ fn forward(
         return Ok(inputs
             .iter()
             .map(|(observation, hidden)| {
-                let step = cpu.forward(&observation.features, &observation.action_mask, *hidden);
+                let step = observation.cpu_pass(cpu, *hidden);
                 step_of_cpu_pass(step, observation)
             })
             .collect());
     }
     let n = inputs.len();
-    let features: Vec<f32> = inputs
-        .iter()
-        .flat_map(|(o, _)| o.features.iter().copied())
-        .collect();
+    let mut features: Vec<f32> = Vec::with_capacity(n * policy.layout.obs_len());
+    for (observation, _) in inputs {
+        features.extend_from_slice(&observation.values.floats());
+    }
     let masks: Vec<u8> = inputs
         .iter()
         .flat_map(|(o, _)| o.action_mask.iter().copied())
@@ -307,12 +307,13 @@ mod tests {
             hold: false,
         };
         let observations: Vec<Observation> = (0..3)
-            .map(|k| Observation {
-                features: (0..layout.obs_len())
-                    .map(|i| ((i * 7 + k * 13) % 17) as f32 / 17.0)
-                    .collect(),
-                action_mask: (0..4).map(|a| u8::from(a != k)).collect(),
-                bytes: None,
+            .map(|k| {
+                Observation::of_floats(
+                    (0..layout.obs_len())
+                        .map(|i| ((i * 7 + k * 13) % 17) as f32 / 17.0)
+                        .collect(),
+                    (0..4).map(|a| u8::from(a != k)).collect(),
+                )
             })
             .collect();
         // An episode's start (zeros) beside two running recurrent states.
@@ -392,12 +393,13 @@ mod tests {
             };
             let (with_cpu, burn_only) = (policy(cpu), policy(None));
             let observations: Vec<Observation> = (0..2)
-                .map(|k| Observation {
-                    features: (0..layout.obs_len())
-                        .map(|i| ((i * 11 + k * 5) % 19) as f32 / 19.0)
-                        .collect(),
-                    action_mask: (0..6).map(|a| u8::from(a != 2 * k + 1)).collect(),
-                    bytes: None,
+                .map(|k| {
+                    Observation::of_floats(
+                        (0..layout.obs_len())
+                            .map(|i| ((i * 11 + k * 5) % 19) as f32 / 19.0)
+                            .collect(),
+                        (0..6).map(|a| u8::from(a != 2 * k + 1)).collect(),
+                    )
                 })
                 .collect();
             // An episode's start beside a running recurrent state.
@@ -439,22 +441,17 @@ mod tests {
             env_steps: None,
             hold: false,
         };
-        let observation = Observation {
-            features: (0..layout.obs_len())
+        let observation = Observation::of_floats(
+            (0..layout.obs_len())
                 .map(|i| (i % 7) as f32 / 7.0)
                 .collect(),
-            action_mask: vec![1, 0, 1, 1],
-            bytes: None,
-        };
+            vec![1, 0, 1, 1],
+        );
         let state: Vec<f32> = (0..8).map(|i| i as f32 / 10.0).collect();
         let cpu = policy.cpu.as_ref().unwrap();
         let pass = |version| PolicyPass {
             version,
-            step: cpu.forward(
-                &observation.features,
-                &observation.action_mask,
-                Some(&state),
-            ),
+            step: observation.cpu_pass(cpu, Some(&state)),
         };
         let here = forward(&policy, &[(&observation, Some(&state))], &device).unwrap();
         let taken = step_of_thread_pass(&policy, &observation, pass(3)).expect("current policy");

@@ -259,7 +259,7 @@ fn work(
     let pass = |observation: &Observation, hidden: Option<&[f32]>| {
         policy.map(|(version, net)| PolicyPass {
             version: *version,
-            step: net.forward(&observation.features, &observation.action_mask, hidden),
+            step: observation.cpu_pass(net, hidden),
         })
     };
     Ok(match task {
@@ -304,6 +304,7 @@ mod tests {
     use super::*;
     use crate::env::affordance_model::CameraFrame;
     use crate::env::BanditFixture;
+    use crate::env::ObservationValues;
     use proto::PolicyLayout;
 
     /// Bandits have no camera, so no U-Net.
@@ -456,7 +457,7 @@ mod tests {
         }
         fn observe(&mut self, affordances: Vec<Vec<f32>>) -> anyhow::Result<Observation> {
             let mut observation = self.bandit.observe(Vec::new())?;
-            observation.features = affordances[0].clone();
+            observation.values = ObservationValues::Floats(affordances[0].clone());
             Ok(observation)
         }
         fn finish_episode(&mut self, id: u64) -> anyhow::Result<EpisodeEnd> {
@@ -507,7 +508,7 @@ mod tests {
                     let (index, Done::Reset(observation, None)) = threads.next().unwrap() else {
                         panic!("a reset answered");
                     };
-                    got[index] = observation.features;
+                    got[index] = observation.values.floats().into_owned();
                 }
             });
             for (k, (g, e)) in got.iter().zip(&expected).enumerate() {
@@ -548,9 +549,7 @@ mod tests {
                 let (index, Done::Reset(observation, Some(pass))) = threads.next().unwrap() else {
                     panic!("a reset with its pass answered");
                 };
-                let by = |p: &CpuPolicy| {
-                    p.forward(&observation.features, &observation.action_mask, None)
-                };
+                let by = |p: &CpuPolicy| observation.cpu_pass(p, None);
                 assert_eq!(
                     pass,
                     PolicyPass {
@@ -575,9 +574,7 @@ mod tests {
                 else {
                     panic!("a step with its pass answered");
                 };
-                let from = |h: Option<&[f32]>| {
-                    second.forward(&observation.features, &observation.action_mask, h)
-                };
+                let from = |h: Option<&[f32]>| observation.cpu_pass(&second, h);
                 let step = from(Some(&state(index)));
                 assert_ne!(step, from(None), "the state tells apart");
                 assert_eq!(pass, PolicyPass { version: 2, step }, "environment {index}");

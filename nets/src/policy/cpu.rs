@@ -9,7 +9,10 @@
 //! plain loops over weights copied out once.
 //!
 //! The arithmetic is the network's own: [`CpuPolicy::forward`] equals
-//! [`PolicyNet::forward`] to float rounding (tested below).
+//! [`PolicyNet::forward`] to float rounding (tested below). It reads an
+//! observation as floats or as a byte layout's bytes ([`ObservationValue`]),
+//! so that an actor need not expand the bytes it sends into a float copy
+//! of several hundred thousand values a step only for this pass.
 
 use std::cell::RefCell;
 
@@ -31,6 +34,29 @@ pub struct CpuPolicy {
     gru: Option<CpuGru>,
     actor: [Dense; 3],
     critic: [Dense; 3],
+}
+
+/// One value of a flat observation as [`CpuPolicy::forward`] reads it:
+/// a float as it is, or a byte layout's byte as the unit value it stands
+/// for ([`proto::byte_to_unit`], the learner's reading of it). Zero (the
+/// default) reads as 0.
+pub trait ObservationValue: Copy + Default {
+    /// The value the network sees.
+    fn unit(self) -> f32;
+}
+
+impl ObservationValue for f32 {
+    #[inline]
+    fn unit(self) -> f32 {
+        self
+    }
+}
+
+impl ObservationValue for u8 {
+    #[inline]
+    fn unit(self) -> f32 {
+        proto::BYTE_UNITS[usize::from(self)]
+    }
 }
 
 /// What the policy says for one observation.
@@ -81,15 +107,16 @@ impl CpuPolicy {
     }
 
     /// Log-probabilities and value for one flat observation (images then
-    /// vectors, [`PolicyLayout::obs_len`] values) and its mask (one byte
-    /// per action, nonzero = allowed); for a policy with a GRU, `hidden` is
-    /// its state before this step (`None`: zeros, an episode's start).
+    /// vectors, [`PolicyLayout::obs_len`] values, floats or bytes) and its
+    /// mask (one byte per action, nonzero = allowed); for a policy with a
+    /// GRU, `hidden` is its state before this step (`None`: zeros, an
+    /// episode's start).
     ///
     /// # Panics
     /// If the lengths do not match the layout: callers validate first.
-    pub fn forward(
+    pub fn forward<T: ObservationValue>(
         &self,
-        observation: &[f32],
+        observation: &[T],
         mask: &[u8],
         hidden: Option<&[f32]>,
     ) -> CpuPolicyStep {
@@ -115,7 +142,8 @@ impl CpuPolicy {
             at += len;
         }
         for (mlp, &dim) in self.vectors.iter().zip(&layout.vector_dims) {
-            let inner = mlp[0].forward(&observation[at..at + dim], encoder);
+            let input: Vec<f32> = observation[at..at + dim].iter().map(|v| v.unit()).collect();
+            let inner = mlp[0].forward(&input, encoder);
             features.extend(mlp[1].forward(&inner, encoder));
             at += dim;
         }
@@ -285,7 +313,7 @@ impl Conv {
     }
 
     /// `[inputs][size][size]` → (`[outputs][out][out]`, `out`).
-    fn forward(&self, x: &[f32], size: usize) -> (Vec<f32>, usize) {
+    fn forward<T: ObservationValue>(&self, x: &[T], size: usize) -> (Vec<f32>, usize) {
         let (k, s) = (self.kernel, self.stride);
         let t = k.div_ceil(s);
         let out = (size - k) / s + 1;
@@ -359,8 +387,8 @@ fn phase_plane_len(phase: usize) -> usize {
 /// `[channels][py][px][Y][X] = x[c][Y·s + py][X·s + px]`, each phase
 /// `⌈size / s⌉` square and [`phase_plane_len`] values from the next, zeros
 /// past the edge, between the planes and in `tail` values after the last.
-fn split_phases(
-    x: &[f32],
+fn split_phases<T: ObservationValue>(
+    x: &[T],
     channels: usize,
     size: usize,
     s: usize,
@@ -375,21 +403,21 @@ fn split_phases(
     for plane in out[..len].chunks_exact_mut(plane_len) {
         plane[phase * phase..].fill(0.0);
     }
-    let past_edge = vec![0.0; size];
+    let past_edge = vec![T::default(); size];
     for (c, input) in x.chunks_exact(size * size).take(channels).enumerate() {
         for y in 0..phase * s {
             let line = input.get(y * size..(y + 1) * size).unwrap_or(&past_edge);
             // Phases (py, 0..s) of channel c lie one after another.
             let planes = &mut out[(c * s + y % s) * s * plane_len..][..s * plane_len];
             match s {
-                2 => deinterleave::<2>(line, planes, phase, y / s),
-                4 => deinterleave::<4>(line, planes, phase, y / s),
+                2 => deinterleave::<2, T>(line, planes, phase, y / s),
+                4 => deinterleave::<4, T>(line, planes, phase, y / s),
                 _ => {
                     for (px, plane) in planes.chunks_exact_mut(plane_len).enumerate() {
                         let row = &mut plane[y / s * phase..][..phase];
                         let mut values = line.iter().skip(px).step_by(s);
                         for slot in row {
-                            *slot = values.next().copied().unwrap_or(0.0);
+                            *slot = values.next().map_or(0.0, |v| v.unit());
                         }
                     }
                 }
@@ -404,19 +432,24 @@ fn split_phases(
 /// end. With the stride a constant, the copy is one pass over the line in
 /// vector registers; a strided gather per plane took a quarter of a 128-px
 /// pass.
-fn deinterleave<const S: usize>(line: &[f32], planes: &mut [f32], phase: usize, row: usize) {
+fn deinterleave<const S: usize, T: ObservationValue>(
+    line: &[T],
+    planes: &mut [f32],
+    phase: usize,
+    row: usize,
+) {
     let mut planes = planes.chunks_exact_mut(phase_plane_len(phase));
     let mut rows: [&mut [f32]; S] =
         std::array::from_fn(|_| &mut planes.next().expect("S planes")[row * phase..][..phase]);
     let whole = line.len() / S;
     for (x, values) in line.chunks_exact(S).enumerate() {
         for (row, &value) in rows.iter_mut().zip(values) {
-            row[x] = value;
+            row[x] = value.unit();
         }
     }
     for (px, row) in rows.iter_mut().enumerate() {
         for (x, slot) in row.iter_mut().enumerate().skip(whole) {
-            *slot = line.get(x * S + px).copied().unwrap_or(0.0);
+            *slot = line.get(x * S + px).map_or(0.0, |v| v.unit());
         }
     }
 }
@@ -551,6 +584,13 @@ mod tests {
             let value: Vec<f32> = expected.values.into_data().try_to_vec().unwrap();
             let got = cpu.forward(&observation, &mask, None);
             assert!(got.hidden.is_none());
+            // Every value here is a byte level: the same observation as a
+            // byte layout's bytes gives the same pass to the bit.
+            let bytes: Vec<u8> = observation
+                .iter()
+                .map(|&v| proto::unit_to_byte(v))
+                .collect();
+            assert_eq!(cpu.forward(&bytes, &mask, None), got, "read from bytes");
             for (a, (g, e)) in got.log_probs.iter().zip(&log_probs).enumerate() {
                 if mask[a] == 0 {
                     assert!(*g < -1e8 && *e < -1e8, "masked action {a}: {g} vs {e}");
