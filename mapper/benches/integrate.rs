@@ -167,17 +167,15 @@ fn bench(c: &mut Criterion) {
     );
     compare_with_open3d(ours, ours_integration);
     compare_renderers(&warm, &frames);
-    time_surface_points(&map, &frames);
+    time_surface_points(&map);
 }
 
 /// The map queries the actor's state makes once per step: gathering the
 /// map's surface points (a scan of every voxel of the map), then the
 /// state's 14 egocentric projections (occupancy and 3 label kinds per
 /// affordance, for 2 affordances, at 10 m and 2 m, 128 cells) rasterised in
-/// one pass, side by side with one pass per projection. The gathering
-/// also as the actor meets it: after a frame's integration, whose blocks
-/// in view must have their surface masks worked out again.
-fn time_surface_points(map: &Map, frames: &[OwnedFrame]) {
+/// one pass, side by side with one pass per projection.
+fn time_surface_points(map: &Map) {
     use mapper::projection::{GridSpec, ProjectionKind};
     use mapper::Affordance;
     let median_ms = |mut f: Box<dyn FnMut() + '_>| {
@@ -194,16 +192,6 @@ fn time_surface_points(map: &Map, frames: &[OwnedFrame]) {
     let gather = median_ms(Box::new(|| {
         std::hint::black_box(map.surface_points());
     }));
-    let mut stepping = map.clone();
-    let mut after_frame: Vec<f64> = Vec::new();
-    for f in frames.iter().cycle().take(3 * frames.len()) {
-        stepping.integrate(&f.frame()).expect("valid frame");
-        let started = std::time::Instant::now();
-        std::hint::black_box(stepping.surface_points());
-        after_frame.push(started.elapsed().as_secs_f64());
-    }
-    after_frame.sort_by(f64::total_cmp);
-    let after_frame = after_frame[after_frame.len() / 2] * 1e3;
     let mut requests = Vec::new();
     for extent_m in [10.0, 2.0] {
         let grid = GridSpec {
@@ -239,7 +227,7 @@ fn time_surface_points(map: &Map, frames: &[OwnedFrame]) {
         }
     }));
     eprintln!(
-        "surface points of the whole map ({} blocks): median {gather:.3} ms, {after_frame:.3} ms after a frame's integration; its {} projections in one pass {fused:.3} ms, one pass each {one_by_one:.3} ms",
+        "surface points of the whole map ({} blocks): median {gather:.3} ms; its {} projections in one pass {fused:.3} ms, one pass each {one_by_one:.3} ms",
         map.objects()
             .values()
             .map(|o| o.volume.len())

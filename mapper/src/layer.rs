@@ -151,23 +151,6 @@ impl Block {
         })
     }
 
-    /// Which voxels [`Block::for_each_near_surface`] visits, a z level's 64
-    /// at a time without a branch: the background's blocks in view change
-    /// every frame, and the state asks for their masks every step.
-    fn near_surface_mask(&self, band_m: f32) -> SurfaceMask {
-        let mut mask = SurfaceMask::default();
-        for (bits, level) in mask
-            .0
-            .iter_mut()
-            .zip(self.voxels().chunks_exact(LEVEL_VOXELS))
-        {
-            *bits = level.iter().enumerate().fold(0, |bits, (i, v)| {
-                bits | u64::from((v.weight > 0.0) & (v.sdf.abs() < band_m)) << i
-            });
-        }
-        mask
-    }
-
     /// Calls `f(offset, sdf)` for every observed voxel within `band_m` of
     /// the surface, in offset order. Tests eight voxels at a time into a
     /// bit mask, so the (mostly empty) runs cost no branch per voxel.
@@ -212,21 +195,22 @@ impl SurfaceMask {
             .fold(0, |columns, (_, level)| columns | level)
     }
 
-    /// Calls `f(column, levels)` for every column (bit `x + 8·y`) with a
-    /// marked voxel, in column order, `levels` holding bit `z` for each
-    /// marked voxel `z · 64 + column`. A voxel column of an upright object
-    /// falls in one cell of a floor grid, so a rasteriser can look that
-    /// cell up once.
+    /// Calls `f(offset)` for every marked voxel a column at a time: the
+    /// marked voxels of one x and y together, z rising, the columns in
+    /// offset order (x fastest, then y). A voxel column of an upright
+    /// object falls in one cell of a floor grid, so a rasteriser can look
+    /// that cell up once.
     #[inline]
-    pub fn for_each_column(&self, mut f: impl FnMut(usize, u8)) {
+    pub fn for_each_offset_by_column(&self, mut f: impl FnMut(usize)) {
         let mut columns = self.columns(u8::MAX);
         while columns != 0 {
             let column = columns.trailing_zeros() as usize;
             columns &= columns - 1;
-            let levels = (self.0.iter().enumerate()).fold(0u8, |levels, (z, level)| {
-                levels | ((level >> column & 1) as u8) << z
-            });
-            f(column, levels);
+            for (z, &level) in self.0.iter().enumerate() {
+                if level >> column & 1 == 1 {
+                    f(z * LEVEL_VOXELS + column);
+                }
+            }
         }
     }
 }
@@ -286,6 +270,11 @@ pub struct Layer {
     /// asks for them several times a frame for every object it renders,
     /// and most objects are not touched in a frame.
     bounds: OnceLock<Bounds>,
+    /// [`Layer::surface_centres`], worked out on first use and forgotten
+    /// whenever a block may change: the policy's state projects every
+    /// placed object's surface each step, and most objects are not touched
+    /// in a step.
+    surface_centres: OnceLock<Vec<Point3<f32>>>,
 }
 
 /// A layer's two boxes, as [`Layer::block_bounds`] and
@@ -303,6 +292,7 @@ impl Layer {
             voxel_size_m,
             blocks: FxHashMap::default(),
             bounds: OnceLock::new(),
+            surface_centres: OnceLock::new(),
         }
     }
 
@@ -349,31 +339,42 @@ impl Layer {
     /// Worked out once and kept until the block's voxels change.
     pub fn surface_mask(&self, b: BlockIndex) -> Option<SurfaceMask> {
         let block = self.blocks.get(&b)?;
-        Some(
-            *block
-                .data
-                .surface
-                .get_or_init(|| block.near_surface_mask(self.voxel_size_m)),
-        )
+        Some(*block.data.surface.get_or_init(|| {
+            let mut mask = SurfaceMask::default();
+            block.for_each_near_surface(self.voxel_size_m, |o, _| {
+                mask.0[o / LEVEL_VOXELS] |= 1 << (o % LEVEL_VOXELS);
+            });
+            mask
+        }))
     }
 
-    /// Every block's [`Layer::surface_mask`] that marks a voxel, in index
-    /// order: the voxels a layer's surface projects from, each block's kept
-    /// until its voxels change. A rasteriser works out their centres as it
-    /// goes; kept for the whole layer, those centres were worked out again
-    /// for every object a frame touched (tens of thousands of points each),
-    /// while most of their blocks kept their masks.
-    pub fn surface_masks(&self) -> Vec<(BlockIndex, SurfaceMask)> {
-        self.block_indices()
-            .into_iter()
-            .filter_map(|b| self.surface_mask(b).map(|m| (b, m)))
-            .filter(|(_, m)| m.count() > 0)
-            .collect()
+    /// The centres of the voxels of every block's [`Layer::surface_mask`]
+    /// (layer frame), block by block in index order and a voxel column at
+    /// a time within a block ([`SurfaceMask::for_each_offset_by_column`]):
+    /// the points a placed object's surface projects from. Worked out once
+    /// and kept until a block may change.
+    pub fn surface_centres(&self) -> &[Point3<f32>] {
+        self.surface_centres.get_or_init(|| {
+            let masks: Vec<(BlockIndex, SurfaceMask)> = self
+                .block_indices()
+                .into_iter()
+                .filter_map(|b| self.surface_mask(b).map(|m| (b, m)))
+                .collect();
+            // One allocation of the right size, not one per doubling.
+            let mut centres = Vec::with_capacity(masks.iter().map(|(_, m)| m.count()).sum());
+            for (b, mask) in masks {
+                mask.for_each_offset_by_column(|o| {
+                    centres.push(self.voxel_center(VoxelIndex::join(b, o)))
+                });
+            }
+            centres
+        })
     }
 
     /// Forgets what is worked out from the blocks, before one may change.
     fn forget_derived(&mut self) {
         self.bounds.take();
+        self.surface_centres.take();
     }
 
     /// Frees the block at `b` (a no-op if it is not allocated).
@@ -571,13 +572,13 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_mask_lists_its_columns_with_their_levels() {
+    fn a_mask_visits_its_voxels_a_column_at_a_time() {
         let mut levels = [0u64; BLOCK_EDGE as usize];
         levels[0] = 1 << 3 | 1 << 8; // columns 3 and 8 at z 0
         levels[2] = 1 << 3; // column 3 at z 2
-        let mut columns = Vec::new();
-        SurfaceMask(levels).for_each_column(|column, levels| columns.push((column, levels)));
-        assert_eq!(columns, [(3, 0b101), (8, 0b1)]);
+        let mut offsets = Vec::new();
+        SurfaceMask(levels).for_each_offset_by_column(|o| offsets.push(o));
+        assert_eq!(offsets, [3, 2 * LEVEL_VOXELS + 3, 8]);
     }
 
     #[test]
@@ -606,12 +607,11 @@ mod tests {
         });
         let mask = layer.surface_mask(b).expect("an allocated block");
         assert_eq!(mask.count(), 3);
-        let mut columns = Vec::new();
-        mask.for_each_column(|column, levels| columns.push((column, levels)));
+        let mut offsets = Vec::new();
+        mask.for_each_offset_by_column(|o| offsets.push(o));
         assert_eq!(
-            columns,
-            [(3, 0b1), (8, 0b10), (63, 0b1000_0000)],
-            "the columns in order, each with its levels"
+            offsets, near,
+            "a column at a time, the columns in offset order"
         );
         // Columns: (3, 0) at z 0, (0, 1) at z 1, (7, 7) at z 7.
         assert_eq!(mask.columns(0b1), 1 << 3);
@@ -625,31 +625,6 @@ mod tests {
             1
         });
         assert_eq!(layer.surface_mask(b).unwrap().count(), 2);
-    }
-
-    #[test]
-    fn a_blocks_surface_mask_holds_the_voxels_its_scan_visits() {
-        let mut block = Block::default();
-        block.update(|voxels| {
-            for (o, v) in voxels.iter_mut().enumerate() {
-                let pseudo = (o * 7919 % 211) as f32 / 211.0;
-                *v = Voxel {
-                    sdf: (pseudo - 0.5) * 0.5,
-                    weight: if o % 5 == 0 { 0.0 } else { pseudo },
-                };
-            }
-            BLOCK_VOXELS
-        });
-        let mut visited = SurfaceMask::default();
-        block.for_each_near_surface(0.1, |o, _| {
-            visited.0[o / LEVEL_VOXELS] |= 1 << (o % LEVEL_VOXELS)
-        });
-        assert!(
-            visited.count() > 50 && visited.count() < 400,
-            "{}",
-            visited.count()
-        );
-        assert_eq!(block.near_surface_mask(0.1), visited);
     }
 
     #[test]
@@ -719,27 +694,22 @@ mod tests {
     }
 
     #[test]
-    fn surface_masks_follow_the_voxels_as_they_change() {
+    fn surface_centres_follow_the_voxels_as_they_change() {
         let s = 0.04;
         let mut layer = Layer::new(s);
-        assert!(layer.surface_masks().is_empty());
-        // On the surface: listed. Far from it (free space): not.
+        assert!(layer.surface_centres().is_empty());
+        // On the surface: its centre. Far from it (free space): nothing.
         set(&mut layer, [3, 4, 5], 0.0);
         set(&mut layer, [-9, 4, 20], 0.5);
-        let at = |v: [i32; 3]| {
-            let (b, o) = VoxelIndex(v).split();
-            let mut mask = SurfaceMask::default();
-            mask.0[o / LEVEL_VOXELS] = 1 << (o % LEVEL_VOXELS);
-            (b, mask)
-        };
-        assert_eq!(layer.surface_masks(), [at([3, 4, 5])]);
+        let at = |v: [i32; 3]| Layer::new(s).voxel_center(VoxelIndex(v));
+        assert_eq!(layer.surface_centres(), [at([3, 4, 5])]);
         // A second surface voxel, in a block earlier in index order, is
         // seen although the first answer was kept...
         set(&mut layer, [-9, 4, 20], 0.01);
-        assert_eq!(layer.surface_masks(), [at([-9, 4, 20]), at([3, 4, 5])]);
-        // ...and a removed block's mask goes with it.
+        assert_eq!(layer.surface_centres(), [at([-9, 4, 20]), at([3, 4, 5])]);
+        // ...and a removed block's centres go with it.
         layer.remove_block(VoxelIndex([-9, 4, 20]).split().0);
-        assert_eq!(layer.surface_masks(), [at([3, 4, 5])]);
+        assert_eq!(layer.surface_centres(), [at([3, 4, 5])]);
     }
 
     #[test]

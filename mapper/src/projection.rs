@@ -107,15 +107,23 @@ impl Map {
 
     /// The surface points of the background and of every placed object
     /// ([`crate::MapObject::is_placed`]; the centres of observed voxels
-    /// within one voxel of the surface), as the masks of their blocks
-    /// ([`crate::Layer::surface_masks`]; each block keeps its mask until its
-    /// voxels change): an object's centres are worked out in its frame and
-    /// moved into the world's as they are rasterised; the background's
-    /// (whose frame is the world's) stay masks, so that occupancy marks
-    /// each of a block's columns once, however many voxels it holds.
+    /// within one voxel of the surface). Each block keeps which of its
+    /// voxels those are until its voxels change
+    /// ([`crate::Layer::surface_mask`]), and each object's layer their
+    /// centres until any of its blocks may change
+    /// ([`crate::Layer::surface_centres`]): an object's are borrowed in its
+    /// frame and moved into the world's as they are rasterised; the
+    /// background's (whose frame is the world's) stay as those masks, so
+    /// that occupancy marks each of a block's columns once, however many
+    /// voxels it holds.
     pub fn surface_points(&self) -> SurfacePoints<'_> {
         let background = self.background();
-        let background_blocks = background.surface_masks();
+        let background_blocks = background
+            .block_indices()
+            .into_iter()
+            .filter_map(|b| background.surface_mask(b).map(|m| (b, m)))
+            .filter(|(_, m)| m.count() > 0)
+            .collect();
         let objects = (self.objects().values())
             .filter(|o| o.is_placed())
             .filter_map(PointGroup::new)
@@ -128,29 +136,28 @@ impl Map {
     }
 }
 
-/// One object's surface voxels (in its layer's blocks; their centres moved
-/// into the world as they are rasterised, so that no step copies them) and
-/// a box on the floor plane that holds them, so that a grid can skip the
-/// whole object.
+/// One object's surface points (its frame; moved into the world's as they
+/// are rasterised, so that no step copies them) and a box on the floor
+/// plane that holds them, so that a grid can skip the whole object.
 #[derive(Debug, Clone)]
 struct PointGroup<'a> {
     object: &'a MapObject,
-    /// The object's [`Layer::surface_masks`].
-    blocks: Vec<(BlockIndex, SurfaceMask)>,
+    /// The object's frame ([`crate::Layer::surface_centres`], kept by its layer).
+    points: &'a [Point3<f32>],
     lo: [f32; 2],
     hi: [f32; 2],
 }
 
 impl<'a> PointGroup<'a> {
-    /// `None` for an object without surface voxels.
+    /// `None` for an object without surface points.
     fn new(object: &'a MapObject) -> Option<Self> {
-        let blocks = object.volume.surface_masks();
+        let points = object.volume.surface_centres();
         // Every surface voxel's centre lies in the layer's blocks: the
         // world box of those blocks' eight corners holds them all.
         let (min, max) = object
             .volume
             .block_bounds()
-            .filter(|_| !blocks.is_empty())?;
+            .filter(|_| !points.is_empty())?;
         let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
         for corner in 0..8 {
             let pick = |bit: usize, a: f32, b: f32| if corner >> bit & 1 == 0 { a } else { b };
@@ -165,7 +172,7 @@ impl<'a> PointGroup<'a> {
         }
         Some(Self {
             object,
-            blocks,
+            points,
             lo,
             hi,
         })
@@ -372,46 +379,32 @@ impl Raster {
             return;
         }
         let t_world_object = &group.object.t_world_object;
-        let layer = &group.object.volume;
         // Turned about z alone, the object moves its points' x and y
-        // whatever their z: the voxels of one column of a block get the
-        // same world x and y, so the same cell on every grid, looked up once.
+        // whatever their z: the points of one voxel column (consecutive,
+        // `Layer::surface_centres`) get the same world x and y, so the same
+        // cell on every grid, looked up once.
         let rotation = &t_world_object.rotation;
         let upright = rotation.i == 0.0 && rotation.j == 0.0;
-        for &(b, mask) in &group.blocks {
-            // The voxel centres' coordinates along each axis of the block,
-            // as `Layer::voxel_center` gives them.
-            let centre = |o: usize| layer.voxel_center(VoxelIndex::join(b, o));
-            let edge = BLOCK_EDGE as usize;
-            let xs: [f32; BLOCK_EDGE as usize] = std::array::from_fn(|l| centre(l).x);
-            let ys: [f32; BLOCK_EDGE as usize] = std::array::from_fn(|l| centre(l * edge).y);
-            let zs: [f32; BLOCK_EDGE as usize] =
-                std::array::from_fn(|l| centre(l * LEVEL_VOXELS).z);
-            mask.for_each_column(|column, mut levels| {
-                let (x, y) = (xs[column % edge], ys[column / edge]);
-                let mut same_column = false;
-                while levels != 0 {
-                    let z = levels.trailing_zeros() as usize;
-                    levels &= levels - 1;
-                    let p = t_world_object * Point3::new(x, y, zs[z]);
-                    for (slot, always, by_height, cell) in &mut marking {
-                        if !same_column {
-                            *cell = slot.locator.cell_of(p.x, p.y);
-                        }
-                        let Some(c) = *cell else {
-                            continue;
-                        };
-                        let mut mask = *always;
-                        for (bit, heights) in by_height.iter() {
-                            if heights.contains(&p.z) {
-                                mask |= bit;
-                            }
-                        }
-                        slot.bits[c] |= mask;
-                    }
-                    same_column = upright;
+        let mut column = None;
+        for centre in group.points {
+            let p = t_world_object * centre;
+            let same_column = upright && column == Some((centre.x, centre.y));
+            column = Some((centre.x, centre.y));
+            for (slot, always, by_height, cell) in &mut marking {
+                if !same_column {
+                    *cell = slot.locator.cell_of(p.x, p.y);
                 }
-            });
+                let Some(c) = *cell else {
+                    continue;
+                };
+                let mut mask = *always;
+                for (bit, heights) in by_height.iter() {
+                    if heights.contains(&p.z) {
+                        mask |= bit;
+                    }
+                }
+                slot.bits[c] |= mask;
+            }
         }
     }
 
