@@ -229,9 +229,9 @@ fn integrate_with(
         };
         // Updated in place, which tells the block its cached surface is
         // stale; a block allocated here and never updated is freed again.
-        let block_updates = layer
-            .block_mut_or_insert(b)
-            .update(|voxels| simd.update_block(voxels, &origin.coords, &steps, &inputs));
+        let block_updates = layer.update_block(b, |voxels| {
+            simd.update_block(voxels, &origin.coords, &steps, &inputs)
+        });
         if !exists && block_updates == 0 {
             layer.remove_block(b);
         }

@@ -151,6 +151,22 @@ impl Block {
         })
     }
 
+    /// Which voxels [`Block::for_each_near_surface`] visits, a z level's 64
+    /// at a time without a branch.
+    fn near_surface_mask(&self, band_m: f32) -> SurfaceMask {
+        let mut mask = SurfaceMask::default();
+        for (bits, level) in mask
+            .0
+            .iter_mut()
+            .zip(self.voxels().chunks_exact(LEVEL_VOXELS))
+        {
+            *bits = level.iter().enumerate().fold(0, |bits, (i, v)| {
+                bits | u64::from((v.weight > 0.0) & (v.sdf.abs() < band_m)) << i
+            });
+        }
+        mask
+    }
+
     /// Calls `f(offset, sdf)` for every observed voxel within `band_m` of
     /// the surface, in offset order. Tests eight voxels at a time into a
     /// bit mask, so the (mostly empty) runs cost no branch per voxel.
@@ -333,19 +349,47 @@ impl Layer {
         self.blocks.entry(b).or_default()
     }
 
+    /// [`Block::update`] of the block at `b` (allocated if missing), keeping
+    /// the layer's [`Layer::surface_centres`] while the block's surface
+    /// mask stays what it was: integration changes every block in view each
+    /// frame, mostly without moving its surface, and the state gathers
+    /// every placed object's centres each step (tens of thousands of points
+    /// for a large object). Returns `f`'s count.
+    pub fn update_block(
+        &mut self,
+        b: BlockIndex,
+        f: impl FnOnce(&mut [Voxel; BLOCK_VOXELS]) -> usize,
+    ) -> usize {
+        self.bounds.take();
+        let voxel_size_m = self.voxel_size_m;
+        let block = self.blocks.entry(b).or_default();
+        // While the centres are kept every block's mask is (they were
+        // worked out from all of them, and a block whose mask changed
+        // dropped them); a block allocated since has none yet, an empty one.
+        let before = block.data.surface.get().copied().unwrap_or_default();
+        let changed = block.update(f);
+        if changed > 0 && self.surface_centres.get().is_some() {
+            let after = block.near_surface_mask(voxel_size_m);
+            block.data.surface.get_or_init(|| after);
+            if after != before {
+                self.surface_centres.take();
+            }
+        }
+        changed
+    }
+
     /// Which of block `b`'s voxels are observed and within one voxel of the
     /// surface (`None` if `b` is not allocated): the voxels whose centres
     /// make the map's surface points ([`crate::Map::surface_points`]).
     /// Worked out once and kept until the block's voxels change.
     pub fn surface_mask(&self, b: BlockIndex) -> Option<SurfaceMask> {
         let block = self.blocks.get(&b)?;
-        Some(*block.data.surface.get_or_init(|| {
-            let mut mask = SurfaceMask::default();
-            block.for_each_near_surface(self.voxel_size_m, |o, _| {
-                mask.0[o / LEVEL_VOXELS] |= 1 << (o % LEVEL_VOXELS);
-            });
-            mask
-        }))
+        Some(
+            *block
+                .data
+                .surface
+                .get_or_init(|| block.near_surface_mask(self.voxel_size_m)),
+        )
     }
 
     /// The centres of the voxels of every block's [`Layer::surface_mask`]
@@ -377,10 +421,18 @@ impl Layer {
         self.surface_centres.take();
     }
 
-    /// Frees the block at `b` (a no-op if it is not allocated).
+    /// Frees the block at `b` (a no-op if it is not allocated). The layer's
+    /// [`Layer::surface_centres`] are kept when none of them lay in the
+    /// block (integration frees the blocks it allocated and then left
+    /// unobserved).
     pub fn remove_block(&mut self, b: BlockIndex) {
-        self.forget_derived();
-        self.blocks.remove(&b);
+        self.bounds.take();
+        let Some(block) = self.blocks.remove(&b) else {
+            return;
+        };
+        if block.near_surface_mask(self.voxel_size_m).count() > 0 {
+            self.surface_centres.take();
+        }
     }
 
     /// Allocated block indices, sorted (deterministic iteration).
@@ -625,6 +677,83 @@ mod tests {
             1
         });
         assert_eq!(layer.surface_mask(b).unwrap().count(), 2);
+    }
+
+    #[test]
+    fn a_blocks_surface_mask_holds_the_voxels_its_scan_visits() {
+        let mut block = Block::default();
+        block.update(|voxels| {
+            for (o, v) in voxels.iter_mut().enumerate() {
+                let pseudo = (o * 7919 % 211) as f32 / 211.0;
+                *v = Voxel {
+                    sdf: (pseudo - 0.5) * 0.5,
+                    weight: if o % 5 == 0 { 0.0 } else { pseudo },
+                };
+            }
+            BLOCK_VOXELS
+        });
+        let mut visited = SurfaceMask::default();
+        block.for_each_near_surface(0.1, |o, _| {
+            visited.0[o / LEVEL_VOXELS] |= 1 << (o % LEVEL_VOXELS)
+        });
+        assert!(
+            visited.count() > 50 && visited.count() < 400,
+            "{}",
+            visited.count()
+        );
+        assert_eq!(block.near_surface_mask(0.1), visited);
+    }
+
+    #[test]
+    fn surface_centres_are_kept_through_updates_that_leave_the_surface_where_it_was() {
+        let s = 0.04;
+        let mut layer = Layer::new(s);
+        set(&mut layer, [3, 4, 5], 0.0);
+        layer.surface_centres();
+        let kept = |layer: &Layer| layer.surface_centres.get().is_some();
+        let near = |sdf: f32| {
+            move |voxels: &mut [Voxel; BLOCK_VOXELS]| {
+                voxels[VoxelIndex([3, 4, 5]).split().1] = Voxel { sdf, weight: 2.0 };
+                1
+            }
+        };
+        let b = VoxelIndex([3, 4, 5]).split().0;
+        // Still within a voxel of the surface: the same centres, kept.
+        layer.update_block(b, near(0.01));
+        assert!(kept(&layer));
+        // Another voxel of the block reaches the surface: worked out again.
+        layer.update_block(b, |voxels| {
+            voxels[VoxelIndex([4, 4, 5]).split().1] = Voxel {
+                sdf: 0.0,
+                weight: 1.0,
+            };
+            1
+        });
+        assert!(!kept(&layer));
+        let at = |v: [i32; 3]| Layer::new(s).voxel_center(VoxelIndex(v));
+        assert_eq!(layer.surface_centres(), [at([3, 4, 5]), at([4, 4, 5])]);
+        // A block allocated and freed unobserved: kept.
+        layer.surface_centres();
+        layer.update_block(BlockIndex([7, 7, 7]), |_| 0);
+        layer.remove_block(BlockIndex([7, 7, 7]));
+        assert!(kept(&layer));
+        // A new block whose voxels reach the surface: worked out again.
+        layer.update_block(VoxelIndex([-9, 4, 20]).split().0, |voxels| {
+            voxels[VoxelIndex([-9, 4, 20]).split().1] = Voxel {
+                sdf: 0.0,
+                weight: 1.0,
+            };
+            1
+        });
+        assert!(!kept(&layer));
+        assert_eq!(
+            layer.surface_centres(),
+            [at([-9, 4, 20]), at([3, 4, 5]), at([4, 4, 5])]
+        );
+        // A voxel leaving the surface: worked out again.
+        layer.update_block(b, near(0.5));
+        assert!(!kept(&layer));
+        assert_eq!(layer.surface_centres(), [at([-9, 4, 20]), at([4, 4, 5])]);
     }
 
     #[test]
