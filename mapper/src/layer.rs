@@ -388,7 +388,9 @@ impl Layer {
         let Some(block) = self.blocks.remove(&b) else {
             return;
         };
-        if block.near_surface_mask(self.voxel_size_m).count() > 0 {
+        if self.surface_centres.get().is_some()
+            && block.near_surface_mask(self.voxel_size_m).count() > 0
+        {
             self.surface_centres.take();
         }
     }

@@ -20,7 +20,7 @@ pub use training_rooms::training_rooms;
 
 use std::time::Duration;
 
-use nets::policy::{CpuPolicy, CpuPolicyStep};
+use nets::policy::{CpuPolicy, CpuPolicyStep, ObservationValue};
 use proto::{FrameBatch, PolicyLayout, StatKey};
 
 use affordance_model::{AffordanceModel, CameraFrame};
@@ -67,27 +67,11 @@ pub enum ObservationValues {
 }
 
 impl ObservationValues {
-    /// How many values.
-    pub fn len(&self) -> usize {
-        match self {
-            Self::Floats(v) => v.len(),
-            Self::Bytes(v) => v.len(),
-        }
-    }
-
-    /// True when there are none.
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
     /// The values as the network reads them.
     pub fn floats(&self) -> std::borrow::Cow<'_, [f32]> {
         match self {
             Self::Floats(v) => v.into(),
-            Self::Bytes(v) => v
-                .iter()
-                .map(|&b| proto::BYTE_UNITS[usize::from(b)])
-                .collect(),
+            Self::Bytes(v) => v.iter().map(|&b| b.unit()).collect(),
         }
     }
 }
