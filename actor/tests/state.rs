@@ -70,8 +70,8 @@ fn observe(
 }
 
 /// Centroid (row, col) of the non-zero cells of a plane.
-fn centroid(plane: &[f32], side: usize) -> (f32, f32) {
-    let cells: Vec<usize> = (0..plane.len()).filter(|&i| plane[i] > 0.0).collect();
+fn centroid(plane: &[u8], side: usize) -> (f32, f32) {
+    let cells: Vec<usize> = (0..plane.len()).filter(|&i| plane[i] > 0).collect();
     assert!(!cells.is_empty(), "the plane is empty");
     let n = cells.len() as f32;
     (
@@ -89,19 +89,27 @@ fn state_shapes_ranges_masks_and_egocentric_maps() {
     let mut history = ActionHistory::default();
     let (state, map_ids) = observe(&sim, &mut map, &history, &config);
     let (s, m) = (config.image_size, config.map_cells);
-    assert_eq!(state.camera.len(), config.camera_channels() * s * s);
-    assert_eq!(state.camera.len(), 10 * s * s);
-    assert_eq!(state.global_map.len(), config.map_channels() * m * m);
-    assert_eq!(state.local_map.len(), 8 * m * m);
-    assert_eq!(state.history, vec![0.0; 5 * (30 + 2)]);
-    assert_eq!(state.inventory, vec![0.0]);
-    assert!(state.camera.iter().all(|v| (0.0..=1.0).contains(v)));
-    for plane in [&state.global_map, &state.local_map] {
-        assert!(plane.iter().all(|&v| v == 0.0 || v == 1.0));
+    // Every value a byte: 0..1 scaled to 0..255.
+    assert_eq!(state.camera().len(), config.camera_channels() * s * s);
+    assert_eq!(state.camera().len(), 10 * s * s);
+    assert_eq!(state.global_map().len(), config.map_channels() * m * m);
+    assert_eq!(state.local_map().len(), 8 * m * m);
+    assert_eq!(state.history(), vec![0; 5 * (30 + 2)]);
+    assert_eq!(state.inventory(), [0]);
+    assert!(state.ratings().is_empty());
+    for plane in [state.global_map(), state.local_map()] {
+        assert!(plane.iter().all(|&v| v == 0 || v == 255));
     }
+    // RGB as the frame has it; the probabilities' 0.25 as 64.
+    let frame = sim.render_cpu();
+    assert!((0..s * s).all(|p| state.camera()[p] == frame.rgb[3 * p]));
+    assert!((0..s * s).all(|p| state.camera()[2 * s * s + p] == frame.rgb[3 * p + 2]));
+    assert!(state.camera()[4 * s * s..6 * s * s]
+        .iter()
+        .all(|&v| v == 64));
     // The distance image: some pixels within reach (< 0.5), some beyond.
-    let distance = &state.camera[3 * s * s..4 * s * s];
-    assert!(distance.iter().any(|&d| d < 0.5) && distance.iter().any(|&d| d > 0.5));
+    let distance = &state.camera()[3 * s * s..4 * s * s];
+    assert!(distance.iter().any(|&d| d < 128) && distance.iter().any(|&d| d > 128));
     // The planes by name (recordings label them so).
     let names = config.map_plane_names();
     assert_eq!(names.len(), config.map_channels());
@@ -112,10 +120,10 @@ fn state_shapes_ranges_masks_and_egocentric_maps() {
         plane_index("pick_up_success"),
     );
     // Occupancy and the agent's own cell appear on both maps.
-    let occupancy = &state.global_map[occupancy * m * m..(occupancy + 1) * m * m];
-    assert!(occupancy.iter().filter(|&&v| v > 0.0).count() > 50);
+    let occupancy = &state.global_map()[occupancy * m * m..(occupancy + 1) * m * m];
+    assert!(occupancy.iter().filter(|&&v| v > 0).count() > 50);
     let visited_cell = (m / 2) * m + m / 2;
-    assert_eq!(state.global_map[visited * m * m + visited_cell], 1.0);
+    assert_eq!(state.global_map()[visited * m * m + visited_cell], 255);
 
     // The object nearest the image's middle column, told it can be picked up.
     let width = s;
@@ -136,20 +144,23 @@ fn state_shapes_ranges_masks_and_egocentric_maps() {
     history.push(7, true, 1.0, 5);
     let (state, map_ids) = observe(&sim, &mut map, &history, &config);
     // Camera channel 4 + 2A + 0 is pick-up success: exactly the object's pixels.
-    let success_mask = &state.camera[6 * s * s..7 * s * s];
+    let success_mask = &state.camera()[6 * s * s..7 * s * s];
     for (p, &v) in success_mask.iter().enumerate() {
-        assert_eq!(v == 1.0, map_ids[p] == best.0, "pixel {p}");
+        assert_eq!(v == 255, map_ids[p] == best.0, "pixel {p}");
     }
-    assert_eq!(state.history[7], 1.0);
-    assert_eq!(state.history[30], 1.0, "success");
-    assert!(
-        (state.history[31] - 2.0 / 3.0).abs() < 1e-6,
+    assert!(success_mask.iter().all(|&v| v == 0 || v == 255));
+    assert_eq!(state.history()[7], 255);
+    assert_eq!(state.history()[30], 255, "success");
+    assert_eq!(
+        state.history()[31],
+        170,
         "reward 1 is stored as 2/3 of the [-1, 2] range"
     );
+    assert_eq!(state.history()[..7], [0; 7]);
 
     // The global pick-up success plane: the object is ahead (upper half, middle).
     let plane = |state: &State| {
-        state.global_map[pick_up_success * m * m..(pick_up_success + 1) * m * m].to_vec()
+        state.global_map()[pick_up_success * m * m..(pick_up_success + 1) * m * m].to_vec()
     };
     let (row, col) = centroid(&plane(&state), m);
     println!("facing it: row {row:.1}, col {col:.1}");

@@ -208,23 +208,26 @@ impl SurfacePoints<'_> {
             .map(|(_, grid)| vec![0.0; grid.cells * grid.cells])
             .collect();
         let mut planes: Vec<&mut [f32]> = out.iter_mut().map(Vec::as_mut_slice).collect();
-        self.project_all_into(requests, &mut planes);
+        self.project_all_into(requests, &mut planes, 1.0);
         out
     }
 
     /// [`SurfacePoints::project_all`] into planes the caller holds (one per
     /// request, in order, each `cells × cells` of its request's grid; every
-    /// cell is written), so that a caller assembling many planes into one
-    /// buffer copies none of them.
+    /// cell is written: `marked` where the projection shows a point,
+    /// `T::default()` elsewhere), so that a caller assembling many planes
+    /// into one buffer copies none of them, in the values it keeps (the
+    /// actor's state keeps bytes).
     ///
     /// # Panics
     ///
     /// If `planes` and `requests` differ in number, or a plane in size from
     /// its grid.
-    pub fn project_all_into(
+    pub fn project_all_into<T: Copy + Default>(
         &self,
         requests: &[(ProjectionKind, GridSpec)],
-        planes: &mut [&mut [f32]],
+        planes: &mut [&mut [T]],
+        marked: T,
     ) {
         assert_eq!(planes.len(), requests.len(), "one plane per request");
         for (plane, (_, grid)) in planes.iter().zip(requests) {
@@ -239,7 +242,7 @@ impl SurfacePoints<'_> {
         for group in &self.objects {
             raster.mark_object(group);
         }
-        raster.write_planes(planes);
+        raster.write_planes(planes, marked);
     }
 }
 
@@ -408,12 +411,17 @@ impl Raster {
         }
     }
 
-    /// Writes each projection into its request's plane.
-    fn write_planes(self, planes: &mut [&mut [f32]]) {
+    /// Writes each projection into its request's plane: `marked` where it
+    /// shows a point, the default elsewhere.
+    fn write_planes<T: Copy + Default>(self, planes: &mut [&mut [T]], marked: T) {
         for slot in self.slots {
             for (bit, (index, _)) in slot.planes.iter().enumerate() {
                 for (cell, bits) in planes[*index].iter_mut().zip(&slot.bits) {
-                    *cell = f32::from(u8::from(bits >> bit & 1 == 1));
+                    *cell = if bits >> bit & 1 == 1 {
+                        marked
+                    } else {
+                        T::default()
+                    };
                 }
             }
         }
@@ -423,17 +431,23 @@ impl Raster {
 /// Marks the cells of visited positions (world x / y) on `grid`.
 pub fn visited(positions: &[Point2<f32>], grid: &GridSpec) -> Vec<f32> {
     let mut out = vec![0.0; grid.cells * grid.cells];
-    mark_visited(positions, grid, &mut out);
+    mark_visited(positions, grid, &mut out, 1.0);
     out
 }
 
-/// [`visited`] into a plane the caller holds (`cells × cells`, every cell written).
-pub fn mark_visited(positions: &[Point2<f32>], grid: &GridSpec, plane: &mut [f32]) {
-    plane.fill(0.0);
+/// [`visited`] into a plane the caller holds (`cells × cells`, every cell
+/// written: `marked` where a position lies, `T::default()` elsewhere).
+pub fn mark_visited<T: Copy + Default>(
+    positions: &[Point2<f32>],
+    grid: &GridSpec,
+    plane: &mut [T],
+    marked: T,
+) {
+    plane.fill(T::default());
     let locator = CellLocator::new(grid);
     for p in positions {
         if let Some(c) = locator.cell_of(p.x, p.y) {
-            plane[c] = 1.0;
+            plane[c] = marked;
         }
     }
 }

@@ -47,23 +47,13 @@ impl FlatSimEnv {
         &self.env
     }
 
-    /// The state flattened and rounded to the nearest of the 256 byte
-    /// levels, with those bytes.
+    /// The state's bytes as the policy's flat observation (the state is
+    /// built in bytes, in the policy's input order: nothing to copy).
     fn observation(&self, o: SimObservation) -> Observation {
-        let s = o.state;
-        let mut bytes = Vec::with_capacity(self.layout.obs_len());
-        for part in [
-            &s.camera,
-            &s.global_map,
-            &s.local_map,
-            &s.history,
-            &s.inventory,
-            &s.ratings,
-        ] {
-            bytes.extend(part.iter().map(|&v| proto::unit_to_byte(v)));
-        }
+        let values = o.state.into_values();
+        debug_assert_eq!(values.len(), self.layout.obs_len(), "state length");
         Observation {
-            values: ObservationValues::Bytes(bytes),
+            values: ObservationValues::Bytes(values),
             action_mask: o.mask,
         }
     }

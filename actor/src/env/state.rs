@@ -164,70 +164,133 @@ pub struct StateInputs<'a> {
     pub ratings: &'a [f32],
 }
 
-/// One state, ready to become the policy's tensors.
+/// One state as the policy reads it and the wire carries it: every input in
+/// the policy's order (camera, global map, local map, history, inventory,
+/// cell ratings; a method's missing inputs empty), each value a byte
+/// ([`proto::unit_to_byte`] of a value in 0..1, so 1 is 255). Built in bytes
+/// from the start: a state of `f32` planes flattened into bytes afterwards
+/// wrote, zeroed and read four times the memory a step (docs/performance.md).
 #[derive(Debug, Clone, PartialEq)]
 pub struct State {
-    /// `[camera_channels, S, S]`.
-    pub camera: Vec<f32>,
-    /// `[map_channels, M, M]`, 10 m.
-    pub global_map: Vec<f32>,
-    /// `[map_channels, M, M]`, 2 m.
-    pub local_map: Vec<f32>,
-    /// `[history_len]`.
-    pub history: Vec<f32>,
-    /// `[1]`.
-    pub inventory: Vec<f32>,
-    /// `[ratings_len]`.
-    pub ratings: Vec<f32>,
+    values: Vec<u8>,
+    /// Where each input ends in `values`, in the order above.
+    ends: [usize; 6],
 }
+
+impl State {
+    /// `[camera_channels, S, S]`.
+    pub fn camera(&self) -> &[u8] {
+        self.input(0)
+    }
+
+    /// `[map_channels, M, M]`, 10 m.
+    pub fn global_map(&self) -> &[u8] {
+        self.input(1)
+    }
+
+    /// `[map_channels, M, M]`, 2 m.
+    pub fn local_map(&self) -> &[u8] {
+        self.input(2)
+    }
+
+    /// `[history_len]`.
+    pub fn history(&self) -> &[u8] {
+        self.input(3)
+    }
+
+    /// `[1]`.
+    pub fn inventory(&self) -> &[u8] {
+        self.input(4)
+    }
+
+    /// `[ratings_len]`.
+    pub fn ratings(&self) -> &[u8] {
+        self.input(5)
+    }
+
+    /// Every input, one after another (the policy's flat observation).
+    pub fn into_values(self) -> Vec<u8> {
+        self.values
+    }
+
+    fn input(&self, index: usize) -> &[u8] {
+        let start = index.checked_sub(1).map_or(0, |i| self.ends[i]);
+        &self.values[start..self.ends[index]]
+    }
+}
+
+/// A byte that means "yes" in a 0 / 1 input ([`proto::unit_to_byte`]`(1.0)`).
+const YES: u8 = u8::MAX;
 
 /// Builds the state of `config.method`: inputs the method does not have
 /// (and every map input when `input.map` is `None`) stay empty.
 pub fn build_state(config: &StateConfig, input: &StateInputs<'_>) -> State {
     let map = input.map.filter(|_| config.map_channels() > 0);
-    let (global_map, local_map) = map.map_or_else(Default::default, |m| {
+    let map_len = map.map_or(0, |_| {
+        config.map_channels() * config.map_cells * config.map_cells
+    });
+    let lens = [
+        config.camera_channels() * input.horizontal_m.len(),
+        map_len,
+        map_len,
+        config.history_len(),
+        1,
+        input.ratings.len(),
+    ];
+    let mut ends = lens;
+    for i in 1..ends.len() {
+        ends[i] += ends[i - 1];
+    }
+    let mut values = vec![0; ends[5]];
+    let (camera, rest) = values.split_at_mut(lens[0]);
+    let (global_map, rest) = rest.split_at_mut(lens[1]);
+    let (local_map, rest) = rest.split_at_mut(lens[2]);
+    let (history, rest) = rest.split_at_mut(lens[3]);
+    let (inventory, ratings) = rest.split_at_mut(lens[4]);
+    camera_planes(config, input, map, camera);
+    if let Some(map) = map {
         map_planes(
             config,
             input,
-            &m.surface_points(),
+            &map.surface_points(),
             [config.global_extent_m, config.local_extent_m],
-        )
-    });
-    State {
-        camera: camera_planes(config, input, map),
-        global_map,
-        local_map,
-        history: history_vector(config, input.history),
-        inventory: vec![f32::from(u8::from(input.holding))],
-        ratings: input.ratings.to_vec(),
+            [global_map, local_map],
+        );
     }
+    history_vector(config, input.history, history);
+    inventory[0] = if input.holding { YES } else { 0 };
+    for (byte, &rating) in ratings.iter_mut().zip(input.ratings) {
+        *byte = proto::unit_to_byte(rating);
+    }
+    State { values, ends }
 }
 
-fn camera_planes(config: &StateConfig, input: &StateInputs<'_>, map: Option<&Map>) -> Vec<f32> {
+fn camera_planes(config: &StateConfig, input: &StateInputs<'_>, map: Option<&Map>, out: &mut [u8]) {
     let n = input.horizontal_m.len();
-    let mut out = vec![0.0; config.camera_channels() * n];
     // The planes in the order of the doc comment above, each written in place.
     let mut planes = out.chunks_exact_mut(n.max(1));
     let mut next_plane = || planes.next().expect("camera_channels counts every plane");
     for channel in 0..3 {
+        // A colour byte is its own value: `unit_to_byte(c / 255) == c`
+        // (test `colour_bytes_are_their_own_values`).
         let pixels = input.rgb.chunks_exact(3);
         for (d, pixel) in next_plane().iter_mut().zip(pixels) {
-            *d = f32::from(pixel[channel]) / 255.0;
+            *d = pixel[channel];
         }
     }
     if config.method.spec().distance {
         let scale = 1.0 / (2.0 * input.reach_m);
         for (d, &h) in next_plane().iter_mut().zip(input.horizontal_m) {
-            *d = (h * scale).min(1.0);
+            *d = proto::unit_to_byte((h * scale).min(1.0));
         }
     }
     for plane in input.probabilities.iter().take(config.affordances.len()) {
         for (d, &p) in next_plane().iter_mut().zip(plane) {
-            *d = p.clamp(0.0, 1.0);
+            *d = proto::unit_to_byte(p);
         }
     }
     let Some(map) = map else {
-        return out;
+        return;
     };
     for &affordance in &config.affordances {
         // The label of each pixel's object (none for id 0), looked up once
@@ -254,11 +317,10 @@ fn camera_planes(config: &StateConfig, input: &StateInputs<'_>, map: Option<&Map
                     label
                 }
             };
-            success[p] = f32::from(u8::from(label == Some(true)));
-            failure[p] = f32::from(u8::from(label == Some(false)));
+            success[p] = if label == Some(true) { YES } else { 0 };
+            failure[p] = if label == Some(false) { YES } else { 0 };
         }
     }
-    out
 }
 
 /// The egocentric map planes at the global and the local extent, every
@@ -268,7 +330,8 @@ fn map_planes(
     input: &StateInputs<'_>,
     surface: &SurfacePoints<'_>,
     [global_m, local_m]: [f32; 2],
-) -> (Vec<f32>, Vec<f32>) {
+    maps: [&mut [u8]; 2],
+) {
     let (x, y, heading) = input.agent;
     let grid = |extent_m| GridSpec {
         center: Point2::new(x, y),
@@ -296,16 +359,13 @@ fn map_planes(
         .collect();
     // Each map: the visited plane, then its projections, written in place.
     let side = config.map_cells * config.map_cells;
-    let mut maps: [Vec<f32>; 2] = std::array::from_fn(|_| vec![0.0; (1 + kinds.len()) * side]);
-    let mut projections: Vec<&mut [f32]> = Vec::with_capacity(requests.len());
-    for (map, grid) in maps.iter_mut().zip(&grids) {
+    let mut projections: Vec<&mut [u8]> = Vec::with_capacity(requests.len());
+    for (map, grid) in maps.into_iter().zip(&grids) {
         let (visited_plane, rest) = map.split_at_mut(side);
-        mark_visited(input.visited, grid, visited_plane);
+        mark_visited(input.visited, grid, visited_plane, YES);
         projections.extend(rest.chunks_exact_mut(side));
     }
-    surface.project_all_into(&requests, &mut projections);
-    let [global, local] = maps;
-    (global, local)
+    surface.project_all_into(&requests, &mut projections, YES);
 }
 
 /// A reward as the history holds it: `[-1, 2]` mapped onto `[0, 1]` (clamped),
@@ -314,20 +374,30 @@ pub(crate) fn encode_reward(reward: f32) -> f32 {
     ((reward + 1.0) / 3.0).clamp(0.0, 1.0)
 }
 
-fn history_vector(config: &StateConfig, history: &ActionHistory) -> Vec<f32> {
+fn history_vector(config: &StateConfig, history: &ActionHistory, out: &mut [u8]) {
     let width = config.n_actions + 2;
-    if config.history_len() == 0 {
-        return Vec::new();
-    }
-    let mut out = vec![0.0; config.history_len()];
     for (slot, &(action, success, reward)) in history.entries.iter().take(HISTORY_STEPS).enumerate()
     {
-        let row = &mut out[slot * width..(slot + 1) * width];
+        let Some(row) = out.get_mut(slot * width..(slot + 1) * width) else {
+            return; // no history (`intexp`)
+        };
         if action < config.n_actions {
-            row[action] = 1.0;
+            row[action] = YES;
         }
-        row[config.n_actions] = f32::from(u8::from(success));
-        row[config.n_actions + 1] = encode_reward(reward);
+        row[config.n_actions] = if success { YES } else { 0 };
+        row[config.n_actions + 1] = proto::unit_to_byte(encode_reward(reward));
     }
-    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn colour_bytes_are_their_own_values() {
+        for c in 0..=u8::MAX {
+            assert_eq!(proto::unit_to_byte(f32::from(c) / 255.0), c);
+        }
+        assert_eq!(proto::unit_to_byte(1.0), YES);
+    }
 }

@@ -61,19 +61,11 @@ impl EpisodeRecorder {
                 .duration_since(std::time::UNIX_EPOCH)
                 .map_or(0, |d| d.as_nanos() as u64),
         );
-        if !state.global_map.is_empty() {
+        if !state.global_map().is_empty() {
             self.map_planes.push(RecordedMapPlanes {
                 agent,
-                global: state
-                    .global_map
-                    .iter()
-                    .map(|&v| proto::unit_to_byte(v))
-                    .collect(),
-                local: state
-                    .local_map
-                    .iter()
-                    .map(|&v| proto::unit_to_byte(v))
-                    .collect(),
+                global: state.global_map().to_vec(),
+                local: state.local_map().to_vec(),
             });
         }
     }
