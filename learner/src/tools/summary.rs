@@ -2,7 +2,10 @@
 //! environment steps (every episode metric, successes per thousand steps
 //! per affordance, the policy's entropy, the U-Net's gradient steps per
 //! episode and what its dataset held: training frames, and those with
-//! positives per affordance), so
+//! positives per affordance) and the background scorer's validation
+//! scores (each score's median over the checkpoints scored in the span: one
+//! checkpoint's score on few views swings by more than most settings move
+//! it, docs/ladder.md), so
 //! that a long run, or two runs side by side, can be read without plotting:
 //! where the success rate peaked, when the policy stopped trying. Repeats of
 //! one setting (seeds) summarise as the runs' mean with their range.
@@ -80,6 +83,12 @@ pub struct SummaryRow {
     /// [`Affordance::ALL`] order (histories written before rounds recorded
     /// them: none).
     pub unet_positive_frames: Vec<Option<Spread>>,
+    /// Checkpoints the background scorer scored in the span (none: it
+    /// scored none there).
+    pub validation_checkpoints: Option<Spread>,
+    /// Per score of [`Summary::validation_scores`], its median over the
+    /// span's scored checkpoints.
+    pub validation: Vec<Option<Spread>>,
 }
 
 /// A run's history, or repeats' histories, span by span.
@@ -89,6 +98,9 @@ pub struct Summary {
     pub runs: usize,
     /// The episode metrics some episode reported, in wire order.
     pub fields: Vec<StatKey>,
+    /// The background scorer's scores some span recorded (`pick_up/pixel_f1`,
+    /// …), in name order.
+    pub validation_scores: Vec<String>,
     /// One row per span that ended an episode (in every run), in step order.
     pub rows: Vec<SummaryRow>,
 }
@@ -109,6 +121,18 @@ struct SpanSums {
     /// affordance, where recorded.
     unet_training_frames: Option<u64>,
     unet_positive_frames: Option<Vec<u64>>,
+    /// Checkpoints scored on the validation rooms, and each score's values.
+    validated: usize,
+    validation: BTreeMap<String, Vec<f64>>,
+}
+
+/// The median of `values` (the mean of the middle two for an even count);
+/// `None` for none.
+fn median(values: &[f64]) -> Option<f64> {
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let n = sorted.len();
+    (n > 0).then(|| (sorted[(n - 1) / 2] + sorted[n / 2]) / 2.0)
 }
 
 /// Means of `run_dir`'s history per `every` environment steps.
@@ -163,6 +187,16 @@ pub(crate) fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
                         Some(positives.iter().filter_map(Value::as_u64).collect());
                 }
             }
+            Some("validation") => {
+                span.validated += 1;
+                if let Some(scores) = record["validation"].as_object() {
+                    for (name, value) in scores {
+                        if let Some(v) = value.as_f64() {
+                            span.validation.entry(name.clone()).or_default().push(v);
+                        }
+                    }
+                }
+            }
             _ => {}
         }
     }
@@ -175,6 +209,12 @@ pub(crate) fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
     let mean = |(sum, n): (f64, usize)| (n > 0).then(|| Spread::one(sum / n as f64));
     let fields: Vec<StatKey> = StatKey::all()
         .filter(|f| spans.values().any(|span| span.fields.contains_key(f)))
+        .collect();
+    let validation_scores: Vec<String> = spans
+        .values()
+        .flat_map(|span| span.validation.keys().cloned())
+        .collect::<std::collections::BTreeSet<_>>()
+        .into_iter()
         .collect();
     let rows = spans
         .iter()
@@ -207,11 +247,21 @@ pub(crate) fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
                         .map(|&n| Spread::one(n as f64))
                 })
                 .collect(),
+            validation_checkpoints: (span.validated > 0)
+                .then(|| Spread::one(span.validated as f64)),
+            validation: validation_scores
+                .iter()
+                .map(|name| {
+                    let values = span.validation.get(name)?;
+                    median(values).map(Spread::one)
+                })
+                .collect(),
         })
         .collect();
     Ok(Summary {
         runs: 1,
         fields,
+        validation_scores,
         rows,
     })
 }
@@ -230,6 +280,12 @@ pub fn summarize_repeats(run_dirs: &[PathBuf], every: u64) -> anyhow::Result<Sum
     let fields: Vec<StatKey> = StatKey::all()
         .filter(|f| summaries.iter().any(|s| s.fields.contains(f)))
         .collect();
+    let validation_scores: Vec<String> = summaries
+        .iter()
+        .flat_map(|s| s.validation_scores.iter().cloned())
+        .collect::<std::collections::BTreeSet<_>>()
+        .into_iter()
+        .collect();
     let mut rows = Vec::new();
     for row in &first.rows {
         let Some(span): Option<Vec<(&Summary, &SummaryRow)>> = summaries
@@ -247,6 +303,10 @@ pub fn summarize_repeats(run_dirs: &[PathBuf], every: u64) -> anyhow::Result<Sum
         let field_mean = |summary: &Summary, row: &SummaryRow, field: StatKey| {
             let column = summary.fields.iter().position(|&f| f == field)?;
             row.means[column].map(|spread| spread.mean)
+        };
+        let score_median = |summary: &Summary, row: &SummaryRow, name: &String| {
+            let column = summary.validation_scores.iter().position(|n| n == name)?;
+            row.validation[column].map(|spread| spread.mean)
         };
         // One column over the runs: the spread of their means.
         let over_runs = |column: &dyn Fn(&SummaryRow) -> Option<Spread>| {
@@ -270,6 +330,11 @@ pub fn summarize_repeats(run_dirs: &[PathBuf], every: u64) -> anyhow::Result<Sum
             unet_steps_per_episode: over_runs(&|r| r.unet_steps_per_episode),
             unet_training_frames: over_runs(&|r| r.unet_training_frames),
             unet_positive_frames: per_affordance(&|r: &SummaryRow| &r.unet_positive_frames),
+            validation_checkpoints: over_runs(&|r| r.validation_checkpoints),
+            validation: validation_scores
+                .iter()
+                .map(|name| Spread::of(span.iter().filter_map(|&(s, r)| score_median(s, r, name))))
+                .collect(),
         });
     }
     anyhow::ensure!(
@@ -279,13 +344,15 @@ pub fn summarize_repeats(run_dirs: &[PathBuf], every: u64) -> anyhow::Result<Sum
     Ok(Summary {
         runs: summaries.len(),
         fields,
+        validation_scores,
         rows,
     })
 }
 
 impl Summary {
     /// The table in Markdown: one row per span, one column per metric;
-    /// over repeats each cell is `mean (lowest–highest)`.
+    /// over repeats each cell is `mean (lowest–highest)`. The validation
+    /// columns come only when some span recorded scores.
     pub fn markdown(&self) -> String {
         let mut out = String::from("| steps | episodes |");
         for field in &self.fields {
@@ -298,8 +365,22 @@ impl Summary {
         for affordance in Affordance::ALL {
             let _ = write!(out, " … with {} positives |", affordance.as_str());
         }
+        let validated = !self.validation_scores.is_empty();
+        if validated {
+            out.push_str(" checkpoints scored on the validation rooms |");
+            for name in &self.validation_scores {
+                let _ = write!(out, " validation {name} (median) |");
+            }
+        }
+        let validation_columns = if validated {
+            1 + self.validation_scores.len()
+        } else {
+            0
+        };
         out.push_str("\n|---|---|");
-        out.push_str(&"---|".repeat(self.fields.len() + 3 + 2 * Affordance::COUNT));
+        out.push_str(
+            &"---|".repeat(self.fields.len() + 3 + 2 * Affordance::COUNT + validation_columns),
+        );
         out.push('\n');
         let repeats = self.runs > 1;
         let cell = |v: Option<Spread>| match v {
@@ -328,6 +409,12 @@ impl Summary {
             for &v in &row.unet_positive_frames {
                 let _ = write!(out, " {} |", cell(v));
             }
+            if validated {
+                let checkpoints = row.validation_checkpoints.or(Some(Spread::one(0.0)));
+                for &v in std::iter::once(&checkpoints).chain(&row.validation) {
+                    let _ = write!(out, " {} |", cell(v));
+                }
+            }
             out.push('\n');
         }
         out
@@ -346,9 +433,10 @@ fn steps(n: u64) -> String {
 impl From<&Summary> for Value {
     /// One object per span: `means` per metric, `successes_per_kilostep`
     /// (by affordance), `ppo_entropy`, `unet_steps_per_episode`,
-    /// `unet_training_frames` and `unet_positive_frames` (by affordance);
-    /// over repeats also `ranges`, each of these' `[lowest, highest]` run
-    /// mean.
+    /// `unet_training_frames`, `unet_positive_frames` (by affordance),
+    /// `validation_checkpoints` and `validation` (each score's median, by
+    /// name); over repeats also `ranges`, each of these' `[lowest, highest]`
+    /// run value.
     fn from(summary: &Summary) -> Value {
         let mean = |spread: &Option<Spread>| json!(spread.map(|s| s.mean));
         let range = |spread: &Option<Spread>| json!(spread.map(|s| [s.min, s.max]));
@@ -362,6 +450,11 @@ impl From<&Summary> for Value {
                     means.insert(name.to_string(), mean(spread));
                     ranges.insert(name.into_owned(), range(spread));
                 }
+                let by_score =
+                    |spreads: &[Option<Spread>], value: &dyn Fn(&Option<Spread>) -> Value| {
+                        let pairs = summary.validation_scores.iter().zip(spreads);
+                        Value::Object(pairs.map(|(n, s)| (n.clone(), value(s))).collect())
+                    };
                 let by_affordance =
                     |spreads: &[Option<Spread>], value: &dyn Fn(&Option<Spread>) -> Value| {
                         let pairs = Affordance::ALL.iter().zip(spreads);
@@ -377,6 +470,8 @@ impl From<&Summary> for Value {
                     "unet_steps_per_episode": mean(&row.unet_steps_per_episode),
                     "unet_training_frames": mean(&row.unet_training_frames),
                     "unet_positive_frames": by_affordance(&row.unet_positive_frames, &mean),
+                    "validation_checkpoints": mean(&row.validation_checkpoints),
+                    "validation": by_score(&row.validation, &mean),
                 });
                 if summary.runs > 1 {
                     ranges.insert("ppo_entropy".into(), range(&row.entropy));
@@ -396,6 +491,11 @@ impl From<&Summary> for Value {
                         "successes_per_kilostep".into(),
                         by_affordance(&row.successes_per_kilostep, &range),
                     );
+                    ranges.insert(
+                        "validation_checkpoints".into(),
+                        range(&row.validation_checkpoints),
+                    );
+                    ranges.insert("validation".into(), by_score(&row.validation, &range));
                     object["runs"] = json!(summary.runs);
                     object["ranges"] = Value::Object(ranges);
                 }
@@ -620,6 +720,74 @@ mod tests {
         assert_eq!(
             json[0]["successes_per_kilostep"],
             json!({"pick_up": 25.0, "push": null})
+        );
+    }
+
+    #[test]
+    fn validation_scores_are_each_spans_median_and_repeats_average_them() {
+        let root = tempfile::tempdir().unwrap();
+        let scored = |name: &str, pixels: &[(u64, f64)]| {
+            let dir = root.path().join(name);
+            std::fs::create_dir(&dir).unwrap();
+            let mut history = History::open(&dir).unwrap();
+            episode(&mut history, 100, 0.1, None);
+            episode(&mut history, 1100, 0.1, None);
+            for &(step, f1) in pixels {
+                let scores = json!({"pick_up/pixel_f1": f1, "push/pixel_f1": 0.5});
+                history
+                    .record("validation", step, json!({"validation": scores}))
+                    .unwrap();
+            }
+            dir
+        };
+        // Run a: three checkpoints in the first span (median 0.2, mean 0.3),
+        // none in the second; run b: one in each.
+        let a = scored("a", &[(200, 0.1), (500, 0.6), (900, 0.2)]);
+        let b = scored("b", &[(300, 0.4), (1500, 0.3)]);
+
+        let summary = summarize(&a, 1000).unwrap();
+        assert_eq!(
+            summary.validation_scores,
+            ["pick_up/pixel_f1", "push/pixel_f1"]
+        );
+        let first = &summary.rows[0];
+        assert_eq!(first.validation_checkpoints, Some(Spread::one(3.0)));
+        assert_eq!(
+            first.validation,
+            [Some(Spread::one(0.2)), Some(Spread::one(0.5))]
+        );
+        assert_eq!(summary.rows[1].validation, [None, None]);
+        let table = summary.markdown();
+        assert!(
+            table.contains(
+                "| checkpoints scored on the validation rooms \
+                 | validation pick_up/pixel_f1 (median) | validation push/pixel_f1 (median) |\n"
+            ),
+            "{table}"
+        );
+        assert!(table.contains("| 3.000 | 0.200 | 0.500 |\n"), "{table}");
+        assert!(table.contains("| 0.000 | – | – |\n"), "{table}");
+        let json = Value::from(&summary);
+        assert_eq!(json[0]["validation"]["pick_up/pixel_f1"], 0.2);
+        assert_eq!(json[0]["validation_checkpoints"], 3.0);
+
+        let repeats = summarize_repeats(&[a, b], 1000).unwrap();
+        let first = &repeats.rows[0];
+        let pixels = first.validation[0].unwrap();
+        assert!(
+            (pixels.mean - 0.3).abs() < 1e-9,
+            "the runs' medians 0.2 and 0.4"
+        );
+        assert_eq!((pixels.min, pixels.max), (0.2, 0.4));
+        assert_eq!(
+            repeats.rows[1].validation[0],
+            Some(Spread::one(0.3)),
+            "only the run that scored a checkpoint there"
+        );
+        let json = Value::from(&repeats);
+        assert_eq!(
+            json[0]["ranges"]["validation"]["pick_up/pixel_f1"],
+            json!([0.2, 0.4])
         );
     }
 
