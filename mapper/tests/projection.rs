@@ -220,9 +220,9 @@ fn surface_points_follow_an_object_moved_held_and_put_back() {
         .unwrap();
     let after_move = check(&map, "one object moved");
     assert_ne!(after_move, before, "the move shows in the planes");
-    // Turned about z (a voxel column's points share a cell), then tilted
-    // (they do not).
-    let turned = Isometry3::new(Vector3::new(0.1, 0.2, 0.0), Vector3::z() * 0.7);
+    // Turned about z and lifted (a voxel column's points share a cell, and
+    // their heights are their own plus the lift), then tilted (neither).
+    let turned = Isometry3::new(Vector3::new(0.1, 0.2, 0.03), Vector3::z() * 0.7);
     map.set_object_pose(moved, turned * pose).unwrap();
     check(&map, "turned about z");
     map.hold(held).unwrap();
