@@ -60,6 +60,13 @@ pub(crate) struct EvaluateArgs {
     /// rooms, never chosen on them.
     #[arg(long, default_value_t = 0.5, value_parser = parse_threshold)]
     threshold: f32,
+    /// Divide the logits by this instead of the checkpoint's calibration
+    /// temperature (fitted on a few held-out frames each time the run
+    /// deployed a network, so it swings from one to the next): for
+    /// measuring how much the scores hang on that fit. A pixel's side of
+    /// 0.5 does not move with it; an object's mean probability does.
+    #[arg(long, value_parser = parse_temperature, conflicts_with = "untrained")]
+    temperature: Option<f32>,
     /// Write the whole report (both tables, the all-positive reference,
     /// the selection and every object's trial) as JSON here.
     #[arg(long, value_name = "FILE")]
@@ -150,11 +157,17 @@ pub(crate) fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
                 unet.step, task.affordances, task.image_size
             )
         })?;
-        model.temperature = unet.temperature;
+        model.temperature = args.temperature.unwrap_or(unet.temperature);
         let name = format!(
-            "the U-Net of {} at step {}",
+            "the U-Net of {} at step {} (temperature {}{})",
             args.run_dir.display(),
-            unet.step
+            unet.step,
+            model.temperature,
+            if args.temperature.is_some() {
+                format!(", not its own {}", unet.temperature)
+            } else {
+                String::new()
+            }
         );
         anyhow::Ok((unet.step, name))
     };
@@ -284,6 +297,19 @@ fn write_atomically(path: &std::path::Path, bytes: &[u8]) -> anyhow::Result<()> 
 }
 
 /// A probability strictly between 0 and 1.
+fn parse_temperature(text: &str) -> Result<f32, String> {
+    let value: f32 = text
+        .parse()
+        .map_err(|_| format!("'{text}' is not a number"))?;
+    if value.is_finite() && value > 0.0 {
+        Ok(value)
+    } else {
+        Err(format!(
+            "{value} is not a positive temperature (1 leaves the logits as they are)"
+        ))
+    }
+}
+
 fn parse_threshold(text: &str) -> Result<f32, String> {
     let value: f32 = text
         .parse()
@@ -294,5 +320,22 @@ fn parse_threshold(text: &str) -> Result<f32, String> {
         Err(format!(
             "{value} is not a probability strictly between 0 and 1"
         ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn temperatures_must_be_positive_and_thresholds_strictly_between_0_and_1() {
+        assert_eq!(parse_temperature("2.5"), Ok(2.5));
+        for bad in ["0", "-1", "inf", "NaN", "warm"] {
+            assert!(parse_temperature(bad).is_err(), "{bad}");
+        }
+        assert_eq!(parse_threshold("0.5"), Ok(0.5));
+        for bad in ["0", "1", "1.5", "x"] {
+            assert!(parse_threshold(bad).is_err(), "{bad}");
+        }
     }
 }
