@@ -62,6 +62,11 @@ pub struct RunResult {
     pub report: Report,
     /// What its history says about its course.
     pub history: HistorySummary,
+    /// Per affordance of the report, the chosen checkpoint's Table 2 ROC
+    /// AUC on the validation rooms, where the run's learner recorded it
+    /// (`RUN_DIR/validation/<step>.json`; a checkpoint `--select` scored
+    /// itself has none).
+    pub chosen_validation_auc: Vec<Option<f32>>,
 }
 
 /// Everything the page is made of.
@@ -120,11 +125,13 @@ pub fn load(root: &Path) -> anyhow::Result<Comparison> {
                 "the test report of {variant} seed {seed} was not chosen on the validation rooms"
             );
             let history = HistorySummary::read(&dir.join("history.jsonl"))?;
+            let chosen_validation_auc = chosen_validation_auc(&dir, &report);
             runs.push(RunResult {
                 variant: variant.clone(),
                 seed,
                 report,
                 history,
+                chosen_validation_auc,
             });
         }
     }
@@ -247,6 +254,29 @@ fn first_missing(
             .find_map(|(i, (g, c))| first_missing(g, c, &format!("{at}[{i}]"))),
         _ => None,
     }
+}
+
+/// The ROC AUC per affordance of `report` that the run's learner recorded
+/// for the checkpoint validation chose; `None` where it recorded none.
+fn chosen_validation_auc(run_dir: &Path, report: &Report) -> Vec<Option<f32>> {
+    let recorded = report.selection.as_ref().and_then(|s| {
+        let path = run_dir
+            .join(proto::VALIDATION_DIR)
+            .join(format!("{}.json", s.chosen_step));
+        read_json::<proto::ValidationScores>(&path).ok()
+    });
+    report
+        .pixel
+        .iter()
+        .map(|row| {
+            let scores = recorded.as_ref()?;
+            let own = scores
+                .affordances
+                .iter()
+                .find(|a| a.affordance == row.affordance)?;
+            own.object_auc
+        })
+        .collect()
 }
 
 fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> anyhow::Result<T> {

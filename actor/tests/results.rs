@@ -137,6 +137,16 @@ fn fake_comparison(root: &Path) {
                 })
                 .collect();
             std::fs::write(dir.join("history.jsonl"), history).unwrap();
+            if (variant, seed) == ("ours", 0) {
+                // The learner recorded the chosen checkpoint's scores (and
+                // so its AUC) for this run only.
+                write_json(
+                    &dir.join("validation/2000.json"),
+                    &json!({"step": 2000, "scenes": ["FloorPlan221"], "views_per_scene": 4,
+                            "threshold": 0.5, "affordances": [{"affordance": "pick_up",
+                            "pixel_f1": 0.5, "object_f1": 0.5, "object_auc": 0.8}]}),
+                );
+            }
         }
     }
     for seed in [0, 1] {
@@ -201,6 +211,22 @@ fn the_page_shows_every_variant_over_seeds_beside_the_floors() {
              1.00 [1.00, 1.00] | 1.00 [1.00, 1.00] | 1.00 [1.00, 1.00] |"
         ),
         "{chosen}"
+    );
+    // The chosen checkpoints' own validation scores, the AUC where recorded.
+    let validation = &page[page
+        .find("## On the validation rooms")
+        .expect("the section")..];
+    assert!(
+        validation.contains(
+            "| **ours** | 0.50 [0.50, 0.50] | 0.50 [0.50, 0.50] | 0.80 [0.80, 0.80] (1 of 2) |"
+        ),
+        "{validation}"
+    );
+    assert!(
+        validation.contains(
+            "| **intexp** | 0.50 [0.50, 0.50] | 0.50 [0.50, 0.50] | – (undefined in 2) |"
+        ),
+        "{validation}"
     );
 }
 

@@ -7,7 +7,7 @@ use std::fmt::Write as _;
 
 use super::paper::{affordance_index, PaperRow, PAPER};
 use super::{Comparison, RunResult};
-use crate::evaluation::{ObjectRow, PixelRow, Report, ScoredBy};
+use crate::evaluation::{Candidate, ObjectRow, PixelRow, Report, ScoredBy};
 
 /// Mean and range of one score over runs, and how many runs define it.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -125,6 +125,7 @@ pub fn render(comparison: &Comparison, curves: Option<&str>) -> String {
     table_1(&mut out, comparison, &affordances);
     table_2(&mut out, comparison, &affordances);
     at_validation_thresholds(&mut out, comparison, &affordances);
+    on_validation_rooms(&mut out, comparison, &affordances);
     ordering(&mut out, comparison);
     if let Some(curves) = curves {
         let _ = writeln!(
@@ -242,6 +243,47 @@ fn at_validation_thresholds(out: &mut String, comparison: &Comparison, affordanc
     let paper = |_: &PaperRow, _: usize| "– | – | – | – | – | –".to_string();
     let columns = "pixel threshold | pixel F1 | object threshold | precision | recall | F1";
     table(out, comparison, affordances, columns, &numbers, &paper);
+}
+
+/// The chosen checkpoints' scores on the validation rooms, the scores that
+/// chose them: where a method stands against targets set on those rooms.
+fn on_validation_rooms(out: &mut String, comparison: &Comparison, affordances: &[String]) {
+    let m = &comparison.manifest;
+    let _ = writeln!(
+        out,
+        "## On the validation rooms\n\nThe chosen checkpoint's scores on the validation rooms \
+         (FloorPlan221–225, {} views each, at 0.5): the scores that chose it among the run's \
+         checkpoints, so a little above what a fresh checkpoint of the run would score there. \
+         ROC AUC where the run's learner recorded it for that checkpoint. Mean [min, max] over \
+         seeds.\n",
+        m.val_views_per_scene
+    );
+    for (plane, affordance) in affordances.iter().enumerate() {
+        let _ = writeln!(
+            out,
+            "### {affordance}\n\n| | pixel F1 (median over views) | Table 2 F1 | ROC AUC |\n|---|---|---|---|"
+        );
+        for variant in &m.variants {
+            let runs = variant_runs(comparison, variant);
+            let score = |pick: &dyn Fn(&RunResult) -> Option<f32>| {
+                cell(&runs.iter().map(|r| pick(r)).collect::<Vec<_>>())
+            };
+            let _ = writeln!(
+                out,
+                "| **{variant}** | {} | {} | {} |",
+                score(&|r| chosen_candidate(r)?.pixel_f1.get(plane).copied().flatten()),
+                score(&|r| chosen_candidate(r)?.object_f1.get(plane).copied().flatten()),
+                score(&|r| r.chosen_validation_auc.get(plane).copied().flatten()),
+            );
+        }
+        out.push('\n');
+    }
+}
+
+/// The validation scores of the checkpoint a run's selection chose.
+fn chosen_candidate(run: &RunResult) -> Option<&Candidate> {
+    let selection = run.report.selection.as_ref()?;
+    (selection.candidates.iter()).find(|c| c.step == selection.chosen_step)
 }
 
 /// A table's numbers of one report: `(report, all-positive reference?, plane)`.
