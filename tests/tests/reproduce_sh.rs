@@ -110,6 +110,7 @@ fn a_tiny_comparison_trains_chooses_on_validation_and_writes_the_page() {
         "| ours-seed3 |",
         "![training curves](results-curves.svg)",
         "## Settings",
+        "## On the validation rooms",
         "- **Confidence labels**: off",
         "`unet.class_balance = \"classes\"` (the paper's: \"pixels\")",
     ] {
