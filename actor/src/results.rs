@@ -257,13 +257,15 @@ fn first_missing(
 }
 
 /// The ROC AUC per affordance of `report` that the run's learner recorded
-/// for the checkpoint validation chose; `None` where it recorded none.
+/// for the checkpoint validation chose, on as many views as the selection
+/// scored (so from the same scoring); `None` where it recorded none.
 fn chosen_validation_auc(run_dir: &Path, report: &Report) -> Vec<Option<f32>> {
     let recorded = report.selection.as_ref().and_then(|s| {
         let path = run_dir
             .join(proto::VALIDATION_DIR)
             .join(format!("{}.json", s.chosen_step));
-        read_json::<proto::ValidationScores>(&path).ok()
+        let scores = read_json::<proto::ValidationScores>(&path).ok()?;
+        (scores.views_per_scene == s.views_per_scene).then_some(scores)
     });
     report
         .pixel
