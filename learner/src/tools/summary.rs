@@ -126,6 +126,14 @@ struct SpanSums {
     validation: BTreeMap<String, Vec<f64>>,
 }
 
+/// Each of `names` once, in name order.
+fn distinct_names(names: impl Iterator<Item = String>) -> Vec<String> {
+    names
+        .collect::<std::collections::BTreeSet<_>>()
+        .into_iter()
+        .collect()
+}
+
 /// The median of `values` (the mean of the middle two for an even count);
 /// `None` for none.
 fn median(values: &[f64]) -> Option<f64> {
@@ -210,12 +218,11 @@ pub(crate) fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
     let fields: Vec<StatKey> = StatKey::all()
         .filter(|f| spans.values().any(|span| span.fields.contains_key(f)))
         .collect();
-    let validation_scores: Vec<String> = spans
-        .values()
-        .flat_map(|span| span.validation.keys().cloned())
-        .collect::<std::collections::BTreeSet<_>>()
-        .into_iter()
-        .collect();
+    let validation_scores = distinct_names(
+        spans
+            .values()
+            .flat_map(|span| span.validation.keys().cloned()),
+    );
     let rows = spans
         .iter()
         .map(|(&index, span)| SummaryRow {
@@ -280,12 +287,11 @@ pub fn summarize_repeats(run_dirs: &[PathBuf], every: u64) -> anyhow::Result<Sum
     let fields: Vec<StatKey> = StatKey::all()
         .filter(|f| summaries.iter().any(|s| s.fields.contains(f)))
         .collect();
-    let validation_scores: Vec<String> = summaries
-        .iter()
-        .flat_map(|s| s.validation_scores.iter().cloned())
-        .collect::<std::collections::BTreeSet<_>>()
-        .into_iter()
-        .collect();
+    let validation_scores = distinct_names(
+        summaries
+            .iter()
+            .flat_map(|s| s.validation_scores.iter().cloned()),
+    );
     let mut rows = Vec::new();
     for row in &first.rows {
         let Some(span): Option<Vec<(&Summary, &SummaryRow)>> = summaries
