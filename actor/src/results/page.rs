@@ -498,11 +498,7 @@ fn runs_table(out: &mut String, comparison: &Comparison) {
         let h = &run.history;
         let selection = run.report.selection.as_ref();
         let chosen = selection.map_or("–".to_string(), |s| {
-            let score = s
-                .candidates
-                .iter()
-                .find(|c| c.step == s.chosen_step)
-                .map_or(f32::NAN, |c| c.score);
+            let score = chosen_candidate(run).map_or(f32::NAN, |c| c.score);
             format!("{} of {} ({score:.3})", s.chosen_step, s.candidates.len())
         });
         let triple = |pick: &dyn Fn(&super::Tenth) -> Option<f64>| {
