@@ -33,7 +33,7 @@ except ImportError as e:
 
 # The networks themselves come from the project's PyTorch module, which loads
 # the Rust networks' weights by name (and is checked against them).
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "nets" / "python"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "nets" / "python"))
 from afx_torch import AffordanceUnet as Unet  # noqa: E402
 from afx_torch import PolicyNet  # noqa: E402
 

@@ -22,7 +22,7 @@ try:
 except ImportError as e:
     sys.exit(f"needs torch (pip install torch): {e}")
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "nets" / "python"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "nets" / "python"))
 from afx_torch import AffordanceUnet  # noqa: E402
 
 
