@@ -3,6 +3,7 @@
 //! the manifest lists must have trained and been evaluated; a missing run
 //! or a missing field is an error, not a gap in a table.
 
+mod differences;
 mod history;
 mod page;
 mod paper;
