@@ -23,11 +23,14 @@ Runs, one after the other, each under a time limit (about 9 minutes in all):
      DIR has it);
   4. one actor process's environments at 128 px with the GPU renderer
      (DIR/env_steps, its several-environments table for 1 and 32
-     environments, 600-step episodes), when DIR has env_steps;
+     environments, 600-step episodes), when DIR has env_steps; with the CPU
+     renderer where the machine has no Vulkan adapter for the GPU one;
   5. deploy/throughput.sh: the whole system, `ours`, 1x32 at 64 px with the CPU
-     renderer, and 1x32 at 128 px with the GPU renderer and with the CPU
-     renderer, PPO on 1024-step batches (what docs/running.md advises on a GPU),
-     with the CPU cores the learner and the actors kept busy (and per thread
+     renderer, and 1x32 at 128 px with the GPU renderer (when Vulkan works)
+     and with the CPU renderer, then the last again with the actors never
+     held for the U-Net trainer (decision 0013's hold off: what the actors
+     make, and the frames the trainer skips), PPO on 1024-step batches
+     (what docs/running.md advises on a GPU), with the CPU cores the learner and the actors kept busy (and per thread
      name), the messages lost by kind, each actor's loop thread's chores per
      step, its U-Net batching threads' share and its environments' steps;
   6. the gateway pair against loopback TCP (`gateway bench`, issue 41's
@@ -92,7 +95,7 @@ use_libtorch_of_python "$BIN/learner" || exit 2
 if [[ $QUICK -eq 1 ]]; then
   CAP_WARMUP=5 CAP_SECONDS=10 TP_WARMUP=15 TP_SECONDS=15 BENCH_QUICK=1
 else
-  CAP_WARMUP=10 CAP_SECONDS=20 TP_WARMUP=30 TP_SECONDS=30 BENCH_QUICK=
+  CAP_WARMUP=10 CAP_SECONDS=20 TP_WARMUP=20 TP_SECONDS=25 BENCH_QUICK=
 fi
 
 # The report grows line by line, so a run stopped early keeps what it measured.
@@ -172,6 +175,7 @@ if ! skipped capacity; then
   fi
 fi
 
+NO_VULKAN=0
 if ! skipped actor && [[ -x "$BIN/env_steps" ]]; then
   section "One actor process at 128 px, GPU renderer (env_steps)"
   # 32 environments as the actor runs them (each on its own thread, the
@@ -179,9 +183,21 @@ if ! skipped actor && [[ -x "$BIN/env_steps" ]]; then
   # environments than cores pay), 1 for scale; the paper's 600-step episodes, over which the
   # map fills the room and its and the state's cost per step grows (3.3x
   # and 2.1x from 60 steps, docs/notebook/2026-11-27-actor-loop-chores.md).
-  AFX_DEVICE=gpu AFX_DATA="$DATA" AFX_CASES=none AFX_ENVS=1,32 AFX_STEPS=600 AFX_ENVS_PX=128 AFX_ENVS_RENDERER=gpu \
-    limited 240 "$LOGS/actor.log" "$BIN/env_steps"
-  add "$(grep -E '^\||^Several' "$LOGS/actor.log" || echo "FAILED: $(tail -n 5 "$LOGS/actor.log" | tr '\n' ' ')")"
+  actor_table() { # renderer
+    AFX_DEVICE=gpu AFX_DATA="$DATA" AFX_CASES=none AFX_ENVS=1,32 AFX_STEPS=600 AFX_ENVS_PX=128 AFX_ENVS_RENDERER="$1" \
+      limited 240 "$LOGS/actor-$1.log" "$BIN/env_steps"
+  }
+  actor_table gpu
+  log="$LOGS/actor-gpu.log"
+  if grep -q 'NoAdapter' "$log"; then
+    # The GPU renderer needs the driver's Vulkan, which some machines lack
+    # (seen on an H200 whose ICD gave no vkCreateInstance, 2026-12-01).
+    NO_VULKAN=1
+    add "No Vulkan adapter for the GPU renderer ($(grep -m1 -o 'NoAdapter.*' "$log" | cut -c1-120)); measured with the CPU renderer instead:" ""
+    actor_table cpu
+    log="$LOGS/actor-cpu.log"
+  fi
+  add "$(grep -E '^\||^Several' "$log" || echo "FAILED: $(tail -n 5 "$log" | tr '\n' ' ')")"
 fi
 
 if ! skipped throughput; then
@@ -192,22 +208,31 @@ if ! skipped throughput; then
   # and the actor's CUDA contexts share (MPS cannot merge a Vulkan context),
   # which the CPU renderer, at a cost in CPU, would not. One process of 32
   # (2x16 was no faster).
-  for setting in "1x32 64 100 cpu" "1x32 128 600 gpu" "1x32 128 600 cpu"; do
-    read -r pairs side steps renderer <<<"$setting"
-    log="$LOGS/throughput-${side}px-${renderer}.log"
+  # The last setting without the hold (actors wait while the U-Net trainer
+  # owes more than 8 episodes' steps, decision 0013): what the actors make
+  # when they need not wait, and how many frames the trainer then skips.
+  for setting in "1x32 64 100 cpu hold" "1x32 128 600 gpu hold" "1x32 128 600 cpu hold" "1x32 128 600 cpu nohold"; do
+    read -r pairs side steps renderer hold <<<"$setting"
+    if [[ $renderer == gpu && $NO_VULKAN -eq 1 ]]; then
+      add "${side} px, ${steps}-step episodes, gpu renderer: not run (no Vulkan adapter, above)" ""
+      continue
+    fi
+    name="${side}px-${renderer}"; hold_set=()
+    [[ $hold == hold ]] || { name+="-nohold"; hold_set=(--set unet.hold_actors_beyond_episodes=0); }
+    log="$LOGS/throughput-${name}.log"
     n=$(tr ',' '\n' <<<"$pairs" | wc -l)
     limited $(( n * (TP_WARMUP + TP_SECONDS + 60) )) "$log" "$REPO/deploy/throughput.sh" \
       --settings "$pairs" --warmup "$TP_WARMUP" --seconds "$TP_SECONDS" \
-      --runs-dir "$LOGS/runs-${side}px-${renderer}" -- --bin-dir "$BIN" --device gpu --data "$DATA" \
+      --runs-dir "$LOGS/runs-${name}" -- --bin-dir "$BIN" --device gpu --data "$DATA" \
       --image-size "$side" --episode-steps "$steps" --renderer "$renderer" \
-      -- --set policy.batch_steps=1024
-    add "${side} px, ${steps}-step episodes, ${renderer} renderer, 1024-step PPO batches:" ""
+      -- --set policy.batch_steps=1024 "${hold_set[@]}"
+    add "${side} px, ${steps}-step episodes, ${renderer} renderer, 1024-step PPO batches$([[ $hold == hold ]] || echo ', actors never held for the U-Net'):" ""
     if grep -q '^| actors' "$log"; then
       add "$(sed -n '/^| actors/,$p' "$log")" ""
       # Whether each actor's loop thread or U-Net batching threads (which
       # all its environments wait for) were the wall: its last lines say
       # how busy they were, and what its environments' steps were made of.
-      for run in "$LOGS/runs-${side}px-${renderer}"/*/; do
+      for run in "$LOGS/runs-${name}"/*/; do
         busy=$(grep -hE "loop's thread was busy|U-Net batches of|environments' steps took" "$run"logs/actor-*.log 2>/dev/null)
         [[ -z "$busy" ]] || add "$(basename "$run"), the actors' loops, U-Net batches and steps:" "" "$busy" ""
       done
