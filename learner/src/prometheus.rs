@@ -559,6 +559,7 @@ mod tests {
             temperature: 1.0,
             frames: (1, 1, 1),
             positive_frames: vec![1],
+            seconds: Default::default(),
         });
         status.timings.ppo_update.observe(0.2);
         let served = to_classic(&render(&status.snapshot(10.0), &status.timings));

@@ -12,7 +12,7 @@ use serde::Serialize;
 
 use training::ppo::PpoStats;
 
-use training::affordance_learner::UnetRound;
+use training::affordance_learner::{RoundSeconds, UnetRound};
 
 /// Per-actor book-keeping.
 #[derive(Debug, Clone)]
@@ -155,6 +155,8 @@ pub struct Counters {
     pub actor_holds: u64,
     /// Latest U-Net round.
     pub last_unet: Option<UnetRound>,
+    /// Seconds of the U-Net rounds' parts, summed over all rounds.
+    pub unet_round_seconds: RoundSeconds,
 }
 
 /// The learner's live state.

@@ -169,6 +169,7 @@ impl UnetWorker {
                         status.timings.unet_round.observe(seconds);
                         status.counters.unet_rounds += 1;
                         status.counters.unet_steps += round.steps as u64;
+                        status.counters.unet_round_seconds.add(&round.seconds);
                         status.counters.last_unet = Some(round.clone());
                         if round.replaced {
                             status.counters.unet_version += 1;

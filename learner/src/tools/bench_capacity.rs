@@ -23,6 +23,7 @@ use crate::config::LearnerConfig;
 use crate::service::Trainers;
 use crate::shared::Shared;
 use crate::status::LearnerStatus;
+use training::affordance_learner::RoundSeconds;
 use training::synthetic;
 
 /// How the synthetic actors feed the learner.
@@ -53,6 +54,8 @@ pub struct Capacity {
     pub frames_per_s: f64,
     /// U-Net rounds.
     pub unet_rounds_per_s: f64,
+    /// Mean seconds of a U-Net round's parts (training, gate, temperature).
+    pub unet_round_seconds: RoundSeconds,
     /// Labelled frames skipped because the U-Net trainer was a dataset behind.
     pub frames_skipped: u64,
     /// Rollout steps discarded because PPO was behind.
@@ -82,6 +85,7 @@ struct Reading {
     dropped: u64,
     batch_seconds: f64,
     update_seconds: f64,
+    unet_seconds: RoundSeconds,
 }
 
 fn read(shared: &Shared) -> Reading {
@@ -98,6 +102,7 @@ fn read(shared: &Shared) -> Reading {
         dropped: status.actors.values().map(|a| a.dropped()).sum(),
         batch_seconds: status.counters.ppo_batch_seconds,
         update_seconds: status.counters.ppo_update_seconds,
+        unet_seconds: status.counters.unet_round_seconds,
     }
 }
 
@@ -223,6 +228,7 @@ fn measure(shared: &Shared, feed: &FeedSettings) -> anyhow::Result<Capacity> {
                     updates_per_s: rate(start.updates, end.updates),
                     frames_per_s: rate(start.frames, end.frames),
                     unet_rounds_per_s: rate(start.rounds, end.rounds),
+                    unet_round_seconds: per_round(&start, &end),
                     frames_skipped: end.skipped - start.skipped,
                     steps_discarded: end.discarded - start.discarded,
                     messages_dropped: end.dropped - start.dropped,
@@ -232,6 +238,17 @@ fn measure(shared: &Shared, feed: &FeedSettings) -> anyhow::Result<Capacity> {
                 });
             }
         }
+    }
+}
+
+/// Mean seconds of each part of the rounds between two readings.
+fn per_round(start: &Reading, end: &Reading) -> RoundSeconds {
+    let rounds = end.rounds.saturating_sub(start.rounds).max(1) as f64;
+    let (a, b) = (start.unet_seconds, end.unet_seconds);
+    RoundSeconds {
+        training: (b.training - a.training) / rounds,
+        gate: (b.gate - a.gate) / rounds,
+        temperature: (b.temperature - a.temperature) / rounds,
     }
 }
 
@@ -344,11 +361,11 @@ fn synthetic_actor(
 /// The report's Markdown table: one row per setting.
 pub fn table(rows: &[(String, Capacity)]) -> String {
     let mut out = String::from(
-        "| setting | steps/s taken | steps/s trained | PPO updates/s | PPO batch / update (ms each) | U-Net frames/s | U-Net rounds/s | frames skipped | steps discarded | messages dropped | policy lag |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
+        "| setting | steps/s taken | steps/s trained | PPO updates/s | PPO batch / update (ms each) | U-Net frames/s | U-Net rounds/s | U-Net round: training / gate / temperature (ms each) | frames skipped | steps discarded | messages dropped | policy lag |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for (name, c) in rows {
         out.push_str(&format!(
-            "| {name} | {:.0} | {:.0} | {:.2} | {:.0} / {:.0} | {:.1} | {:.2} | {} | {} | {} | {:.2} |\n",
+            "| {name} | {:.0} | {:.0} | {:.2} | {:.0} / {:.0} | {:.1} | {:.2} | {:.0} / {:.0} / {:.0} | {} | {} | {} | {:.2} |\n",
             c.steps_per_s,
             c.trained_steps_per_s,
             c.updates_per_s,
@@ -356,6 +373,9 @@ pub fn table(rows: &[(String, Capacity)]) -> String {
             c.update_seconds * 1e3,
             c.frames_per_s,
             c.unet_rounds_per_s,
+            c.unet_round_seconds.training * 1e3,
+            c.unet_round_seconds.gate * 1e3,
+            c.unet_round_seconds.temperature * 1e3,
             c.frames_skipped,
             c.steps_discarded,
             c.messages_dropped,

@@ -19,7 +19,9 @@
 //!
 //! `AFX_DEVICE=gpu` (a build with `--features nets/gpu`) runs everything on
 //! the GPU and the PyTorch reference with `--device cuda`.
-//! `AFX_BENCH_ONLY=gpu-check` runs the learner's real training shapes side by
+//! `AFX_BENCH_ONLY=temperature` times refitting a replaced U-Net's temperature
+//! on a 128-px gate's pixels, binned as the learner fits it and over every
+//! pixel. `AFX_BENCH_ONLY=gpu-check` runs the learner's real training shapes side by
 //! side with PyTorch: one PPO update of 1 024 steps (`AFX_BENCH_PPO_STEPS`) of
 //! the default `ours` task's observations at 64 and 128 px, 4 epochs × 2
 //! minibatches, and the U-Net training step (batch 8, 128 px).
@@ -313,6 +315,10 @@ fn main() {
     let mut results: Vec<(&str, Timing)> = Vec::new();
 
     let only = std::env::var("AFX_BENCH_ONLY").ok();
+    if only.as_deref() == Some("temperature") {
+        temperature_fit(&mut rng);
+        return;
+    }
     if only.as_deref() == Some("gpu-check") {
         gpu_check(&device, gpu, &mut rng);
         return;
@@ -321,7 +327,7 @@ fn main() {
         .as_deref()
         .is_some_and(|o| o != "ppo-default" && o != "unet-train")
     {
-        eprintln!("AFX_BENCH_ONLY takes ppo-default, unet-train or gpu-check");
+        eprintln!("AFX_BENCH_ONLY takes ppo-default, unet-train, gpu-check or temperature");
         std::process::exit(2);
     }
     if only.as_deref() != Some("unet-train") {
@@ -466,6 +472,51 @@ fn main() {
 }
 
 /// Prints each measurement's median and spread.
+/// Refitting a replaced U-Net's temperature on a gate's labelled pixels at
+/// 128 px (64 frames × 2 planes, every pixel labelled, 1 % positive, the
+/// classes weighing half each): the learner's binned fit beside the search
+/// over every pixel, alternated, with the two temperatures.
+fn temperature_fit(rng: &mut StdRng) {
+    use training::temperature::{fit_weighted_temperature, fit_weighted_temperature_exact};
+    let n = 64 * 2 * 128 * 128;
+    let labels: Vec<bool> = (0..n).map(|_| rng.random::<f32>() < 0.01).collect();
+    let logits: Vec<f32> = labels
+        .iter()
+        .map(|&y| rng.random_range(-12.0..4.0) + if y { 5.0 } else { 0.0 })
+        .collect();
+    let positives = labels.iter().filter(|&&y| y).count() as f32;
+    let weights: Vec<f32> = labels
+        .iter()
+        .map(|&y| {
+            if y {
+                0.5 / positives
+            } else {
+                0.5 / (n as f32 - positives)
+            }
+        })
+        .collect();
+    let repeats = if quick_mode() { 1 } else { 5 };
+    let (mut binned, mut exact) = (Vec::new(), Vec::new());
+    let (mut t_binned, mut t_exact) = (0.0, 0.0);
+    for _ in 0..repeats {
+        let started = Instant::now();
+        t_binned = fit_weighted_temperature(&logits, &labels, &weights);
+        binned.push(started.elapsed().as_secs_f64() * 1e3);
+        let started = Instant::now();
+        t_exact = fit_weighted_temperature_exact(&logits, &labels, &weights);
+        exact.push(started.elapsed().as_secs_f64() * 1e3);
+    }
+    binned.sort_by(f64::total_cmp);
+    exact.sort_by(f64::total_cmp);
+    let (binned, exact) = (Timing(binned), Timing(exact));
+    println!(
+        "temperature fit, {n} labelled pixels: binned {:.1} ms (T {t_binned:.4}), every pixel {:.1} ms (T {t_exact:.4}), medians of {repeats}; ratio {:.4}",
+        binned.median(),
+        exact.median(),
+        binned.median() / exact.median()
+    );
+}
+
 fn print_results(results: &[(&str, Timing)], gpu: bool) {
     let backend = if gpu { "wgpu (GPU)" } else { "flex (CPU)" };
     println!(

@@ -18,6 +18,7 @@ use proto::{FrameBatchView, LABEL_UNKNOWN};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
+use std::time::Instant;
 
 use crate::config::UnetConfig;
 
@@ -94,6 +95,29 @@ pub struct UnetRound {
     pub frames: (usize, usize, usize),
     /// Training frames with a positive label, per affordance.
     pub positive_frames: Vec<usize>,
+    /// Where the round's time went.
+    pub seconds: RoundSeconds,
+}
+
+/// Wall-clock seconds of a round's parts: what keeps the U-Net trainer
+/// behind its actors when its gradient steps are cheap (a GPU's).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct RoundSeconds {
+    /// Sampling and mirroring the batches and the gradient steps.
+    pub training: f64,
+    /// The validation gate: both networks on the newest validation frames.
+    pub gate: f64,
+    /// Refitting the temperature of a network that replaced the deployed one.
+    pub temperature: f64,
+}
+
+impl RoundSeconds {
+    /// Adds `other`'s seconds part by part (a sum over rounds).
+    pub fn add(&mut self, other: &RoundSeconds) {
+        self.training += other.training;
+        self.gate += other.gate;
+        self.temperature += other.temperature;
+    }
 }
 
 /// The U-Net being trained, the deployed one, and the dataset.
@@ -223,6 +247,8 @@ impl AffordanceLearner {
     /// Trains `steps` gradient steps on the training split, then gates the
     /// result on validation; `None` without training frames.
     pub fn train_round(&mut self, steps: usize) -> Option<UnetRound> {
+        let mut seconds = RoundSeconds::default();
+        let started = Instant::now();
         let mut losses = Vec::new();
         for _ in 0..steps {
             let batch = self
@@ -251,6 +277,8 @@ impl AffordanceLearner {
         if losses.is_empty() {
             return None;
         }
+        seconds.training = started.elapsed().as_secs_f64();
+        let started = Instant::now();
         let candidate = match &self.average {
             Some(average) => average.average().clone(),
             None => self.trainer.inference_net(&self.device),
@@ -263,8 +291,11 @@ impl AffordanceLearner {
             self.settings.class_balance,
             &self.device,
         );
+        seconds.gate = started.elapsed().as_secs_f64();
         if gate.replace {
+            let started = Instant::now();
             self.temperature = self.fit_temperature(&candidate);
+            seconds.temperature = started.elapsed().as_secs_f64();
             self.deployed = candidate;
         }
         let Evaluation { loss, iou, .. } = gate.candidate;
@@ -279,6 +310,7 @@ impl AffordanceLearner {
             temperature: self.temperature,
             frames: self.dataset.sizes(),
             positive_frames: self.dataset.positive_frames(self.affordances),
+            seconds,
         })
     }
 

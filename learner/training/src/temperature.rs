@@ -17,12 +17,7 @@ pub fn weighted_nll(logits: &[f32], labels: &[bool], weights: &[f32], t: f64) ->
         .iter()
         .zip(labels)
         .enumerate()
-        .map(|(i, (&x, &y))| {
-            let z = f64::from(x) / t;
-            // −log σ(z) = softplus(−z); −log(1 − σ(z)) = softplus(z).
-            let softplus = |v: f64| v.max(0.0) + (-v.abs()).exp().ln_1p();
-            weight(i) * if y { softplus(-z) } else { softplus(z) }
-        })
+        .map(|(i, (&x, &y))| weight(i) * label_nll(f64::from(x) / t, y))
         .sum::<f64>()
         / total.max(f64::MIN_POSITIVE)
 }
@@ -36,11 +31,32 @@ pub fn fit_temperature(logits: &[f32], labels: &[bool]) -> f32 {
 /// [`fit_temperature`] minimising [`weighted_nll`]: with weights that make
 /// each class weigh half, the temperature keeps the odds of a network
 /// trained with balanced classes (`nets::unet::ClassBalance::Classes`).
+///
+/// The search evaluates the NLL about 80 times; a gate's frames at 128 px
+/// hold ~2 M labelled pixels, so each evaluation runs over the logits binned
+/// by label ([`BinnedLogits`]) rather than over every pixel.
 pub fn fit_weighted_temperature(logits: &[f32], labels: &[bool], weights: &[f32]) -> f32 {
     if logits.is_empty() {
         return 1.0;
     }
-    let f = |log_t: f64| weighted_nll(logits, labels, weights, log_t.exp());
+    let binned = BinnedLogits::new(logits, labels, weights);
+    golden_section_on_log_t(|t| binned.nll(t))
+}
+
+/// [`fit_weighted_temperature`] over every logit (each step of the search
+/// a pass over all of them): the reference the binned fit is tested and
+/// benchmarked against.
+pub fn fit_weighted_temperature_exact(logits: &[f32], labels: &[bool], weights: &[f32]) -> f32 {
+    if logits.is_empty() {
+        return 1.0;
+    }
+    golden_section_on_log_t(|t| weighted_nll(logits, labels, weights, t))
+}
+
+/// The temperature in [0.05, 20] minimising `nll(t)`, by golden-section
+/// search on log T (the NLL is unimodal in it).
+fn golden_section_on_log_t(nll: impl Fn(f64) -> f64) -> f32 {
+    let f = |log_t: f64| nll(log_t.exp());
     let (mut lo, mut hi) = (0.05f64.ln(), 20f64.ln());
     let golden = (5f64.sqrt() - 1.0) / 2.0;
     let mut a = hi - golden * (hi - lo);
@@ -62,6 +78,75 @@ pub fn fit_weighted_temperature(logits: &[f32], labels: &[bool], weights: &[f32]
         }
     }
     ((lo + hi) / 2.0).exp() as f32
+}
+
+/// −log σ(z) for a positive label, −log(1 − σ(z)) for a negative one.
+fn label_nll(z: f64, positive: bool) -> f64 {
+    // −log σ(z) = softplus(−z); −log(1 − σ(z)) = softplus(z).
+    let softplus = |v: f64| v.max(0.0) + (-v.abs()).exp().ln_1p();
+    if positive {
+        softplus(-z)
+    } else {
+        softplus(z)
+    }
+}
+
+/// Width of a bin of [`BinnedLogits`], in logits.
+const BIN_WIDTH: f64 = 1.0 / 64.0;
+/// Logits within ± this are binned; the rarer ones beyond are kept as they are.
+const BINNED_RANGE: f64 = 32.0;
+
+/// Logits summarised per label in narrow bins: each bin's summed weight and
+/// the weighted mean of its logits, which stands for them in the NLL. The NLL
+/// of a logit is smooth, so the error is second order in the spread within
+/// a bin: a few parts in a million of the NLL on the test's gate-like
+/// logits, at temperatures from 0.05 to 20 (tested against [`weighted_nll`]).
+struct BinnedLogits {
+    /// Per label (negative, positive): (weight, weight × logit) per bin.
+    bins: [Vec<(f64, f64)>; 2],
+    /// Logits beyond ±[`BINNED_RANGE`]: (logit, positive, weight).
+    outliers: Vec<(f64, bool, f64)>,
+    total_weight: f64,
+}
+
+impl BinnedLogits {
+    fn new(logits: &[f32], labels: &[bool], weights: &[f32]) -> Self {
+        let n_bins = (2.0 * BINNED_RANGE / BIN_WIDTH) as usize;
+        let mut bins = [vec![(0.0, 0.0); n_bins], vec![(0.0, 0.0); n_bins]];
+        let mut outliers = Vec::new();
+        let mut total_weight = 0.0;
+        for (i, (&x, &y)) in logits.iter().zip(labels).enumerate() {
+            let (x, w) = (f64::from(x), weights.get(i).map_or(1.0, |&w| f64::from(w)));
+            total_weight += w;
+            if x.abs() < BINNED_RANGE {
+                let bin = (((x + BINNED_RANGE) / BIN_WIDTH) as usize).min(n_bins - 1);
+                let slot = &mut bins[usize::from(y)][bin];
+                slot.0 += w;
+                slot.1 += w * x;
+            } else {
+                outliers.push((x, y, w));
+            }
+        }
+        Self {
+            bins,
+            outliers,
+            total_weight,
+        }
+    }
+
+    /// [`weighted_nll`] at temperature `t`, over the bins.
+    fn nll(&self, t: f64) -> f64 {
+        let mut sum = 0.0;
+        for (label, bins) in self.bins.iter().enumerate() {
+            for &(w, wx) in bins.iter().filter(|(w, _)| *w > 0.0) {
+                sum += w * label_nll(wx / w / t, label == 1);
+            }
+        }
+        for &(x, y, w) in &self.outliers {
+            sum += w * label_nll(x / t, y);
+        }
+        sum / self.total_weight.max(f64::MIN_POSITIVE)
+    }
 }
 
 /// Calibrated probability of a logit.
@@ -120,5 +205,45 @@ mod tests {
         assert!((t - 2.5).abs() < 0.1, "fitted {t}");
         assert!(nll(&logits, &labels, f64::from(t)) < nll(&logits, &labels, 1.0));
         assert_eq!(fit_temperature(&[], &[]), 1.0);
+    }
+
+    #[test]
+    fn binned_logits_give_the_nll_and_the_temperature_of_every_pixel() {
+        // Logits of a gate's shape: most pixels confident negatives, a few
+        // positives, some far beyond the binned range, weights per class.
+        let mut rng = StdRng::seed_from_u64(21);
+        let logits: Vec<f32> = (0..200_000)
+            .map(|i| match i % 100 {
+                0 => rng.random_range(-80.0..80.0),
+                1..=9 => rng.random_range(-4.0..12.0),
+                _ => rng.random_range(-15.0..3.0),
+            })
+            .collect();
+        let labels: Vec<bool> = logits
+            .iter()
+            .map(|&x| rng.random::<f32>() < calibrated(x, 1.7))
+            .collect();
+        let positives = labels.iter().filter(|&&y| y).count() as f32;
+        let negatives = labels.len() as f32 - positives;
+        let weights: Vec<f32> = labels
+            .iter()
+            .map(|&y| if y { 0.5 / positives } else { 0.5 / negatives })
+            .collect();
+        let binned = BinnedLogits::new(&logits, &labels, &weights);
+        for t in [0.05, 0.3, 1.0, 1.7, 5.0, 20.0] {
+            let exact = weighted_nll(&logits, &labels, &weights, t);
+            let approx = binned.nll(t);
+            assert!(
+                (exact - approx).abs() <= 1e-4 * exact,
+                "t = {t}: exact {exact}, binned {approx}"
+            );
+        }
+        let exact_fit = fit_weighted_temperature_exact(&logits, &labels, &weights);
+        let fit = fit_weighted_temperature(&logits, &labels, &weights);
+        assert!(
+            (fit - exact_fit).abs() < 1e-3 * exact_fit,
+            "{fit} vs {exact_fit}"
+        );
+        assert!((fit - 1.7).abs() < 0.2, "fitted {fit}");
     }
 }
