@@ -34,7 +34,7 @@ pub fn fit_temperature(logits: &[f32], labels: &[bool]) -> f32 {
 ///
 /// The search evaluates the NLL about 80 times; a gate's frames at 128 px
 /// hold ~2 M labelled pixels, so each evaluation runs over the logits binned
-/// by label ([`BinnedLogits`]) rather than over every pixel.
+/// by label (in narrow bins of logits) rather than over every pixel.
 pub fn fit_weighted_temperature(logits: &[f32], labels: &[bool], weights: &[f32]) -> f32 {
     if logits.is_empty() {
         return 1.0;
