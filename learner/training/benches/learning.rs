@@ -471,7 +471,6 @@ fn main() {
     );
 }
 
-/// Prints each measurement's median and spread.
 /// Refitting a replaced U-Net's temperature on a gate's labelled pixels at
 /// 128 px (64 frames × 2 planes, every pixel labelled, 1 % positive, the
 /// classes weighing half each): the learner's binned fit beside the search
@@ -517,6 +516,7 @@ fn temperature_fit(rng: &mut StdRng) {
     );
 }
 
+/// Prints each measurement's median and spread.
 fn print_results(results: &[(&str, Timing)], gpu: bool) {
     let backend = if gpu { "wgpu (GPU)" } else { "flex (CPU)" };
     println!(

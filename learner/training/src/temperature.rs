@@ -102,18 +102,18 @@ const BINNED_RANGE: f64 = 32.0;
 /// a bin: a few parts in a million of the NLL on the test's gate-like
 /// logits, at temperatures from 0.05 to 20 (tested against [`weighted_nll`]).
 struct BinnedLogits {
-    /// Per label (negative, positive): (weight, weight × logit) per bin.
-    bins: [Vec<(f64, f64)>; 2],
-    /// Logits beyond ±[`BINNED_RANGE`]: (logit, positive, weight).
-    outliers: Vec<(f64, bool, f64)>,
+    /// (logit, positive, weight) of each non-empty bin (its weighted mean
+    /// logit) and of each logit beyond ±[`BINNED_RANGE`], kept as it is.
+    points: Vec<(f64, bool, f64)>,
     total_weight: f64,
 }
 
 impl BinnedLogits {
     fn new(logits: &[f32], labels: &[bool], weights: &[f32]) -> Self {
         let n_bins = (2.0 * BINNED_RANGE / BIN_WIDTH) as usize;
+        // Per label (negative, positive): (weight, weight × logit) per bin.
         let mut bins = [vec![(0.0, 0.0); n_bins], vec![(0.0, 0.0); n_bins]];
-        let mut outliers = Vec::new();
+        let mut points = Vec::new();
         let mut total_weight = 0.0;
         for (i, (&x, &y)) in logits.iter().zip(labels).enumerate() {
             let (x, w) = (f64::from(x), weights.get(i).map_or(1.0, |&w| f64::from(w)));
@@ -124,27 +124,24 @@ impl BinnedLogits {
                 slot.0 += w;
                 slot.1 += w * x;
             } else {
-                outliers.push((x, y, w));
+                points.push((x, y, w));
             }
         }
+        for (label, bins) in bins.iter().enumerate() {
+            let filled = bins.iter().filter(|(w, _)| *w > 0.0);
+            points.extend(filled.map(|&(w, wx)| (wx / w, label == 1, w)));
+        }
         Self {
-            bins,
-            outliers,
+            points,
             total_weight,
         }
     }
 
     /// [`weighted_nll`] at temperature `t`, over the bins.
     fn nll(&self, t: f64) -> f64 {
-        let mut sum = 0.0;
-        for (label, bins) in self.bins.iter().enumerate() {
-            for &(w, wx) in bins.iter().filter(|(w, _)| *w > 0.0) {
-                sum += w * label_nll(wx / w / t, label == 1);
-            }
-        }
-        for &(x, y, w) in &self.outliers {
-            sum += w * label_nll(x / t, y);
-        }
+        let sum: f64 = (self.points.iter())
+            .map(|&(x, y, w)| w * label_nll(x / t, y))
+            .sum();
         sum / self.total_weight.max(f64::MIN_POSITIVE)
     }
 }
