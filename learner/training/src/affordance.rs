@@ -189,8 +189,91 @@ pub struct Evaluation {
     pub labelled_pixels: usize,
 }
 
-/// Evaluates `net` on `frames` (one at a time, so memory stays flat), the
-/// loss weighing the classes by `balance` as training does.
+impl Evaluation {
+    /// The evaluation over frames from each frame's score, in order (the
+    /// losses summed in that order, so the same scores give the same
+    /// figures however they were gathered).
+    pub fn from_scores<'a>(scores: impl IntoIterator<Item = &'a FrameScore>) -> Self {
+        let (mut loss, mut inter, mut union, mut labelled, mut frames) =
+            (0.0f64, 0usize, 0usize, 0usize, 0usize);
+        for score in scores {
+            loss += score.loss;
+            inter += score.intersection;
+            union += score.union;
+            labelled += score.labelled;
+            frames += 1;
+        }
+        Self {
+            loss: (loss / frames.max(1) as f64) as f32,
+            iou: if union == 0 {
+                1.0
+            } else {
+                inter as f32 / union as f32
+            },
+            labelled_pixels: labelled,
+        }
+    }
+}
+
+/// One frame's part of an [`Evaluation`]: its loss and its labelled
+/// pixels' counts. Kept per frame, a network's scores on frames it has
+/// already seen need not be computed again (the validation gate's deployed
+/// network, `gate`).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct FrameScore {
+    /// Masked BCE + Dice loss of the frame.
+    pub loss: f64,
+    /// Labelled pixels both predicted (`logit > 0`) and labelled positive.
+    pub intersection: usize,
+    /// Labelled pixels predicted or labelled positive.
+    pub union: usize,
+    /// Labelled pixels.
+    pub labelled: usize,
+}
+
+/// Frames a network takes at once when it scores many (the gate's, an
+/// evaluation's): on a GPU a batch of 8 costs about twice one frame
+/// (docs/performance.md), on the CPU the frames run one by one either way.
+pub const SCORING_BATCH: usize = 8;
+
+/// Logits of each of `frames` (of one size), `[affordances, h, w]`
+/// row-major, in batches of [`SCORING_BATCH`].
+pub fn predict_logits_batched(net: &UnetInference, frames: &[&LabelledFrame]) -> Vec<Vec<f32>> {
+    frames
+        .chunks(SCORING_BATCH)
+        .flat_map(|batch| {
+            let [h, w] = batch[0].size;
+            let images: Vec<&[f32]> = batch.iter().map(|f| f.rgbd.as_slice()).collect();
+            net.logits(&images, h, w)
+        })
+        .collect()
+}
+
+/// Scores one frame (see [`FrameScore`]) from a network's `logits` on it.
+/// The loss is taken on the CPU: one frame's loss is cheap there, and on
+/// a GPU each would be a round trip.
+pub fn score_logits(frame: &LabelledFrame, logits: &[f32], balance: ClassBalance) -> FrameScore {
+    let cpu = Device::flex();
+    let (y, known) = label_tensors(&[frame], &cpu);
+    let tensor = Tensor::<1>::from_floats(logits, &cpu).reshape(y.dims());
+    let mut score = FrameScore {
+        loss: f64::from(masked_bce_dice(tensor, y, known, balance).into_scalar::<f32>()),
+        ..FrameScore::default()
+    };
+    for (&l, &label) in logits.iter().zip(&frame.labels) {
+        if label == UNKNOWN {
+            continue;
+        }
+        score.labelled += 1;
+        let (p, t) = (l > 0.0, label == 1);
+        score.intersection += usize::from(p && t);
+        score.union += usize::from(p || t);
+    }
+    score
+}
+
+/// Evaluates `net` (inference on `device`) on `frames`, the loss weighing
+/// the classes by `balance` as training does.
 pub fn evaluate(
     net: &AffordanceUnet,
     frames: &[&LabelledFrame],
@@ -198,31 +281,18 @@ pub fn evaluate(
     device: &Device,
 ) -> Evaluation {
     let inference = UnetInference::new(net.clone(), device);
-    let (mut loss, mut inter, mut union, mut labelled) = (0.0f64, 0usize, 0usize, 0usize);
-    for frame in frames {
-        let values = predict_logits(&inference, frame);
-        let (y, known) = label_tensors(&[frame], device);
-        let logits = Tensor::<1>::from_floats(values.as_slice(), device).reshape(y.dims());
-        loss += f64::from(masked_bce_dice(logits, y, known, balance).into_scalar::<f32>());
-        for (&l, &label) in values.iter().zip(&frame.labels) {
-            if label == UNKNOWN {
-                continue;
-            }
-            labelled += 1;
-            let (p, t) = (l > 0.0, label == 1);
-            inter += usize::from(p && t);
-            union += usize::from(p || t);
-        }
-    }
-    Evaluation {
-        loss: (loss / frames.len().max(1) as f64) as f32,
-        iou: if union == 0 {
-            1.0
-        } else {
-            inter as f32 / union as f32
-        },
-        labelled_pixels: labelled,
-    }
+    let scores: Vec<FrameScore> = frames
+        .chunks(SCORING_BATCH)
+        .flat_map(|batch| {
+            let logits = predict_logits_batched(&inference, batch);
+            batch
+                .iter()
+                .zip(logits)
+                .map(|(frame, logits)| score_logits(frame, &logits, balance))
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    Evaluation::from_scores(&scores)
 }
 
 #[cfg(test)]

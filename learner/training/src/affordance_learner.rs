@@ -3,21 +3,20 @@
 //! trains on the training split, and the trained network replaces the one
 //! the actors use only when it beats it on validation.
 
-use crate::affordance::{
-    predict_logits, Evaluation, LabelledFrame, UnetTrainer, UnetTrainingConfig, UNKNOWN,
-};
-use crate::dataset::{validation_gate, AffordanceDataset, DatasetConfig};
+use crate::affordance::{Evaluation, LabelledFrame, UnetTrainer, UnetTrainingConfig, UNKNOWN};
+use crate::dataset::{AffordanceDataset, DatasetConfig};
+use crate::gate::{Gate, GateOutcome};
 use crate::optimizer_state::{OptimizerState, OptimizerStateError};
 use crate::temperature::fit_weighted_temperature;
 use crate::weight_average::WeightAverage;
 use burn::prelude::*;
 use nets::unet::AffordanceUnet;
-use nets::unet_inference::UnetInference;
 use nets::weights::{load_safetensors, to_safetensors, WeightsError};
 use proto::{FrameBatchView, LABEL_UNKNOWN};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
+use std::sync::Arc;
 use std::time::Instant;
 
 use crate::config::UnetConfig;
@@ -127,6 +126,8 @@ pub struct AffordanceLearner {
     /// the deployed network instead of the latest weights.
     average: Option<WeightAverage<AffordanceUnet>>,
     deployed: AffordanceUnet,
+    /// The validation gate, with the deployed network's scores kept.
+    gate: Gate,
     dataset: AffordanceDataset,
     settings: UnetConfig,
     affordances: usize,
@@ -193,6 +194,7 @@ impl AffordanceLearner {
             trainer: UnetTrainer::new(net.clone(), Self::training(settings), device),
             average: Self::average_from(&net, settings),
             deployed: net,
+            gate: Gate::default(),
             dataset: AffordanceDataset::new(DatasetConfig {
                 max_uses: settings.max_uses,
                 max_frames: settings.max_frames,
@@ -283,18 +285,23 @@ impl AffordanceLearner {
             Some(average) => average.average().clone(),
             None => self.trainer.inference_net(&self.device),
         };
-        let gate = validation_gate(
+        let frames = self
+            .dataset
+            .gate_frames(self.settings.max_validation_frames);
+        let GateOutcome {
+            decision: gate,
+            candidate_logits,
+        } = self.gate.decide(
             &candidate,
             &self.deployed,
-            &self.dataset,
-            self.settings.max_validation_frames,
+            &frames,
             self.settings.class_balance,
             &self.device,
         );
         seconds.gate = started.elapsed().as_secs_f64();
         if gate.replace {
             let started = Instant::now();
-            self.temperature = self.fit_temperature(&candidate);
+            self.temperature = self.fit_temperature(&frames, &candidate_logits);
             seconds.temperature = started.elapsed().as_secs_f64();
             self.deployed = candidate;
         }
@@ -314,19 +321,14 @@ impl AffordanceLearner {
         })
     }
 
-    /// Temperature scaling of `net` on the newest validation frames'
-    /// labelled pixels, so that the actors' confidence labels rest on
-    /// calibrated probabilities; with balanced classes, each plane's
-    /// classes weigh half, as in training.
-    fn fit_temperature(&self, net: &AffordanceUnet) -> f32 {
-        let newest = self
-            .dataset
-            .gate_frames(self.settings.max_validation_frames);
-        let net = UnetInference::new(net.clone(), &self.device);
+    /// Temperature scaling of a network on the gate's frames' labelled
+    /// pixels, from its logits on them (the gate's), so that the actors'
+    /// confidence labels rest on calibrated probabilities; with balanced
+    /// classes, each plane's classes weigh half, as in training.
+    fn fit_temperature(&self, frames: &[Arc<LabelledFrame>], frame_logits: &[Vec<f32>]) -> f32 {
         // Per plane: logits and labels of its labelled pixels.
         let mut planes = vec![(Vec::new(), Vec::new()); self.affordances];
-        for frame in &newest {
-            let predicted = predict_logits(&net, frame);
+        for (frame, predicted) in frames.iter().zip(frame_logits) {
             let pixels = frame.size[0] * frame.size[1];
             for (plane, (logits, labels)) in planes.iter_mut().enumerate() {
                 let range = plane * pixels..(plane + 1) * pixels;
@@ -415,6 +417,7 @@ impl AffordanceLearner {
         self.trainer = UnetTrainer::new(net.clone(), Self::training(&self.settings), &self.device);
         self.average = Self::average_from(&net, &self.settings);
         self.deployed = net;
+        self.gate.forget();
         Ok(())
     }
 }

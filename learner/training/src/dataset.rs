@@ -14,11 +14,9 @@
 use std::collections::VecDeque;
 use std::sync::Arc;
 
-use burn::prelude::Device;
-use nets::unet::{AffordanceUnet, ClassBalance};
 use rand::Rng;
 
-use crate::affordance::{evaluate, Evaluation, LabelledFrame};
+use crate::affordance::LabelledFrame;
 
 /// Settings of the dataset.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -315,39 +313,5 @@ impl AffordanceDataset {
         v.sort_unstable();
         v.dedup();
         v
-    }
-}
-
-/// The outcome of comparing a candidate network with the deployed one.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct GateDecision {
-    /// True if the candidate should replace the deployed network.
-    pub replace: bool,
-    /// The candidate on the validation split.
-    pub candidate: Evaluation,
-    /// The deployed network on the same frames.
-    pub deployed: Evaluation,
-}
-
-/// Validation gate: both networks are evaluated on the *current* validation
-/// split (its newest `max_frames` frames, to bound the cost), and the candidate replaces the deployed network only if its mean
-/// masked BCE + Dice loss is lower. With no validation frames, nothing is
-/// replaced (there is no evidence).
-pub fn validation_gate(
-    candidate: &AffordanceUnet,
-    deployed: &AffordanceUnet,
-    dataset: &AffordanceDataset,
-    max_frames: usize,
-    balance: ClassBalance,
-    device: &Device,
-) -> GateDecision {
-    let frames = dataset.gate_frames(max_frames);
-    let refs: Vec<&LabelledFrame> = frames.iter().map(|f| f.as_ref()).collect();
-    let candidate = evaluate(candidate, &refs, balance, device);
-    let deployed = evaluate(deployed, &refs, balance, device);
-    GateDecision {
-        replace: !refs.is_empty() && candidate.loss < deployed.loss,
-        candidate,
-        deployed,
     }
 }

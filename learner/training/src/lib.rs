@@ -11,6 +11,7 @@ pub mod affordance_learner;
 pub mod config;
 pub mod dataset;
 pub mod gae;
+pub mod gate;
 pub mod grad_norm;
 pub mod libtorch_ops;
 pub mod optimizer_state;

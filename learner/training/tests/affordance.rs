@@ -9,9 +9,11 @@ use nets::unet_inference::UnetInference;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use training::affordance::{
-    batch_tensors, evaluate, LabelledFrame, UnetTrainer, UnetTrainingConfig, UNKNOWN,
+    batch_tensors, evaluate, predict_logits, LabelledFrame, UnetTrainer, UnetTrainingConfig,
+    UNKNOWN,
 };
-use training::dataset::{validation_gate, AffordanceDataset, DatasetConfig, Split};
+use training::dataset::{AffordanceDataset, DatasetConfig, Split};
+use training::gate::{validation_gate, Gate};
 
 const SIZE: usize = 32;
 
@@ -358,8 +360,7 @@ fn a_candidate_replaces_the_deployed_network_only_if_better_on_validation() {
         !validation_gate(
             &untrained,
             &untrained,
-            &data,
-            usize::MAX,
+            &data.gate_frames(usize::MAX),
             ClassBalance::Pixels,
             &device
         )
@@ -392,8 +393,7 @@ fn a_candidate_replaces_the_deployed_network_only_if_better_on_validation() {
     let better = validation_gate(
         &trained,
         &untrained,
-        &data,
-        usize::MAX,
+        &data.gate_frames(usize::MAX),
         ClassBalance::Pixels,
         &device,
     );
@@ -402,8 +402,7 @@ fn a_candidate_replaces_the_deployed_network_only_if_better_on_validation() {
     let worse = validation_gate(
         &untrained,
         &trained,
-        &data,
-        usize::MAX,
+        &data.gate_frames(usize::MAX),
         ClassBalance::Pixels,
         &device,
     );
@@ -412,8 +411,7 @@ fn a_candidate_replaces_the_deployed_network_only_if_better_on_validation() {
         !validation_gate(
             &trained,
             &trained,
-            &data,
-            usize::MAX,
+            &data.gate_frames(usize::MAX),
             ClassBalance::Pixels,
             &device
         )
@@ -637,4 +635,73 @@ fn whole_episodes_are_held_out_and_the_gate_sees_several_of_them() {
         .map(|f| f.rgbd[0] as u64)
         .collect();
     assert!(newest.iter().all(|&e| e >= 190), "{newest:?}");
+}
+
+#[test]
+fn a_gate_that_keeps_the_deployed_scores_decides_as_one_that_scores_everything() {
+    let device = Device::flex();
+    let mut rng = StdRng::seed_from_u64(5);
+    let mut data = AffordanceDataset::new(DatasetConfig {
+        validation_fraction: 0.5,
+        test_fraction: 0.0,
+        ..DatasetConfig::default()
+    });
+    let balance = ClassBalance::Classes;
+    let mut trainer = UnetTrainer::new(
+        AffordanceUnet::new(4, 1, &device),
+        UnetTrainingConfig {
+            learning_rate: 3e-3,
+            weight_decay: 1e-5,
+            class_balance: balance,
+        },
+        &device,
+    );
+    let mut deployed = trainer.inference_net(&device);
+    let mut gate = Gate::default();
+    let (mut replaced, mut kept) = (0, 0);
+    for round in 0..6u64 {
+        data.add_episode(
+            round,
+            (0..8).map(|_| synthetic_frame(&mut rng)).collect(),
+            &mut rng,
+        );
+        for _ in 0..4 {
+            let batch = data.sample_train(4, &mut rng);
+            let refs: Vec<&LabelledFrame> = batch.iter().map(|f| f.as_ref()).collect();
+            if !refs.is_empty() {
+                trainer.step(&refs);
+            }
+        }
+        // Every other round a fresh network, which should lose.
+        let candidate = if round % 2 == 0 {
+            trainer.inference_net(&device)
+        } else {
+            AffordanceUnet::new(4, 1, &device)
+        };
+        // The newest 6 frames: some scored in the round before, some new.
+        let frames = data.gate_frames(6);
+        let outcome = gate.decide(&candidate, &deployed, &frames, balance, &device);
+        let refs: Vec<&LabelledFrame> = frames.iter().map(|f| f.as_ref()).collect();
+        // Both networks scored afresh on every frame: the same figures.
+        let fresh_candidate = evaluate(&candidate, &refs, balance, &device);
+        let fresh_deployed = evaluate(&deployed, &refs, balance, &device);
+        assert_eq!(outcome.decision.candidate, fresh_candidate, "round {round}");
+        assert_eq!(outcome.decision.deployed, fresh_deployed, "round {round}");
+        assert_eq!(
+            outcome.decision.replace,
+            fresh_candidate.loss < fresh_deployed.loss,
+            "round {round}"
+        );
+        let inference = UnetInference::new(candidate.clone(), &device);
+        for (frame, logits) in refs.iter().zip(&outcome.candidate_logits) {
+            assert_eq!(logits, &predict_logits(&inference, frame));
+        }
+        if outcome.decision.replace {
+            deployed = candidate;
+            replaced += 1;
+        } else {
+            kept += 1;
+        }
+    }
+    assert!(replaced > 0 && kept > 0, "replaced {replaced}, kept {kept}");
 }
