@@ -76,6 +76,11 @@ pub struct SummaryRow {
     /// The U-Net's gradient steps in the span per episode that ended in it
     /// (histories written before rounds recorded their steps: none).
     pub unet_steps_per_episode: Option<Spread>,
+    /// The share of the U-Net rounds' time in the span spent outside their
+    /// gradient steps (the validation gate and the temperature refit; on 2
+    /// cores every run waits for that thread; histories written before
+    /// rounds recorded their seconds: none).
+    pub unet_time_outside_steps: Option<Spread>,
     /// The U-Net's training frames at the span's last round (histories
     /// written before rounds recorded their frames: none).
     pub unet_training_frames: Option<Spread>,
@@ -117,6 +122,9 @@ struct SpanSums {
     entropy: (f64, usize),
     /// Gradient steps of the U-Net rounds that recorded them, and whether any did.
     unet_steps: Option<u64>,
+    /// Seconds of the U-Net rounds that recorded them: in their gradient
+    /// steps, and outside them.
+    unet_seconds: Option<(f64, f64)>,
     /// The last round's training frames and its frames with positives per
     /// affordance, where recorded.
     unet_training_frames: Option<u64>,
@@ -187,6 +195,16 @@ pub(crate) fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
                 if let Some(steps) = round["steps"].as_u64() {
                     *span.unet_steps.get_or_insert(0) += steps;
                 }
+                let seconds = &round["seconds"];
+                if let Some(training) = seconds["training"].as_f64() {
+                    let outside = ["gate", "temperature"]
+                        .iter()
+                        .filter_map(|part| seconds[part].as_f64())
+                        .sum::<f64>();
+                    let sums = span.unet_seconds.get_or_insert((0.0, 0.0));
+                    sums.0 += training;
+                    sums.1 += outside;
+                }
                 if let Some(training) = round["frames"][0].as_u64() {
                     span.unet_training_frames = Some(training);
                 }
@@ -244,6 +262,9 @@ pub(crate) fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
             unet_steps_per_episode: span
                 .unet_steps
                 .map(|steps| Spread::one(steps as f64 / span.episodes as f64)),
+            unet_time_outside_steps: span.unet_seconds.and_then(|(training, outside)| {
+                (training + outside > 0.0).then(|| Spread::one(outside / (training + outside)))
+            }),
             unet_training_frames: span.unet_training_frames.map(|n| Spread::one(n as f64)),
             unet_positive_frames: Affordance::ALL
                 .iter()
@@ -334,6 +355,7 @@ pub fn summarize_repeats(run_dirs: &[PathBuf], every: u64) -> anyhow::Result<Sum
             successes_per_kilostep: per_affordance(&|r: &SummaryRow| &r.successes_per_kilostep),
             entropy: over_runs(&|r| r.entropy),
             unet_steps_per_episode: over_runs(&|r| r.unet_steps_per_episode),
+            unet_time_outside_steps: over_runs(&|r| r.unet_time_outside_steps),
             unet_training_frames: over_runs(&|r| r.unet_training_frames),
             unet_positive_frames: per_affordance(&|r: &SummaryRow| &r.unet_positive_frames),
             validation_checkpoints: over_runs(&|r| r.validation_checkpoints),
@@ -367,7 +389,9 @@ impl Summary {
         for affordance in Affordance::ALL {
             let _ = write!(out, " {} successes per 1 k steps |", affordance.as_str());
         }
-        out.push_str(" ppo entropy | U-Net steps per episode | U-Net training frames |");
+        out.push_str(
+            " ppo entropy | U-Net steps per episode | U-Net time outside its steps | U-Net training frames |",
+        );
         for affordance in Affordance::ALL {
             let _ = write!(out, " … with {} positives |", affordance.as_str());
         }
@@ -385,7 +409,7 @@ impl Summary {
         };
         out.push_str("\n|---|---|");
         out.push_str(
-            &"---|".repeat(self.fields.len() + 3 + 2 * Affordance::COUNT + validation_columns),
+            &"---|".repeat(self.fields.len() + 4 + 2 * Affordance::COUNT + validation_columns),
         );
         out.push('\n');
         let repeats = self.runs > 1;
@@ -407,9 +431,10 @@ impl Summary {
             }
             let _ = write!(
                 out,
-                " {} | {} | {} |",
+                " {} | {} | {} | {} |",
                 cell(row.entropy),
                 cell(row.unet_steps_per_episode),
+                cell(row.unet_time_outside_steps),
                 cell(row.unet_training_frames)
             );
             for &v in &row.unet_positive_frames {
@@ -439,7 +464,7 @@ fn steps(n: u64) -> String {
 impl From<&Summary> for Value {
     /// One object per span: `means` per metric, `successes_per_kilostep`
     /// (by affordance), `ppo_entropy`, `unet_steps_per_episode`,
-    /// `unet_training_frames`, `unet_positive_frames` (by affordance),
+    /// `unet_time_outside_steps`, `unet_training_frames`, `unet_positive_frames` (by affordance),
     /// `validation_checkpoints` and `validation` (each score's median, by
     /// name); over repeats also `ranges`, each of these' `[lowest, highest]`
     /// run value.
@@ -474,6 +499,7 @@ impl From<&Summary> for Value {
                     "successes_per_kilostep": by_affordance(&row.successes_per_kilostep, &mean),
                     "ppo_entropy": mean(&row.entropy),
                     "unet_steps_per_episode": mean(&row.unet_steps_per_episode),
+                    "unet_time_outside_steps": mean(&row.unet_time_outside_steps),
                     "unet_training_frames": mean(&row.unet_training_frames),
                     "unet_positive_frames": by_affordance(&row.unet_positive_frames, &mean),
                     "validation_checkpoints": mean(&row.validation_checkpoints),
@@ -484,6 +510,10 @@ impl From<&Summary> for Value {
                     ranges.insert(
                         "unet_steps_per_episode".into(),
                         range(&row.unet_steps_per_episode),
+                    );
+                    ranges.insert(
+                        "unet_time_outside_steps".into(),
+                        range(&row.unet_time_outside_steps),
                     );
                     ranges.insert(
                         "unet_training_frames".into(),
@@ -541,10 +571,15 @@ mod tests {
             .record("ppo", 990, json!({"stats": {"entropy": 1.0}}))
             .unwrap();
         history
-            .record("unet", 500, json!({"round": {"steps": 8}}))
+            .record(
+                "unet",
+                500,
+                json!({"round": {"steps": 8, "seconds": {"training": 3.0, "gate": 0.75, "temperature": 0.25}}}),
+            )
             .unwrap();
         // The span's last round says what the dataset held at its end.
-        let round = json!({"steps": 2, "frames": [40, 5, 5], "positive_frames": [3, 30]});
+        let round = json!({"steps": 2, "frames": [40, 5, 5], "positive_frames": [3, 30],
+            "seconds": {"training": 1.0, "gate": 0.0, "temperature": 0.0}});
         history
             .record("unet", 600, json!({"round": round}))
             .unwrap();
@@ -581,6 +616,8 @@ mod tests {
         );
         assert_eq!(first.entropy, Some(Spread::one(1.5)));
         assert_eq!(first.unet_steps_per_episode, Some(Spread::one(5.0)));
+        // 1 s of 5 outside the gradient steps.
+        assert_eq!(first.unet_time_outside_steps, Some(Spread::one(0.2)));
         assert_eq!(first.unet_training_frames, Some(Spread::one(50.0)));
         assert_eq!(
             first.unet_positive_frames,
@@ -595,23 +632,25 @@ mod tests {
         assert!(table.starts_with(
             "| steps | episodes | interaction_success_rate | interaction_attempt_rate \
              | pick_up successes per 1 k steps | push successes per 1 k steps | ppo entropy \
-             | U-Net steps per episode | U-Net training frames | … with pick_up positives \
-             | … with push positives |\n|---|---|---|---|---|---|---|---|---|---|---|\n"
+             | U-Net steps per episode | U-Net time outside its steps | U-Net training frames \
+             | … with pick_up positives | … with push positives \
+             |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n"
         ));
         assert!(
             table.contains(
-                "| 0–1 k | 2 | 0.200 | 0.200 | – | – | 1.500 | 5.000 | 50.000 | 4.000 | 35.000 |"
+                "| 0–1 k | 2 | 0.200 | 0.200 | – | – | 1.500 | 5.000 | 0.200 | 50.000 | 4.000 | 35.000 |"
             ),
             "{table}"
         );
         assert!(
-            table.contains("| 2 k–2500 | 1 | 0.500 | 0.100 | – | – | – | – | – | – | – |"),
+            table.contains("| 2 k–2500 | 1 | 0.500 | 0.100 | – | – | – | – | – | – | – | – |"),
             "{table}"
         );
         let json = Value::from(&summary);
         assert_eq!(json[1]["means"]["interaction_success_rate"], 0.5);
         assert_eq!(json[0]["ppo_entropy"], 1.5);
         assert_eq!(json[0]["unet_steps_per_episode"], 5.0);
+        assert_eq!(json[0]["unet_time_outside_steps"], 0.2);
         assert_eq!(json[0]["unet_training_frames"], 50.0);
         assert_eq!(
             json[0]["unet_positive_frames"],
@@ -670,7 +709,7 @@ mod tests {
         let table = summary.markdown();
         assert!(
             table.contains(
-                "| 0–700 | 2 | 0.200 (0.100–0.300) | 0.200 (0.200–0.200) | – | – | – | – \
+                "| 0–700 | 2 | 0.200 (0.100–0.300) | 0.200 (0.200–0.200) | – | – | – | – | – \
                  | 15.000 (10.000–20.000) | 2.000 (1.000–3.000) | 5.000 (5.000–5.000) |"
             ),
             "{table}"
