@@ -236,23 +236,34 @@ pub struct FrameScore {
 /// (docs/performance.md), on the CPU the frames run one by one either way.
 pub const SCORING_BATCH: usize = 8;
 
-/// Logits of each of `frames` (of one size), `[affordances, h, w]`
-/// row-major, in batches of [`SCORING_BATCH`].
-pub fn predict_logits_batched(net: &UnetInference, frames: &[&LabelledFrame]) -> Vec<Vec<f32>> {
-    frames
+/// Each of `frames` (of one size) scored under `net`, with its logits
+/// (`[affordances, h, w]`, row-major), the frames taken in batches of
+/// [`SCORING_BATCH`].
+pub fn score_frames(
+    net: &UnetInference,
+    frames: &[&LabelledFrame],
+    balance: ClassBalance,
+) -> (Vec<FrameScore>, Vec<Vec<f32>>) {
+    let logits: Vec<Vec<f32>> = frames
         .chunks(SCORING_BATCH)
         .flat_map(|batch| {
             let [h, w] = batch[0].size;
             let images: Vec<&[f32]> = batch.iter().map(|f| f.rgbd.as_slice()).collect();
             net.logits(&images, h, w)
         })
-        .collect()
+        .collect();
+    let scores = frames
+        .iter()
+        .zip(&logits)
+        .map(|(frame, logits)| score_logits(frame, logits, balance))
+        .collect();
+    (scores, logits)
 }
 
 /// Scores one frame (see [`FrameScore`]) from a network's `logits` on it.
 /// The loss is taken on the CPU: one frame's loss is cheap there, and on
 /// a GPU each would be a round trip.
-pub fn score_logits(frame: &LabelledFrame, logits: &[f32], balance: ClassBalance) -> FrameScore {
+fn score_logits(frame: &LabelledFrame, logits: &[f32], balance: ClassBalance) -> FrameScore {
     let cpu = Device::flex();
     let (y, known) = label_tensors(&[frame], &cpu);
     let tensor = Tensor::<1>::from_floats(logits, &cpu).reshape(y.dims());
@@ -281,16 +292,10 @@ pub fn evaluate(
     device: &Device,
 ) -> Evaluation {
     let inference = UnetInference::new(net.clone(), device);
+    // A batch at a time, so that memory stays flat however many frames.
     let scores: Vec<FrameScore> = frames
         .chunks(SCORING_BATCH)
-        .flat_map(|batch| {
-            let logits = predict_logits_batched(&inference, batch);
-            batch
-                .iter()
-                .zip(logits)
-                .map(|(frame, logits)| score_logits(frame, &logits, balance))
-                .collect::<Vec<_>>()
-        })
+        .flat_map(|batch| score_frames(&inference, batch, balance).0)
         .collect();
     Evaluation::from_scores(&scores)
 }

@@ -19,9 +19,7 @@ use burn::prelude::Device;
 use nets::unet::{AffordanceUnet, ClassBalance};
 use nets::unet_inference::UnetInference;
 
-use crate::affordance::{
-    predict_logits_batched, score_logits, Evaluation, FrameScore, LabelledFrame,
-};
+use crate::affordance::{score_frames, Evaluation, FrameScore, LabelledFrame};
 
 /// The outcome of comparing a candidate network with the deployed one.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -76,12 +74,7 @@ impl Gate {
     ) -> GateOutcome {
         let refs: Vec<&LabelledFrame> = frames.iter().map(|f| f.as_ref()).collect();
         let candidate_net = UnetInference::new(candidate.clone(), device);
-        let candidate_logits = predict_logits_batched(&candidate_net, &refs);
-        let candidate_scores: Vec<FrameScore> = refs
-            .iter()
-            .zip(&candidate_logits)
-            .map(|(frame, logits)| score_logits(frame, logits, balance))
-            .collect();
+        let (candidate_scores, candidate_logits) = score_frames(&candidate_net, &refs, balance);
         let known: Vec<Option<FrameScore>> = frames
             .iter()
             .map(|frame| {
@@ -101,11 +94,7 @@ impl Gate {
             Vec::new()
         } else {
             let deployed_net = UnetInference::new(deployed.clone(), device);
-            predict_logits_batched(&deployed_net, &unscored)
-                .iter()
-                .zip(&unscored)
-                .map(|(logits, frame)| score_logits(frame, logits, balance))
-                .collect()
+            score_frames(&deployed_net, &unscored, balance).0
         }
         .into_iter();
         let deployed_scores: Vec<FrameScore> = known

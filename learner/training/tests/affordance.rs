@@ -346,15 +346,20 @@ fn held_out_splits_keep_their_newest_frames_and_pass_the_rest_to_training() {
     assert!(oldest_kept >= 60.0, "{oldest_kept}");
 }
 
+/// A dataset that draws half its frames into validation and none into test.
+fn half_held_out_for_validation() -> AffordanceDataset {
+    AffordanceDataset::new(DatasetConfig {
+        validation_fraction: 0.5,
+        test_fraction: 0.0,
+        ..DatasetConfig::default()
+    })
+}
+
 #[test]
 fn a_candidate_replaces_the_deployed_network_only_if_better_on_validation() {
     let device = Device::flex();
     let mut rng = StdRng::seed_from_u64(21);
-    let mut data = AffordanceDataset::new(DatasetConfig {
-        validation_fraction: 0.5,
-        test_fraction: 0.0,
-        ..DatasetConfig::default()
-    });
+    let mut data = half_held_out_for_validation();
     let untrained = AffordanceUnet::new(4, 1, &device);
     assert!(
         !validation_gate(
@@ -641,11 +646,7 @@ fn whole_episodes_are_held_out_and_the_gate_sees_several_of_them() {
 fn a_gate_that_keeps_the_deployed_scores_decides_as_one_that_scores_everything() {
     let device = Device::flex();
     let mut rng = StdRng::seed_from_u64(5);
-    let mut data = AffordanceDataset::new(DatasetConfig {
-        validation_fraction: 0.5,
-        test_fraction: 0.0,
-        ..DatasetConfig::default()
-    });
+    let mut data = half_held_out_for_validation();
     let balance = ClassBalance::Classes;
     let mut trainer = UnetTrainer::new(
         AffordanceUnet::new(4, 1, &device),
