@@ -144,11 +144,27 @@ pub enum AffordanceStat {
     /// in this affordance's plane (the floor and walls too, where they are
     /// labelled).
     NegativeLabelShare = 8,
+    /// Of the pixels the episode's labels call positive in this plane, the
+    /// share the simulator's ground truth agrees with (an object there
+    /// that affords it): how much of what the U-Net is told is so is so
+    /// (the map's spread of an outcome, merged objects). Reported when the
+    /// labels hold a positive.
+    PositiveLabelPrecision = 9,
+    /// Of the pixels the labels call negative in this plane, the share the
+    /// ground truth agrees with (no object there, or one that does not
+    /// afford it). Reported when the labels hold a negative.
+    NegativeLabelPrecision = 10,
+    /// Of the episode's frames' pixels of objects that afford this
+    /// plane's affordance (ground truth), the share the labels call
+    /// positive: how much of what could be learnt the episode taught
+    /// (docs/ladder.md's tried-objects rung). Reported when a frame showed
+    /// such an object.
+    PositiveLabelRecall = 11,
 }
 
 impl AffordanceStat {
     /// Number of per-affordance metrics.
-    pub const COUNT: usize = 9;
+    pub const COUNT: usize = 12;
     /// All of them in wire order.
     pub const ALL: [AffordanceStat; Self::COUNT] = [
         AffordanceStat::AttemptRate,
@@ -160,6 +176,9 @@ impl AffordanceStat {
         AffordanceStat::NoRoomRate,
         AffordanceStat::PositiveLabelShare,
         AffordanceStat::NegativeLabelShare,
+        AffordanceStat::PositiveLabelPrecision,
+        AffordanceStat::NegativeLabelPrecision,
+        AffordanceStat::PositiveLabelRecall,
     ];
 
     /// snake_case name, after the affordance's in metrics and JSON
@@ -175,6 +194,9 @@ impl AffordanceStat {
             AffordanceStat::NoRoomRate => "no_room_rate",
             AffordanceStat::PositiveLabelShare => "positive_label_share",
             AffordanceStat::NegativeLabelShare => "negative_label_share",
+            AffordanceStat::PositiveLabelPrecision => "positive_label_precision",
+            AffordanceStat::NegativeLabelPrecision => "negative_label_precision",
+            AffordanceStat::PositiveLabelRecall => "positive_label_recall",
         }
     }
 }

@@ -219,6 +219,27 @@ impl EpisodeMetrics {
                 stats.push((of(AffordanceStat::PositiveLabelShare), positive));
                 stats.push((of(AffordanceStat::NegativeLabelShare), negative));
             }
+            let quality = LabelQuality::of(labels, &self.truth_ids, pixels, plane, &|id| {
+                affords(&self.truth, id, plane)
+            });
+            stats.extend(
+                [
+                    (
+                        AffordanceStat::PositiveLabelPrecision,
+                        quality.positive_precision(),
+                    ),
+                    (
+                        AffordanceStat::NegativeLabelPrecision,
+                        quality.negative_precision(),
+                    ),
+                    (
+                        AffordanceStat::PositiveLabelRecall,
+                        quality.positive_recall(),
+                    ),
+                ]
+                .into_iter()
+                .filter_map(|(stat, value)| Some((of(stat), value?))),
+            );
             stats
                 .extend(per_frame(sums.iou, sums.iou_frames).map(|v| (of(AffordanceStat::Iou), v)));
             stats.extend(
@@ -265,6 +286,76 @@ fn label_shares(labels: &[Vec<u8>], pixels: usize, plane: usize) -> Option<(f32,
     (all > 0).then(|| (positive as f32 / all as f32, negative as f32 / all as f32))
 }
 
+/// How one plane's labels of an episode agree with the ground truth,
+/// counted over its frames' pixels.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct LabelQuality {
+    /// Pixels labelled positive, and of those the ones whose object affords it.
+    positive: usize,
+    true_positive: usize,
+    /// Pixels labelled negative, and of those the ones whose object does
+    /// not afford it (or that show no object).
+    negative: usize,
+    true_negative: usize,
+    /// Pixels of objects that afford it.
+    afforded: usize,
+}
+
+impl LabelQuality {
+    /// Counts plane `plane` of `labels` (per frame, planes of `pixels` one
+    /// after the other) against each frame's instance ids `truth_ids` and
+    /// whether an instance `affords` the plane's affordance.
+    fn of(
+        labels: &[Vec<u8>],
+        truth_ids: &[Vec<u32>],
+        pixels: usize,
+        plane: usize,
+        affords: &dyn Fn(u32) -> bool,
+    ) -> Self {
+        let mut q = Self::default();
+        for (frame, ids) in labels.iter().zip(truth_ids) {
+            let Some(plane) = frame.chunks(pixels.max(1)).nth(plane) else {
+                continue;
+            };
+            // Runs of equal ids share one lookup, as the state's planes do.
+            let mut last: Option<(u32, bool)> = None;
+            for (&label, &id) in plane.iter().zip(ids) {
+                let truth = match last {
+                    Some((seen, truth)) if seen == id => truth,
+                    _ => {
+                        let truth = id != 0 && affords(id);
+                        last = Some((id, truth));
+                        truth
+                    }
+                };
+                q.afforded += usize::from(truth);
+                q.positive += usize::from(label == LABEL_POSITIVE);
+                q.true_positive += usize::from(label == LABEL_POSITIVE && truth);
+                q.negative += usize::from(label == LABEL_NEGATIVE);
+                q.true_negative += usize::from(label == LABEL_NEGATIVE && !truth);
+            }
+        }
+        q
+    }
+
+    fn positive_precision(&self) -> Option<f32> {
+        ratio(self.true_positive, self.positive)
+    }
+
+    fn negative_precision(&self) -> Option<f32> {
+        ratio(self.true_negative, self.negative)
+    }
+
+    fn positive_recall(&self) -> Option<f32> {
+        ratio(self.true_positive, self.afforded)
+    }
+}
+
+/// `part / whole`, `None` when `whole` is zero.
+fn ratio(part: usize, whole: usize) -> Option<f32> {
+    (whole > 0).then(|| part as f32 / whole as f32)
+}
+
 /// A sum of per-frame scores over its `frames`, as their mean; `None`
 /// without frames.
 fn per_frame(sum: f64, frames: u32) -> Option<f32> {
@@ -294,5 +385,33 @@ mod tests {
         assert_eq!(label_shares(&labels, 4, 0), Some((3.0 / 8.0, 2.0 / 8.0)));
         assert_eq!(label_shares(&labels, 4, 1), Some((0.0, 6.0 / 8.0)));
         assert_eq!(label_shares(&[], 4, 0), None);
+    }
+
+    #[test]
+    fn label_quality_counts_agreement_with_the_ground_truth_exactly() {
+        const U: u8 = proto::LABEL_UNKNOWN;
+        const P: u8 = LABEL_POSITIVE;
+        const N: u8 = LABEL_NEGATIVE;
+        // Instance 1 affords plane 0 only, instance 2 nothing, 0 is no object.
+        let truth = vec![vec![true, false], vec![false, false]];
+        let ids = vec![vec![1, 1, 2, 0], vec![0, 2, 1, 1]];
+        // Plane 0: frame 0 labels instance 1 positive once, instance 2
+        // positive (wrong) and the background negative; frame 1 labels one
+        // pixel of instance 1 negative (wrong) and misses the other.
+        let labels = vec![vec![P, U, P, N, N, N, N, N], vec![N, N, N, U, U, U, P, U]];
+        let plane = |p: usize| LabelQuality::of(&labels, &ids, 4, p, &|id| affords(&truth, id, p));
+        let q = plane(0);
+        assert_eq!(q.positive_precision(), Some(1.0 / 2.0));
+        assert_eq!(q.negative_precision(), Some(3.0 / 4.0));
+        assert_eq!(q.positive_recall(), Some(1.0 / 4.0));
+        // Plane 1: nothing affords it; one wrong positive, every negative right.
+        let q = plane(1);
+        assert_eq!(q.positive_precision(), Some(0.0));
+        assert_eq!(q.negative_precision(), Some(1.0));
+        assert_eq!(q.positive_recall(), None);
+        assert_eq!(
+            LabelQuality::of(&[], &[], 4, 0, &|_| true),
+            LabelQuality::default()
+        );
     }
 }
