@@ -25,8 +25,9 @@ pub enum Message<'a> {
     Rollout(RolloutView<'a>),
     /// See [`FrameBatchView`].
     Frames(FrameBatchView<'a>),
-    /// See [`EpisodeStats`].
-    Stats(EpisodeStats),
+    /// See [`EpisodeStats`] (boxed: it is the largest by far, and the
+    /// rarest).
+    Stats(Box<EpisodeStats>),
     /// See [`WeightsView`].
     Weights(WeightsView<'a>),
     /// See [`Join`].
@@ -142,7 +143,7 @@ pub fn decode<'a>(
     let message = match kind {
         MessageKind::Rollout => Message::Rollout(RolloutView::parse(payload)?),
         MessageKind::Frames => Message::Frames(FrameBatchView::parse(payload)?),
-        MessageKind::Stats => Message::Stats(EpisodeStats::parse(payload)?),
+        MessageKind::Stats => Message::Stats(Box::new(EpisodeStats::parse(payload)?)),
         MessageKind::Weights => Message::Weights(WeightsView::parse(payload)?),
         MessageKind::Join => Message::Join(Join::parse(payload)?),
     };

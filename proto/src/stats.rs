@@ -463,7 +463,7 @@ mod tests {
 
     fn decoded(bytes: &[u8]) -> Result<EpisodeStats, ProtoError> {
         match decode(bytes, &LIMITS)?.1 {
-            Message::Stats(stats) => Ok(stats),
+            Message::Stats(stats) => Ok(*stats),
             other => panic!("not stats: {:?}", other.kind()),
         }
     }

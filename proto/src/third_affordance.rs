@@ -71,7 +71,7 @@ fn its_metrics_cross_the_wire_under_the_same_schema() {
     let bytes = encode(&stats, MessageHeader::default());
     match decode(&bytes, &LIMITS).expect("decodes").1 {
         Message::Stats(got) => {
-            assert_eq!(got, stats);
+            assert_eq!(*got, stats);
             assert_eq!(
                 got.get(StatKey::Affordance(Affordance::Open, AffordanceStat::Iou)),
                 Some(0.5)

@@ -199,7 +199,7 @@ proptest! {
     fn stats_round_trip(stats in stats_strategy()) {
         let bytes = encode(&stats, header(0, 1));
         match decode(&bytes, &LIMITS).unwrap().1 {
-            Message::Stats(got) => prop_assert_eq!(got, stats),
+            Message::Stats(got) => prop_assert_eq!(*got, stats),
             other => prop_assert!(false, "wrong kind {:?}", other.kind()),
         }
     }

@@ -81,7 +81,7 @@ fn stats_reach_the_learner_and_wake_it() {
     let (header, decoded) = decode(msg.bytes(), &LIMITS).unwrap();
     assert_eq!((header.actor_id, header.sequence), (2, 1));
     match decoded {
-        Message::Stats(got) => assert_eq!(got, stats),
+        Message::Stats(got) => assert_eq!(*got, stats),
         other => panic!("got {:?}", other.kind()),
     }
     assert!(learner.receive(MessageKind::Stats).unwrap().is_none());
