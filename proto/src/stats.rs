@@ -160,11 +160,16 @@ pub enum AffordanceStat {
     /// (docs/ladder.md's tried-objects rung). Reported when a frame showed
     /// such an object.
     PositiveLabelRecall = 11,
+    /// Of the episode's frames' pixels of objects that do not afford this
+    /// plane's affordance (ground truth; the floor and walls left out), the
+    /// share the labels call negative: how much of the hard negatives the
+    /// U-Net is shown. Reported when a frame showed such an object.
+    NegativeLabelRecall = 12,
 }
 
 impl AffordanceStat {
     /// Number of per-affordance metrics.
-    pub const COUNT: usize = 12;
+    pub const COUNT: usize = 13;
     /// All of them in wire order.
     pub const ALL: [AffordanceStat; Self::COUNT] = [
         AffordanceStat::AttemptRate,
@@ -179,6 +184,7 @@ impl AffordanceStat {
         AffordanceStat::PositiveLabelPrecision,
         AffordanceStat::NegativeLabelPrecision,
         AffordanceStat::PositiveLabelRecall,
+        AffordanceStat::NegativeLabelRecall,
     ];
 
     /// snake_case name, after the affordance's in metrics and JSON
@@ -197,6 +203,7 @@ impl AffordanceStat {
             AffordanceStat::PositiveLabelPrecision => "positive_label_precision",
             AffordanceStat::NegativeLabelPrecision => "negative_label_precision",
             AffordanceStat::PositiveLabelRecall => "positive_label_recall",
+            AffordanceStat::NegativeLabelRecall => "negative_label_recall",
         }
     }
 }

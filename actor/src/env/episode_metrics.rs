@@ -236,6 +236,10 @@ impl EpisodeMetrics {
                         AffordanceStat::PositiveLabelRecall,
                         quality.positive_recall(),
                     ),
+                    (
+                        AffordanceStat::NegativeLabelRecall,
+                        quality.negative_recall(),
+                    ),
                 ]
                 .into_iter()
                 .filter_map(|(stat, value)| Some((of(stat), value?))),
@@ -299,6 +303,10 @@ struct LabelQuality {
     true_negative: usize,
     /// Pixels of objects that afford it.
     afforded: usize,
+    /// Pixels of objects that do not afford it, and of those the ones
+    /// labelled negative.
+    unafforded_objects: usize,
+    unafforded_objects_negative: usize,
 }
 
 impl LabelQuality {
@@ -329,6 +337,10 @@ impl LabelQuality {
                     }
                 };
                 q.afforded += usize::from(truth);
+                let unafforded_object = id != 0 && !truth;
+                q.unafforded_objects += usize::from(unafforded_object);
+                q.unafforded_objects_negative +=
+                    usize::from(unafforded_object && label == LABEL_NEGATIVE);
                 q.positive += usize::from(label == LABEL_POSITIVE);
                 q.true_positive += usize::from(label == LABEL_POSITIVE && truth);
                 q.negative += usize::from(label == LABEL_NEGATIVE);
@@ -348,6 +360,10 @@ impl LabelQuality {
 
     fn positive_recall(&self) -> Option<f32> {
         ratio(self.true_positive, self.afforded)
+    }
+
+    fn negative_recall(&self) -> Option<f32> {
+        ratio(self.unafforded_objects_negative, self.unafforded_objects)
     }
 }
 
@@ -404,11 +420,15 @@ mod tests {
         assert_eq!(q.positive_precision(), Some(1.0 / 2.0));
         assert_eq!(q.negative_precision(), Some(3.0 / 4.0));
         assert_eq!(q.positive_recall(), Some(1.0 / 4.0));
+        // Instance 2's two pixels: one labelled positive, one negative.
+        assert_eq!(q.negative_recall(), Some(1.0 / 2.0));
         // Plane 1: nothing affords it; one wrong positive, every negative right.
         let q = plane(1);
         assert_eq!(q.positive_precision(), Some(0.0));
         assert_eq!(q.negative_precision(), Some(1.0));
         assert_eq!(q.positive_recall(), None);
+        // Instances 1 and 2 (six pixels), the background left out: three negative.
+        assert_eq!(q.negative_recall(), Some(3.0 / 6.0));
         assert_eq!(
             LabelQuality::of(&[], &[], 4, 0, &|_| true),
             LabelQuality::default()
