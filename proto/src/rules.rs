@@ -90,6 +90,13 @@ pub enum CellPreference {
     /// that an attempt goes to what the network rates likeliest to afford
     /// it rather than to the largest object (a sofa, a table) in the cell.
     MostProbable,
+    /// Every cell that holds an object offers the one object in view (and
+    /// within reach, with `within_reach`) that the network rates likeliest
+    /// to afford the action: the policy decides when to try, the network's
+    /// ranking what (the paper's "filter out objects with a low confidence
+    /// score" taken to its end; docs/ladder.md). Without a network yet, the
+    /// paper's `largest`.
+    MostProbableInView,
 }
 
 impl SelectionRule {

@@ -316,9 +316,9 @@ pub(crate) fn cell_targets(
                         CellPreference::Largest if mean >= min_confidence => {
                             Preference::Size(blob.pixels)
                         }
-                        CellPreference::Largest | CellPreference::MostProbable => {
-                            Preference::Probability(mean)
-                        }
+                        CellPreference::Largest
+                        | CellPreference::MostProbable
+                        | CellPreference::MostProbableInView => Preference::Probability(mean),
                     }
                 }
             };
@@ -334,6 +334,19 @@ pub(crate) fn cell_targets(
                 .expect("nine cells");
             if best[cell].is_none_or(|(_, _, p)| p < preference) {
                 best[cell] = Some((id, blob, preference));
+            }
+        }
+        if probabilities.is_some() && rule.prefer == CellPreference::MostProbableInView {
+            // Each occupied cell offers the best of all (the lowest id on ties).
+            let overall = best.iter().flatten().copied().reduce(|a, b| {
+                if b.2 > a.2 || (b.2 == a.2 && b.0 < a.0) {
+                    b
+                } else {
+                    a
+                }
+            });
+            for cell in best.iter_mut().filter(|c| c.is_some()) {
+                *cell = overall;
             }
         }
         let targets = best.map(|chosen| {
@@ -559,6 +572,49 @@ mod tests {
         assert_eq!(t.target(Affordance::Push, 0).unwrap().object, 3);
         assert_eq!(t.target(Affordance::Push, 8).unwrap().object, 5);
         assert!(t.target(Affordance::Push, 4).is_none());
+    }
+
+    #[test]
+    fn in_view_every_occupied_cell_offers_the_object_rated_likeliest_in_the_frame() {
+        // Top-left: a big object (2) and a small one (3); bottom-right: object 5.
+        let ids = image(&[(2, 3, 3, 10, 10), (3, 10, 3, 12, 8), (5, 22, 22, 27, 27)]);
+        let rule = SelectionRule {
+            prefer: CellPreference::MostProbableInView,
+            ..SelectionRule::default()
+        };
+        let targets = |planes: Option<&[Vec<f32>]>| {
+            cell_targets(
+                &ids,
+                30,
+                &[Affordance::PickUp],
+                planes,
+                MIN_CONFIDENCE,
+                &rule,
+            )
+        };
+        let rated = |best: u32| -> Vec<f32> {
+            ids.iter()
+                .map(|&id| match id {
+                    0 => 0.0,
+                    id if id == best => 0.9,
+                    _ => 0.4,
+                })
+                .collect()
+        };
+        for best in [3, 5] {
+            let t = targets(Some(&[rated(best)]));
+            for cell in [0, 8] {
+                assert_eq!(t.target(Affordance::PickUp, cell).unwrap().object, best);
+            }
+            assert!(
+                t.target(Affordance::PickUp, 4).is_none(),
+                "empty cells stay empty"
+            );
+        }
+        // Without a network each cell offers its largest object, as the paper's.
+        let t = targets(None);
+        assert_eq!(t.target(Affordance::PickUp, 0).unwrap().object, 2);
+        assert_eq!(t.target(Affordance::PickUp, 8).unwrap().object, 5);
     }
 
     #[test]
