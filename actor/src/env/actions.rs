@@ -574,23 +574,36 @@ mod tests {
         assert!(t.target(Affordance::Push, 4).is_none());
     }
 
-    #[test]
-    fn in_view_every_occupied_cell_offers_the_object_rated_likeliest_in_the_frame() {
-        // Top-left: a big object (2) and a small one (3); bottom-right: object 5.
-        let ids = image(&[(2, 3, 3, 10, 10), (3, 10, 3, 12, 8), (5, 22, 22, 27, 27)]);
+    /// Top-left: a big object (2) and a small one (3); bottom-right: object 5.
+    fn big_small_and_far() -> Vec<u32> {
+        image(&[(2, 3, 3, 10, 10), (3, 10, 3, 12, 8), (5, 22, 22, 27, 27)])
+    }
+
+    /// The pick-up targets of `ids` (30 wide) under the default rule with `prefer`.
+    fn pick_up_targets(
+        ids: &[u32],
+        prefer: CellPreference,
+        planes: Option<&[Vec<f32>]>,
+    ) -> CellTargets {
         let rule = SelectionRule {
-            prefer: CellPreference::MostProbableInView,
+            prefer,
             ..SelectionRule::default()
         };
+        cell_targets(
+            ids,
+            30,
+            &[Affordance::PickUp],
+            planes,
+            MIN_CONFIDENCE,
+            &rule,
+        )
+    }
+
+    #[test]
+    fn in_view_every_occupied_cell_offers_the_object_rated_likeliest_in_the_frame() {
+        let ids = big_small_and_far();
         let targets = |planes: Option<&[Vec<f32>]>| {
-            cell_targets(
-                &ids,
-                30,
-                &[Affordance::PickUp],
-                planes,
-                MIN_CONFIDENCE,
-                &rule,
-            )
+            pick_up_targets(&ids, CellPreference::MostProbableInView, planes)
         };
         let rated = |best: u32| -> Vec<f32> {
             ids.iter()
@@ -619,21 +632,9 @@ mod tests {
 
     #[test]
     fn a_most_probable_cell_offers_the_object_rated_likeliest_whatever_its_size() {
-        // Top-left: a big object (2) and a small one (3); bottom-right: object 5.
-        let ids = image(&[(2, 3, 3, 10, 10), (3, 10, 3, 12, 8), (5, 22, 22, 27, 27)]);
-        let rule = SelectionRule {
-            prefer: CellPreference::MostProbable,
-            ..SelectionRule::default()
-        };
+        let ids = big_small_and_far();
         let targets = |planes: Option<&[Vec<f32>]>| {
-            cell_targets(
-                &ids,
-                30,
-                &[Affordance::PickUp],
-                planes,
-                MIN_CONFIDENCE,
-                &rule,
-            )
+            pick_up_targets(&ids, CellPreference::MostProbable, planes)
         };
         // Both confident: the paper's rule would offer the big one.
         let plane: Vec<f32> = ids
@@ -647,14 +648,7 @@ mod tests {
         let t = targets(Some(std::slice::from_ref(&plane)));
         assert_eq!(t.target(Affordance::PickUp, 0).unwrap().object, 3);
         assert_eq!(t.target(Affordance::PickUp, 8).unwrap().object, 5);
-        let paper = cell_targets(
-            &ids,
-            30,
-            &[Affordance::PickUp],
-            Some(&[plane]),
-            MIN_CONFIDENCE,
-            &SelectionRule::default(),
-        );
+        let paper = pick_up_targets(&ids, CellPreference::Largest, Some(&[plane]));
         assert_eq!(paper.target(Affordance::PickUp, 0).unwrap().object, 2);
         // Without a network the cell offers its largest object.
         assert_eq!(
