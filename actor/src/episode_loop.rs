@@ -366,11 +366,30 @@ impl<'a> Actor<'a> {
         for (field, value) in end.stats {
             stats = stats.with(field, value);
         }
+        let stats = fitted(stats.with_tries(end.tries), self.transport.max_stats_bytes);
         let delivery = self.ports.publish(&stats, version, unet)?;
         self.count(delivery);
         self.summary.episodes += 1;
         Ok(())
     }
+}
+
+/// `stats` with as many of its tries by object type (the most tried) as
+/// let it fit `max_bytes`: a transport configured below the largest stats
+/// message costs the least tried types, never the episode's metrics.
+fn fitted(mut stats: EpisodeStats, max_bytes: usize) -> EpisodeStats {
+    let all = stats.tries().len();
+    let mut kept = all;
+    while kept > 0 && proto::encoded_len(&stats) > max_bytes {
+        kept -= 1;
+        stats.keep_most_tried(kept);
+    }
+    if kept < all {
+        tracing::warn!(
+            "an episode's stats exceed the transport's max_stats_bytes ({max_bytes}): sent {kept} of its {all} tries by object type; raise the limit to keep them all"
+        );
+    }
+    stats
 }
 
 /// Runs episodes in every environment of `envs` until `stop` is set or
@@ -476,6 +495,29 @@ mod tests {
     use nets::policy::PolicyNet;
     use proto::{decode, JoinKey, Limits, Message, MessageKind, WEIGHTS_POLICY_PREFIX};
     use transport::LearnerPorts;
+
+    #[test]
+    fn stats_too_large_for_the_transport_give_up_their_least_tried_types() {
+        let tries = |name: &str, attempts| proto::TypeTries {
+            affordance: proto::Affordance::PickUp,
+            object_type: name.into(),
+            attempts,
+            successes: 0,
+            objects: 1,
+        };
+        let stats = EpisodeStats::new(1, 100, 0)
+            .with(StatField::EpisodeReturn, 2.0)
+            .with_tries([tries("Chair", 4), tries("Drawer", 1), tries("Vase", 2)]);
+        let whole = proto::encoded_len(&stats);
+        assert_eq!(fitted(stats.clone(), whole), stats);
+        // One record (20 bytes and a 4- or 8-byte name) too few.
+        let two = fitted(stats.clone(), whole - 1);
+        let names: Vec<_> = two.tries().iter().map(|t| t.object_type.as_str()).collect();
+        assert_eq!(names, ["Chair", "Vase"]);
+        let none = fitted(stats.clone(), 0);
+        assert!(none.tries().is_empty());
+        assert_eq!(none.get(StatField::EpisodeReturn), Some(2.0));
+    }
 
     /// What the learner got of one rollout chunk.
     struct Received {

@@ -6,7 +6,7 @@ use crate::ProtoError;
 /// `b"AFX1"` read as a little-endian `u32`: marks our messages.
 pub const MAGIC: u32 = u32::from_le_bytes(*b"AFX1");
 /// Bumped whenever any layout in this crate changes.
-pub const SCHEMA_VERSION: u16 = 9;
+pub const SCHEMA_VERSION: u16 = 10;
 /// The `actor_id` the learner writes into the messages it sends.
 pub const LEARNER_ID: u32 = u32::MAX;
 /// Encoded size of [`MessageHeader`] in bytes.

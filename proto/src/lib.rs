@@ -50,7 +50,9 @@ pub use rollout::{
 pub use rules::{
     CellPreference, ConfidenceRule, MapSegmentation, MapSettings, SelectionRule, SphereRule,
 };
-pub use stats::{AffordanceStat, EpisodeStats, StatField, StatKey};
+pub use stats::{
+    AffordanceStat, EpisodeStats, StatField, StatKey, TypeTries, MAX_TYPE_NAME, MAX_TYPE_TRIES,
+};
 pub use task::{Affordance, EnvKind, PolicyLayout, RewardWeights, TaskError, TaskSpec};
 pub use validation::{AffordanceScores, ValidationScores, VALIDATION_DIR};
 pub use weights::{

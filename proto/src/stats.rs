@@ -7,6 +7,12 @@
 //! the affordance's code u32 (records in increasing code order), present
 //! u32 (bit i set = [`AffordanceStat`] i carries a value), one f32 per
 //! [`AffordanceStat`] in order. A new affordance adds records, not fields.
+//! Last, the number of [`TypeTries`] records u32 (at most [`MAX_TYPE_TRIES`]),
+//! reserved u32 (0; it also keeps every stats message longer than a join,
+//! whose exact length the transport lets strangers send), and per record, in increasing (affordance code, type name) order: the
+//! affordance's code u32, attempts u32, successes u32, objects u32, the
+//! name's length in bytes u32, then the name (ASCII letters, digits and
+//! `_`, 1 to [`MAX_TYPE_NAME`] bytes) padded with zeros to four bytes.
 
 use std::borrow::Cow;
 
@@ -18,6 +24,72 @@ use crate::{MessageKind, ProtoError};
 const FIXED_LEN: usize = 24;
 const EPISODE_LEN: usize = FIXED_LEN + 4 * StatField::COUNT;
 const RECORD_LEN: usize = 8 + 4 * AffordanceStat::COUNT;
+/// Bytes of a [`TypeTries`] record before its name.
+const TRIES_HEAD_LEN: usize = 20;
+/// Bytes of the tries' section before its records: count and reserved.
+const TRIES_SECTION_LEN: usize = 8;
+/// The shortest stats message's payload.
+const MIN_PAYLOAD_LEN: usize = EPISODE_LEN + 4 + TRIES_SECTION_LEN;
+// A stranger may send only a join's exact length (the transport's
+// membership screen); no stats message may have it.
+const _: () = assert!(MIN_PAYLOAD_LEN > crate::join::JOIN_PAYLOAD_LEN);
+
+/// Most [`TypeTries`] records one episode's metrics may carry.
+pub const MAX_TYPE_TRIES: usize = 128;
+/// Longest object type name a [`TypeTries`] record may carry, in bytes.
+pub const MAX_TYPE_NAME: usize = 64;
+
+/// One object type's interactions of one affordance in an episode: which
+/// objects the policy tries, and so which objects carry labels (issue 65's
+/// label statistics; `learner summary` tabulates them per span).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TypeTries {
+    /// The affordance tried.
+    pub affordance: Affordance,
+    /// The simulator's type of the objects tried (`Drawer`, `KeyChain`).
+    pub object_type: String,
+    /// Attempts on objects of this type.
+    pub attempts: u32,
+    /// Of those, the successful ones.
+    pub successes: u32,
+    /// Distinct objects of this type tried (at most `attempts`).
+    pub objects: u32,
+}
+
+impl TypeTries {
+    fn name_len_padded(&self) -> usize {
+        self.object_type.len().div_ceil(4) * 4
+    }
+
+    fn wire_len(&self) -> usize {
+        TRIES_HEAD_LEN + self.name_len_padded()
+    }
+
+    /// Sort key of the records on the wire.
+    fn key(&self) -> (u32, &str) {
+        (self.affordance.code(), &self.object_type)
+    }
+}
+
+/// `name` as a record may carry it (see [`EpisodeStats::with_tries`]).
+fn wire_type_name(name: &str) -> String {
+    let cleaned: String = name
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+        .take(MAX_TYPE_NAME)
+        .collect();
+    if cleaned.is_empty() {
+        "unknown".into()
+    } else {
+        cleaned
+    }
+}
+
+/// Whether `name` is a type name a record may carry.
+fn valid_type_name(name: &[u8]) -> bool {
+    (1..=MAX_TYPE_NAME).contains(&name.len())
+        && name.iter().all(|b| b.is_ascii_alphanumeric() || *b == b'_')
+}
 
 /// The episode-wide metrics an episode can report. Rates lie in `[0, 1]`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -261,7 +333,7 @@ impl From<StatField> for StatKey {
 type AffordanceValues = [Option<f32>; AffordanceStat::COUNT];
 
 /// Metrics of one finished episode.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct EpisodeStats {
     /// Episode id (unique per actor).
     pub episode_id: u64,
@@ -272,6 +344,8 @@ pub struct EpisodeStats {
     values: [Option<f32>; StatField::COUNT],
     /// By [`Affordance`] code.
     per_affordance: [AffordanceValues; Affordance::COUNT],
+    /// Tries by object type, in wire order.
+    tries: Vec<TypeTries>,
 }
 
 impl EpisodeStats {
@@ -289,6 +363,63 @@ impl EpisodeStats {
     pub fn with(mut self, key: impl Into<StatKey>, value: f32) -> Self {
         *self.slot(key.into()) = Some(value);
         self
+    }
+
+    /// Sets the tries by object type; builder style. Records are kept in
+    /// wire order (by affordance code, then type name); for a type given
+    /// twice under one affordance the counts add up. What the wire cannot
+    /// carry is made so rather than lost with the episode's other metrics:
+    /// a name's other characters become `_` (cut to [`MAX_TYPE_NAME`]
+    /// bytes, `unknown` if empty), counts are clamped (successes and
+    /// objects to the attempts, at least one object), records without
+    /// attempts are left out, and beyond [`MAX_TYPE_TRIES`] records the
+    /// least tried are.
+    pub fn with_tries(mut self, tries: impl IntoIterator<Item = TypeTries>) -> Self {
+        let mut all: Vec<TypeTries> = std::mem::take(&mut self.tries);
+        all.extend(tries.into_iter().filter(|t| t.attempts > 0).map(|mut t| {
+            t.object_type = wire_type_name(&t.object_type);
+            t.successes = t.successes.min(t.attempts);
+            t.objects = t.objects.clamp(1, t.attempts);
+            t
+        }));
+        all.sort_by(|a, b| a.key().cmp(&b.key()));
+        all.dedup_by(|later, kept| {
+            let same = later.key() == kept.key();
+            if same {
+                kept.attempts += later.attempts;
+                kept.successes += later.successes;
+                kept.objects += later.objects;
+            }
+            same
+        });
+        self.tries = all;
+        self.keep_most_tried(MAX_TYPE_TRIES);
+        self
+    }
+
+    /// Keeps the `n` records of tries by object type with the most attempts
+    /// (the first in wire order on ties), for a message that must fit a
+    /// smaller limit.
+    pub fn keep_most_tried(&mut self, n: usize) {
+        if self.tries.len() <= n {
+            return;
+        }
+        let mut order: Vec<usize> = (0..self.tries.len()).collect();
+        order.sort_by_key(|&i| (std::cmp::Reverse(self.tries[i].attempts), i));
+        let mut keep = vec![false; self.tries.len()];
+        for &i in &order[..n] {
+            keep[i] = true;
+        }
+        let mut index = 0;
+        self.tries.retain(|_| {
+            index += 1;
+            keep[index - 1]
+        });
+    }
+
+    /// Tries by object type, by affordance code then type name.
+    pub fn tries(&self) -> &[TypeTries] {
+        &self.tries
     }
 
     /// The metric's value, if the episode reported it.
@@ -324,10 +455,10 @@ impl EpisodeStats {
     }
 
     pub(crate) fn parse(payload: &[u8]) -> Result<Self, ProtoError> {
-        if payload.len() < EPISODE_LEN + 4 {
+        if payload.len() < MIN_PAYLOAD_LEN {
             return Err(ProtoError::Truncated {
                 what: "stats",
-                needed: EPISODE_LEN + 4,
+                needed: MIN_PAYLOAD_LEN,
                 got: payload.len(),
             });
         }
@@ -339,11 +470,14 @@ impl EpisodeStats {
                 allowed: "at most one per affordance",
             });
         }
-        check_layout(
-            "stats",
-            (EPISODE_LEN + 4 + count as usize * RECORD_LEN) as u64,
-            payload.len(),
-        )?;
+        let tries_at = EPISODE_LEN + 4 + count as usize * RECORD_LEN;
+        if payload.len() < tries_at + TRIES_SECTION_LEN {
+            return Err(ProtoError::Truncated {
+                what: "stats' tries by object type",
+                needed: tries_at + TRIES_SECTION_LEN,
+                got: payload.len(),
+            });
+        }
         let reserved = read_u32(payload, 20);
         if reserved != 0 {
             return Err(ProtoError::OutOfRange {
@@ -374,7 +508,89 @@ impl EpisodeStats {
             let keys = AffordanceStat::ALL.map(|stat| StatKey::Affordance(affordance, stat));
             stats.read_values(payload, (at + 4, at + 8), &keys, "affordance present")?;
         }
+        let end = stats.read_tries(payload, tries_at)?;
+        check_layout("stats", end as u64, payload.len())?;
         Ok(stats)
+    }
+
+    /// Reads the tries by object type from `at`; returns where they end.
+    fn read_tries(&mut self, payload: &[u8], at: usize) -> Result<usize, ProtoError> {
+        let count = read_u32(payload, at);
+        if count as usize > MAX_TYPE_TRIES {
+            return Err(ProtoError::OutOfRange {
+                field: "tries by object type",
+                value: count.into(),
+                allowed: "at most MAX_TYPE_TRIES records",
+            });
+        }
+        let reserved = read_u32(payload, at + 4);
+        if reserved != 0 {
+            return Err(ProtoError::OutOfRange {
+                field: "tries' reserved",
+                value: reserved.into(),
+                allowed: "0",
+            });
+        }
+        let mut at = at + TRIES_SECTION_LEN;
+        for _ in 0..count {
+            if payload.len() < at + TRIES_HEAD_LEN {
+                return Err(ProtoError::Truncated {
+                    what: "a tries record",
+                    needed: at + TRIES_HEAD_LEN,
+                    got: payload.len(),
+                });
+            }
+            let code = read_u32(payload, at);
+            let affordance = Affordance::from_code(code).ok_or(ProtoError::OutOfRange {
+                field: "tries' affordance code",
+                value: code.into(),
+                allowed: "a known affordance",
+            })?;
+            let [attempts, successes, objects, name_len] =
+                [4, 8, 12, 16].map(|offset| read_u32(payload, at + offset));
+            if successes > attempts || objects == 0 || objects > attempts {
+                return Err(ProtoError::OutOfRange {
+                    field: "tries' counts",
+                    value: attempts.into(),
+                    allowed: "successes and objects at most the attempts, at least one object",
+                });
+            }
+            let name_at = at + TRIES_HEAD_LEN;
+            let padded = (name_len as usize).div_ceil(4) * 4;
+            if name_len as usize > MAX_TYPE_NAME || payload.len() < name_at + padded {
+                return Err(ProtoError::OutOfRange {
+                    field: "tries' type name length",
+                    value: name_len.into(),
+                    allowed: "1 to MAX_TYPE_NAME bytes, within the message",
+                });
+            }
+            let name = &payload[name_at..name_at + name_len as usize];
+            let padding = &payload[name_at + name_len as usize..name_at + padded];
+            if !valid_type_name(name) || padding.iter().any(|&b| b != 0) {
+                return Err(ProtoError::OutOfRange {
+                    field: "tries' type name",
+                    value: name_len.into(),
+                    allowed: "ASCII letters, digits and _, padded with zeros",
+                });
+            }
+            let record = TypeTries {
+                affordance,
+                object_type: String::from_utf8_lossy(name).into_owned(),
+                attempts,
+                successes,
+                objects,
+            };
+            if self.tries.last().is_some_and(|p| p.key() >= record.key()) {
+                return Err(ProtoError::OutOfRange {
+                    field: "tries' order",
+                    value: code.into(),
+                    allowed: "records in increasing (affordance, type name) order",
+                });
+            }
+            self.tries.push(record);
+            at = name_at + padded;
+        }
+        Ok(at)
     }
 
     /// Reads a present-bits word and one f32 per key of `keys`, at the
@@ -436,7 +652,9 @@ impl Payload for EpisodeStats {
     const KIND: MessageKind = MessageKind::Stats;
 
     fn payload_len(&self) -> usize {
-        EPISODE_LEN + 4 + self.records().count() * RECORD_LEN
+        MIN_PAYLOAD_LEN
+            + self.records().count() * RECORD_LEN
+            + self.tries.iter().map(TypeTries::wire_len).sum::<usize>()
     }
 
     fn write_payload(&self, out: &mut [u8]) {
@@ -447,13 +665,35 @@ impl Payload for EpisodeStats {
         let (head, fields) = out.split_at_mut(FIXED_LEN);
         write_values(&self.values, &mut head[16..20], fields);
         let records: Vec<_> = self.records().collect();
-        out[EPISODE_LEN..EPISODE_LEN + 4].copy_from_slice(&(records.len() as u32).to_le_bytes());
+        let records_len = records.len();
+        out[EPISODE_LEN..EPISODE_LEN + 4].copy_from_slice(&(records_len as u32).to_le_bytes());
         for (i, (affordance, values)) in records.into_iter().enumerate() {
             let at = EPISODE_LEN + 4 + i * RECORD_LEN;
             let record = &mut out[at..at + RECORD_LEN];
             record[0..4].copy_from_slice(&affordance.code().to_le_bytes());
             let (present, rest) = record[4..].split_at_mut(4);
             write_values(values, present, rest);
+        }
+        let mut at = EPISODE_LEN + 4 + records_len * RECORD_LEN;
+        out[at..at + 4].copy_from_slice(&(self.tries.len() as u32).to_le_bytes());
+        out[at + 4..at + 8].copy_from_slice(&0u32.to_le_bytes());
+        at += TRIES_SECTION_LEN;
+        for tries in &self.tries {
+            let name = tries.object_type.as_bytes();
+            let head = [
+                tries.affordance.code(),
+                tries.attempts,
+                tries.successes,
+                tries.objects,
+                name.len() as u32,
+            ];
+            for (i, word) in head.into_iter().enumerate() {
+                out[at + 4 * i..at + 4 * i + 4].copy_from_slice(&word.to_le_bytes());
+            }
+            let name_at = at + TRIES_HEAD_LEN;
+            out[name_at..name_at + name.len()].copy_from_slice(name);
+            out[name_at + name.len()..name_at + tries.name_len_padded()].fill(0);
+            at = name_at + tries.name_len_padded();
         }
     }
 }
@@ -514,12 +754,13 @@ mod tests {
     #[test]
     fn only_affordances_with_a_metric_take_a_record() {
         let episode_only = EpisodeStats::new(1, 10, 0).with(StatField::EpisodeReturn, 2.0);
-        assert_eq!(episode_only.payload_len(), EPISODE_LEN + 4);
+        // The affordance records' count, then the (empty) tries' section.
+        assert_eq!(episode_only.payload_len(), MIN_PAYLOAD_LEN);
         let push = episode_only.with(
             StatKey::Affordance(Affordance::Push, AffordanceStat::SuccessRate),
             0.5,
         );
-        assert_eq!(push.payload_len(), EPISODE_LEN + 4 + RECORD_LEN);
+        assert_eq!(push.payload_len(), MIN_PAYLOAD_LEN + RECORD_LEN);
         let got = decoded(&encode(&push, MessageHeader::default())).unwrap();
         assert_eq!(got, push);
         assert_eq!(
@@ -583,6 +824,167 @@ mod tests {
                     p[first + 8..first + 12].copy_from_slice(&1.5f32.to_le_bytes());
                 }),
             ),
+        ];
+        for (what, bytes) in cases {
+            assert!(decoded(&bytes).is_err(), "{what} was accepted");
+        }
+    }
+
+    fn tries(affordance: Affordance, name: &str, counts: [u32; 3]) -> TypeTries {
+        let [attempts, successes, objects] = counts;
+        TypeTries {
+            affordance,
+            object_type: name.into(),
+            attempts,
+            successes,
+            objects,
+        }
+    }
+
+    #[test]
+    fn tries_by_object_type_travel_in_order_and_merge() {
+        let stats = EpisodeStats::new(4, 100, 1)
+            .with(StatField::EpisodeReturn, 1.0)
+            .with_tries([
+                tries(Affordance::Push, "Chair", [2, 2, 1]),
+                tries(Affordance::PickUp, "KeyChain", [1, 1, 1]),
+                tries(Affordance::PickUp, "Drawer", [3, 0, 2]),
+                tries(Affordance::PickUp, "KeyChain", [2, 0, 1]),
+            ]);
+        let order: Vec<_> = stats
+            .tries()
+            .iter()
+            .map(|t| (t.affordance, t.object_type.as_str(), t.attempts, t.objects))
+            .collect();
+        assert_eq!(
+            order,
+            vec![
+                (Affordance::PickUp, "Drawer", 3, 2),
+                (Affordance::PickUp, "KeyChain", 3, 2),
+                (Affordance::Push, "Chair", 2, 1),
+            ]
+        );
+        // "Drawer" and "Chair" pad to 8 bytes, "KeyChain" is 8 already.
+        assert_eq!(stats.payload_len(), MIN_PAYLOAD_LEN + 3 * (20 + 8));
+        let got = decoded(&encode(&stats, MessageHeader::default())).unwrap();
+        assert_eq!(got, stats);
+    }
+
+    #[test]
+    fn tries_the_wire_cannot_carry_are_made_so_rather_than_lost() {
+        let long = "A".repeat(MAX_TYPE_NAME + 10);
+        let stats = EpisodeStats::new(1, 10, 0).with_tries([
+            tries(Affordance::PickUp, "Credit Card", [2, 5, 0]),
+            tries(Affordance::PickUp, "", [1, 0, 1]),
+            tries(Affordance::PickUp, &long, [1, 0, 1]),
+            tries(Affordance::Push, "Sofa", [0, 0, 0]),
+        ]);
+        let got: Vec<_> = stats
+            .tries()
+            .iter()
+            .map(|t| (t.object_type.clone(), t.successes, t.objects))
+            .collect();
+        assert_eq!(
+            got,
+            vec![
+                ("A".repeat(MAX_TYPE_NAME), 0, 1),
+                ("Credit_Card".into(), 2, 1),
+                ("unknown".into(), 0, 1),
+            ]
+        );
+        assert_eq!(
+            decoded(&encode(&stats, MessageHeader::default())).unwrap(),
+            stats
+        );
+    }
+
+    #[test]
+    fn the_least_tried_types_give_way_when_records_must_be_fewer() {
+        let mut stats = EpisodeStats::new(1, 10, 0).with_tries([
+            tries(Affordance::PickUp, "Box", [1, 0, 1]),
+            tries(Affordance::PickUp, "Chair", [5, 0, 1]),
+            tries(Affordance::PickUp, "Drawer", [1, 0, 1]),
+            tries(Affordance::Push, "Sofa", [3, 1, 1]),
+        ]);
+        stats.keep_most_tried(3);
+        let names: Vec<_> = stats
+            .tries()
+            .iter()
+            .map(|t| t.object_type.as_str())
+            .collect();
+        assert_eq!(names, ["Box", "Chair", "Sofa"], "wire order kept");
+        let many = (0..MAX_TYPE_TRIES + 5).map(|i| {
+            let attempts = if i < 5 { 1 } else { 2 };
+            tries(Affordance::PickUp, &format!("T{i:03}"), [attempts, 0, 1])
+        });
+        let capped = EpisodeStats::new(1, 10, 0).with_tries(many);
+        assert_eq!(capped.tries().len(), MAX_TYPE_TRIES);
+        assert!(capped.tries().iter().all(|t| t.attempts == 2));
+    }
+
+    #[test]
+    fn bad_tries_records_are_refused() {
+        let stats = EpisodeStats::new(1, 10, 0).with_tries([
+            tries(Affordance::PickUp, "Box", [2, 1, 1]),
+            tries(Affordance::PickUp, "Vase", [1, 0, 1]),
+        ]);
+        let bytes = encode(&stats, MessageHeader::default());
+        assert_eq!(decoded(&bytes).unwrap(), stats);
+        let count_at = EPISODE_LEN + 4;
+        let first = count_at + TRIES_SECTION_LEN;
+        let second = first + 20 + 4;
+        let put = |at: usize, value: u32| {
+            move |p: &mut [u8]| p[at..at + 4].copy_from_slice(&value.to_le_bytes())
+        };
+        let cases: Vec<(&str, Vec<u8>)> = vec![
+            ("unknown affordance", edited(bytes.clone(), put(first, 9))),
+            (
+                "more successes than attempts",
+                edited(bytes.clone(), put(first + 8, 3)),
+            ),
+            ("no object", edited(bytes.clone(), put(first + 12, 0))),
+            (
+                "more objects than attempts",
+                edited(bytes.clone(), put(first + 12, 3)),
+            ),
+            (
+                "a name past the message",
+                edited(bytes.clone(), put(second + 16, 9)),
+            ),
+            ("an empty name", edited(bytes.clone(), put(first + 16, 0))),
+            (
+                "a name with a space",
+                edited(bytes.clone(), |p| p[first + 20] = b' '),
+            ),
+            (
+                "padding that is not zero",
+                edited(bytes.clone(), |p| p[first + 23] = b'x'),
+            ),
+            (
+                "records out of order",
+                edited(bytes.clone(), |p| {
+                    p[second + 20..second + 24].copy_from_slice(b"Ant\0")
+                }),
+            ),
+            (
+                "more records than sent",
+                edited(bytes.clone(), put(count_at, 3)),
+            ),
+            (
+                "a reserved word not 0",
+                edited(bytes.clone(), put(count_at + 4, 1)),
+            ),
+            (
+                "more records than allowed",
+                edited(bytes.clone(), put(count_at, MAX_TYPE_TRIES as u32 + 1)),
+            ),
+            ("bytes left over", {
+                let mut longer = bytes.clone();
+                longer.extend_from_slice(&[0; 4]);
+                let len = (longer.len() - HEADER_LEN) as u64;
+                longer[40..48].copy_from_slice(&len.to_le_bytes());
+                edited(longer, |_| {})
+            }),
         ];
         for (what, bytes) in cases {
             assert!(decoded(&bytes).is_err(), "{what} was accepted");

@@ -3,9 +3,9 @@
 
 use proptest::prelude::*;
 use proto::{
-    decode, decode_header, decode_weights, encode, EpisodeStats, FrameBatch, JoinKey, Limits,
-    Message, MessageHeader, MessageKind, ObsDtype, ProtoError, RolloutChunk, StatField, StatKey,
-    WeightsBlob, HEADER_LEN, JOIN_KEY_LEN, LEARNER_ID, WEIGHTS_TAG_LEN,
+    decode, decode_header, decode_weights, encode, Affordance, EpisodeStats, FrameBatch, JoinKey,
+    Limits, Message, MessageHeader, MessageKind, ObsDtype, ProtoError, RolloutChunk, StatField,
+    StatKey, TypeTries, WeightsBlob, HEADER_LEN, JOIN_KEY_LEN, LEARNER_ID, WEIGHTS_TAG_LEN,
 };
 
 const LIMITS: Limits = Limits {
@@ -113,14 +113,38 @@ fn stats_strategy() -> impl Strategy<Value = EpisodeStats> {
         any::<u32>(),
         0u32..30,
         prop::collection::vec(prop::option::of(0.0f32..1.0), StatKey::all().count()),
+        prop::collection::vec(
+            (
+                any::<bool>(),
+                "[A-Za-z_]{1,12}",
+                1u32..20,
+                0u32..20,
+                1u32..20,
+            ),
+            0..6,
+        ),
     )
-        .prop_map(|(id, steps, scene, values)| {
+        .prop_map(|(id, steps, scene, values, tries)| {
+            let tries = tries
+                .into_iter()
+                .map(|(push, name, attempts, s, o)| TypeTries {
+                    affordance: if push {
+                        Affordance::Push
+                    } else {
+                        Affordance::PickUp
+                    },
+                    object_type: name,
+                    attempts,
+                    successes: s.min(attempts),
+                    objects: o.min(attempts),
+                });
             StatKey::all()
                 .zip(values)
                 .fold(EpisodeStats::new(id, steps, scene), |s, (key, v)| match v {
                     Some(v) => s.with(key, v),
                     None => s,
                 })
+                .with_tries(tries)
         })
 }
 

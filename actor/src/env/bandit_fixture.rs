@@ -99,6 +99,7 @@ impl Environment for BanditFixture {
                 StatField::InteractionSuccessRate.into(),
                 self.successes as f32 / self.step.max(1) as f32,
             )],
+            tries: Vec::new(),
         })
     }
     fn set_global_steps(&mut self, _steps: u64) {}

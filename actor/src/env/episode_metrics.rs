@@ -4,10 +4,10 @@
 //! were touched, the U-Net's frame scores; at the end the annotation rates
 //! of the episode's labels join them ([`EpisodeMetrics::finish`]).
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 
 use mapper::Affordance;
-use proto::{AffordanceStat, StatField, StatKey, LABEL_NEGATIVE, LABEL_POSITIVE};
+use proto::{AffordanceStat, StatField, StatKey, TypeTries, LABEL_NEGATIVE, LABEL_POSITIVE};
 use sim::agent::{Failure, Outcome};
 
 use crate::frame_scores::{annotation_rates, score_frame, PAPER_THRESHOLD};
@@ -46,13 +46,22 @@ pub(crate) struct EpisodeMetrics {
     no_room: PerAffordance,
     /// Scene objects an interaction succeeded on.
     interacted: BTreeSet<usize>,
+    /// The simulator's type of each scene object (by object index).
+    object_types: Vec<String>,
+    /// Per affordance code and scene object tried: attempts and successes.
+    tried: BTreeMap<(u32, usize), (u32, u32)>,
     episode_return: f32,
 }
 
 impl EpisodeMetrics {
     /// Nothing counted yet, on a scene whose objects afford what `truth`
-    /// says (per object, one flag per affordance of `affordances`).
-    pub fn new(truth: Vec<Vec<bool>>, affordances: &[Affordance]) -> Self {
+    /// says (per object, one flag per affordance of `affordances`) and are
+    /// of the types `object_types` (per object).
+    pub fn new(
+        truth: Vec<Vec<bool>>,
+        object_types: Vec<String>,
+        affordances: &[Affordance],
+    ) -> Self {
         Self {
             affordances: affordances.to_vec(),
             truth,
@@ -64,6 +73,8 @@ impl EpisodeMetrics {
             unafforded: Default::default(),
             no_room: Default::default(),
             interacted: BTreeSet::new(),
+            object_types,
+            tried: BTreeMap::new(),
             episode_return: 0.0,
         }
     }
@@ -92,11 +103,22 @@ impl EpisodeMetrics {
         self.truth_ids.push(ids);
     }
 
-    /// An interaction of `affordance` tried, and what came of it.
-    pub fn interaction(&mut self, affordance: Affordance, outcome: &Outcome) {
+    /// An interaction of `affordance` aimed at pixel `(u, v)` of the last
+    /// frame observed (`width` wide) tried, and what came of it.
+    pub fn interaction(
+        &mut self,
+        affordance: Affordance,
+        outcome: &Outcome,
+        (u, v, width): (usize, usize, usize),
+    ) {
         let kind = affordance.code() as usize;
         self.attempts[kind] += 1;
         self.successes[kind] += u32::from(outcome.success);
+        if let Some(object) = self.object_at(u, v, width) {
+            let tally = self.tried.entry((affordance.code(), object)).or_default();
+            tally.0 += 1;
+            tally.1 += u32::from(outcome.success);
+        }
         if let Some(failure) = &outcome.failure {
             self.out_of_reach[kind] += u32::from(matches!(failure, Failure::OutOfReach { .. }));
             self.unafforded[kind] += u32::from(failure.object_does_not_afford());
@@ -107,14 +129,47 @@ impl EpisodeMetrics {
     /// An interaction aimed at pixel `(u, v)` of the last frame observed
     /// succeeded: the scene object there counts as interacted with.
     pub(crate) fn touched(&mut self, u: usize, v: usize, width: usize) {
+        if let Some(object) = self.object_at(u, v, width) {
+            self.interacted.insert(object);
+        }
+    }
+
+    /// The scene object (its index) at pixel `(u, v)` of the last frame
+    /// observed, if any.
+    fn object_at(&self, u: usize, v: usize, width: usize) -> Option<usize> {
         let instance = self
             .truth_ids
             .last()
             .and_then(|ids| ids.get(v * width + u).copied())
             .unwrap_or(0);
-        if instance > 0 {
-            self.interacted.insert(instance as usize - 1);
+        (instance > 0).then(|| instance as usize - 1)
+    }
+
+    /// The episode's tries by object type (the simulator's type of the
+    /// object at the aimed pixel; tries that aimed at no scene object are
+    /// left out): which objects carry the labels.
+    pub(crate) fn tries(&self) -> Vec<TypeTries> {
+        let mut by_type: BTreeMap<(u32, &str), TypeTries> = BTreeMap::new();
+        for (&(code, object), &(attempts, successes)) in &self.tried {
+            let (Some(affordance), Some(object_type)) =
+                (Affordance::from_code(code), self.object_types.get(object))
+            else {
+                continue;
+            };
+            let entry = by_type
+                .entry((code, object_type.as_str()))
+                .or_insert_with(|| TypeTries {
+                    affordance,
+                    object_type: object_type.clone(),
+                    attempts: 0,
+                    successes: 0,
+                    objects: 0,
+                });
+            entry.attempts += attempts;
+            entry.successes += successes;
+            entry.objects += 1;
         }
+        by_type.into_values().collect()
     }
 
     /// A step's reward.
@@ -432,6 +487,54 @@ mod tests {
         assert_eq!(
             LabelQuality::of(&[], &[], 4, 0, &|_| true),
             LabelQuality::default()
+        );
+    }
+
+    #[test]
+    fn tries_count_each_affordance_and_type_of_the_objects_aimed_at() {
+        // Objects 0 and 1 are drawers, 2 a key chain; a 2 × 2 frame shows
+        // object 0 (id 1), object 2 (id 3), object 1 (id 2) and nothing.
+        let types = ["Drawer", "Drawer", "KeyChain"].map(String::from).to_vec();
+        let truth = vec![vec![false, true], vec![false, true], vec![true, true]];
+        let mut m = EpisodeMetrics::new(truth, types, &[Affordance::PickUp, Affordance::Push]);
+        m.observe_frame(&[vec![0.5; 4], vec![0.5; 4]], vec![1, 3, 2, 0]);
+        let (success, failure) = (
+            Outcome {
+                success: true,
+                failure: None,
+            },
+            Outcome {
+                success: false,
+                failure: Some(Failure::NotPickupable),
+            },
+        );
+        let at = |p: usize| (p % 2, p / 2, 2);
+        m.interaction(Affordance::PickUp, &failure, at(0)); // drawer 0
+        m.interaction(Affordance::PickUp, &failure, at(0)); // drawer 0 again
+        m.interaction(Affordance::PickUp, &failure, at(2)); // drawer 1
+        m.interaction(Affordance::PickUp, &success, at(1)); // the key chain
+        m.interaction(Affordance::Push, &success, at(2)); // drawer 1
+        m.interaction(Affordance::PickUp, &failure, at(3)); // nothing there
+        let got: Vec<_> = m
+            .tries()
+            .into_iter()
+            .map(|t| {
+                (
+                    t.affordance,
+                    t.object_type,
+                    t.attempts,
+                    t.successes,
+                    t.objects,
+                )
+            })
+            .collect();
+        assert_eq!(
+            got,
+            vec![
+                (Affordance::PickUp, "Drawer".to_string(), 3, 0, 2),
+                (Affordance::PickUp, "KeyChain".to_string(), 1, 1, 1),
+                (Affordance::Push, "Drawer".to_string(), 1, 1, 1),
+            ]
         );
     }
 }

@@ -95,6 +95,7 @@ impl Environment for FlatSimEnv {
         Ok(EpisodeEnd {
             frames: Some(summary.frames),
             stats: summary.stats,
+            tries: summary.tries,
         })
     }
 

@@ -21,7 +21,7 @@ pub use training_rooms::training_rooms;
 use std::time::Duration;
 
 use nets::policy::{CpuPolicy, CpuPolicyStep, ObservationValue};
-use proto::{FrameBatch, PolicyLayout, StatKey};
+use proto::{FrameBatch, PolicyLayout, StatKey, TypeTries};
 
 use affordance_model::{AffordanceModel, CameraFrame};
 
@@ -94,6 +94,8 @@ pub struct EpisodeEnd {
     pub frames: Option<FrameBatch>,
     /// Metrics the environment measured (the loop adds return and steps/s).
     pub stats: Vec<(StatKey, f32)>,
+    /// Interactions by object type (environments with a simulator).
+    pub tries: Vec<TypeTries>,
 }
 
 /// An episodic environment with a discrete, maskable action space.

@@ -95,6 +95,13 @@ impl Learner {
                             "steps": stats.steps,
                             "scene": stats.scene_index,
                             "stats": fields,
+                            "tries": stats.tries().iter().map(|t| serde_json::json!({
+                                "affordance": t.affordance.as_str(),
+                                "type": t.object_type,
+                                "attempts": t.attempts,
+                                "successes": t.successes,
+                                "objects": t.objects,
+                            })).collect::<Vec<_>>(),
                         }),
                     )?;
             }

@@ -8,7 +8,9 @@
 //! it, docs/ladder.md), so
 //! that a long run, or two runs side by side, can be read without plotting:
 //! where the success rate peaked, when the policy stopped trying. Repeats of
-//! one setting (seeds) summarise as the runs' mean with their range.
+//! one setting (seeds) summarise as the runs' mean with their range. A
+//! second table counts the interactions by the type of the object tried,
+//! per span: which objects the labels come from.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -94,7 +96,13 @@ pub struct SummaryRow {
     /// Per score of [`Summary::validation_scores`], its median over the
     /// span's scored checkpoints.
     pub validation: Vec<Option<Spread>>,
+    /// Interactions by (affordance, object type) in the span's episodes:
+    /// attempts and successes (over repeats: all runs together).
+    pub tries: BTreeMap<TriedType, (u64, u64)>,
 }
+
+/// An affordance's name and an object type, as the history names them.
+pub type TriedType = (String, String);
 
 /// A run's history, or repeats' histories, span by span.
 #[derive(Debug, Clone, PartialEq)]
@@ -108,6 +116,22 @@ pub struct Summary {
     pub validation_scores: Vec<String>,
     /// One row per span that ended an episode (in every run), in step order.
     pub rows: Vec<SummaryRow>,
+}
+
+impl Summary {
+    /// Every (affordance, object type) some span tried: by affordance, then
+    /// the most attempts over all spans first, then by name.
+    pub fn tried_types(&self) -> Vec<TriedType> {
+        let mut totals: BTreeMap<&TriedType, u64> = BTreeMap::new();
+        for row in &self.rows {
+            for (key, &(attempts, _)) in &row.tries {
+                *totals.entry(key).or_default() += attempts;
+            }
+        }
+        let mut keys: Vec<(&TriedType, u64)> = totals.into_iter().collect();
+        keys.sort_by(|(a, na), (b, nb)| a.0.cmp(&b.0).then(nb.cmp(na)).then(a.1.cmp(&b.1)));
+        keys.into_iter().map(|(k, _)| k.clone()).collect()
+    }
 }
 
 /// Sums over one span, as the history is read.
@@ -132,6 +156,8 @@ struct SpanSums {
     /// Checkpoints scored on the validation rooms, and each score's values.
     validated: usize,
     validation: BTreeMap<String, Vec<f64>>,
+    /// Attempts and successes by (affordance, object type).
+    tries: BTreeMap<TriedType, (u64, u64)>,
 }
 
 /// Each of `names` once, in name order.
@@ -175,6 +201,17 @@ pub(crate) fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
                         sums.0 += attempts * steps * success;
                         sums.1 += steps;
                     }
+                }
+                for tried in record["tries"].as_array().into_iter().flatten() {
+                    let (Some(affordance), Some(object_type)) =
+                        (tried["affordance"].as_str(), tried["type"].as_str())
+                    else {
+                        continue;
+                    };
+                    let key = (affordance.to_string(), object_type.to_string());
+                    let sums = span.tries.entry(key).or_default();
+                    sums.0 += tried["attempts"].as_u64().unwrap_or(0);
+                    sums.1 += tried["successes"].as_u64().unwrap_or(0);
                 }
                 for key in StatKey::all() {
                     if let Some(v) = record["stats"][key.name().as_ref()].as_f64() {
@@ -284,6 +321,7 @@ pub(crate) fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
                     median(values).map(Spread::one)
                 })
                 .collect(),
+            tries: span.tries.clone(),
         })
         .collect();
     Ok(Summary {
@@ -363,6 +401,14 @@ pub fn summarize_repeats(run_dirs: &[PathBuf], every: u64) -> anyhow::Result<Sum
                 .iter()
                 .map(|name| Spread::of(span.iter().filter_map(|&(s, r)| score_median(s, r, name))))
                 .collect(),
+            tries: span.iter().fold(BTreeMap::new(), |mut all, (_, r)| {
+                for (key, &(attempts, successes)) in &r.tries {
+                    let sums: &mut (u64, u64) = all.entry(key.clone()).or_default();
+                    sums.0 += attempts;
+                    sums.1 += successes;
+                }
+                all
+            }),
         });
     }
     anyhow::ensure!(
@@ -448,7 +494,42 @@ impl Summary {
             }
             out.push('\n');
         }
+        self.tries_markdown(&mut out);
         out
+    }
+
+    /// The tries by object type, when the history holds them: one row per
+    /// (affordance, object type), one column per span, `attempts (successes)`.
+    fn tries_markdown(&self, out: &mut String) {
+        let types = self.tried_types();
+        if types.is_empty() {
+            return;
+        }
+        let runs = if self.runs > 1 {
+            ", all runs together"
+        } else {
+            ""
+        };
+        let _ = write!(
+            out,
+            "\nInteractions by the type of the object tried: attempts (successes){runs}\n\n| affordance | object type |"
+        );
+        for row in &self.rows {
+            let _ = write!(out, " {}–{} |", steps(row.from_steps), steps(row.to_steps));
+        }
+        out.push_str(" all |\n|---|---|");
+        out.push_str(&"---|".repeat(self.rows.len() + 1));
+        out.push('\n');
+        for key in &types {
+            let _ = write!(out, "| {} | {} |", key.0, key.1);
+            let mut total = (0, 0);
+            for row in &self.rows {
+                let (attempts, successes) = row.tries.get(key).copied().unwrap_or_default();
+                total = (total.0 + attempts, total.1 + successes);
+                let _ = write!(out, " {attempts} ({successes}) |");
+            }
+            let _ = writeln!(out, " {} ({}) |", total.0, total.1);
+        }
     }
 }
 
@@ -461,12 +542,25 @@ fn steps(n: u64) -> String {
     }
 }
 
+/// `{affordance: {object type: [attempts, successes]}}`.
+fn tries_json(tries: &BTreeMap<TriedType, (u64, u64)>) -> Value {
+    let mut by_affordance = serde_json::Map::new();
+    for ((affordance, object_type), &(attempts, successes)) in tries {
+        let types = by_affordance
+            .entry(affordance.clone())
+            .or_insert_with(|| json!({}));
+        types[object_type] = json!([attempts, successes]);
+    }
+    Value::Object(by_affordance)
+}
+
 impl From<&Summary> for Value {
     /// One object per span: `means` per metric, `successes_per_kilostep`
     /// (by affordance), `ppo_entropy`, `unet_steps_per_episode`,
     /// `unet_time_outside_steps`, `unet_training_frames`, `unet_positive_frames` (by affordance),
-    /// `validation_checkpoints` and `validation` (each score's median, by
-    /// name); over repeats also `ranges`, each of these' `[lowest, highest]`
+    /// `validation_checkpoints`, `validation` (each score's median, by
+    /// name) and `tries` (by affordance and object type: `[attempts,
+    /// successes]`, over repeats all runs together); over repeats also `ranges`, each of these' `[lowest, highest]`
     /// run value.
     fn from(summary: &Summary) -> Value {
         let mean = |spread: &Option<Spread>| json!(spread.map(|s| s.mean));
@@ -504,6 +598,7 @@ impl From<&Summary> for Value {
                     "unet_positive_frames": by_affordance(&row.unet_positive_frames, &mean),
                     "validation_checkpoints": mean(&row.validation_checkpoints),
                     "validation": by_score(&row.validation, &mean),
+                    "tries": tries_json(&row.tries),
                 });
                 if summary.runs > 1 {
                     ranges.insert("ppo_entropy".into(), range(&row.entropy));
@@ -556,6 +651,66 @@ mod tests {
         history
             .record("episode", steps, json!({"stats": stats}))
             .unwrap();
+    }
+
+    /// An episode at `steps` that tried `tries` (affordance, type,
+    /// attempts, successes).
+    fn episode_with_tries(history: &mut History, steps: u64, tries: &[(&str, &str, u64, u64)]) {
+        let tries: Vec<Value> = tries
+            .iter()
+            .map(|(a, t, n, s)| json!({"affordance": a, "type": t, "attempts": n, "successes": s, "objects": 1}))
+            .collect();
+        history
+            .record("episode", steps, json!({"stats": {}, "tries": tries}))
+            .unwrap();
+    }
+
+    #[test]
+    fn tries_by_object_type_add_up_per_span_and_over_repeats() {
+        let dirs = [tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap()];
+        for dir in &dirs {
+            let mut history = History::open(dir.path()).unwrap();
+            episode_with_tries(
+                &mut history,
+                100,
+                &[("pick_up", "Drawer", 2, 0), ("pick_up", "KeyChain", 1, 1)],
+            );
+            episode_with_tries(&mut history, 900, &[("pick_up", "Drawer", 1, 0)]);
+            episode_with_tries(
+                &mut history,
+                1500,
+                &[("push", "Chair", 2, 1), ("pick_up", "KeyChain", 4, 3)],
+            );
+            // Histories written before tries were recorded have none.
+            episode(&mut history, 1600, 0.5, None);
+        }
+        let one = summarize(dirs[0].path(), 1000).unwrap();
+        let key = |a: &str, t: &str| (a.to_string(), t.to_string());
+        assert_eq!(one.rows[0].tries[&key("pick_up", "Drawer")], (3, 0));
+        assert_eq!(one.rows[0].tries[&key("pick_up", "KeyChain")], (1, 1));
+        assert_eq!(one.rows[1].tries.get(&key("pick_up", "Drawer")), None);
+        assert_eq!(one.rows[1].tries[&key("pick_up", "KeyChain")], (4, 3));
+        // By affordance, the most tried first.
+        assert_eq!(
+            one.tried_types(),
+            [
+                key("pick_up", "KeyChain"),
+                key("pick_up", "Drawer"),
+                key("push", "Chair")
+            ]
+        );
+        let table = one.markdown();
+        assert!(
+            table.contains("| pick_up | KeyChain | 1 (1) | 4 (3) | 5 (4) |"),
+            "{table}"
+        );
+        assert!(table.contains("| pick_up | Drawer | 3 (0) | 0 (0) | 3 (0) |"));
+        let paths: Vec<PathBuf> = dirs.iter().map(|d| d.path().to_path_buf()).collect();
+        let both = summarize_repeats(&paths, 1000).unwrap();
+        assert_eq!(both.rows[1].tries[&key("push", "Chair")], (4, 2));
+        assert!(both.markdown().contains("all runs together"));
+        let json = Value::from(&both);
+        assert_eq!(json[0]["tries"]["pick_up"]["Drawer"], json!([6, 0]));
     }
 
     #[test]

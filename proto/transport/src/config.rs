@@ -34,7 +34,9 @@ impl Default for TransportConfig {
             spare_ports: 2,
             max_rollout_bytes: 16 << 20,
             max_frames_bytes: 32 << 20,
-            max_stats_bytes: 4 << 10,
+            // The largest stats message (every metric, the most tries by
+            // object type with the longest names) is ~12 KiB.
+            max_stats_bytes: 16 << 10,
             max_weights_bytes: 16 << 20,
             learner_buffer: 8,
         }
@@ -75,5 +77,35 @@ impl TransportConfig {
             self.max_weights_bytes,
             self.learner_buffer
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proto::{
+        Affordance, AffordanceStat, EpisodeStats, StatKey, TypeTries, MAX_TYPE_NAME, MAX_TYPE_TRIES,
+    };
+
+    #[test]
+    fn the_largest_stats_message_fits_the_default_limit() {
+        let every_metric =
+            StatKey::all().fold(EpisodeStats::new(1, 600, 0), |s, key| s.with(key, 0.5));
+        assert!(matches!(
+            StatKey::all().last(),
+            Some(StatKey::Affordance(_, AffordanceStat::NegativeLabelRecall))
+        ));
+        let longest = (0..MAX_TYPE_TRIES).map(|i| TypeTries {
+            affordance: Affordance::ALL[i % Affordance::COUNT],
+            object_type: format!("{i:0width$}", width = MAX_TYPE_NAME),
+            attempts: 1,
+            successes: 1,
+            objects: 1,
+        });
+        let largest = every_metric.with_tries(longest);
+        assert_eq!(largest.tries().len(), MAX_TYPE_TRIES);
+        let len = proto::encoded_len(&largest);
+        let limit = TransportConfig::default().max_stats_bytes;
+        assert!(len <= limit, "{len} bytes against a limit of {limit}");
     }
 }

@@ -49,6 +49,7 @@ impl SimEnv {
             .memory
             .id_consistency(episode.metrics.truth_ids(), &episode.frames);
         Ok(EpisodeSummary {
+            tries: episode.metrics.tries(),
             stats: episode
                 .metrics
                 .finish(episode.steps, &labels, k.pixels(), id_consistency),

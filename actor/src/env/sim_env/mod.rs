@@ -25,7 +25,9 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use mapper::{Affordance, MapConfig};
 use nalgebra::Point2;
-use proto::{ConfidenceRule, FrameBatch, Method, SelectionRule, SphereRule, StatKey, TaskSpec};
+use proto::{
+    ConfidenceRule, FrameBatch, Method, SelectionRule, SphereRule, StatKey, TaskSpec, TypeTries,
+};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use sim::agent::{Failure, Simulator};
@@ -242,6 +244,8 @@ pub struct EpisodeSummary {
     pub frames: FrameBatch,
     /// Metrics, means over the configured affordances where per affordance.
     pub stats: Vec<(StatKey, f32)>,
+    /// Interactions by object type.
+    pub tries: Vec<TypeTries>,
 }
 
 impl SimEnv {
@@ -368,7 +372,15 @@ impl SimEnv {
                 classes,
             ),
             probabilities: Vec::new(),
-            metrics: EpisodeMetrics::new(truth, &self.config.affordances),
+            metrics: EpisodeMetrics::new(
+                truth,
+                sim.scene()
+                    .objects
+                    .iter()
+                    .map(|o| o.object_type.clone())
+                    .collect(),
+                &self.config.affordances,
+            ),
             recorder: self.recording.as_ref().map(|_| EpisodeRecorder::default()),
             reward: RewardTracker::new(self.config.reward, start),
             visited: vec![Point2::new(start.x, start.y)],

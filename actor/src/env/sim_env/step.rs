@@ -45,7 +45,11 @@ impl SimEnv {
         };
         if let Some(Interaction { affordance, target }) = interaction {
             episode.memory.after_interaction(&episode.sim, &outcome);
-            episode.metrics.interaction(affordance, &outcome);
+            episode.metrics.interaction(
+                affordance,
+                &outcome,
+                (target.u, target.v, self.config.image_size),
+            );
             if outcome.success {
                 episode
                     .metrics
