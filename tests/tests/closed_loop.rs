@@ -180,6 +180,33 @@ fn closed_loop(method: &str) {
         scenes.iter().all(|&s| s < 20) && scenes.iter().any(|&s| s > 0),
         "rooms {scenes:?}"
     );
+    // Each episode's tries by object type account for its attempts (those
+    // aimed at no scene object left out).
+    let (mut attempts, mut by_type) = (0.0, 0.0);
+    for record in history["records"].as_array().expect("records") {
+        let tries = record["tries"].as_array().expect("tries in every episode");
+        for affordance in ["pick_up", "push"] {
+            let rate = record["stats"][format!("{affordance}_attempt_rate")]
+                .as_f64()
+                .unwrap_or(0.0);
+            let episode_attempts = (rate * record["steps"].as_f64().unwrap_or(0.0)).round();
+            let typed: f64 = tries
+                .iter()
+                .filter(|t| t["affordance"] == affordance)
+                .map(|t| t["attempts"].as_f64().expect("attempts"))
+                .sum();
+            assert!(typed <= episode_attempts, "{record}");
+            attempts += episode_attempts;
+            by_type += typed;
+        }
+        assert!(
+            tries
+                .iter()
+                .all(|t| t["type"].as_str().is_some_and(|n| !n.is_empty())),
+            "{record}"
+        );
+    }
+    assert!(attempts == 0.0 || by_type > 0.0, "{history}");
 
     // New weights of both networks reach both actors.
     wait_for(
