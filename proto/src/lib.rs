@@ -26,6 +26,7 @@ mod stats;
 pub mod task;
 #[cfg(test)]
 mod third_affordance;
+mod type_tries;
 mod validation;
 mod weights;
 
@@ -50,10 +51,9 @@ pub use rollout::{
 pub use rules::{
     CellPreference, ConfidenceRule, MapSegmentation, MapSettings, SelectionRule, SphereRule,
 };
-pub use stats::{
-    AffordanceStat, EpisodeStats, StatField, StatKey, TypeTries, MAX_TYPE_NAME, MAX_TYPE_TRIES,
-};
+pub use stats::{AffordanceStat, EpisodeStats, StatField, StatKey};
 pub use task::{Affordance, EnvKind, PolicyLayout, RewardWeights, TaskError, TaskSpec};
+pub use type_tries::{TypeTries, MAX_TYPE_NAME, MAX_TYPE_TRIES};
 pub use validation::{AffordanceScores, ValidationScores, VALIDATION_DIR};
 pub use weights::{
     WeightsBlob, WeightsView, WEIGHTS_META_ENV_STEPS, WEIGHTS_META_HOLD, WEIGHTS_META_TEMPERATURE,

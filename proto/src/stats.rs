@@ -7,89 +7,25 @@
 //! the affordance's code u32 (records in increasing code order), present
 //! u32 (bit i set = [`AffordanceStat`] i carries a value), one f32 per
 //! [`AffordanceStat`] in order. A new affordance adds records, not fields.
-//! Last, the number of [`TypeTries`] records u32 (at most [`MAX_TYPE_TRIES`]),
-//! reserved u32 (0; it also keeps every stats message longer than a join,
-//! whose exact length the transport lets strangers send), and per record, in increasing (affordance code, type name) order: the
-//! affordance's code u32, attempts u32, successes u32, objects u32, the
-//! name's length in bytes u32, then the name (ASCII letters, digits and
-//! `_`, 1 to [`MAX_TYPE_NAME`] bytes) padded with zeros to four bytes.
+//! Last, the tries by object type ([`crate::type_tries`] gives their
+//! layout).
 
 use std::borrow::Cow;
 
 use crate::arrays::{read_u32, read_u64};
 use crate::payload::{check_layout, Payload};
 use crate::task::Affordance;
+use crate::type_tries::{self, TypeTries};
 use crate::{MessageKind, ProtoError};
 
 const FIXED_LEN: usize = 24;
 const EPISODE_LEN: usize = FIXED_LEN + 4 * StatField::COUNT;
 const RECORD_LEN: usize = 8 + 4 * AffordanceStat::COUNT;
-/// Bytes of a [`TypeTries`] record before its name.
-const TRIES_HEAD_LEN: usize = 20;
-/// Bytes of the tries' section before its records: count and reserved.
-const TRIES_SECTION_LEN: usize = 8;
 /// The shortest stats message's payload.
-const MIN_PAYLOAD_LEN: usize = EPISODE_LEN + 4 + TRIES_SECTION_LEN;
+const MIN_PAYLOAD_LEN: usize = EPISODE_LEN + 4 + type_tries::section_len(&[]);
 // A stranger may send only a join's exact length (the transport's
 // membership screen); no stats message may have it.
 const _: () = assert!(MIN_PAYLOAD_LEN > crate::join::JOIN_PAYLOAD_LEN);
-
-/// Most [`TypeTries`] records one episode's metrics may carry.
-pub const MAX_TYPE_TRIES: usize = 128;
-/// Longest object type name a [`TypeTries`] record may carry, in bytes.
-pub const MAX_TYPE_NAME: usize = 64;
-
-/// One object type's interactions of one affordance in an episode: which
-/// objects the policy tries, and so which objects carry labels (issue 65's
-/// label statistics; `learner summary` tabulates them per span).
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct TypeTries {
-    /// The affordance tried.
-    pub affordance: Affordance,
-    /// The simulator's type of the objects tried (`Drawer`, `KeyChain`).
-    pub object_type: String,
-    /// Attempts on objects of this type.
-    pub attempts: u32,
-    /// Of those, the successful ones.
-    pub successes: u32,
-    /// Distinct objects of this type tried (at most `attempts`).
-    pub objects: u32,
-}
-
-impl TypeTries {
-    fn name_len_padded(&self) -> usize {
-        self.object_type.len().div_ceil(4) * 4
-    }
-
-    fn wire_len(&self) -> usize {
-        TRIES_HEAD_LEN + self.name_len_padded()
-    }
-
-    /// Sort key of the records on the wire.
-    fn key(&self) -> (u32, &str) {
-        (self.affordance.code(), &self.object_type)
-    }
-}
-
-/// `name` as a record may carry it (see [`EpisodeStats::with_tries`]).
-fn wire_type_name(name: &str) -> String {
-    let cleaned: String = name
-        .chars()
-        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
-        .take(MAX_TYPE_NAME)
-        .collect();
-    if cleaned.is_empty() {
-        "unknown".into()
-    } else {
-        cleaned
-    }
-}
-
-/// Whether `name` is a type name a record may carry.
-fn valid_type_name(name: &[u8]) -> bool {
-    (1..=MAX_TYPE_NAME).contains(&name.len())
-        && name.iter().all(|b| b.is_ascii_alphanumeric() || *b == b'_')
-}
 
 /// The episode-wide metrics an episode can report. Rates lie in `[0, 1]`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -369,31 +305,13 @@ impl EpisodeStats {
     /// wire order (by affordance code, then type name); for a type given
     /// twice under one affordance the counts add up. What the wire cannot
     /// carry is made so rather than lost with the episode's other metrics:
-    /// a name's other characters become `_` (cut to [`MAX_TYPE_NAME`]
+    /// a name's other characters become `_` (cut to [`crate::MAX_TYPE_NAME`]
     /// bytes, `unknown` if empty), counts are clamped (successes and
     /// objects to the attempts, at least one object), records without
-    /// attempts are left out, and beyond [`MAX_TYPE_TRIES`] records the
+    /// attempts are left out, and beyond [`crate::MAX_TYPE_TRIES`] records the
     /// least tried are.
     pub fn with_tries(mut self, tries: impl IntoIterator<Item = TypeTries>) -> Self {
-        let mut all: Vec<TypeTries> = std::mem::take(&mut self.tries);
-        all.extend(tries.into_iter().filter(|t| t.attempts > 0).map(|mut t| {
-            t.object_type = wire_type_name(&t.object_type);
-            t.successes = t.successes.min(t.attempts);
-            t.objects = t.objects.clamp(1, t.attempts);
-            t
-        }));
-        all.sort_by(|a, b| a.key().cmp(&b.key()));
-        all.dedup_by(|later, kept| {
-            let same = later.key() == kept.key();
-            if same {
-                kept.attempts += later.attempts;
-                kept.successes += later.successes;
-                kept.objects += later.objects;
-            }
-            same
-        });
-        self.tries = all;
-        self.keep_most_tried(MAX_TYPE_TRIES);
+        self.tries = type_tries::merged(std::mem::take(&mut self.tries), tries);
         self
     }
 
@@ -401,20 +319,7 @@ impl EpisodeStats {
     /// (the first in wire order on ties), for a message that must fit a
     /// smaller limit.
     pub fn keep_most_tried(&mut self, n: usize) {
-        if self.tries.len() <= n {
-            return;
-        }
-        let mut order: Vec<usize> = (0..self.tries.len()).collect();
-        order.sort_by_key(|&i| (std::cmp::Reverse(self.tries[i].attempts), i));
-        let mut keep = vec![false; self.tries.len()];
-        for &i in &order[..n] {
-            keep[i] = true;
-        }
-        let mut index = 0;
-        self.tries.retain(|_| {
-            index += 1;
-            keep[index - 1]
-        });
+        type_tries::keep_most_tried(&mut self.tries, n);
     }
 
     /// Tries by object type, by affordance code then type name.
@@ -471,10 +376,10 @@ impl EpisodeStats {
             });
         }
         let tries_at = EPISODE_LEN + 4 + count as usize * RECORD_LEN;
-        if payload.len() < tries_at + TRIES_SECTION_LEN {
+        if payload.len() < tries_at + type_tries::section_len(&[]) {
             return Err(ProtoError::Truncated {
                 what: "stats' tries by object type",
-                needed: tries_at + TRIES_SECTION_LEN,
+                needed: tries_at + type_tries::section_len(&[]),
                 got: payload.len(),
             });
         }
@@ -508,89 +413,10 @@ impl EpisodeStats {
             let keys = AffordanceStat::ALL.map(|stat| StatKey::Affordance(affordance, stat));
             stats.read_values(payload, (at + 4, at + 8), &keys, "affordance present")?;
         }
-        let end = stats.read_tries(payload, tries_at)?;
+        let (tries, end) = type_tries::read_section(payload, tries_at)?;
+        stats.tries = tries;
         check_layout("stats", end as u64, payload.len())?;
         Ok(stats)
-    }
-
-    /// Reads the tries by object type from `at`; returns where they end.
-    fn read_tries(&mut self, payload: &[u8], at: usize) -> Result<usize, ProtoError> {
-        let count = read_u32(payload, at);
-        if count as usize > MAX_TYPE_TRIES {
-            return Err(ProtoError::OutOfRange {
-                field: "tries by object type",
-                value: count.into(),
-                allowed: "at most MAX_TYPE_TRIES records",
-            });
-        }
-        let reserved = read_u32(payload, at + 4);
-        if reserved != 0 {
-            return Err(ProtoError::OutOfRange {
-                field: "tries' reserved",
-                value: reserved.into(),
-                allowed: "0",
-            });
-        }
-        let mut at = at + TRIES_SECTION_LEN;
-        for _ in 0..count {
-            if payload.len() < at + TRIES_HEAD_LEN {
-                return Err(ProtoError::Truncated {
-                    what: "a tries record",
-                    needed: at + TRIES_HEAD_LEN,
-                    got: payload.len(),
-                });
-            }
-            let code = read_u32(payload, at);
-            let affordance = Affordance::from_code(code).ok_or(ProtoError::OutOfRange {
-                field: "tries' affordance code",
-                value: code.into(),
-                allowed: "a known affordance",
-            })?;
-            let [attempts, successes, objects, name_len] =
-                [4, 8, 12, 16].map(|offset| read_u32(payload, at + offset));
-            if successes > attempts || objects == 0 || objects > attempts {
-                return Err(ProtoError::OutOfRange {
-                    field: "tries' counts",
-                    value: attempts.into(),
-                    allowed: "successes and objects at most the attempts, at least one object",
-                });
-            }
-            let name_at = at + TRIES_HEAD_LEN;
-            let padded = (name_len as usize).div_ceil(4) * 4;
-            if name_len as usize > MAX_TYPE_NAME || payload.len() < name_at + padded {
-                return Err(ProtoError::OutOfRange {
-                    field: "tries' type name length",
-                    value: name_len.into(),
-                    allowed: "1 to MAX_TYPE_NAME bytes, within the message",
-                });
-            }
-            let name = &payload[name_at..name_at + name_len as usize];
-            let padding = &payload[name_at + name_len as usize..name_at + padded];
-            if !valid_type_name(name) || padding.iter().any(|&b| b != 0) {
-                return Err(ProtoError::OutOfRange {
-                    field: "tries' type name",
-                    value: name_len.into(),
-                    allowed: "ASCII letters, digits and _, padded with zeros",
-                });
-            }
-            let record = TypeTries {
-                affordance,
-                object_type: String::from_utf8_lossy(name).into_owned(),
-                attempts,
-                successes,
-                objects,
-            };
-            if self.tries.last().is_some_and(|p| p.key() >= record.key()) {
-                return Err(ProtoError::OutOfRange {
-                    field: "tries' order",
-                    value: code.into(),
-                    allowed: "records in increasing (affordance, type name) order",
-                });
-            }
-            self.tries.push(record);
-            at = name_at + padded;
-        }
-        Ok(at)
     }
 
     /// Reads a present-bits word and one f32 per key of `keys`, at the
@@ -652,9 +478,7 @@ impl Payload for EpisodeStats {
     const KIND: MessageKind = MessageKind::Stats;
 
     fn payload_len(&self) -> usize {
-        MIN_PAYLOAD_LEN
-            + self.records().count() * RECORD_LEN
-            + self.tries.iter().map(TypeTries::wire_len).sum::<usize>()
+        EPISODE_LEN + 4 + self.records().count() * RECORD_LEN + type_tries::section_len(&self.tries)
     }
 
     fn write_payload(&self, out: &mut [u8]) {
@@ -674,34 +498,19 @@ impl Payload for EpisodeStats {
             let (present, rest) = record[4..].split_at_mut(4);
             write_values(values, present, rest);
         }
-        let mut at = EPISODE_LEN + 4 + records_len * RECORD_LEN;
-        out[at..at + 4].copy_from_slice(&(self.tries.len() as u32).to_le_bytes());
-        out[at + 4..at + 8].copy_from_slice(&0u32.to_le_bytes());
-        at += TRIES_SECTION_LEN;
-        for tries in &self.tries {
-            let name = tries.object_type.as_bytes();
-            let head = [
-                tries.affordance.code(),
-                tries.attempts,
-                tries.successes,
-                tries.objects,
-                name.len() as u32,
-            ];
-            for (i, word) in head.into_iter().enumerate() {
-                out[at + 4 * i..at + 4 * i + 4].copy_from_slice(&word.to_le_bytes());
-            }
-            let name_at = at + TRIES_HEAD_LEN;
-            out[name_at..name_at + name.len()].copy_from_slice(name);
-            out[name_at + name.len()..name_at + tries.name_len_padded()].fill(0);
-            at = name_at + tries.name_len_padded();
-        }
+        type_tries::write_section(
+            &self.tries,
+            &mut out[EPISODE_LEN + 4 + records_len * RECORD_LEN..],
+        );
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{decode, encode, Limits, Message, MessageHeader, HEADER_LEN};
+    use crate::{
+        decode, encode, Limits, Message, MessageHeader, HEADER_LEN, MAX_TYPE_NAME, MAX_TYPE_TRIES,
+    };
 
     const LIMITS: Limits = Limits {
         max_actors: 4,
@@ -931,7 +740,7 @@ mod tests {
         let bytes = encode(&stats, MessageHeader::default());
         assert_eq!(decoded(&bytes).unwrap(), stats);
         let count_at = EPISODE_LEN + 4;
-        let first = count_at + TRIES_SECTION_LEN;
+        let first = count_at + type_tries::section_len(&[]);
         let second = first + 20 + 4;
         let put = |at: usize, value: u32| {
             move |p: &mut [u8]| p[at..at + 4].copy_from_slice(&value.to_le_bytes())

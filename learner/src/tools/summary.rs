@@ -21,6 +21,7 @@ use proto::{Affordance, AffordanceStat, StatKey};
 use serde_json::{json, Value};
 
 use crate::history::read_records;
+use crate::tools::tries_table::{self, TriedType, Tries};
 
 /// One metric over one span: the mean, and over repeats the lowest and the
 /// highest of the runs' means (one run: all three are its mean).
@@ -98,11 +99,8 @@ pub struct SummaryRow {
     pub validation: Vec<Option<Spread>>,
     /// Interactions by (affordance, object type) in the span's episodes:
     /// attempts and successes (over repeats: all runs together).
-    pub tries: BTreeMap<TriedType, (u64, u64)>,
+    pub tries: Tries,
 }
-
-/// An affordance's name and an object type, as the history names them.
-pub type TriedType = (String, String);
 
 /// A run's history, or repeats' histories, span by span.
 #[derive(Debug, Clone, PartialEq)]
@@ -120,17 +118,9 @@ pub struct Summary {
 
 impl Summary {
     /// Every (affordance, object type) some span tried: by affordance, then
-    /// the most attempts over all spans first, then by name.
+    /// the most attempts first.
     pub fn tried_types(&self) -> Vec<TriedType> {
-        let mut totals: BTreeMap<&TriedType, u64> = BTreeMap::new();
-        for row in &self.rows {
-            for (key, &(attempts, _)) in &row.tries {
-                *totals.entry(key).or_default() += attempts;
-            }
-        }
-        let mut keys: Vec<(&TriedType, u64)> = totals.into_iter().collect();
-        keys.sort_by(|(a, na), (b, nb)| a.0.cmp(&b.0).then(nb.cmp(na)).then(a.1.cmp(&b.1)));
-        keys.into_iter().map(|(k, _)| k.clone()).collect()
+        tries_table::tried_types(self.rows.iter().map(|row| &row.tries))
     }
 }
 
@@ -157,7 +147,7 @@ struct SpanSums {
     validated: usize,
     validation: BTreeMap<String, Vec<f64>>,
     /// Attempts and successes by (affordance, object type).
-    tries: BTreeMap<TriedType, (u64, u64)>,
+    tries: Tries,
 }
 
 /// Each of `names` once, in name order.
@@ -202,17 +192,7 @@ pub(crate) fn summarize(run_dir: &Path, every: u64) -> anyhow::Result<Summary> {
                         sums.1 += steps;
                     }
                 }
-                for tried in record["tries"].as_array().into_iter().flatten() {
-                    let (Some(affordance), Some(object_type)) =
-                        (tried["affordance"].as_str(), tried["type"].as_str())
-                    else {
-                        continue;
-                    };
-                    let key = (affordance.to_string(), object_type.to_string());
-                    let sums = span.tries.entry(key).or_default();
-                    sums.0 += tried["attempts"].as_u64().unwrap_or(0);
-                    sums.1 += tried["successes"].as_u64().unwrap_or(0);
-                }
+                tries_table::add_episode(&mut span.tries, &record);
                 for key in StatKey::all() {
                     if let Some(v) = record["stats"][key.name().as_ref()].as_f64() {
                         let (sum, n) = span.fields.entry(key).or_default();
@@ -401,14 +381,7 @@ pub fn summarize_repeats(run_dirs: &[PathBuf], every: u64) -> anyhow::Result<Sum
                 .iter()
                 .map(|name| Spread::of(span.iter().filter_map(|&(s, r)| score_median(s, r, name))))
                 .collect(),
-            tries: span.iter().fold(BTreeMap::new(), |mut all, (_, r)| {
-                for (key, &(attempts, successes)) in &r.tries {
-                    let sums: &mut (u64, u64) = all.entry(key.clone()).or_default();
-                    sums.0 += attempts;
-                    sums.1 += successes;
-                }
-                all
-            }),
+            tries: tries_table::total(span.iter().map(|(_, r)| &r.tries)),
         });
     }
     anyhow::ensure!(
@@ -494,42 +467,16 @@ impl Summary {
             }
             out.push('\n');
         }
-        self.tries_markdown(&mut out);
+        let spans: Vec<(String, &Tries)> = self
+            .rows
+            .iter()
+            .map(|row| {
+                let heading = format!("{}–{}", steps(row.from_steps), steps(row.to_steps));
+                (heading, &row.tries)
+            })
+            .collect();
+        tries_table::markdown(&mut out, &spans, self.runs > 1);
         out
-    }
-
-    /// The tries by object type, when the history holds them: one row per
-    /// (affordance, object type), one column per span, `attempts (successes)`.
-    fn tries_markdown(&self, out: &mut String) {
-        let types = self.tried_types();
-        if types.is_empty() {
-            return;
-        }
-        let runs = if self.runs > 1 {
-            ", all runs together"
-        } else {
-            ""
-        };
-        let _ = write!(
-            out,
-            "\nInteractions by the type of the object tried: attempts (successes){runs}\n\n| affordance | object type |"
-        );
-        for row in &self.rows {
-            let _ = write!(out, " {}–{} |", steps(row.from_steps), steps(row.to_steps));
-        }
-        out.push_str(" all |\n|---|---|");
-        out.push_str(&"---|".repeat(self.rows.len() + 1));
-        out.push('\n');
-        for key in &types {
-            let _ = write!(out, "| {} | {} |", key.0, key.1);
-            let mut total = (0, 0);
-            for row in &self.rows {
-                let (attempts, successes) = row.tries.get(key).copied().unwrap_or_default();
-                total = (total.0 + attempts, total.1 + successes);
-                let _ = write!(out, " {attempts} ({successes}) |");
-            }
-            let _ = writeln!(out, " {} ({}) |", total.0, total.1);
-        }
     }
 }
 
@@ -540,18 +487,6 @@ fn steps(n: u64) -> String {
     } else {
         n.to_string()
     }
-}
-
-/// `{affordance: {object type: [attempts, successes]}}`.
-fn tries_json(tries: &BTreeMap<TriedType, (u64, u64)>) -> Value {
-    let mut by_affordance = serde_json::Map::new();
-    for ((affordance, object_type), &(attempts, successes)) in tries {
-        let types = by_affordance
-            .entry(affordance.clone())
-            .or_insert_with(|| json!({}));
-        types[object_type] = json!([attempts, successes]);
-    }
-    Value::Object(by_affordance)
 }
 
 impl From<&Summary> for Value {
@@ -598,7 +533,7 @@ impl From<&Summary> for Value {
                     "unet_positive_frames": by_affordance(&row.unet_positive_frames, &mean),
                     "validation_checkpoints": mean(&row.validation_checkpoints),
                     "validation": by_score(&row.validation, &mean),
-                    "tries": tries_json(&row.tries),
+                    "tries": tries_table::json(&row.tries),
                 });
                 if summary.runs > 1 {
                     ranges.insert("ppo_entropy".into(), range(&row.entropy));
