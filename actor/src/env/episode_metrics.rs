@@ -44,11 +44,10 @@ pub(crate) struct EpisodeMetrics {
     /// Interactions that reached the object but found no room to lift or
     /// put it.
     no_room: PerAffordance,
-    /// Scene objects an interaction succeeded on.
-    interacted: BTreeSet<usize>,
     /// The simulator's type of each scene object (by object index).
     object_types: Vec<String>,
-    /// Per affordance code and scene object tried: attempts and successes.
+    /// Per affordance code and scene object tried (the one at the aimed
+    /// pixel): attempts and successes.
     tried: BTreeMap<(u32, usize), (u32, u32)>,
     episode_return: f32,
 }
@@ -72,7 +71,6 @@ impl EpisodeMetrics {
             out_of_reach: Default::default(),
             unafforded: Default::default(),
             no_room: Default::default(),
-            interacted: BTreeSet::new(),
             object_types,
             tried: BTreeMap::new(),
             episode_return: 0.0,
@@ -123,14 +121,6 @@ impl EpisodeMetrics {
             self.out_of_reach[kind] += u32::from(matches!(failure, Failure::OutOfReach { .. }));
             self.unafforded[kind] += u32::from(failure.object_does_not_afford());
             self.no_room[kind] += u32::from(matches!(failure, Failure::NoRoom { .. }));
-        }
-    }
-
-    /// An interaction aimed at pixel `(u, v)` of the last frame observed
-    /// succeeded: the scene object there counts as interacted with.
-    pub(crate) fn touched(&mut self, u: usize, v: usize, width: usize) {
-        if let Some(object) = self.object_at(u, v, width) {
-            self.interacted.insert(object);
         }
     }
 
@@ -201,8 +191,14 @@ impl EpisodeMetrics {
     ) -> Vec<(StatKey, f32)> {
         let (positive, negative, rated) = self.annotation_rates(labels, pixels);
         let interactable = self.truth.iter().filter(|t| t.iter().any(|&x| x)).count();
-        let interacted = self
-            .interacted
+        // Scene objects an interaction succeeded on.
+        let interacted: BTreeSet<usize> = self
+            .tried
+            .iter()
+            .filter(|(_, &(_, successes))| successes > 0)
+            .map(|(&(_, object), _)| object)
+            .collect();
+        let interacted = interacted
             .iter()
             .filter(|&&i| self.truth.get(i).is_some_and(|t| t.iter().any(|&x| x)))
             .count();

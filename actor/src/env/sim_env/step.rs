@@ -50,11 +50,6 @@ impl SimEnv {
                 &outcome,
                 (target.u, target.v, self.config.image_size),
             );
-            if outcome.success {
-                episode
-                    .metrics
-                    .touched(target.u, target.v, self.config.image_size);
-            }
         }
         if let (PolicyAction::Drop, true, Some(object)) = (action, outcome.success, held_before) {
             episode.memory.put_down(&episode.sim, object);
