@@ -65,7 +65,8 @@ pub struct SelectionRule {
     /// robot aims at an object's part within reach. `false` is the paper's
     /// grid, which offers every object in view (docs/decisions/0012-selection-within-reach.md).
     pub within_reach: bool,
-    /// Which of a cell's objects it offers when the U-Net is running.
+    /// Which of a cell's objects it offers (before the U-Net runs, the
+    /// largest, or under `smallest` the smallest).
     pub prefer: CellPreference,
     /// Whether the policy's state holds, per affordance and grid cell, the
     /// U-Net's mean probability over the object the cell offers (0 for an
@@ -97,6 +98,14 @@ pub enum CellPreference {
     /// score" taken to its end; docs/ladder.md). Without a network yet, the
     /// paper's `largest`.
     MostProbableInView,
+    /// The smallest object whose mean probability is at least the task's
+    /// `selection_confidence` (failing any, the most probable one), also
+    /// before the U-Net runs: the paper's rule with its order of sizes
+    /// turned round, so that the key chain on a sofa is offered rather
+    /// than the sofa. Under `largest` the policy's pick-up attempts go
+    /// mostly to furniture and the objects small enough to pick up are
+    /// rarely tried (`learner summary`'s tries by type; docs/ladder.md).
+    Smallest,
 }
 
 impl SelectionRule {

@@ -228,14 +228,26 @@ impl Blob {
 }
 
 /// How strongly a cell prefers one of its objects: any object ranked by its
-/// size (without a network, or confident under the paper's rule) over any
+/// size (without a network, or confident under a rule by size) over any
 /// ranked by its mean probability.
 #[derive(Debug, Clone, Copy, PartialEq, PartialOrd)]
 enum Preference {
     /// Its mean probability of the affordance.
     Probability(f32),
-    /// Its pixel count.
-    Size(usize),
+    /// Its pixel count under `largest`, the count negated under `smallest`
+    /// (the higher preferred).
+    Size(i64),
+}
+
+impl Preference {
+    /// An object of `pixels` ranked by its size under `prefer`.
+    fn by_size(prefer: CellPreference, pixels: usize) -> Self {
+        let pixels = pixels as i64;
+        match prefer {
+            CellPreference::Smallest => Preference::Size(-pixels),
+            _ => Preference::Size(pixels),
+        }
+    }
 }
 
 /// The grid targets for a frame: `map_ids` is the frame's map-id image
@@ -301,22 +313,25 @@ pub(crate) fn cell_targets(
     let mut cells = Vec::with_capacity(affordances.len());
     for (k, &affordance) in affordances.iter().enumerate() {
         // Per cell, the largest confident object, failing any the most
-        // probable one (`largest`); or the most probable one
-        // (`most_probable`); the lowest id on ties.
+        // probable one (`largest`; `smallest` the smallest); or the most
+        // probable one (`most_probable`); the lowest id on ties.
         let mut best: [Option<(u32, &Blob, Preference)>; GRID * GRID] = [None; GRID * GRID];
         for (&id, blob) in &blobs {
             if blob.pixels < min_pixels {
                 continue;
             }
             let preference = match probabilities {
-                None => Preference::Size(blob.pixels),
+                None => Preference::by_size(rule.prefer, blob.pixels),
                 Some(_) => {
                     let mean = (blob.sum_probability[k] / blob.pixels as f64) as f32;
                     match rule.prefer {
-                        CellPreference::Largest if mean >= min_confidence => {
-                            Preference::Size(blob.pixels)
+                        CellPreference::Largest | CellPreference::Smallest
+                            if mean >= min_confidence =>
+                        {
+                            Preference::by_size(rule.prefer, blob.pixels)
                         }
                         CellPreference::Largest
+                        | CellPreference::Smallest
                         | CellPreference::MostProbable
                         | CellPreference::MostProbableInView => Preference::Probability(mean),
                     }
@@ -655,6 +670,36 @@ mod tests {
             targets(None).target(Affordance::PickUp, 0).unwrap().object,
             2
         );
+    }
+
+    #[test]
+    fn a_smallest_cell_offers_its_smallest_confident_object_also_before_the_network() {
+        let ids = big_small_and_far();
+        let targets =
+            |planes: Option<&[Vec<f32>]>| pick_up_targets(&ids, CellPreference::Smallest, planes);
+        let offered =
+            |t: &CellTargets| [0, 8].map(|cell| t.target(Affordance::PickUp, cell).unwrap().object);
+        // Before the network: the small object, where the paper's rule
+        // offers the big one.
+        assert_eq!(offered(&targets(None)), [3, 5]);
+        let paper = pick_up_targets(&ids, CellPreference::Largest, None);
+        assert_eq!(offered(&paper), [2, 5]);
+        // Both confident, the big one rated higher: still the small one.
+        let rated = |big: f32, small: f32| -> Vec<f32> {
+            ids.iter()
+                .map(|&id| match id {
+                    2 => big,
+                    3 => small,
+                    _ => 0.5,
+                })
+                .collect()
+        };
+        assert_eq!(offered(&targets(Some(&[rated(0.9, 0.3)]))), [3, 5]);
+        // The small one below the confidence filter: the big one, confident.
+        assert_eq!(offered(&targets(Some(&[rated(0.9, 0.01)]))), [2, 5]);
+        // Neither confident: the more probable.
+        assert_eq!(offered(&targets(Some(&[rated(0.02, 0.04)]))), [3, 5]);
+        assert_eq!(offered(&targets(Some(&[rated(0.04, 0.02)]))), [2, 5]);
     }
 
     #[test]
