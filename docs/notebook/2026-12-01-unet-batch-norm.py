@@ -25,8 +25,10 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "nets", "python"))
+import afx_torch  # noqa: E402
+
 HEADER, SUB = 48, 24
-CHANNELS = (24, 48, 92, 164)
 RUNGS = {"ground-truth": 0, "tried-truth": 1, "run": 2}
 
 
@@ -57,46 +59,19 @@ def scenes_of(history):
     return scene
 
 
-def norm(kind, c):
-    if kind == "batch":
-        return nn.BatchNorm2d(c)
-    if kind == "group":
-        return nn.GroupNorm(4, c)
-    return nn.Identity()
-
-
-class Double(nn.Module):
-    def __init__(self, i, o, kind):
-        super().__init__()
-        self.c1, self.n1 = nn.Conv2d(i, o, 3, padding=1), norm(kind, o)
-        self.c2, self.n2 = nn.Conv2d(o, o, 3, padding=1), norm(kind, o)
-
-    def forward(self, x):
-        return F.relu(self.n2(self.c2(F.relu(self.n1(self.c1(x))))))
-
-
-class Unet(nn.Module):
-    def __init__(self, kind, inputs=4, outputs=2):
-        super().__init__()
-        c = CHANNELS
-        self.down = nn.ModuleList(
-            Double(i, o, kind) for i, o in zip((inputs,) + c[:-1], c)
-        )
-        self.ups = nn.ModuleList(
-            nn.ConvTranspose2d(c[k + 1], c[k], 2, stride=2) for k in reversed(range(3))
-        )
-        self.upc = nn.ModuleList(Double(2 * c[k], c[k], kind) for k in reversed(range(3)))
-        self.head = nn.Conv2d(c[0], outputs, 1)
-
-    def forward(self, x):
-        skips = []
-        x = self.down[0](x)
-        for d in self.down[1:]:
-            skips.append(x)
-            x = d(F.max_pool2d(x, 2))
-        for up, conv in zip(self.ups, self.upc):
-            x = conv(torch.cat([up(x), skips.pop()], 1))
-        return self.head(x)
+def unet(kind):
+    """The project's U-Net in PyTorch (`nets/python/afx_torch.py`), with
+    `kind` normalisation between each 3 x 3 convolution and its ReLU."""
+    net = afx_torch.AffordanceUnet()
+    if kind == "none":
+        return net
+    for level in [m for m in net.modules() if isinstance(m, afx_torch.DoubleConv)]:
+        for name in ("first", "second"):
+            conv = getattr(level, name)
+            c = conv.out_channels
+            norm = nn.BatchNorm2d(c) if kind == "batch" else nn.GroupNorm(4, c)
+            setattr(level, name, nn.Sequential(conv, norm))
+    return net
 
 
 def loss_fn(logits, labels, known, share=0.5):
@@ -180,7 +155,7 @@ def main():
         f"pick-up positives {(train_y[:, 0] == 1).mean():.4%} of pixels",
         flush=True,
     )
-    net = Unet(kind)
+    net = unet(kind)
     opt = torch.optim.Adam(net.parameters(), lr=1e-3, weight_decay=1e-4)
     started = time.time()
     report = {"norm": kind, "steps": steps, "seed": seed, "rung": rung, "scores": {}}
