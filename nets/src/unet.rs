@@ -5,21 +5,34 @@
 //! level, 2 × 2 max pooling down, 2 × 2 transposed convolutions up, skip
 //! connections by concatenation, and a 1 × 1 output convolution. About
 //! 0.92 M parameters. Inputs must have sides divisible by 8.
+//!
+//! A network in training may hold a batch normalisation after each 3 × 3
+//! convolution (`[unet] batch_norm`; [`AffordanceUnet::with_batch_norm`]);
+//! what leaves training is [`AffordanceUnet::folded`], the same function in
+//! plain convolutions, so that every inference path (`unet_cpu`,
+//! `unet_torch`) and the weights the actors get stay as they are.
 
+use burn::module::Param;
 use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};
 use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
-use burn::nn::PaddingConfig2d;
+use burn::nn::{BatchNorm, BatchNormConfig, PaddingConfig2d};
 use burn::prelude::*;
+use burn::tensor::activation::relu;
 
-use crate::unet_conv_cpu::conv3x3_relu;
+use crate::unet_conv_cpu::{conv3x3, Activation};
 
 pub use crate::layers::UNET_CHANNELS;
 
-/// Two 3 × 3 same-padded convolutions with ReLU.
+/// Two 3 × 3 same-padded convolutions with ReLU, each optionally batch
+/// normalised before its ReLU.
 #[derive(Module, Debug)]
 pub struct DoubleConv {
     pub(crate) first: Conv2d,
     pub(crate) second: Conv2d,
+    /// The normalisation of `first`'s output (a network in training only).
+    first_norm: Option<BatchNorm>,
+    /// The normalisation of `second`'s output.
+    second_norm: Option<BatchNorm>,
 }
 
 impl DoubleConv {
@@ -32,12 +45,72 @@ impl DoubleConv {
         Self {
             first: conv(input, output),
             second: conv(output, output),
+            first_norm: None,
+            second_norm: None,
         }
     }
 
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        conv3x3_relu(&self.second, conv3x3_relu(&self.first, x))
+        let x = conv_norm_relu(&self.first, self.first_norm.as_ref(), x);
+        conv_norm_relu(&self.second, self.second_norm.as_ref(), x)
     }
+
+    /// With a fresh normalisation after each convolution.
+    fn with_batch_norm(self) -> Self {
+        let norm = |conv: &Conv2d| {
+            let [outputs, ..] = conv.weight.dims();
+            BatchNormConfig::new(outputs).init(&conv.weight.device())
+        };
+        Self {
+            first_norm: Some(norm(&self.first)),
+            second_norm: Some(norm(&self.second)),
+            ..self
+        }
+    }
+
+    /// The same function (normalisations at their running statistics) in
+    /// plain convolutions.
+    fn folded(&self) -> Self {
+        Self {
+            first: fold(&self.first, self.first_norm.as_ref()),
+            second: fold(&self.second, self.second_norm.as_ref()),
+            first_norm: None,
+            second_norm: None,
+        }
+    }
+}
+
+/// `relu(norm(conv(x)))`, or `relu(conv(x))` without a normalisation. In
+/// training (tracked tensors) the normalisation uses the batch's statistics
+/// and updates its running ones; otherwise it uses the running ones.
+fn conv_norm_relu(conv: &Conv2d, norm: Option<&BatchNorm>, x: Tensor<4>) -> Tensor<4> {
+    match norm {
+        None => conv3x3(conv, x, Activation::Relu),
+        Some(norm) => relu(norm.forward(conv3x3(conv, x, Activation::Identity))),
+    }
+}
+
+/// `conv` followed by `norm` at its running statistics as one convolution:
+/// `norm(W x + b) = s (W x + b − μ) + β` with `s = γ / √(σ² + ε)` per
+/// output, so the weight is `s W` and the bias `s (b − μ) + β`.
+fn fold(conv: &Conv2d, norm: Option<&BatchNorm>) -> Conv2d {
+    let Some(norm) = norm else {
+        return conv.clone();
+    };
+    let [outputs, inputs, kh, kw] = conv.weight.dims();
+    let scale = norm.gamma.val() / (norm.running_var.value() + norm.epsilon).sqrt();
+    let bias = match &conv.bias {
+        Some(bias) => bias.val(),
+        None => Tensor::zeros([outputs], &conv.weight.device()),
+    };
+    let weight = conv.weight.val().reshape([outputs, inputs * kh * kw])
+        * scale.clone().reshape([outputs, 1]);
+    let mut folded = conv.clone();
+    folded.weight = Param::from_tensor(weight.reshape([outputs, inputs, kh, kw]));
+    folded.bias = Some(Param::from_tensor(
+        (bias - norm.running_mean.value()) * scale + norm.beta.val(),
+    ));
+    folded
 }
 
 /// One decoder level: upsample, concatenate the skip, two convolutions.
@@ -94,10 +167,64 @@ impl AffordanceUnet {
         }
     }
 
+    /// The network with a fresh batch normalisation between each 3 × 3
+    /// convolution and its ReLU, for training (`[unet] batch_norm`): with
+    /// its running statistics at their start (mean 0, variance 1) it is the
+    /// same function as `self` outside training, up to the normalisation's ε.
+    pub fn with_batch_norm(self) -> Self {
+        Self {
+            down: self
+                .down
+                .into_iter()
+                .map(DoubleConv::with_batch_norm)
+                .collect(),
+            up: self
+                .up
+                .into_iter()
+                .map(|level| UpLevel {
+                    up: level.up,
+                    conv: level.conv.with_batch_norm(),
+                })
+                .collect(),
+            ..self
+        }
+    }
+
+    /// Whether the network holds batch normalisations (a network in
+    /// training with `[unet] batch_norm`).
+    pub fn has_batch_norm(&self) -> bool {
+        self.down
+            .iter()
+            .chain(self.up.iter().map(|level| &level.conv))
+            .any(|conv| conv.first_norm.is_some() || conv.second_norm.is_some())
+    }
+
+    /// The function this network computes outside training, in plain
+    /// convolutions: each batch normalisation, at its running statistics,
+    /// folded into the convolution before it. Every inference path and the
+    /// weights the actors get take this form; a network without
+    /// normalisations comes back as it is.
+    pub fn folded(&self) -> Self {
+        Self {
+            down: self.down.iter().map(DoubleConv::folded).collect(),
+            pool: self.pool.clone(),
+            up: self
+                .up
+                .iter()
+                .map(|level| UpLevel {
+                    up: level.up.clone(),
+                    conv: level.conv.folded(),
+                })
+                .collect(),
+            head: self.head.clone(),
+        }
+    }
+
     /// Each layer's weight and bias, in the order the forward pass uses
     /// them: the encoder's convolutions shallow to deep (two per level),
     /// then per decoder level, deep to shallow, the transposed convolution
-    /// and its two convolutions, then the head.
+    /// and its two convolutions, then the head. Of a network without batch
+    /// normalisations (a [`AffordanceUnet::folded`] one).
     #[cfg(feature = "gpu-torch")]
     pub fn layers(&self) -> Vec<(Tensor<4>, Option<Tensor<1>>)> {
         let params = |layer: &Conv2d| (layer.weight.val(), layer.bias.as_ref().map(|b| b.val()));
@@ -258,6 +385,7 @@ pub fn masked_bce_dice(
 mod tests {
     use super::*;
     use burn::module::Module;
+    use burn::tensor::Distribution;
 
     #[test]
     fn shapes_and_parameter_count() {
@@ -267,6 +395,87 @@ mod tests {
         assert_eq!(out.dims(), [2, 2, 128, 128]);
         let params = net.num_params();
         assert!((880_000..960_000).contains(&params), "{params} parameters");
+    }
+
+    /// A normalised network after three training passes (running
+    /// statistics moved from their start) with random γ and β.
+    fn normalised_net_in_use(device: &Device) -> AffordanceUnet {
+        let tracked = device.clone().autodiff();
+        let net = AffordanceUnet::new(4, 2, &tracked).with_batch_norm();
+        assert!(net.has_batch_norm());
+        for shift in [0.0, 0.3, -0.2] {
+            let x = Tensor::<4>::random([3, 4, 16, 16], Distribution::Default, &tracked)
+                .add_scalar(shift);
+            let _ = net.forward(x);
+        }
+        let mut net = net.valid().to_device(device);
+        let random = |n: usize, mean: f64| {
+            Param::from_tensor(Tensor::<1>::random(
+                [n],
+                Distribution::Normal(mean, 0.3),
+                device,
+            ))
+        };
+        for conv in net
+            .down
+            .iter_mut()
+            .chain(net.up.iter_mut().map(|l| &mut l.conv))
+        {
+            for norm in [&mut conv.first_norm, &mut conv.second_norm] {
+                let norm = norm.as_mut().expect("normalised");
+                let [n] = norm.gamma.dims();
+                norm.gamma = random(n, 1.0);
+                norm.beta = random(n, 0.0);
+            }
+        }
+        net
+    }
+
+    #[test]
+    fn a_normalised_network_folds_into_plain_convolutions_computing_the_same() {
+        let device = Device::flex();
+        let net = normalised_net_in_use(&device);
+        // The running statistics moved, so a fold that ignored them differs.
+        let norm = net.down[0].first_norm.as_ref().expect("normalised");
+        let mean: Vec<f32> = norm
+            .running_mean
+            .value()
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
+        assert!(mean.iter().any(|m| m.abs() > 1e-3), "{mean:?}");
+        let x = Tensor::<4>::random([2, 4, 16, 16], Distribution::Default, &device);
+        let folded = net.folded();
+        assert!(!folded.has_batch_norm());
+        let expected = net.forward(x.clone());
+        crate::test_support::assert_close(folded.forward(x.clone()), expected.clone(), "folded");
+        // The inference path folds on its own, and the folded weights load
+        // into a plain network (the actors').
+        let images: Vec<f32> = x.into_data().try_to_vec::<f32>().unwrap();
+        let [c, h, w] = [4, 16, 16];
+        let inference = crate::unet_inference::UnetInference::new(net, &device);
+        let logits = inference.logits(&[&images[..c * h * w], &images[c * h * w..]], h, w);
+        let logits = Tensor::<1>::from_floats(logits.concat().as_slice(), &device);
+        crate::test_support::assert_close(logits, expected.flatten(0, 3), "inference path");
+        let mut plain = AffordanceUnet::new(4, 2, &device);
+        crate::weights::load_safetensors(
+            &mut plain,
+            crate::weights::to_safetensors(&folded).unwrap(),
+        )
+        .expect("the folded weights fit a plain network");
+    }
+
+    #[test]
+    fn a_normalised_network_keeps_its_running_statistics_through_its_weights() {
+        let device = Device::flex();
+        let net = normalised_net_in_use(&device);
+        let bytes = crate::weights::to_safetensors(&net).unwrap();
+        let mut plain = AffordanceUnet::new(4, 2, &device);
+        assert!(crate::weights::load_safetensors(&mut plain, bytes.clone()).is_err());
+        let mut loaded = AffordanceUnet::new(4, 2, &device).with_batch_norm();
+        crate::weights::load_safetensors(&mut loaded, bytes).unwrap();
+        let x = Tensor::<4>::random([1, 4, 16, 16], Distribution::Default, &device);
+        crate::test_support::assert_close(loaded.forward(x.clone()), net.forward(x), "reloaded");
     }
 
     #[test]

@@ -1,5 +1,6 @@
-//! The U-Net's 3 × 3 convolutions with their ReLU as one differentiable
-//! operation on burn's CPU backend, for training.
+//! The U-Net's 3 × 3 convolutions, with their ReLU or (before a batch
+//! normalisation) without, as one differentiable operation on burn's CPU
+//! backend, for training.
 //!
 //! Why it exists: burn's CPU backend turns every convolution of a training
 //! step into copies. Its forward pass and its weight gradient each build an
@@ -47,20 +48,49 @@ use crate::kernels::{
 /// The autodiff backend a training step's tensors live on when on the CPU.
 type Tracked = Autodiff<Flex>;
 
-/// `relu(layer(x))` for a 3 × 3, same-padded, stride-1 convolution with a
-/// bias (as the U-Net's `DoubleConv` builds them): on the CPU through the
-/// operation above, anywhere else through burn.
-pub(crate) fn conv3x3_relu(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+/// What follows a convolution inside the operation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Activation {
+    /// ReLU: the U-Net's convolutions without normalisation.
+    Relu,
+    /// Nothing: the convolution's values go on to a batch normalisation,
+    /// whose output the ReLU then follows.
+    Identity,
+}
+
+impl Activation {
+    /// The kernels' floor: every output is `max(value, floor)`.
+    fn floor(self) -> f32 {
+        match self {
+            Self::Relu => 0.0,
+            Self::Identity => f32::NEG_INFINITY,
+        }
+    }
+
+    /// Whether the output gradient passes where the output is `output`.
+    fn passes(self, output: f32) -> bool {
+        self == Self::Identity || output > 0.0
+    }
+}
+
+/// `activation(layer(x))` for a 3 × 3, same-padded, stride-1 convolution
+/// with a bias (as the U-Net's `DoubleConv` builds them): on the CPU through
+/// the operation above, anywhere else through burn.
+pub(crate) fn conv3x3(layer: &Conv2d, x: Tensor<4>, activation: Activation) -> Tensor<4> {
     if let Some(bias) = &layer.bias {
         let (weight, bias) = (layer.weight.val(), bias.val());
-        if let Some(out) = tracked_on_cpu(&x, &weight, &bias) {
+        if let Some(out) = tracked_on_cpu(&x, &weight, &bias, activation) {
             return out;
         }
-        if let Some(out) = untracked_on_cpu(&x, &weight, &bias) {
+        if let Some(out) = untracked_on_cpu(&x, &weight, &bias, activation) {
             return out;
         }
     }
-    relu(layer.forward(x))
+    let out = layer.forward(x);
+    match activation {
+        Activation::Relu => relu(out),
+        Activation::Identity => out,
+    }
 }
 
 /// Sizes of one call: images, channels in and out, image sides.
@@ -97,7 +127,12 @@ impl Sizes {
 
 /// The tracked path: `None` when the tensors are not all on the CPU
 /// backend with autodiff.
-fn tracked_on_cpu(x: &Tensor<4>, weight: &Tensor<4>, bias: &Tensor<1>) -> Option<Tensor<4>> {
+fn tracked_on_cpu(
+    x: &Tensor<4>,
+    weight: &Tensor<4>,
+    bias: &Tensor<1>,
+    activation: Activation,
+) -> Option<Tensor<4>> {
     let x = x.clone().try_into_primitive::<Tracked>().ok()?;
     let weight = weight.clone().try_into_primitive::<Tracked>().ok()?;
     let bias = bias.clone().try_into_primitive::<Tracked>().ok()?;
@@ -105,16 +140,23 @@ fn tracked_on_cpu(x: &Tensor<4>, weight: &Tensor<4>, bias: &Tensor<1>) -> Option
     let nodes = [x.node(), weight.node(), bias.node()];
     let weight = contiguous(weight.primitive());
     let bias = contiguous(bias.primitive());
-    let out = match ConvRelu
+    let out = match ConvActivation
         .prepare::<NoCheckpointing>(nodes)
         .compute_bound()
         .stateful()
     {
         OpsKind::Tracked(prep) => {
-            let (out, padded) = forward(&contiguous(x.primitive()), &weight, &bias, sizes);
-            let output = to_tensor(out, [sizes.batch, sizes.outputs, sizes.h, sizes.w]);
-            let state = ConvReluState {
+            let (out, padded) = forward(
+                &contiguous(x.primitive()),
+                &weight,
+                &bias,
                 sizes,
+                activation,
+            );
+            let output = to_tensor(out, [sizes.batch, sizes.outputs, sizes.h, sizes.w]);
+            let state = ConvActivationState {
+                sizes,
+                activation,
                 padded_input: Arc::new(padded),
                 weight: Arc::new(weight.into_owned()),
                 output: output.clone(),
@@ -122,7 +164,13 @@ fn tracked_on_cpu(x: &Tensor<4>, weight: &Tensor<4>, bias: &Tensor<1>) -> Option
             prep.finish(state, output)
         }
         OpsKind::UnTracked(prep) => {
-            let (out, _) = forward(&contiguous(x.primitive()), &weight, &bias, sizes);
+            let (out, _) = forward(
+                &contiguous(x.primitive()),
+                &weight,
+                &bias,
+                sizes,
+                activation,
+            );
             prep.finish(to_tensor(
                 out,
                 [sizes.batch, sizes.outputs, sizes.h, sizes.w],
@@ -133,7 +181,12 @@ fn tracked_on_cpu(x: &Tensor<4>, weight: &Tensor<4>, bias: &Tensor<1>) -> Option
 }
 
 /// The path without autodiff (validation, a network without gradients).
-fn untracked_on_cpu(x: &Tensor<4>, weight: &Tensor<4>, bias: &Tensor<1>) -> Option<Tensor<4>> {
+fn untracked_on_cpu(
+    x: &Tensor<4>,
+    weight: &Tensor<4>,
+    bias: &Tensor<1>,
+    activation: Activation,
+) -> Option<Tensor<4>> {
     let x = x.clone().try_into_primitive::<Flex>().ok()?;
     let weight = weight.clone().try_into_primitive::<Flex>().ok()?;
     let bias = bias.clone().try_into_primitive::<Flex>().ok()?;
@@ -143,6 +196,7 @@ fn untracked_on_cpu(x: &Tensor<4>, weight: &Tensor<4>, bias: &Tensor<1>) -> Opti
         &contiguous(&weight),
         &contiguous(&bias),
         sizes,
+        activation,
     );
     let out = to_tensor(out, [sizes.batch, sizes.outputs, sizes.h, sizes.w]);
     Some(Tensor::from_primitive::<Flex>(out))
@@ -166,10 +220,21 @@ fn to_tensor<const D: usize>(values: Vec<f32>, shape: [usize; D]) -> FlexTensor 
     FlexTensor::from_data(TensorData::new(values, shape))
 }
 
-/// `relu(conv(x) + bias)` as `[batch, outputs, h, w]`, and the input in
-/// padded planes `[batch][inputs]` (the weight gradient reads it).
-fn forward(x: &[f32], weight: &[f32], bias: &[f32], s: Sizes) -> (Vec<f32>, Vec<f32>) {
-    let conv = Conv3x3::from_weights(weight, (s.outputs, s.inputs), bias.to_vec(), 0.0);
+/// `activation(conv(x) + bias)` as `[batch, outputs, h, w]`, and the input
+/// in padded planes `[batch][inputs]` (the weight gradient reads it).
+fn forward(
+    x: &[f32],
+    weight: &[f32],
+    bias: &[f32],
+    s: Sizes,
+    activation: Activation,
+) -> (Vec<f32>, Vec<f32>) {
+    let conv = Conv3x3::from_weights(
+        weight,
+        (s.outputs, s.inputs),
+        bias.to_vec(),
+        activation.floor(),
+    );
     let plane = plane_len(s.h, s.w);
     let mut padded = vec![0.0; s.batch * s.inputs * plane];
     let mut out = vec![0.0; s.batch * s.outputs * s.h * s.w];
@@ -202,23 +267,25 @@ fn copy_interiors(planes: &[f32], image: &mut [f32], h: usize, w: usize) {
     }
 }
 
-/// The backward step of [`conv3x3_relu`]'s CPU operation.
+/// The backward step of [`conv3x3`]'s CPU operation.
 #[derive(Debug)]
-struct ConvRelu;
+struct ConvActivation;
 
 /// What the backward step needs of the forward pass.
 #[derive(Clone, Debug)]
-struct ConvReluState {
+struct ConvActivationState {
     sizes: Sizes,
+    activation: Activation,
     padded_input: Arc<Vec<f32>>,
     /// `[outputs][inputs][3][3]`.
     weight: Arc<Vec<f32>>,
-    /// The output after ReLU, whose zeros pass no gradient.
+    /// The output after the activation (after ReLU, its zeros pass no
+    /// gradient).
     output: FlexTensor,
 }
 
-impl Backward<Flex, 3> for ConvRelu {
-    type State = ConvReluState;
+impl Backward<Flex, 3> for ConvActivation {
+    type State = ConvActivationState;
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
         let [node_x, node_weight, node_bias] = ops.parents;
@@ -226,7 +293,8 @@ impl Backward<Flex, 3> for ConvRelu {
         let grad = contiguous(&grad);
         let state = ops.state;
         let s = state.sizes;
-        let (masked, bias_grad) = masked_gradient(&grad, &contiguous(&state.output), s);
+        let (masked, bias_grad) =
+            masked_gradient(&grad, &contiguous(&state.output), s, state.activation);
         if let Some(node) = node_weight {
             let weight_grad = weight_gradient(&masked, &state.padded_input, s);
             grads.register::<Flex>(node.id, to_tensor(weight_grad, [s.outputs, s.inputs, 3, 3]));
@@ -244,10 +312,15 @@ impl Backward<Flex, 3> for ConvRelu {
     }
 }
 
-/// The output gradient where the ReLU passed its value (zero elsewhere),
-/// in padded planes `[batch][outputs]`, and its sum per output (the bias's
-/// gradient).
-fn masked_gradient(grad: &[f32], output: &[f32], s: Sizes) -> (Vec<f32>, Vec<f32>) {
+/// The output gradient where the activation passed its value (zero
+/// elsewhere), in padded planes `[batch][outputs]`, and its sum per output
+/// (the bias's gradient).
+fn masked_gradient(
+    grad: &[f32],
+    output: &[f32],
+    s: Sizes,
+    activation: Activation,
+) -> (Vec<f32>, Vec<f32>) {
     let (row, plane) = (s.w + 2, plane_len(s.h, s.w));
     let mut masked = vec![0.0; s.batch * s.outputs * plane];
     let mut sums = vec![0.0f64; s.outputs];
@@ -265,7 +338,7 @@ fn masked_gradient(grad: &[f32], output: &[f32], s: Sizes) -> (Vec<f32>, Vec<f32
         {
             let line = &mut plane[(y + 1) * row + 1..][..s.w];
             for ((to, &g), &out) in line.iter_mut().zip(grad).zip(output) {
-                *to = if out > 0.0 { g } else { 0.0 };
+                *to = if activation.passes(out) { g } else { 0.0 };
                 sum += *to;
             }
         }
@@ -535,8 +608,12 @@ mod tests {
     }
 
     /// Values and the gradients of input, weight and bias against burn's
-    /// convolution and ReLU, for `batch` images of `inputs` channels.
-    fn check(batch: usize, inputs: usize, outputs: usize, h: usize, w: usize) {
+    /// convolution and `activation`, for `batch` images of `inputs` channels.
+    fn check(
+        (batch, inputs, outputs): (usize, usize, usize),
+        (h, w): (usize, usize),
+        activation: Activation,
+    ) {
         let device = Device::flex().autodiff();
         let conv = layer(inputs, outputs, &device);
         let input = Tensor::<4>::random([batch, inputs, h, w], Distribution::Default, &device)
@@ -556,15 +633,19 @@ mod tests {
         .mask_fill(at_kink, 0.0);
         let x_ours = input.clone().detach().require_grad();
         let bias = conv.bias.as_ref().expect("bias");
-        let ours = tracked_on_cpu(&x_ours, &conv.weight.val(), &bias.val()).expect("the CPU path");
+        let ours = tracked_on_cpu(&x_ours, &conv.weight.val(), &bias.val(), activation)
+            .expect("the CPU path");
         let x_burn = input.detach().require_grad();
-        let burns = relu(conv.forward(x_burn.clone()));
+        let burns = match activation {
+            Activation::Relu => relu(conv.forward(x_burn.clone())),
+            Activation::Identity => conv.forward(x_burn.clone()),
+        };
         assert_same_values_and_gradients(
             (ours, &x_ours),
             (burns, &x_burn),
             weights,
             &[("the", &conv)],
-            &format!("{batch} x {inputs} -> {outputs} at {h} x {w}"),
+            &format!("{batch} x {inputs} -> {outputs} at {h} x {w}, {activation:?}"),
         );
     }
 
@@ -574,10 +655,17 @@ mod tests {
         // the U-Net's first layer at a small size. The single pixel has 32
         // outputs so that the ReLU cuts some whatever the random weights (with
         // 6 it cut none in about one run in sixty).
-        check(2, 3, 5, 8, 8);
-        check(3, 6, 4, 5, 7);
-        check(4, 2, 8, 1, 1);
-        check(2, 4, 24, 16, 12);
+        check((2, 3, 5), (8, 8), Activation::Relu);
+        check((3, 6, 4), (5, 7), Activation::Relu);
+        check((4, 2, 8), (1, 1), Activation::Relu);
+        check((2, 4, 24), (16, 12), Activation::Relu);
+    }
+
+    #[test]
+    fn without_its_relu_gives_the_values_and_gradients_of_burns_convolution() {
+        // Negative outputs must come out negative and pass their gradient.
+        check((2, 3, 5), (8, 8), Activation::Identity);
+        check((3, 6, 4), (5, 7), Activation::Identity);
     }
 
     #[test]
@@ -587,9 +675,16 @@ mod tests {
         let input = Tensor::<4>::random([2, 5, 10, 6], Distribution::Default, &device);
         let bias = conv.bias.as_ref().expect("bias").val();
         assert_close(
-            untracked_on_cpu(&input, &conv.weight.val(), &bias).expect("the CPU path"),
-            relu(conv.forward(input)),
+            untracked_on_cpu(&input, &conv.weight.val(), &bias, Activation::Relu)
+                .expect("the CPU path"),
+            relu(conv.forward(input.clone())),
             "outputs",
+        );
+        assert_close(
+            untracked_on_cpu(&input, &conv.weight.val(), &bias, Activation::Identity)
+                .expect("the CPU path"),
+            conv.forward(input),
+            "outputs without ReLU",
         );
     }
 }

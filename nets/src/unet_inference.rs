@@ -33,7 +33,14 @@ pub enum UnetInference {
 
 impl UnetInference {
     /// `net` prepared for `device`: the CPU path when `device` is the CPU.
+    /// A network with batch normalisations runs folded
+    /// ([`AffordanceUnet::folded`]).
     pub fn new(net: AffordanceUnet, device: &Device) -> Self {
+        let net = if net.has_batch_norm() {
+            net.folded()
+        } else {
+            net
+        };
         if crate::device::is_cpu(device) {
             return Self::Cpu(CpuUnet::from_network(&net));
         }

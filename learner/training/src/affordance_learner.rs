@@ -186,14 +186,21 @@ pub fn checked_frames(
     Ok(labelled_frames(view))
 }
 
+/// The network in training as the gate, the average and the actors take
+/// it: on `device` without autodiff, normalisations folded in.
+fn trained(trainer: &UnetTrainer, device: &Device) -> AffordanceUnet {
+    trainer.inference_net(device).folded()
+}
+
 impl AffordanceLearner {
     /// A fresh U-Net for `affordances` planes, trained on `device`.
     pub fn new(affordances: usize, settings: &UnetConfig, seed: u64, device: &Device) -> Self {
-        let net = AffordanceUnet::new(4, affordances, device);
+        let net = Self::trainee(AffordanceUnet::new(4, affordances, device), settings);
+        let deployed = net.folded();
         Self {
-            trainer: UnetTrainer::new(net.clone(), Self::training(settings), device),
-            average: Self::average_from(&net, settings),
-            deployed: net,
+            trainer: UnetTrainer::new(net, Self::training(settings), device),
+            average: Self::average_from(&deployed, settings),
+            deployed,
             gate: Gate::default(),
             dataset: AffordanceDataset::new(DatasetConfig {
                 max_uses: settings.max_uses,
@@ -209,6 +216,16 @@ impl AffordanceLearner {
             device: device.clone(),
             rng: StdRng::seed_from_u64(seed ^ 0x05ee_da11),
             temperature: 1.0,
+        }
+    }
+
+    /// `net` as it trains: with fresh batch normalisations when the run
+    /// asks for them (`[unet] batch_norm`).
+    fn trainee(net: AffordanceUnet, settings: &UnetConfig) -> AffordanceUnet {
+        if settings.batch_norm {
+            net.with_batch_norm()
+        } else {
+            net
         }
     }
 
@@ -273,7 +290,7 @@ impl AffordanceLearner {
                 .collect();
             losses.push(self.trainer.step(&refs));
             if let Some(average) = &mut self.average {
-                average.update(&self.trainer.inference_net(&self.device));
+                average.update(&trained(&self.trainer, &self.device));
             }
         }
         if losses.is_empty() {
@@ -283,7 +300,7 @@ impl AffordanceLearner {
         let started = Instant::now();
         let candidate = match &self.average {
             Some(average) => average.average().clone(),
-            None => self.trainer.inference_net(&self.device),
+            None => trained(&self.trainer, &self.device),
         };
         let frames = self
             .dataset
@@ -385,7 +402,10 @@ impl AffordanceLearner {
         &mut self,
         state: &UnetTrainingState,
     ) -> Result<(), TrainingStateError> {
-        let mut net = AffordanceUnet::new(4, self.affordances, &self.device);
+        let mut net = Self::trainee(
+            AffordanceUnet::new(4, self.affordances, &self.device),
+            &self.settings,
+        );
         load_safetensors(&mut net, state.candidate.clone())?;
         let mut trainer =
             UnetTrainer::new(net.clone(), Self::training(&self.settings), &self.device);
@@ -400,7 +420,7 @@ impl AffordanceLearner {
                 ))
             }
             // Saved without an average: it starts at the saved weights.
-            _ => Self::average_from(&net, &self.settings),
+            _ => Self::average_from(&net.folded(), &self.settings),
         };
         self.trainer = trainer;
         self.average = average;
@@ -408,13 +428,18 @@ impl AffordanceLearner {
     }
 
     /// Continues from saved deployed weights and temperature (training
-    /// restarts from them, with a fresh optimiser, unless
+    /// restarts from them, with a fresh optimiser and, with `[unet]
+    /// batch_norm`, fresh normalisations, unless
     /// [`AffordanceLearner::restore_training`] follows).
     pub fn restore(&mut self, bytes: Vec<u8>, temperature: f32) -> Result<(), WeightsError> {
         self.temperature = temperature;
         let mut net = AffordanceUnet::new(4, self.affordances, &self.device);
         load_safetensors(&mut net, bytes)?;
-        self.trainer = UnetTrainer::new(net.clone(), Self::training(&self.settings), &self.device);
+        self.trainer = UnetTrainer::new(
+            Self::trainee(net.clone(), &self.settings),
+            Self::training(&self.settings),
+            &self.device,
+        );
         self.average = Self::average_from(&net, &self.settings);
         self.deployed = net;
         self.gate.forget();
@@ -533,6 +558,56 @@ mod tests {
             "the latest weights restored"
         );
         assert!(weights(&average) != weights(&state.candidate));
+    }
+
+    #[test]
+    fn a_normalising_learner_deploys_plain_weights_and_checkpoints_its_statistics() {
+        let settings = |batch_norm| UnetConfig {
+            batch_frames: 2,
+            validation_fraction: 0.0,
+            test_fraction: 0.0,
+            batch_norm,
+            ..UnetConfig::default()
+        };
+        let device = Device::flex();
+        // Frames that differ, so that the batches' statistics move the
+        // running ones.
+        let frame = |shade: f32| LabelledFrame {
+            size: [16, 16],
+            rgbd: (0..4 * 256).map(|i| shade + (i % 7) as f32 * 0.1).collect(),
+            labels: (0..256).map(|i| u8::from(i % 3 == 0)).collect(),
+        };
+        let mut learner = AffordanceLearner::new(1, &settings(true), 1, &device);
+        learner.add_episode(0, vec![frame(0.1), frame(0.6), frame(0.3)]);
+        learner.train_round(4).expect("frames to train on");
+
+        // The actors' network is a plain one.
+        let mut plain = AffordanceUnet::new(4, 1, &device);
+        load_safetensors(&mut plain, learner.deployed_weights().unwrap())
+            .expect("the deployed weights fit a plain network");
+        // The network in training keeps its normalisations, running
+        // statistics included, and a resumed learner takes them back.
+        let state = learner.training_state().unwrap();
+        // (Built apart: a clone shares its running statistics.)
+        let fresh = AffordanceUnet::new(4, 1, &device).with_batch_norm();
+        let mut normalised = AffordanceUnet::new(4, 1, &device).with_batch_norm();
+        load_safetensors(&mut normalised, state.candidate.clone())
+            .expect("the candidate holds its normalisations");
+        // The tensors alone (a file's header may list them in any order).
+        let tensors = |bytes: &[u8], name: &str| nets::weights::unbundle(bytes, name).unwrap();
+        let statistic = "down.0.first_norm.running_mean";
+        assert!(
+            tensors(&state.candidate, statistic)
+                != tensors(&to_safetensors(&fresh).unwrap(), statistic),
+            "the running statistics moved in training and were saved"
+        );
+        let mut resumed = AffordanceLearner::new(1, &settings(true), 2, &device);
+        resumed.restore_training(&state).unwrap();
+        let again = resumed.training_state().unwrap().candidate;
+        assert!(tensors(&again, "") == tensors(&state.candidate, ""));
+        // A run without them refuses the state rather than drop them.
+        let mut other = AffordanceLearner::new(1, &settings(false), 2, &device);
+        assert!(other.restore_training(&state).is_err());
     }
 
     #[test]

@@ -139,6 +139,16 @@ pub struct UnetConfig {
     /// worse, every range overlapping (docs/ladder.md, "An average of the
     /// recent weights").
     pub weight_average: f64,
+    /// A batch normalisation between each of the U-Net's 3 × 3 convolutions
+    /// and its ReLU while it trains; the gate, the actors and the
+    /// checkpoint's deployed weights get the network with each
+    /// normalisation folded into its convolution (`nets::unet`), so nothing
+    /// outside training changes. Off until whole runs over seeds decide: an
+    /// offline prototype learnt pick up two to four times better per step
+    /// (docs/notebook/2026-12-01-unet-batch-norm.md). On libtorch such a
+    /// network trains with burn's operations, not the one-operation pass
+    /// (`training::unet_train_torch`).
+    pub batch_norm: bool,
 }
 
 impl Default for PolicyConfig {
@@ -174,6 +184,7 @@ impl Default for UnetConfig {
             class_balance: ClassBalance::default(),
             mirror_frames: true,
             weight_average: 0.0,
+            batch_norm: false,
         }
     }
 }

@@ -57,8 +57,13 @@ fn chosen() -> bool {
 }
 
 /// `net`'s logits for `x`: as one operation where `x` and the network are
-/// tracked on libtorch, else `AffordanceUnet::forward`.
+/// tracked on libtorch, else `AffordanceUnet::forward`. A network with batch
+/// normalisations (`[unet] batch_norm`) always takes burn's operations: the
+/// operation here has no normalisation in it.
 pub(crate) fn logits(net: &AffordanceUnet, x: Tensor<4>) -> Tensor<4> {
+    if net.has_batch_norm() {
+        return net.forward(x);
+    }
     match forward(|| net.layers(), &x) {
         Some(out) => out,
         None => net.forward(x),
