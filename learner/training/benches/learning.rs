@@ -360,6 +360,22 @@ fn main() {
             trainer.step(&refs);
         }),
     ));
+    // The same step with a batch normalisation after each 3 × 3
+    // convolution (`[unet] batch_norm`), in the same run.
+    let mut normalised = UnetTrainer::new(
+        AffordanceUnet::new(4, 2, &device).with_batch_norm(),
+        UnetTrainingConfig {
+            class_balance: nets::unet::ClassBalance::Pixels,
+            ..UnetTrainingConfig::default()
+        },
+        &device,
+    );
+    results.push((
+        "unet_train_step_batch_norm_batch8_ms",
+        time(repeats, || {
+            normalised.step(&refs);
+        }),
+    ));
     if only.is_some() {
         print_results(&results, gpu);
         return;
