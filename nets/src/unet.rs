@@ -92,13 +92,15 @@ fn conv_norm_relu(conv: &Conv2d, norm: Option<&BatchNorm>, x: Tensor<4>) -> Tens
 
 /// `conv` followed by `norm` at its running statistics as one convolution:
 /// `norm(W x + b) = s (W x + b − μ) + β` with `s = γ / √(σ² + ε)` per
-/// output, so the weight is `s W` and the bias `s (b − μ) + β`.
+/// output, so the weight is `s W` and the bias `s (b − μ) + β`. The
+/// statistics are read synchronised (burn keeps a training pass's update
+/// aside until then).
 fn fold(conv: &Conv2d, norm: Option<&BatchNorm>) -> Conv2d {
     let Some(norm) = norm else {
         return conv.clone();
     };
     let [outputs, inputs, kh, kw] = conv.weight.dims();
-    let scale = norm.gamma.val() / (norm.running_var.value() + norm.epsilon).sqrt();
+    let scale = norm.gamma.val() / (norm.running_var.value_sync() + norm.epsilon).sqrt();
     let bias = match &conv.bias {
         Some(bias) => bias.val(),
         None => Tensor::zeros([outputs], &conv.weight.device()),
@@ -108,7 +110,7 @@ fn fold(conv: &Conv2d, norm: Option<&BatchNorm>) -> Conv2d {
     let mut folded = conv.clone();
     folded.weight = Param::from_tensor(weight.reshape([outputs, inputs, kh, kw]));
     folded.bias = Some(Param::from_tensor(
-        (bias - norm.running_mean.value()) * scale + norm.beta.val(),
+        (bias - norm.running_mean.value_sync()) * scale + norm.beta.val(),
     ));
     folded
 }
