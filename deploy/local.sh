@@ -48,7 +48,9 @@ Options:
                     gpu (binaries built with --features nets/gpu; see docs/running.md)
   --max-steps N     stop as on Ctrl-C (final checkpoint) once the run has taken
                     N environment steps over all actors (on --resume: the run's
-                    total, so resuming continues to N); default: run until stopped
+                    total, so resuming continues to N); the run directory keeps
+                    it, so --resume without it continues to the same N;
+                    default: run until stopped
   --max-seconds S   stop as on Ctrl-C (final checkpoint) S seconds after the
                     learner started (building not counted): for a machine lent
                     for a fixed time, leave a minute or two of it for the stop
@@ -209,6 +211,15 @@ RUN_DIR=$(cd "$RUN_DIR" && pwd)
 LOGS="$RUN_DIR/logs"
 PREFIX="afx-$(basename "$RUN_DIR" | tr -cd 'A-Za-z0-9_-')"
 STOP_FILE="$LOGS/.stopping"
+# The run's --max-steps, kept for --resume (a resumed run without the flag
+# continues to the same total rather than past it).
+MAX_STEPS_FILE="$RUN_DIR/max-steps"
+if [[ $RESUME -eq 1 && -z "$MAX_STEPS" && -s "$MAX_STEPS_FILE" ]]; then
+  MAX_STEPS=$(<"$MAX_STEPS_FILE")
+  [[ "$MAX_STEPS" =~ ^[1-9][0-9]*$ ]] || { echo "local.sh: $MAX_STEPS_FILE holds '$MAX_STEPS', not a step count: delete it or give --max-steps N" >&2; exit 2; }
+  echo "resuming to the run's --max-steps $MAX_STEPS (from $MAX_STEPS_FILE; give --max-steps N to change it)"
+fi
+[[ -z "$MAX_STEPS" ]] || echo "$MAX_STEPS" >"$MAX_STEPS_FILE"
 rm -f "$STOP_FILE" "$RUN_DIR/http.addr"
 
 # The learner's training threads at --training-nice (0 by default: with its

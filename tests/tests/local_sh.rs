@@ -300,6 +300,16 @@ fn max_steps_stops_the_run_cleanly_once_it_has_taken_them() {
         steps >= max_steps,
         "final checkpoint at {steps} steps, before --max-steps {max_steps}"
     );
+    // Resumed without the flag, the run keeps its limit: it stops at once.
+    let (resumed, _) = start(&dir, "max", &["--resume", "--progress-every", "0"]);
+    let log_path = resumed.run.log.clone();
+    assert_stopped_cleanly(resumed);
+    let log = std::fs::read_to_string(&log_path).unwrap_or_default();
+    assert!(
+        log.contains(&format!("resuming to the run's --max-steps {max_steps}"))
+            && log.contains(&format!("(--max-steps {max_steps})")),
+        "the resumed run did not keep its --max-steps:\n{log}"
+    );
 }
 
 #[test]
