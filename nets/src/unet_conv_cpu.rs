@@ -140,20 +140,20 @@ fn tracked_on_cpu(
     let nodes = [x.node(), weight.node(), bias.node()];
     let weight = contiguous(weight.primitive());
     let bias = contiguous(bias.primitive());
+    let (out, padded) = forward(
+        &contiguous(x.primitive()),
+        &weight,
+        &bias,
+        sizes,
+        activation,
+    );
+    let output = to_tensor(out, [sizes.batch, sizes.outputs, sizes.h, sizes.w]);
     let out = match ConvActivation
         .prepare::<NoCheckpointing>(nodes)
         .compute_bound()
         .stateful()
     {
         OpsKind::Tracked(prep) => {
-            let (out, padded) = forward(
-                &contiguous(x.primitive()),
-                &weight,
-                &bias,
-                sizes,
-                activation,
-            );
-            let output = to_tensor(out, [sizes.batch, sizes.outputs, sizes.h, sizes.w]);
             let state = ConvActivationState {
                 sizes,
                 activation,
@@ -163,19 +163,7 @@ fn tracked_on_cpu(
             };
             prep.finish(state, output)
         }
-        OpsKind::UnTracked(prep) => {
-            let (out, _) = forward(
-                &contiguous(x.primitive()),
-                &weight,
-                &bias,
-                sizes,
-                activation,
-            );
-            prep.finish(to_tensor(
-                out,
-                [sizes.batch, sizes.outputs, sizes.h, sizes.w],
-            ))
-        }
+        OpsKind::UnTracked(prep) => prep.finish(output),
     };
     Some(Tensor::from_primitive::<Tracked>(out))
 }

@@ -344,16 +344,13 @@ fn main() {
     // U-Net.
     let frames = unet_frames(&mut rng);
     let refs: Vec<&LabelledFrame> = frames.iter().collect();
-    let mut trainer = UnetTrainer::new(
-        AffordanceUnet::new(4, 2, &device),
-        // The PyTorch reference computes the paper's loss (every labelled
-        // pixel alike): the same work on both sides.
-        UnetTrainingConfig {
-            class_balance: nets::unet::ClassBalance::Pixels,
-            ..UnetTrainingConfig::default()
-        },
-        &device,
-    );
+    // The PyTorch reference computes the paper's loss (every labelled pixel
+    // alike): the same work on both sides.
+    let settings = UnetTrainingConfig {
+        class_balance: nets::unet::ClassBalance::Pixels,
+        ..UnetTrainingConfig::default()
+    };
+    let mut trainer = UnetTrainer::new(AffordanceUnet::new(4, 2, &device), settings, &device);
     results.push((
         "unet_train_step_batch8_ms",
         time(repeats, || {
@@ -364,10 +361,7 @@ fn main() {
     // convolution (`[unet] batch_norm`), in the same run.
     let mut normalised = UnetTrainer::new(
         AffordanceUnet::new(4, 2, &device).with_batch_norm(),
-        UnetTrainingConfig {
-            class_balance: nets::unet::ClassBalance::Pixels,
-            ..UnetTrainingConfig::default()
-        },
+        settings,
         &device,
     );
     results.push((
