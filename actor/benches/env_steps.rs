@@ -166,6 +166,7 @@ fn main() {
     println!("|---|---|---|---|---|---|---|---|---|---|");
     let mut map_splits = Vec::new();
     let mut work_rows = Vec::new();
+    let mut share_rows = Vec::new();
     let steps = episode_steps();
     for Case {
         method,
@@ -194,6 +195,7 @@ fn main() {
         let reset = reset_started.elapsed();
         let mut stages: Vec<StepTimings> = Vec::with_capacity(steps);
         let mut walls: Vec<Duration> = Vec::with_capacity(steps);
+        let mut shares = PlaneShares::new(method);
         let start = Instant::now();
         for _ in 0..steps {
             let action =
@@ -202,8 +204,10 @@ fn main() {
             observation = env.step(action, &model).expect("step").1;
             walls.push(step_started.elapsed());
             stages.push(env.last_timings());
+            shares.add(&observation.state);
         }
         let elapsed = start.elapsed();
+        share_rows.extend(shares.rows(&row));
         work_rows.push(work_row(&row, &stages, &walls));
         let ms = |f: fn(&StepTimings) -> Duration| {
             median(stages.iter().map(f).collect()).as_secs_f64() * 1e3
@@ -250,6 +254,18 @@ fn main() {
     }
     println!();
     println!(
+        "The state's image planes, each plane's share of nonzero values (mean over the \
+         episode, planes in the state's order; the policy's first layers add a plane under \
+         {} pixel by pixel):",
+        nets::policy::SPARSE_PLANES_BELOW
+    );
+    println!("| case | input | shares |");
+    println!("|---|---|---|");
+    for line in share_rows {
+        println!("{line}");
+    }
+    println!();
+    println!(
         "The environment's work a step outside the U-Net and the render, means over the \
          episode (re-identification's bursts and the map's growth count in a mean, not in a \
          median; \"rest\" is the step's time outside its timed parts; with RAYON_NUM_THREADS=1 \
@@ -281,6 +297,54 @@ fn work_row(case: &str, stages: &[StepTimings], walls: &[Duration]) -> String {
 }
 
 /// An environment of `method` at `image_size` px in the test rooms.
+/// Each image plane's share of nonzero values, summed over the states seen.
+struct PlaneShares {
+    /// Planes of the camera, global and local map inputs.
+    channels: [usize; 3],
+    sums: [Vec<f64>; 3],
+    states: usize,
+}
+
+impl PlaneShares {
+    fn new(method: Method) -> Self {
+        let spec = method.spec();
+        let map = spec.map_channels(AFFORDANCES.len());
+        let channels = [spec.camera_channels(AFFORDANCES.len()), map, map];
+        Self {
+            channels,
+            sums: channels.map(|c| vec![0.0; c]),
+            states: 0,
+        }
+    }
+
+    fn add(&mut self, state: &actor::env::state::State) {
+        let inputs = [state.camera(), state.global_map(), state.local_map()];
+        for ((values, &channels), sums) in inputs.iter().zip(&self.channels).zip(&mut self.sums) {
+            if channels == 0 || values.is_empty() {
+                continue;
+            }
+            for (plane, sum) in values.chunks_exact(values.len() / channels).zip(sums) {
+                let nonzero = plane.iter().filter(|&&v| v != 0).count();
+                *sum += nonzero as f64 / plane.len() as f64;
+            }
+        }
+        self.states += 1;
+    }
+
+    fn rows(&self, case: &str) -> Vec<String> {
+        let names = ["camera", "global map", "local map"];
+        (names.iter().zip(&self.sums))
+            .filter(|(_, sums)| !sums.is_empty())
+            .map(|(name, sums)| {
+                let shares: Vec<String> = (sums.iter())
+                    .map(|s| format!("{:.3}", s / self.states.max(1) as f64))
+                    .collect();
+                format!("| {case} | {name} | {} |", shares.join(" "))
+            })
+            .collect()
+    }
+}
+
 fn sim_env(
     data: &std::path::Path,
     method: Method,

@@ -2,7 +2,13 @@
 //! policy (`nets::policy::CpuPolicy::forward`) for one observation of the
 //! default `ours` task at 64 and 128 px, as an actor's environment thread
 //! runs it every step. Medians of 200 passes after 20 unmeasured ones;
-//! `AFX_SIDES=128` limits the sides.
+//! `AFX_SIDES=128` limits the sides, `AFX_SHARES=0.01,0.1` the sweep below.
+//!
+//! A second table sweeps the share of nonzero values in every image plane
+//! (0 / 1 masks, as most of the state's planes are) and times the pass
+//! with every plane added pixel by pixel against every plane through the
+//! first layers' GEMMs, alternated: where the two cross is where
+//! `nets::policy::SPARSE_PLANES_BELOW` belongs.
 
 use std::time::Instant;
 
@@ -21,6 +27,13 @@ fn main() {
     });
     println!("| side | image channels | CPU pass, median | 10th / 90th percentile |");
     println!("|---|---|---|---|");
+    let shares: Vec<f64> =
+        std::env::var("AFX_SHARES").map_or(vec![0.01, 0.05, 0.1, 0.2, 0.3, 0.5], |s| {
+            s.split(',')
+                .map(|v| v.trim().parse().expect("AFX_SHARES: shares like 0.01,0.1"))
+                .collect()
+        });
+    let mut sweeps = Vec::new();
     for side in sides {
         let layout = proto::TaskSpec {
             image_size: side,
@@ -33,22 +46,78 @@ fn main() {
             .map(|i| (i % 13) as f32 / 13.0)
             .collect();
         let mask = vec![1u8; layout.n_actions];
-        let mut times: Vec<f64> = (0..220)
-            .map(|_| {
-                let started = Instant::now();
-                std::hint::black_box(policy.forward(&observation, &mask, None));
-                started.elapsed().as_secs_f64() * 1e3
-            })
-            .skip(20)
-            .collect();
-        times.sort_by(f64::total_cmp);
-        let at = |q: f64| times[((times.len() - 1) as f64 * q) as usize];
+        let times = pass_times(&[&policy], &observation, &mask, 200).remove(0);
         println!(
             "| {side} | {:?} | {:.3} ms | {:.3} / {:.3} ms |",
             layout.image_channels,
-            at(0.5),
-            at(0.1),
-            at(0.9)
+            times.at(0.5),
+            times.at(0.1),
+            times.at(0.9)
         );
+        sweeps.push((side, policy, layout));
     }
+    println!();
+    println!("| side | share of nonzero values in every image plane | pixel by pixel | through the GEMMs | ratio |");
+    println!("|---|---|---|---|---|");
+    for (side, policy, layout) in sweeps {
+        let pixels = policy.clone().with_sparse_planes_below(f32::INFINITY);
+        let gemms = policy.with_sparse_planes_below(0.0);
+        let image_values: usize = layout.image_channels.iter().sum::<usize>() * side * side;
+        for &share in &shares {
+            // A fixed pseudo-random pick of pixels, the vectors left dense.
+            let observation: Vec<u8> = (0..layout.obs_len())
+                .map(|i| {
+                    let h = (i as u64).wrapping_mul(2_654_435_761) % 10_000;
+                    u8::from(i >= image_values || (h as f64) < share * 10_000.0) * 255
+                })
+                .collect();
+            let mask = vec![1u8; layout.n_actions];
+            let [pixels, gemms] = pass_times(&[&pixels, &gemms], &observation, &mask, 100)
+                .try_into()
+                .expect("two policies, two times");
+            println!(
+                "| {side} | {share} | {:.3} ms | {:.3} ms | {:.2} |",
+                pixels.at(0.5),
+                gemms.at(0.5),
+                pixels.at(0.5) / gemms.at(0.5)
+            );
+        }
+    }
+}
+
+/// Sorted pass times, milliseconds.
+#[derive(Debug)]
+struct Times(Vec<f64>);
+
+impl Times {
+    /// The `q`-quantile.
+    fn at(&self, q: f64) -> f64 {
+        self.0[((self.0.len() - 1) as f64 * q) as usize]
+    }
+}
+
+/// `repeats` timed passes of each policy, alternated, after 20 unmeasured rounds.
+fn pass_times<T: nets::policy::ObservationValue>(
+    policies: &[&CpuPolicy],
+    observation: &[T],
+    mask: &[u8],
+    repeats: usize,
+) -> Vec<Times> {
+    let mut times = vec![Vec::with_capacity(repeats); policies.len()];
+    for round in 0..repeats + 20 {
+        for (policy, times) in policies.iter().zip(&mut times) {
+            let started = Instant::now();
+            std::hint::black_box(policy.forward(observation, mask, None));
+            if round >= 20 {
+                times.push(started.elapsed().as_secs_f64() * 1e3);
+            }
+        }
+    }
+    times
+        .into_iter()
+        .map(|mut t| {
+            t.sort_by(f64::total_cmp);
+            Times(t)
+        })
+        .collect()
 }

@@ -18,7 +18,7 @@ mod cpu;
 #[cfg(feature = "gpu-torch")]
 mod wire_bytes;
 
-pub use cpu::{CpuPolicy, CpuPolicyStep, ObservationValue};
+pub use cpu::{CpuPolicy, CpuPolicyStep, ObservationValue, SPARSE_PLANES_BELOW};
 
 impl PolicyInput {
     /// Splits `rows` flat observations (`rows · obs_len` values, each row

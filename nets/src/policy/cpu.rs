@@ -14,21 +14,26 @@
 //! so that an actor need not expand the bytes it sends into a float copy
 //! of several hundred thousand values a step only for this pass.
 
-use std::cell::RefCell;
+mod input_conv;
+mod strided_conv;
 
-use burn::nn::conv::Conv2d;
 use burn::nn::gru::Gru;
 use burn::nn::Linear;
 
+use self::input_conv::InputConv;
+pub use self::input_conv::SPARSE_PLANES_BELOW;
+use self::strided_conv::Conv;
 use super::{ConvEncoder, Head, PolicyLayout, PolicyNet, VectorEncoder, MASKED_LOGIT};
-use crate::kernels::{bias_values, matmul_lhs_rows, values};
+use crate::kernels::{bias_values, values};
 use crate::layers::{ENCODER_ACTIVATION, HEAD_ACTIVATION};
 
 /// The policy's weights, laid out for [`CpuPolicy::forward`].
 #[derive(Debug, Clone)]
 pub struct CpuPolicy {
     layout: PolicyLayout,
-    images: Vec<[Conv; 3]>,
+    /// Each image encoder's first layer (which reads the observation) and
+    /// the two after it.
+    images: Vec<(InputConv, [Conv; 2])>,
     image_fcs: Vec<Dense>,
     vectors: Vec<[Dense; 2]>,
     gru: Option<CpuGru>,
@@ -43,6 +48,9 @@ pub struct CpuPolicy {
 pub trait ObservationValue: Copy + Default {
     /// The value the network sees.
     fn unit(self) -> f32;
+
+    /// Whether the network sees 0 (the first layers skip such values).
+    fn is_zero(self) -> bool;
 }
 
 impl ObservationValue for f32 {
@@ -50,12 +58,22 @@ impl ObservationValue for f32 {
     fn unit(self) -> f32 {
         self
     }
+
+    #[inline]
+    fn is_zero(self) -> bool {
+        self == 0.0
+    }
 }
 
 impl ObservationValue for u8 {
     #[inline]
     fn unit(self) -> f32 {
         proto::BYTE_UNITS[usize::from(self)]
+    }
+
+    #[inline]
+    fn is_zero(self) -> bool {
+        self == 0
     }
 }
 
@@ -88,7 +106,10 @@ impl CpuPolicy {
             images: net
                 .images
                 .iter()
-                .map(|e: &ConvEncoder| [&e.conv1, &e.conv2, &e.conv3].map(Conv::from_layer))
+                .map(|e: &ConvEncoder| {
+                    let rest = [&e.conv2, &e.conv3].map(Conv::from_layer);
+                    (InputConv::from_layer(&e.conv1), rest)
+                })
                 .collect(),
             image_fcs: net
                 .images
@@ -104,6 +125,20 @@ impl CpuPolicy {
             actor: head(&net.actor),
             critic: head(&net.critic),
         })
+    }
+
+    /// The same policy, its first layers adding the observation's planes
+    /// with fewer than `share` of their values nonzero pixel by pixel
+    /// instead of through their GEMMs ([`SPARSE_PLANES_BELOW`] unless
+    /// said; 0: every plane through the GEMMs). The values are the same
+    /// to float rounding; the `cpu_policy` bench compares the times.
+    pub fn with_sparse_planes_below(self, share: f32) -> Self {
+        Self {
+            images: (self.images.into_iter())
+                .map(|(first, rest)| (first.with_sparse_below(share), rest))
+                .collect(),
+            ..self
+        }
     }
 
     /// Log-probabilities and value for one flat observation (images then
@@ -134,8 +169,9 @@ impl CpuPolicy {
             .zip(&layout.image_channels)
         {
             let len = channels * side * side;
-            let (mut x, mut size) = convs[0].forward(&observation[at..at + len], side);
-            for conv in &convs[1..] {
+            let (first, rest) = convs;
+            let (mut x, mut size) = first.forward(&observation[at..at + len], side);
+            for conv in rest {
                 (x, size) = conv.forward(&x, size);
             }
             features.extend(fc.forward(&x, encoder));
@@ -241,219 +277,6 @@ impl CpuGru {
     }
 }
 
-/// A valid (unpadded), strided, square convolution followed by the
-/// encoders' activation.
-///
-/// Computed without im2col columns: a `k × k` convolution with stride `s`
-/// is a `t × t` convolution with stride 1 (`t = ⌈k / s⌉` taps a side) over
-/// the input's stride phases ([`split_phases`]: `s²` planes per input
-/// channel, `⌈size / s⌉` square), and each tap is one GEMM whose right-hand
-/// side is the phase planes themselves, read from the tap's offset: output
-/// row `oy` is computed `⌈size / s⌉` wide, so that output pixel
-/// `oy · ⌈size / s⌉ + ox` reads phase pixel `(oy + ty) · ⌈size / s⌉ + ox +
-/// tx` for every pixel at once. The columns past the output's side read the
-/// next row and are dropped. Copying im2col columns (four times the input
-/// for an 8 × 8 kernel with stride 4) took a quarter of a 128-px pass.
-#[derive(Debug, Clone)]
-struct Conv {
-    inputs: usize,
-    outputs: usize,
-    kernel: usize,
-    stride: usize,
-    /// One block per tap `(ty, tx)`, row-major `outputs × (inputs · s²)`:
-    /// row `o`, column `(c, py, px)` holds burn's weight
-    /// `[o][c][ty · s + py][tx · s + px]`, zero where that lies past the
-    /// kernel (a 3 × 3 kernel with stride 2 fills 9 of 2 × 2 taps' 16).
-    taps: Vec<f32>,
-    bias: Vec<f32>,
-}
-
-impl Conv {
-    fn from_layer(layer: &Conv2d) -> Self {
-        let [outputs, inputs, kernel, _] = layer.weight.val().dims();
-        Self::from_weights(
-            &values(&layer.weight),
-            bias_values(&layer.bias, outputs),
-            [outputs, inputs, kernel],
-            layer.stride[0],
-        )
-    }
-
-    /// From burn's `[output][input][ky][kx]` weights.
-    fn from_weights(
-        weight: &[f32],
-        bias: Vec<f32>,
-        [outputs, inputs, kernel]: [usize; 3],
-        stride: usize,
-    ) -> Self {
-        let (k, s) = (kernel, stride);
-        let t = k.div_ceil(s);
-        let depth = inputs * s * s;
-        let mut taps = vec![0.0; t * t * outputs * depth];
-        for o in 0..outputs {
-            for c in 0..inputs {
-                for ky in 0..k {
-                    for kx in 0..k {
-                        let tap = (ky / s) * t + kx / s;
-                        let column = (c * s + ky % s) * s + kx % s;
-                        taps[(tap * outputs + o) * depth + column] =
-                            weight[((o * inputs + c) * k + ky) * k + kx];
-                    }
-                }
-            }
-        }
-        Self {
-            inputs,
-            outputs,
-            kernel,
-            stride,
-            taps,
-            bias,
-        }
-    }
-
-    /// `[inputs][size][size]` → (`[outputs][out][out]`, `out`).
-    fn forward<T: ObservationValue>(&self, x: &[T], size: usize) -> (Vec<f32>, usize) {
-        let (k, s) = (self.kernel, self.stride);
-        let t = k.div_ceil(s);
-        let out = (size - k) / s + 1;
-        let phase = size.div_ceil(s);
-        let wide = out * phase;
-        let depth = self.inputs * s * s;
-        let mut y = vec![0.0; self.outputs * out * out];
-        SCRATCH.with_borrow_mut(|(wide_output, split)| {
-            // The last taps' dropped columns read up to (t − 1) · (phase + 1)
-            // values past the last plane.
-            split_phases(x, self.inputs, size, s, (t - 1) * (phase + 1), split);
-            wide_output.resize(self.outputs * wide, 0.0);
-            // Output rows in bands whose phase rows stay in the cache while
-            // every tap reads them.
-            let band = (BAND_BYTES / (depth * phase * 4)).clamp(1, out);
-            for first in (0..out).step_by(band) {
-                let columns = band.min(out - first) * phase;
-                for (tap, weights) in self.taps.chunks_exact(self.outputs * depth).enumerate() {
-                    let (ty, tx) = (tap / t, tap % t);
-                    matmul_lhs_rows(
-                        &mut wide_output[first * phase..],
-                        wide,
-                        (weights, depth),
-                        &split[(first + ty) * phase + tx..],
-                        phase_plane_len(phase),
-                        (self.outputs, columns, depth),
-                        tap > 0,
-                    );
-                }
-            }
-            for ((plane, wide), &bias) in y
-                .chunks_exact_mut(out * out)
-                .zip(wide_output.chunks_exact(wide))
-                .zip(&self.bias)
-            {
-                for (row, wide) in plane.chunks_exact_mut(out).zip(wide.chunks_exact(phase)) {
-                    for (v, &w) in row.iter_mut().zip(wide) {
-                        *v = ENCODER_ACTIVATION.value(w + bias);
-                    }
-                }
-            }
-        });
-        (y, out)
-    }
-}
-
-/// The most bytes of phase rows one band of [`Conv::forward`]'s output rows
-/// reads: about what a core's L2 cache holds beside the weights and the
-/// output, so that each tap after the first finds them there.
-const BAND_BYTES: usize = 128 * 1024;
-
-thread_local! {
-    /// Each thread's wide output and stride phases for [`Conv::forward`],
-    /// kept from pass to pass: allocated anew on every pass (hundreds of kB)
-    /// they cost page faults whenever the allocator had handed the memory
-    /// back to the system, which made a 64-px pass more than twice as slow
-    /// in one process as in another (`cpu_policy` bench; docs/performance.md).
-    static SCRATCH: RefCell<(Vec<f32>, Vec<f32>)> = const { RefCell::new((Vec::new(), Vec::new())) };
-}
-
-/// Values from one phase plane to the next in [`split_phases`]' output: the
-/// plane and 16 values (a cache line) more. A GEMM reads the planes as the
-/// rows of its right-hand side, and at 128 px a plane of 32 × 32 values is
-/// 4 KiB: rows a power of two apart fall into the same few cache sets and
-/// evict each other.
-fn phase_plane_len(phase: usize) -> usize {
-    phase * phase + 16
-}
-
-/// `[channels][size][size]` split into its stride-`s` phases, into `out`:
-/// `[channels][py][px][Y][X] = x[c][Y·s + py][X·s + px]`, each phase
-/// `⌈size / s⌉` square and [`phase_plane_len`] values from the next, zeros
-/// past the edge, between the planes and in `tail` values after the last.
-fn split_phases<T: ObservationValue>(
-    x: &[T],
-    channels: usize,
-    size: usize,
-    s: usize,
-    tail: usize,
-    out: &mut Vec<f32>,
-) {
-    let phase = size.div_ceil(s);
-    let plane_len = phase_plane_len(phase);
-    let len = channels * s * s * plane_len;
-    out.resize(len + tail, 0.0);
-    out[len..].fill(0.0);
-    for plane in out[..len].chunks_exact_mut(plane_len) {
-        plane[phase * phase..].fill(0.0);
-    }
-    let past_edge = vec![T::default(); size];
-    for (c, input) in x.chunks_exact(size * size).take(channels).enumerate() {
-        for y in 0..phase * s {
-            let line = input.get(y * size..(y + 1) * size).unwrap_or(&past_edge);
-            // Phases (py, 0..s) of channel c lie one after another.
-            let planes = &mut out[(c * s + y % s) * s * plane_len..][..s * plane_len];
-            match s {
-                2 => deinterleave::<2, T>(line, planes, phase, y / s),
-                4 => deinterleave::<4, T>(line, planes, phase, y / s),
-                _ => {
-                    for (px, plane) in planes.chunks_exact_mut(plane_len).enumerate() {
-                        let row = &mut plane[y / s * phase..][..phase];
-                        let mut values = line.iter().skip(px).step_by(s);
-                        for slot in row {
-                            *slot = values.next().map_or(0.0, |v| v.unit());
-                        }
-                    }
-                }
-            }
-        }
-    }
-}
-
-/// Row `row` of each of the `S` planes of `planes` (each `phase` square,
-/// [`phase_plane_len`] apart):
-/// plane `px` takes `line[X · S + px]` at column `X`, zeros past the line's
-/// end. With the stride a constant, the copy is one pass over the line in
-/// vector registers; a strided gather per plane took a quarter of a 128-px
-/// pass.
-fn deinterleave<const S: usize, T: ObservationValue>(
-    line: &[T],
-    planes: &mut [f32],
-    phase: usize,
-    row: usize,
-) {
-    let mut planes = planes.chunks_exact_mut(phase_plane_len(phase));
-    let mut rows: [&mut [f32]; S] =
-        std::array::from_fn(|_| &mut planes.next().expect("S planes")[row * phase..][..phase]);
-    let whole = line.len() / S;
-    for (x, values) in line.chunks_exact(S).enumerate() {
-        for (row, &value) in rows.iter_mut().zip(values) {
-            row[x] = value.unit();
-        }
-    }
-    for (px, row) in rows.iter_mut().enumerate() {
-        for (x, slot) in row.iter_mut().enumerate().skip(whole) {
-            *slot = line.get(x * S + px).map_or(0.0, |v| v.unit());
-        }
-    }
-}
-
 /// A linear layer (`y = x W + b`, burn's `[inputs, outputs]` weight).
 #[derive(Debug, Clone)]
 struct Dense {
@@ -505,77 +328,25 @@ mod tests {
         }
     }
 
-    /// The convolution by its definition, one output value at a time.
-    fn reference_conv(
-        x: &[f32],
-        weight: &[f32],
-        bias: &[f32],
-        [outputs, inputs, k, s, size]: [usize; 5],
-    ) -> Vec<f32> {
-        let out = (size - k) / s + 1;
-        let mut y = Vec::with_capacity(outputs * out * out);
-        for o in 0..outputs {
-            for oy in 0..out {
-                for ox in 0..out {
-                    let mut sum = f64::from(bias[o]);
-                    for c in 0..inputs {
-                        for ky in 0..k {
-                            for kx in 0..k {
-                                let w = weight[((o * inputs + c) * k + ky) * k + kx];
-                                let v = x[(c * size + oy * s + ky) * size + ox * s + kx];
-                                sum += f64::from(w) * f64::from(v);
-                            }
-                        }
-                    }
-                    y.push(ENCODER_ACTIVATION.value(sum as f32));
-                }
-            }
-        }
-        y
-    }
-
-    #[test]
-    fn convolutions_over_stride_phases_equal_the_definition() {
-        // The policy's three layers at 128 px, sides that the stride does
-        // not divide, and a stride of 1.
-        for [outputs, inputs, k, s, size] in [
-            [16, 10, 8, 4, 128],
-            [32, 16, 4, 2, 31],
-            [32, 32, 3, 2, 14],
-            [5, 3, 8, 4, 66],
-            [4, 2, 3, 2, 9],
-            [3, 2, 3, 1, 7],
-        ] {
-            let pseudo = |i: usize, m: usize| ((i * 7919 + m) % 211) as f32 / 211.0 - 0.4;
-            let weight: Vec<f32> = (0..outputs * inputs * k * k)
-                .map(|i| pseudo(i, 1))
-                .collect();
-            let bias: Vec<f32> = (0..outputs).map(|i| pseudo(i, 5) * 0.1).collect();
-            let x: Vec<f32> = (0..inputs * size * size).map(|i| pseudo(i, 3)).collect();
-            let conv = Conv::from_weights(&weight, bias.clone(), [outputs, inputs, k], s);
-            let (got, out) = conv.forward(&x, size);
-            let expected = reference_conv(&x, &weight, &bias, [outputs, inputs, k, s, size]);
-            assert_eq!(out, (size - k) / s + 1);
-            assert_eq!(got.len(), expected.len());
-            for (i, (g, e)) in got.iter().zip(&expected).enumerate() {
-                assert!(
-                    (g - e).abs() <= 1e-4 * (1.0 + e.abs()),
-                    "k {k}, s {s}, side {size}: value {i}: {g} against {e}"
-                );
-            }
-            assert!(expected.iter().any(|&v| v > 0.1), "a test that can see");
-        }
-    }
-
     #[test]
     fn gives_what_burn_gives() {
         let device = Device::flex();
         let layout = layout();
         let net = PolicyNet::new(&layout, &device);
         let cpu = CpuPolicy::from_network(&net, &layout).expect("no GRU");
-        for seed in 0..3u32 {
+        // Seeds 3 to 5 are mostly zeros, as the state's masks are: their
+        // planes go pixel by pixel.
+        for seed in 0..6u32 {
             let observation: Vec<f32> = (0..layout.obs_len() as u32)
-                .map(|i| ((i * 7919 + seed * 104_729) % 255) as f32 / 255.0)
+                .map(|i| {
+                    let value = ((i * 7919 + seed * 104_729) % 255) as f32 / 255.0;
+                    let kept = seed < 3 || i.wrapping_mul(2_654_435_761) % 100 < 4;
+                    if kept {
+                        value
+                    } else {
+                        0.0
+                    }
+                })
                 .collect();
             let mask: Vec<u8> = (0..24).map(|a| u8::from((a + seed) % 3 != 0)).collect();
             let input = PolicyInput::from_flat(&layout, &observation, &mask, 1, &device);
@@ -591,6 +362,14 @@ mod tests {
                 .map(|&v| proto::unit_to_byte(v))
                 .collect();
             assert_eq!(cpu.forward(&bytes, &mask, None), got, "read from bytes");
+            let through_gemms = cpu.clone().with_sparse_planes_below(0.0);
+            let dense = through_gemms.forward(&observation, &mask, None);
+            for (g, d) in got.log_probs.iter().zip(&dense.log_probs) {
+                assert!(
+                    (g - d).abs() < 1e-5,
+                    "pixel by pixel {g}, through the GEMMs {d}"
+                );
+            }
             for (a, (g, e)) in got.log_probs.iter().zip(&log_probs).enumerate() {
                 if mask[a] == 0 {
                     assert!(*g < -1e8 && *e < -1e8, "masked action {a}: {g} vs {e}");
