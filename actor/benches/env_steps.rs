@@ -39,7 +39,9 @@
 //! `AFX_ENVS_INFERENCE=batched` runs the second table as on a GPU (the
 //! U-Net's frames in batches) with the U-Net on the CPU; `AFX_UNET_BATCHERS=2`
 //! gives the rows two batching threads (their "busy" share is
-//! then the two threads' time added up).
+//! then the two threads' time added up). `AFX_SPARSE_PLANES_BELOW` sets the
+//! policy's CPU pass's share below which a plane skips its GEMM (0: none
+//! does), to compare the two ways in one binary.
 
 use std::sync::{Arc, RwLock};
 use std::time::{Duration, Instant};
@@ -107,6 +109,17 @@ fn several_envs_inference(device: &Device) -> Inference {
         "batched" => Inference::Batched,
         "per-environment" => Inference::PerEnvironment,
         other => panic!("AFX_ENVS_INFERENCE takes batched or per-environment, not {other:?}"),
+    })
+}
+
+/// The policy's CPU pass adds planes under this share of nonzero values
+/// pixel by pixel: `AFX_SPARSE_PLANES_BELOW`, else the pass's default (0
+/// sends every plane through the GEMMs, to compare the two in one binary).
+fn sparse_planes_below() -> f32 {
+    std::env::var("AFX_SPARSE_PLANES_BELOW").map_or(nets::policy::SPARSE_PLANES_BELOW, |s| {
+        s.trim()
+            .parse()
+            .expect("AFX_SPARSE_PLANES_BELOW: a share such as 0.2")
     })
 }
 
@@ -416,7 +429,9 @@ fn several_envs_table(data: &std::path::Path, device: &burn::prelude::Device) {
             let mut unused = Some(envs);
             let net = PolicyNet::new(&layout, device);
             // As the actor: the CPU's own pass on every device.
-            let cpu = CpuPolicy::from_network(&net, &layout).map(Arc::new);
+            let cpu = CpuPolicy::from_network(&net, &layout)
+                .map(|cpu| cpu.with_sparse_planes_below(sparse_planes_below()))
+                .map(Arc::new);
             let policy = (net, cpu);
             let bench = SeveralEnvs {
                 layout: &layout,

@@ -5,8 +5,10 @@
 //! took a millisecond or more: the time goes to per-operation overhead
 //! (tensor allocation, layout copies), not to arithmetic. Here each
 //! convolution is a few GEMMs straight over the input's stride phases
-//! ([`Conv`]), the rest (dense layers, the GRU of the methods with memory)
-//! plain loops over weights copied out once.
+//! ([`Conv`]), except that the first layers add the observation's
+//! mostly-zero planes (the state's masks) pixel by pixel ([`InputConv`]);
+//! the rest (dense layers, the GRU of the methods with memory) are plain
+//! loops over weights copied out once.
 //!
 //! The arithmetic is the network's own: [`CpuPolicy::forward`] equals
 //! [`PolicyNet::forward`] to float rounding (tested below). It reads an
