@@ -20,9 +20,10 @@ use super::ObservationValue;
 use crate::kernels::values;
 
 /// By default a plane goes pixel by pixel when fewer than this share of
-/// its values are nonzero: chosen with the `cpu_policy` bench's sweep
-/// (docs/performance.md, "The policy's pass"), where a plane's GEMM costs
-/// the same whatever it holds and the pixels' way grows with them.
+/// its values are nonzero: short of where the two ways cross (about 0.25
+/// at 128 px in the `cpu_policy` bench's sweep,
+/// docs/notebook/2026-12-01-policy-sparse-planes.md), since a plane's GEMM
+/// costs the same whatever it holds and the pixels' way grows with them.
 pub const SPARSE_PLANES_BELOW: f32 = 0.2;
 
 /// The first layer of an image encoder.
