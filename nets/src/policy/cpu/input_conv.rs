@@ -81,9 +81,7 @@ impl InputConv {
             .map(|p| (count_nonzero(p) as f32) < limit)
             .collect();
         if !sparse.contains(&true) {
-            return self
-                .conv
-                .forward_planes(&planes, &(0..inputs).collect::<Vec<_>>(), size, None);
+            return self.conv.forward(x, size);
         }
         let geometry = Geometry::new(size, k, s);
         ADDED.with_borrow_mut(|added| {

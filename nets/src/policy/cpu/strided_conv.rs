@@ -129,23 +129,23 @@ impl Conv {
                 // The last taps' dropped columns read up to (t − 1) · (phase + 1)
                 // values past the last plane.
                 split_phases(planes, size, s, (t - 1) * (phase + 1), split);
-            }
-            // Output rows in bands whose phase rows stay in the cache while
-            // every tap reads them.
-            let band = (BAND_BYTES / (depth.max(1) * phase * 4)).clamp(1, out);
-            for first in (0..out).step_by(band).filter(|_| depth > 0) {
-                let columns = band.min(out - first) * phase;
-                for (tap, weights) in taps.chunks_exact(self.outputs * depth).enumerate() {
-                    let (ty, tx) = (tap / t, tap % t);
-                    matmul_lhs_rows(
-                        &mut wide_output[first * phase..],
-                        wide,
-                        (weights, depth),
-                        &split[(first + ty) * phase + tx..],
-                        phase_plane_len(phase),
-                        (self.outputs, columns, depth),
-                        tap > 0,
-                    );
+                // Output rows in bands whose phase rows stay in the cache while
+                // every tap reads them.
+                let band = (BAND_BYTES / (depth * phase * 4)).clamp(1, out);
+                for first in (0..out).step_by(band) {
+                    let columns = band.min(out - first) * phase;
+                    for (tap, weights) in taps.chunks_exact(self.outputs * depth).enumerate() {
+                        let (ty, tx) = (tap / t, tap % t);
+                        matmul_lhs_rows(
+                            &mut wide_output[first * phase..],
+                            wide,
+                            (weights, depth),
+                            &split[(first + ty) * phase + tx..],
+                            phase_plane_len(phase),
+                            (self.outputs, columns, depth),
+                            tap > 0,
+                        );
+                    }
                 }
             }
             for (o, ((plane, wide), &bias)) in y
