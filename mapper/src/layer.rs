@@ -3,10 +3,13 @@
 //! Voxel `(i, j, k)` covers `[i·s, (i+1)·s)` along each axis (its centre is at
 //! `(i + ½)·s`); negative indices use floor division, so there is no seam at 0.
 
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 
 use nalgebra::{Point3, Vector3};
 use rustc_hash::FxHashMap;
+
+use crate::projection::{Band, Footprint, KeptFootprint};
+use crate::Pose;
 
 mod surface_mask;
 pub use surface_mask::{SurfaceMask, LEVEL_VOXELS};
@@ -249,6 +252,9 @@ pub struct Layer {
     /// placed object's surface each step, and most objects are not touched
     /// in a step.
     surface_centres: OnceLock<Vec<Point3<f32>>>,
+    /// [`Layer::surface_footprint`], the last one asked for, forgotten
+    /// with the surface centres.
+    surface_footprint: KeptFootprint,
 }
 
 /// A layer's two boxes, as [`Layer::block_bounds`] and
@@ -267,6 +273,7 @@ impl Layer {
             blocks: FxHashMap::default(),
             bounds: OnceLock::new(),
             surface_centres: OnceLock::new(),
+            surface_footprint: KeptFootprint::default(),
         }
     }
 
@@ -330,7 +337,7 @@ impl Layer {
             let after = block.near_surface_mask(voxel_size_m);
             block.data.surface.get_or_init(|| after);
             if after != before {
-                self.surface_centres.take();
+                self.forget_surface();
             }
         }
         changed
@@ -373,10 +380,27 @@ impl Layer {
         })
     }
 
+    /// `pose` moving [`Layer::surface_centres`] into the world, as columns
+    /// with the height `bands` their points reach
+    /// ([`crate::Map::surface_points`]' rasterising): kept until the
+    /// surface may change or another pose or bands are asked for (most
+    /// objects are not touched in a step).
+    pub(crate) fn surface_footprint(&self, pose: &Pose, bands: &[Band]) -> Arc<Footprint> {
+        (self.surface_footprint).get_or_make(pose, bands, || {
+            Footprint::new(self.surface_centres(), pose, bands)
+        })
+    }
+
     /// Forgets what is worked out from the blocks, before one may change.
     fn forget_derived(&mut self) {
         self.bounds.take();
+        self.forget_surface();
+    }
+
+    /// Forgets the surface centres and what is made of them.
+    fn forget_surface(&mut self) {
         self.surface_centres.take();
+        self.surface_footprint.forget();
     }
 
     /// Frees the block at `b` (a no-op if it is not allocated). The layer's
@@ -391,7 +415,7 @@ impl Layer {
         if self.surface_centres.get().is_some()
             && block.near_surface_mask(self.voxel_size_m).count() > 0
         {
-            self.surface_centres.take();
+            self.forget_surface();
         }
     }
 

@@ -1,6 +1,10 @@
 //! 2-D projections of the map onto the floor plane (world z is up), at any
 //! extent and resolution, world-aligned or egocentric.
 
+mod footprint;
+
+pub(crate) use footprint::{Band, Footprint, KeptFootprint};
+
 use nalgebra::{Point2, Point3};
 
 use crate::labels::Affordance;
@@ -111,11 +115,12 @@ impl Map {
     /// voxels those are until its voxels change
     /// ([`crate::Layer::surface_mask`]), and each object's layer their
     /// centres until any of its blocks may change
-    /// ([`crate::Layer::surface_centres`]): an object's are borrowed in its
-    /// frame and moved into the world's as they are rasterised; the
-    /// background's (whose frame is the world's) stay as those masks, so
-    /// that occupancy marks each of a block's columns once, however many
-    /// voxels it holds.
+    /// ([`crate::Layer::surface_centres`]), and moved into the world, as
+    /// voxel columns with the heights they reach, until it moves or its
+    /// surface changes (its layer's footprint, made as they are first
+    /// rasterised); the background's (whose frame is the world's) stay as
+    /// those masks, so that occupancy marks each of a block's columns
+    /// once, however many voxels it holds.
     pub fn surface_points(&self) -> SurfacePoints<'_> {
         let background = self.background();
         let background_blocks = background
@@ -136,14 +141,12 @@ impl Map {
     }
 }
 
-/// One object's surface points (its frame; moved into the world's as they
-/// are rasterised, so that no step copies them) and a box on the floor
-/// plane that holds them, so that a grid can skip the whole object.
+/// One placed object with surface points (rasterised from its layer's
+/// [`Footprint`]) and a box on the floor plane that holds them, so that a
+/// grid can skip the whole object.
 #[derive(Debug, Clone)]
 struct PointGroup<'a> {
     object: &'a MapObject,
-    /// The object's frame ([`crate::Layer::surface_centres`], kept by its layer).
-    points: &'a [Point3<f32>],
     lo: [f32; 2],
     hi: [f32; 2],
 }
@@ -151,13 +154,12 @@ struct PointGroup<'a> {
 impl<'a> PointGroup<'a> {
     /// `None` for an object without surface points.
     fn new(object: &'a MapObject) -> Option<Self> {
-        let points = object.volume.surface_centres();
         // Every surface voxel's centre lies in the layer's blocks: the
         // world box of those blocks' eight corners holds them all.
         let (min, max) = object
             .volume
             .block_bounds()
-            .filter(|_| !points.is_empty())?;
+            .filter(|_| !object.volume.surface_centres().is_empty())?;
         let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
         for corner in 0..8 {
             let pick = |bit: usize, a: f32, b: f32| if corner >> bit & 1 == 0 { a } else { b };
@@ -170,12 +172,7 @@ impl<'a> PointGroup<'a> {
             lo = [lo[0].min(c.x), lo[1].min(c.y)];
             hi = [hi[0].max(c.x), hi[1].max(c.y)];
         }
-        Some(Self {
-            object,
-            points,
-            lo,
-            hi,
-        })
+        Some(Self { object, lo, hi })
     }
 }
 
@@ -188,7 +185,7 @@ pub struct SurfacePoints<'a> {
     background: Vec<(BlockIndex, SurfaceMask)>,
     /// The background's layer (for its voxels' centres).
     background_layer: &'a Layer,
-    /// Each placed object's points, world frame.
+    /// Each placed object with surface points.
     objects: Vec<PointGroup<'a>>,
 }
 
@@ -267,32 +264,28 @@ struct Slot {
     locator: CellLocator,
     /// `(request index, kind)` of each bit.
     planes: Vec<(usize, ProjectionKind)>,
+    /// Per band of [`Raster::bands`], the bits of this grid's occupancy
+    /// projections of that band.
+    band_bits: Vec<u64>,
     bits: Vec<u64>,
-}
-
-impl Slot {
-    /// The bit and the heights of each occupancy projection on this grid.
-    fn height_bands(&self) -> Vec<(u64, std::ops::RangeInclusive<f32>)> {
-        (self.planes.iter().enumerate())
-            .filter_map(|(bit, (_, kind))| match *kind {
-                ProjectionKind::Occupancy {
-                    min_height_m,
-                    max_height_m,
-                } => Some((1 << bit, min_height_m..=max_height_m)),
-                _ => None,
-            })
-            .collect()
-    }
 }
 
 /// Projections being rasterised together, grouped by grid.
 struct Raster {
     slots: Vec<Slot>,
+    /// The occupancy projections' distinct height bands, in request order.
+    bands: Vec<Band>,
 }
 
 impl Raster {
+    /// # Panics
+    ///
+    /// With occupancy projections of more than [`footprint::MAX_BANDS`]
+    /// distinct heights.
     fn new(requests: &[(ProjectionKind, GridSpec)]) -> Self {
         let mut slots: Vec<Slot> = Vec::new();
+        let mut bands: Vec<Band> = Vec::new();
+        let mut occupancy = Vec::new();
         for (index, (kind, grid)) in requests.iter().enumerate() {
             let slot = slots
                 .iter()
@@ -302,13 +295,38 @@ impl Raster {
                     grid: *grid,
                     locator: CellLocator::new(grid),
                     planes: Vec::new(),
+                    band_bits: Vec::new(),
                     bits: vec![0; grid.cells * grid.cells],
                 });
                 slots.len() - 1
             });
+            if let ProjectionKind::Occupancy {
+                min_height_m,
+                max_height_m,
+            } = *kind
+            {
+                let band = [min_height_m, max_height_m];
+                let known = bands.iter().position(|b| *b == band);
+                let band = known.unwrap_or_else(|| {
+                    bands.push(band);
+                    bands.len() - 1
+                });
+                occupancy.push((slot, band, 1u64 << slots[slot].planes.len()));
+            }
             slots[slot].planes.push((index, *kind));
         }
-        Self { slots }
+        assert!(
+            bands.len() <= footprint::MAX_BANDS,
+            "occupancy projections of at most {} distinct heights",
+            footprint::MAX_BANDS
+        );
+        for slot in &mut slots {
+            slot.band_bits = vec![0; bands.len()];
+        }
+        for (slot, band, bit) in occupancy {
+            slots[slot].band_bits[band] |= bit;
+        }
+        Self { slots, bands }
     }
 
     /// Marks the background's surface voxels in every occupancy projection
@@ -318,7 +336,11 @@ impl Raster {
     fn mark_background(&mut self, layer: &Layer, blocks: &[(BlockIndex, SurfaceMask)]) {
         let mut columns: Vec<(u64, u64)> = Vec::new();
         for slot in &mut self.slots {
-            let occupancy = slot.height_bands();
+            // Each band's bits on this grid, where it has any.
+            let occupancy: Vec<(u64, Band)> = (slot.band_bits.iter().zip(&self.bands))
+                .filter(|(&bits, _)| bits != 0)
+                .map(|(&bits, &band)| (bits, band))
+                .collect();
             if occupancy.is_empty() {
                 continue;
             }
@@ -328,16 +350,16 @@ impl Raster {
                 if !slot.locator.may_cover([first.x, first.y], [last.x, last.y]) {
                     continue;
                 }
-                // Each projection's bit with the block's columns that hold a
+                // Each band's bits with the block's columns that hold a
                 // voxel within its heights.
                 columns.clear();
-                columns.extend(occupancy.iter().map(|(bit, heights)| {
+                columns.extend(occupancy.iter().map(|&(bits, [min, max])| {
                     let mut levels = 0u8;
                     for z in 0..BLOCK_EDGE as usize {
                         let centre = layer.voxel_center(VoxelIndex::join(b, z * LEVEL_VOXELS));
-                        levels |= u8::from(heights.contains(&centre.z)) << z;
+                        levels |= u8::from(min <= centre.z && centre.z <= max) << z;
                     }
-                    (*bit, mask.columns(levels))
+                    (bits, mask.columns(levels))
                 }));
                 let mut any = columns.iter().fold(0, |any, (_, c)| any | c);
                 while any != 0 {
@@ -356,57 +378,46 @@ impl Raster {
         }
     }
 
-    /// Marks an object's points in every projection that [`shows`] it:
+    /// Marks an object's surface in every projection that [`shows`] it:
     /// occupancy (which shows every object) only where a point lies within
-    /// its heights, the label kinds wherever it stands. Each point is moved
-    /// into the world once, whatever number of grids it is marked on.
+    /// its heights, the label kinds wherever it stands. The object's
+    /// [`Footprint`] for its pose and these requests' bands, kept by its
+    /// layer while neither changes, holds each voxel column's world x and
+    /// y and the bands its points reach: a column is one cell lookup per
+    /// grid.
     fn mark_object(&mut self, group: &PointGroup<'_>) {
-        // Per grid that may hold the object: the bits it shows everywhere,
-        // each occupancy bit with its heights, and the cell of the current
-        // voxel column.
+        // Per grid that may hold the object: the bits it shows everywhere
+        // and, per band, the bits of its occupancy projections of that band.
         let mut marking = Vec::new();
         for slot in &mut self.slots {
             if !slot.locator.may_cover(group.lo, group.hi) {
                 continue;
             }
-            let by_height = slot.height_bands();
             let always = (slot.planes.iter().enumerate())
                 .filter(|(_, (_, kind))| !matches!(kind, ProjectionKind::Occupancy { .. }))
                 .filter(|(_, (_, kind))| shows(group.object, *kind))
                 .fold(0u64, |always, (bit, _)| always | 1 << bit);
-            if always != 0 || !by_height.is_empty() {
-                marking.push((slot, always, by_height, None));
+            if always != 0 || slot.band_bits.iter().any(|&bits| bits != 0) {
+                marking.push((&mut slot.bits, &slot.locator, always, &slot.band_bits));
             }
         }
         if marking.is_empty() {
             return;
         }
-        let t_world_object = &group.object.t_world_object;
-        // Turned about z alone, the object moves its points' x and y
-        // whatever their z: the points of one voxel column (consecutive,
-        // `Layer::surface_centres`) get the same world x and y, so the same
-        // cell on every grid, looked up once.
-        let rotation = &t_world_object.rotation;
-        let upright = rotation.i == 0.0 && rotation.j == 0.0;
-        let mut column = None;
-        for centre in group.points {
-            let p = t_world_object * centre;
-            let same_column = upright && column == Some((centre.x, centre.y));
-            column = Some((centre.x, centre.y));
-            for (slot, always, by_height, cell) in &mut marking {
-                if !same_column {
-                    *cell = slot.locator.cell_of(p.x, p.y);
-                }
-                let Some(c) = *cell else {
+        let object = group.object;
+        let footprint = (object.volume).surface_footprint(&object.t_world_object, &self.bands);
+        for column in footprint.columns() {
+            for (bits, locator, always, band_bits) in &mut marking {
+                let Some(c) = locator.cell_of(column.x, column.y) else {
                     continue;
                 };
                 let mut mask = *always;
-                for (bit, heights) in by_height.iter() {
-                    if heights.contains(&p.z) {
-                        mask |= bit;
-                    }
+                let mut reached = column.bands;
+                while reached != 0 {
+                    mask |= band_bits[reached.trailing_zeros() as usize];
+                    reached &= reached - 1;
                 }
-                slot.bits[c] |= mask;
+                bits[c] |= mask;
             }
         }
     }

@@ -195,6 +195,26 @@ fn surface_points_follow_the_map_as_it_changes() {
 }
 
 #[test]
+fn occupancy_follows_its_heights_from_one_call_to_the_next() {
+    // Each object keeps its surface in the world for the heights it was
+    // last asked with (the actor's floor is one per episode): asked with
+    // other heights, it must not answer with the kept ones.
+    let map = labelled_map();
+    let grid = requests()[0].1;
+    let mut planes = Vec::new();
+    for (min_height_m, max_height_m) in [(0.05, 1.8), (0.4, 0.45), (0.05, 1.8)] {
+        let kind = ProjectionKind::Occupancy {
+            min_height_m,
+            max_height_m,
+        };
+        let plane = map.surface_points().project(kind, &grid);
+        assert_eq!(plane, reference(&map, kind, &grid), "{kind:?}");
+        planes.push(plane);
+    }
+    assert_ne!(planes[0], planes[1], "the heights change the plane");
+}
+
+#[test]
 fn surface_points_follow_an_object_moved_held_and_put_back() {
     // Ask once (filling the blocks' kept points), then move one object,
     // hold another (no longer placed, so not shown), release it elsewhere,
