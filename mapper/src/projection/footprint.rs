@@ -3,7 +3,7 @@
 //! object's surface points onto its egocentric grids each step, while most
 //! objects neither move nor change their surface in a step. Moving each
 //! point into the world and testing its height was most of that work
-//! (docs/notebook/2026-12-02-kept-footprints.md); a kept footprint leaves
+//! (docs/notebook/2026-12-01-kept-footprints.md); a kept footprint leaves
 //! one cell lookup per voxel column and grid.
 
 use std::sync::{Arc, Mutex, PoisonError};
