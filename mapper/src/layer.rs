@@ -3,15 +3,14 @@
 //! Voxel `(i, j, k)` covers `[i·s, (i+1)·s)` along each axis (its centre is at
 //! `(i + ½)·s`); negative indices use floor division, so there is no seam at 0.
 
-use std::sync::{Arc, OnceLock};
+use std::sync::OnceLock;
 
 use nalgebra::{Point3, Vector3};
 use rustc_hash::FxHashMap;
 
-use crate::projection::{Band, Footprint, KeptFootprint};
-use crate::Pose;
-
+mod footprint;
 mod surface_mask;
+pub(crate) use footprint::{Band, KeptFootprint, MAX_BANDS};
 pub use surface_mask::{SurfaceMask, LEVEL_VOXELS};
 
 /// Voxels per block edge.
@@ -377,17 +376,6 @@ impl Layer {
                 });
             }
             centres
-        })
-    }
-
-    /// `pose` moving [`Layer::surface_centres`] into the world, as columns
-    /// with the height `bands` their points reach
-    /// ([`crate::Map::surface_points`]' rasterising): kept until the
-    /// surface may change or another pose or bands are asked for (most
-    /// objects are not touched in a step).
-    pub(crate) fn surface_footprint(&self, pose: &Pose, bands: &[Band]) -> Arc<Footprint> {
-        (self.surface_footprint).get_or_make(pose, bands, || {
-            Footprint::new(self.surface_centres(), pose, bands)
         })
     }
 

@@ -1,14 +1,10 @@
 //! 2-D projections of the map onto the floor plane (world z is up), at any
 //! extent and resolution, world-aligned or egocentric.
 
-mod footprint;
-
-pub(crate) use footprint::{Band, Footprint, KeptFootprint};
-
 use nalgebra::{Point2, Point3};
 
 use crate::labels::Affordance;
-use crate::layer::{floor_to_i32, BlockIndex, Layer, SurfaceMask, VoxelIndex};
+use crate::layer::{floor_to_i32, Band, BlockIndex, Layer, SurfaceMask, VoxelIndex, MAX_BANDS};
 use crate::layer::{BLOCK_EDGE, BLOCK_VOXELS, LEVEL_VOXELS};
 use crate::map::{Map, MapObject};
 
@@ -142,8 +138,8 @@ impl Map {
 }
 
 /// One placed object with surface points (rasterised from its layer's
-/// [`Footprint`]) and a box on the floor plane that holds them, so that a
-/// grid can skip the whole object.
+/// footprint, [`crate::Layer::surface_footprint`]) and a box on the floor
+/// plane that holds them, so that a grid can skip the whole object.
 #[derive(Debug, Clone)]
 struct PointGroup<'a> {
     object: &'a MapObject,
@@ -200,6 +196,11 @@ impl SurfacePoints<'_> {
     /// Rasterises every `(kind, grid)` request in one pass over the points,
     /// in the order asked: a point's cell is worked out once per distinct
     /// grid, however many projections share that grid.
+    ///
+    /// # Panics
+    ///
+    /// If the occupancy requests ask for more than 64 distinct heights
+    /// ([`SurfacePoints::project_all_into`]).
     pub fn project_all(&self, requests: &[(ProjectionKind, GridSpec)]) -> Vec<Vec<f32>> {
         let mut out: Vec<Vec<f32>> = (requests.iter())
             .map(|(_, grid)| vec![0.0; grid.cells * grid.cells])
@@ -218,8 +219,9 @@ impl SurfacePoints<'_> {
     ///
     /// # Panics
     ///
-    /// If `planes` and `requests` differ in number, or a plane in size from
-    /// its grid.
+    /// If `planes` and `requests` differ in number, a plane in size from
+    /// its grid, or the occupancy requests ask for more than 64 distinct
+    /// heights (an object's kept footprint has a bit per height band).
     pub fn project_all_into<T: Copy + Default>(
         &self,
         requests: &[(ProjectionKind, GridSpec)],
@@ -280,7 +282,7 @@ struct Raster {
 impl Raster {
     /// # Panics
     ///
-    /// With occupancy projections of more than [`footprint::MAX_BANDS`]
+    /// With occupancy projections of more than [`MAX_BANDS`]
     /// distinct heights.
     fn new(requests: &[(ProjectionKind, GridSpec)]) -> Self {
         let mut slots: Vec<Slot> = Vec::new();
@@ -316,9 +318,9 @@ impl Raster {
             slots[slot].planes.push((index, *kind));
         }
         assert!(
-            bands.len() <= footprint::MAX_BANDS,
+            bands.len() <= MAX_BANDS,
             "occupancy projections of at most {} distinct heights",
-            footprint::MAX_BANDS
+            MAX_BANDS
         );
         for slot in &mut slots {
             slot.band_bits = vec![0; bands.len()];
@@ -381,10 +383,10 @@ impl Raster {
     /// Marks an object's surface in every projection that [`shows`] it:
     /// occupancy (which shows every object) only where a point lies within
     /// its heights, the label kinds wherever it stands. The object's
-    /// [`Footprint`] for its pose and these requests' bands, kept by its
-    /// layer while neither changes, holds each voxel column's world x and
-    /// y and the bands its points reach: a column is one cell lookup per
-    /// grid.
+    /// footprint for its pose and these requests' bands
+    /// ([`crate::Layer::surface_footprint`], kept by its layer while
+    /// neither changes) holds each voxel column's world x and y and the
+    /// bands its points reach: a column is one cell lookup per grid.
     fn mark_object(&mut self, group: &PointGroup<'_>) {
         // Per grid that may hold the object: the bits it shows everywhere
         // and, per band, the bits of its occupancy projections of that band.

@@ -10,7 +10,21 @@ use std::sync::{Arc, Mutex, PoisonError};
 
 use nalgebra::Point3;
 
+use super::Layer;
 use crate::Pose;
+
+impl Layer {
+    /// `pose` moving [`Layer::surface_centres`] into the world, as columns
+    /// with the height `bands` their points reach
+    /// ([`crate::Map::surface_points`]' rasterising): kept until the
+    /// surface may change or another pose or bands are asked for (most
+    /// objects are not touched in a step).
+    pub(crate) fn surface_footprint(&self, pose: &Pose, bands: &[Band]) -> Arc<Footprint> {
+        (self.surface_footprint).get_or_make(pose, bands, || {
+            Footprint::new(self.surface_centres(), pose, bands)
+        })
+    }
+}
 
 /// A height band of occupancy projections, world z in metres: `[min, max]`,
 /// both included.
