@@ -10,7 +10,7 @@ use rustc_hash::FxHashMap;
 
 mod footprint;
 mod surface_mask;
-pub(crate) use footprint::{Band, KeptFootprint, MAX_BANDS};
+pub(crate) use footprint::{band_holds, Band, KeptFootprint, MAX_BANDS};
 pub use surface_mask::{SurfaceMask, LEVEL_VOXELS};
 
 /// Voxels per block edge.

@@ -4,7 +4,9 @@
 use nalgebra::{Point2, Point3};
 
 use crate::labels::Affordance;
-use crate::layer::{floor_to_i32, Band, BlockIndex, Layer, SurfaceMask, VoxelIndex, MAX_BANDS};
+use crate::layer::{
+    band_holds, floor_to_i32, Band, BlockIndex, Layer, SurfaceMask, VoxelIndex, MAX_BANDS,
+};
 use crate::layer::{BLOCK_EDGE, BLOCK_VOXELS, LEVEL_VOXELS};
 use crate::map::{Map, MapObject};
 
@@ -355,11 +357,11 @@ impl Raster {
                 // Each band's bits with the block's columns that hold a
                 // voxel within its heights.
                 columns.clear();
-                columns.extend(occupancy.iter().map(|&(bits, [min, max])| {
+                columns.extend(occupancy.iter().map(|&(bits, band)| {
                     let mut levels = 0u8;
                     for z in 0..BLOCK_EDGE as usize {
                         let centre = layer.voxel_center(VoxelIndex::join(b, z * LEVEL_VOXELS));
-                        levels |= u8::from(min <= centre.z && centre.z <= max) << z;
+                        levels |= u8::from(band_holds(band, centre.z)) << z;
                     }
                     (bits, mask.columns(levels))
                 }));

@@ -30,6 +30,13 @@ impl Layer {
 /// both included.
 pub(crate) type Band = [f32; 2];
 
+/// Whether height `z` lies within `band` (both ends included), as every
+/// occupancy projection tests it.
+#[inline]
+pub(crate) fn band_holds([min, max]: Band, z: f32) -> bool {
+    min <= z && z <= max
+}
+
 /// Most distinct height bands one footprint tells apart (a bit each).
 pub(crate) const MAX_BANDS: usize = 64;
 
@@ -79,7 +86,7 @@ impl Footprint {
         for centre in points {
             let p = pose * centre;
             let reached = (bands.iter().enumerate())
-                .filter(|(_, [min, max])| *min <= p.z && p.z <= *max)
+                .filter(|(_, &band)| band_holds(band, p.z))
                 .fold(0u64, |reached, (i, _)| reached | 1 << i);
             let same_column = upright && last == Some((centre.x, centre.y));
             last = Some((centre.x, centre.y));
